@@ -1,0 +1,131 @@
+"""Atomic writes and safe loads: the only place files are written or numpy files read.
+
+Writes go to a temporary file in the same folder, are flushed and fsync'ed, then renamed over
+the target, so a crash never leaves a half-written file under the final name. Loads never
+unpickle (``allow_pickle=False``) and turn any failure into a one-line ``LayoutError``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from layouts.errors import LayoutError
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes, fsync: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically (temp file + rename in the same folder)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            if fsync:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, fsync: bool = False) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"), fsync=fsync)
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any, fsync: bool = False) -> None:
+    """JSON with sorted keys and a trailing newline, so equal objects give equal bytes."""
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n", fsync=fsync)
+
+
+def npy_bytes(arr: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(arr), allow_pickle=False)
+    return buf.getvalue()
+
+
+def npz_bytes(compressed: bool = True, **arrays: np.ndarray) -> bytes:
+    """Deterministic ``.npz`` bytes (fixed zip timestamps, so same arrays -> same bytes)."""
+    buf = io.BytesIO()
+    mode = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    with zipfile.ZipFile(buf, "w", compression=mode, compresslevel=1 if compressed else None) as zf:
+        for name in sorted(arrays):
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = mode
+            zf.writestr(info, npy_bytes(arrays[name]))
+    return buf.getvalue()
+
+
+def atomic_save_npy(path: str | os.PathLike, arr: np.ndarray) -> None:
+    atomic_write_bytes(path, npy_bytes(arr))
+
+
+def atomic_save_npz(path: str | os.PathLike, compressed: bool = True, **arrays: np.ndarray) -> None:
+    atomic_write_bytes(path, npz_bytes(compressed, **arrays))
+
+
+def load_npy(path: str | os.PathLike) -> np.ndarray:
+    """Load a ``.npy`` without pickle; any problem becomes one line naming the file."""
+    path = Path(path)
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise LayoutError(f"{path}: file not found") from None
+    except ValueError as e:
+        if "pickle" in str(e).lower():
+            raise LayoutError(f"{path}: holds pickled objects, refused (only plain arrays are read)") from None
+        raise LayoutError(f"{path}: not a readable .npy array ({e})") from None
+    except (OSError, EOFError) as e:
+        raise LayoutError(f"{path}: not a readable .npy array ({e})") from None
+    if not isinstance(arr, np.ndarray):
+        raise LayoutError(f"{path}: expected a .npy array, found an archive")
+    return arr
+
+
+def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+    """Load an ``.npz`` without pickle into a dict; ``keys`` must all be present."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if not hasattr(z, "files"):
+                raise LayoutError(f"{path}: expected an .npz archive, found a plain array")
+            out = {k: z[k] for k in z.files}
+    except LayoutError:
+        raise
+    except FileNotFoundError:
+        raise LayoutError(f"{path}: file not found") from None
+    except ValueError as e:
+        if "pickle" in str(e).lower():
+            raise LayoutError(f"{path}: holds pickled objects, refused (only plain arrays are read)") from None
+        raise LayoutError(f"{path}: not a readable .npz archive ({e})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as e:
+        raise LayoutError(f"{path}: not a readable .npz archive ({e})") from None
+    if keys:
+        missing = [k for k in keys if k not in out]
+        if missing:
+            raise LayoutError(f"{path}: missing arrays {missing}")
+    return out
+
+
+def load_json(path: str | os.PathLike) -> Any:
+    """Read JSON; a missing or malformed file becomes one line naming the file."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise LayoutError(f"{path}: file not found") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise LayoutError(f"{path}: not valid JSON ({e})") from None
+    except OSError as e:
+        raise LayoutError(f"{path}: cannot read ({e.strerror})") from None

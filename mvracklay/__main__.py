@@ -1,0 +1,5 @@
+import sys
+
+from mvracklay.cli import main
+
+sys.exit(main())
