@@ -1,0 +1,80 @@
+"""Inference speed: frames/s of streaming vs windowed prediction on CPU threads.
+
+Streaming: one encoder pass and one ConvLSTM step per frame (what ``mvracklay predict`` does).
+Windowed (cached): the paper's window of seq_len frames from a fresh state per frame, reusing
+cached encoder features. Windowed (recompute): the naive form that re-encodes the whole window.
+Speed does not depend on the weights, so the model is built from its config (random weights)
+unless --checkpoint is given. Images are fed at the model's input size (no resize).
+
+    .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor  # noqa: E402
+from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+
+
+def bench(pred: Predictor, frames: list[np.ndarray], mode: str, warmup: int = 4) -> float:
+    run = {
+        "stream": lambda f: pred.stream(f),
+        "window": lambda f: pred.window(f),
+        "window-recompute": lambda f: pred.window(f, recompute=True),
+    }[mode]
+    for _ in run(frames[:warmup]):
+        pass
+    t = time.perf_counter()
+    n = sum(1 for _ in run(frames))
+    return n / (time.perf_counter() - t)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--checkpoint", type=Path, help="use this checkpoint's config (and weights)")
+    ap.add_argument("--variant", choices=sorted(VARIANTS), default="mvracklay-disc-4")
+    ap.add_argument("--sizes", type=int, nargs="+", default=[128, 256], help="square input sizes")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--modes", nargs="+", default=["stream", "window", "window-recompute"])
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    if args.checkpoint:
+        base, _ = load_model(args.checkpoint)
+        cfg = base.cfg
+    else:
+        base, cfg = None, ModelConfig(variant=args.variant)
+    rng = np.random.default_rng(0)
+    rows = []
+    print(f"torch {torch.__version__}, {args.threads} threads, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
+          f"layouts {cfg.spec.shape}")
+    for size in args.sizes:
+        c = replace(cfg, input_width=size, input_height=size)
+        model = base if base is not None and c == cfg else MVRackLay(c).eval()
+        pred = Predictor(model)
+        frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
+        for mode in args.modes:
+            fps = bench(pred, frames, mode)
+            rows.append({"size": size, "mode": mode, "fps": fps, "threads": args.threads})
+            print(f"{size}x{size}  {mode:<17} {fps:7.1f} frames/s")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""``mvracklay evaluate``: Table I metrics of a checkpoint on a dataset split."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import torch
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json
+from layouts.metrics import format_table
+from network.checkpoint import load_model
+from network.evaluate import evaluate_sequences
+from network.train import open_generated
+
+NAME = "evaluate"
+HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
+DESCRIPTION = (
+    "Run CKPT over every sequence of a split and print the paper's Table I: per view and class, the "
+    "per-(frame, slot) averaged mIoU and 'mAP' (mean pixel precision, as RackLay defines it) and the "
+    "pooled figures, over the columns in view and over all cells."
+)
+ORDER = 31
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
+    p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
+    p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", type=Path, help="also write the full result as JSON here")
+    p.add_argument("--quiet", action="store_true")
+
+
+def _clean(obj):
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, float) and math.isnan(obj):
+        return None
+    return obj
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    torch.set_num_threads(args.threads)
+    model, record = load_model(args.checkpoint)
+    ds = open_generated(args.data)
+    seqs = ds.sequences(None if args.split == "all" else args.split)
+    if not seqs:
+        raise InputError(f"{args.data}: has no '{args.split}' sequences")
+    res = evaluate_sequences(model, seqs, mode=args.mode, max_frames=args.max_frames or None, progress=not args.quiet)
+    title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
+    print(format_table(res["visible"], title + " -- columns in view"))
+    print()
+    print(format_table(res["all"], title + " -- all cells"))
+    if args.json:
+        out = {
+            "checkpoint": str(args.checkpoint),
+            "data": str(args.data),
+            "split": args.split,
+            "sequences": len(seqs),
+            "variant": record.get("variant"),
+            **res,
+        }
+        atomic_write_json(args.json, _clean(out))
+        print(f"wrote {args.json}")
+    return 0

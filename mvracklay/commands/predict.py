@@ -1,0 +1,111 @@
+"""``mvracklay predict``: per-frame layouts of a sequence, written as a layout folder."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from layouts import Intrinsics
+from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.errors import InputError
+from layouts.fileio import load_json
+from network.checkpoint import load_model
+from network.data import ImageFolderSequence
+from network.infer import Predictor, frame_layouts
+
+NAME = "predict"
+HELP = "predict top/front layouts for every frame of a sequence or image folder"
+DESCRIPTION = (
+    "Run a checkpoint over SEQ_DIR (a generated sequence folder with rgb/ and meta.json, or any folder of "
+    "images in name order) and write a layout folder (spec.json + NNNNNN.npz with top, front, visible) that "
+    "'mvracklay reconstruct' reads. Streaming mode carries the ConvLSTM state frame to frame (one encoder "
+    "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
+    "Visible columns come from the camera intrinsics and the camera-to-rack distance: from meta.json when "
+    "present, else --intrinsics / --distance, else the camera and mean distance the model was trained with."
+)
+ORDER = 32
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("seq_dir", type=Path, metavar="SEQ_DIR", help="generated sequence folder or image folder")
+    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint, e.g. weights/mvracklay-disc-4.pt")
+    p.add_argument("--out", type=Path, required=True, help="layout folder to write")
+    p.add_argument("--mode", choices=["stream", "window"], default="stream")
+    p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
+    p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
+    p.add_argument("--distance", type=float, help="camera to rack front in metres (for the visible columns)")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--quiet", action="store_true")
+
+
+def _parse_intrinsics(text: str, width: int, height: int) -> Intrinsics:
+    path = Path(text)
+    if path.suffix == ".json" or path.is_file():
+        d = load_json(path)
+        d = d.get("intrinsics", d) if isinstance(d, dict) else d
+        return Intrinsics.from_dict(d, str(path))
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--intrinsics: want fx,fy,cx,cy or a JSON file, got {text!r}") from None
+    return Intrinsics(fx, fy, cx, cy, width, height)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
+        raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
+    if args.layout_size and not 8 <= args.layout_size <= 1024:
+        raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
+    torch.set_num_threads(args.threads)
+    model, record = load_model(args.checkpoint)
+    seq_dir = args.seq_dir
+    meta = None
+    if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
+        meta = load_json(seq_dir / "meta.json")
+        seq = ImageFolderSequence(seq_dir / "rgb")
+    else:
+        seq = ImageFolderSequence(seq_dir)
+    width, height = seq.image_size()
+    if args.intrinsics:
+        intr = _parse_intrinsics(args.intrinsics, width, height)
+    elif isinstance(meta, dict) and "intrinsics" in meta:
+        intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
+    elif record.get("intrinsics"):
+        intr = Intrinsics.from_dict(record["intrinsics"], str(args.checkpoint)).scaled(width, height)
+    else:
+        intr = Intrinsics.from_fov(width, height, 60.0)
+    if record.get("intrinsics"):
+        trained = Intrinsics.from_dict(record["intrinsics"], str(args.checkpoint))
+        if abs(trained.hfov_deg - intr.hfov_deg) > 2.0:
+            print(
+                f"mvracklay predict: warning: camera horizontal FOV {intr.hfov_deg:.1f} deg differs from the "
+                f"{trained.hfov_deg:.1f} deg the model was trained with; layouts may be mis-scaled",
+                file=sys.stderr,
+            )
+    frames_meta = meta.get("frames") if isinstance(meta, dict) else None
+    default_distance = args.distance or record.get("nominal_distance") or 2.6
+
+    spec = model.cfg.spec if not args.layout_size else replace(model.cfg.spec, size=args.layout_size)
+    folder = LayoutFolder.create(args.out, spec)
+    pred = Predictor(model)
+    bar = tqdm(total=seq.num_frames, desc=f"predict ({args.mode})", unit="frame", disable=args.quiet)
+    for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), args.mode)):
+        lay = frame_layouts(out, spec.size)
+        dist = default_distance
+        if args.distance is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
+            dist = float(frames_meta[i]["distance"])
+        visible = np.asarray(intr.visible_columns(spec, dist), bool)
+        folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
+        bar.update(1)
+    bar.close()
+    print(f"wrote {seq.num_frames} frames of layouts {spec.shape} to {args.out}")
+    return 0

@@ -1,0 +1,133 @@
+"""``mvracklay train``: train an MVRackLay variant (or the RackLay baseline) on a generated dataset."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from layouts.errors import InputError
+from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
+from network.train import TrainConfig, Trainer, default_model_config, open_generated
+
+NAME = "train"
+HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
+DESCRIPTION = (
+    "Train a variant on the 'train' split of DATA, validating with the Table I metrics on the 'val' split "
+    "after every epoch. RUN receives last.pt / best.pt (+ .json records) and metrics.jsonl; --resume "
+    "continues an interrupted run. --export CKPT writes a fp16 weights-only copy of a checkpoint to --out."
+)
+ORDER = 30
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, help="dataset folder written by 'mvracklay generate'")
+    p.add_argument("--out", type=Path, required=True, help="run folder (or the weights file with --export)")
+    p.add_argument("--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT)
+    p.add_argument("--resume", action="store_true", help="continue from RUN/last.pt when it exists (else start)")
+    p.add_argument("--export", type=Path, metavar="CKPT", help="write CKPT's model weights as fp16 to --out, then stop")
+    m = ModelConfig()
+    g = p.add_argument_group("model")
+    g.add_argument("--input-size", type=int, nargs=2, default=[m.input_width, m.input_height], metavar=("W", "H"))
+    g.add_argument("--layout-size", type=int, default=m.spec.size, help="D of the predicted layouts")
+    g.add_argument("--encoder-width", type=int, default=m.encoder_width, help="ResNet-18 base width (64 = standard)")
+    g.add_argument("--hidden", type=int, default=m.hidden, help="ConvLSTM channels")
+    g.add_argument("--decoder-width", type=int, default=m.decoder_width)
+    g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
+    t = TrainConfig()
+    g = p.add_argument_group("optimisation")
+    g.add_argument("--epochs", type=int, default=t.epochs)
+    g.add_argument("--steps-per-epoch", type=int, default=t.steps_per_epoch)
+    g.add_argument("--minutes", type=float, default=t.minutes, help="wall-clock training budget (0 = none)")
+    g.add_argument("--frames-per-step", type=int, default=t.frames_per_step, help="frames per batch (all variants)")
+    g.add_argument("--lr", type=float, default=t.lr)
+    g.add_argument(
+        "--class-weights", type=float, nargs=3, default=list(t.class_weights), metavar=("BG", "SHELF", "BOX")
+    )
+    g.add_argument("--dice-weight", type=float, default=t.dice_weight, help="soft Dice on the box class")
+    g.add_argument("--adv-weight", type=float, default=t.adv_weight, help="LSGAN weight (0 drops the discriminators)")
+    g.add_argument("--short-weight", type=float, default=t.short_weight, help="consistency j vs j+1")
+    g.add_argument("--long-weight", type=float, default=t.long_weight, help="consistency j vs k >= j+2")
+    g.add_argument("--no-augment", action="store_true")
+    g.add_argument("--seed", type=int, default=t.seed)
+    g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
+    g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
+    g = p.add_argument_group("validation")
+    g.add_argument("--val-sequences", type=int, default=t.val_sequences, help="0 = all 'val' sequences")
+    g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
+    g.add_argument("--val-mode", choices=["window", "stream"], default=t.val_mode)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.export:
+        from network.checkpoint import export_weights
+
+        export_weights(args.export, args.out)
+        size = args.out.stat().st_size / 2**20
+        print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
+        return 0
+    if args.data is None:
+        raise InputError("--data is required for training")
+    if args.layout_size < 8 or args.layout_size > 1024:
+        raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
+    for name in ("lr", "minutes"):
+        if not math.isfinite(getattr(args, name)):
+            raise InputError(f"--{name} must be finite")
+    ds = open_generated(args.data)
+    train_seqs = ds.sequences("train")
+    val_seqs = ds.sequences("val")
+    if not train_seqs:
+        raise InputError(f"{args.data}: has no 'train' sequences")
+    variant = args.variant
+    adv = args.adv_weight if VARIANTS[variant][2] else 0.0
+    mcfg = default_model_config(
+        variant,
+        ds.spec,
+        args.layout_size,
+        input_width=args.input_size[0],
+        input_height=args.input_size[1],
+        encoder_width=args.encoder_width,
+        hidden=args.hidden,
+        decoder_width=args.decoder_width,
+    )
+    tcfg = TrainConfig(
+        frames_per_step=args.frames_per_step,
+        steps_per_epoch=args.steps_per_epoch,
+        epochs=args.epochs,
+        minutes=args.minutes,
+        lr=args.lr,
+        class_weights=tuple(args.class_weights),
+        dice_weight=args.dice_weight,
+        adv_weight=adv,
+        short_weight=args.short_weight,
+        long_weight=args.long_weight,
+        augment=not args.no_augment,
+        seed=args.seed,
+        threads=args.threads,
+        workers=args.workers,
+        val_frames=args.val_frames,
+        val_sequences=args.val_sequences,
+        val_mode=args.val_mode,
+        imagenet_weights=str(args.imagenet_weights) if args.imagenet_weights else None,
+    )
+    info = {
+        "root": str(args.data),
+        "seed": getattr(ds, "seed", None),
+        "train_sequences": len(train_seqs),
+        "val_sequences": len(val_seqs),
+        "image_size": list(getattr(ds, "image_size", ())),
+    }
+    resume = bool(args.resume and (args.out / "last.pt").is_file())
+    trainer = Trainer(mcfg, tcfg, train_seqs, val_seqs, args.out, resume=resume, data_info=info, progress=not args.quiet)
+    print(
+        f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
+        f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, batch {trainer.batch} x {mcfg.seq_len} frames"
+        + (f", resuming at step {trainer.step}" if resume else "")
+    )
+    record = trainer.fit()
+    print(
+        f"done: step {record['step']}, {record['train_wall_minutes']:.1f} training minutes; "
+        f"checkpoints in {args.out} (best score {record['best_score']})"
+    )
+    return 0

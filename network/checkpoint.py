@@ -1,0 +1,105 @@
+"""Checkpoints: plain state dicts saved atomically, a JSON record beside, safe loading.
+
+A checkpoint ``NAME.pt`` holds only tensors, numbers, strings and dicts/lists of them (model
+state, optionally discriminator and optimiser states, step counters) plus its record as a JSON
+string; ``NAME.json`` beside it repeats the record for people (model config with the
+`LayoutSpec`, training config, camera intrinsics, metrics). Loading uses
+``torch.load(weights_only=True)``: a pickled object or a truncated file is one `InputError`
+naming the file, and no pickled code runs.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_bytes, atomic_write_json
+from network.model import ModelConfig, MVRackLay
+
+FORMAT = "mvracklay-checkpoint"
+FORMAT_VERSION = 1
+
+
+def json_path(path: str | os.PathLike) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any], record: dict[str, Any]) -> None:
+    """Write ``payload`` (state dicts, counters) with ``record`` embedded, then the JSON beside it."""
+    path = Path(path)
+    record = {"format": FORMAT, "format_version": FORMAT_VERSION, **record}
+    text = json.dumps(record, sort_keys=True)
+    buf = io.BytesIO()
+    torch.save({**payload, "record_json": text}, buf)
+    atomic_write_bytes(path, buf.getvalue())
+    atomic_write_json(json_path(path), record)
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Load ``(payload, record)`` safely; any problem is one line naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: checkpoint not found")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # noqa: BLE001 - unpickling errors, truncation, zip errors: all bad input
+        msg = str(e).strip().splitlines()[0][:160] if str(e).strip() else type(e).__name__
+        if "weights_only" in str(e) or "Unsupported global" in str(e):
+            raise InputError(f"{path}: holds pickled Python objects, refused (only plain state dicts load)") from None
+        raise InputError(f"{path}: not a readable checkpoint ({type(e).__name__}: {msg})") from None
+    if not isinstance(payload, dict) or "model" not in payload or "record_json" not in payload:
+        raise InputError(f"{path}: not an MVRackLay checkpoint (no model state or record)")
+    try:
+        record = json.loads(payload["record_json"])
+    except (TypeError, json.JSONDecodeError):
+        raise InputError(f"{path}: checkpoint record is not valid JSON") from None
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        raise InputError(f"{path}: not an MVRackLay checkpoint (format {record.get('format')!r})")
+    if record.get("format_version") != FORMAT_VERSION:
+        raise InputError(f"{path}: checkpoint format version {record.get('format_version')!r} is not supported")
+    return payload, record
+
+
+def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
+    """Rebuild the model from a checkpoint (float32, eval mode) and return it with its record."""
+    payload, record = load_checkpoint(path)
+    cfg = ModelConfig.from_dict(record.get("model_config"), f"{path} (model_config)")
+    model = MVRackLay(cfg)
+    state = payload["model"]
+    if not isinstance(state, dict):
+        raise InputError(f"{path}: model state is not a state dict")
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state))
+    extra = sorted(set(state) - set(own))
+    if missing or extra:
+        raise InputError(f"{path}: model state does not fit its config: missing {missing[:3]}, unexpected {extra[:3]}")
+    bad = [k for k in own if tuple(own[k].shape) != tuple(state[k].shape)]
+    if bad:
+        raise InputError(
+            f"{path}: tensor {bad[0]} has shape {tuple(state[bad[0]].shape)}, want {tuple(own[bad[0]].shape)}"
+        )
+    model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()})
+    model.eval()
+    return model, record
+
+
+def export_weights(src: str | os.PathLike, dst: str | os.PathLike, half: bool = True) -> dict[str, Any]:
+    """Strip a training checkpoint to the model's weights (fp16 by default) for shipping."""
+    payload, record = load_checkpoint(src)
+    state = {k: (v.half() if half and v.is_floating_point() else v) for k, v in payload["model"].items()}
+    record = dict(record)
+    record["exported_from"] = Path(src).name
+    record["dtype"] = "float16" if half else "float32"
+    record.pop("format", None)
+    record.pop("format_version", None)
+    save_checkpoint(dst, {"model": state}, record)
+    return record

@@ -1,0 +1,222 @@
+"""Training and evaluation inputs: windows of consecutive frames with their layouts.
+
+Reads any sequence object with the `waresynth.dataset.Sequence` interface (``num_frames``,
+``spec``, ``rgb(i)``, ``layouts(i)``, ``camera_positions()``), resizes images to the model's
+input size and resamples ground truth to the model's layout size (class-area mode). A window
+ending at frame t holds frames ``t-T+1 .. t``; before the sequence start the first frame is
+repeated, as the reference implementation does. Augmentation is consistent over a window:
+one colour jitter for all its frames and one horizontal flip of images, layouts, visible
+columns and camera X together.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+
+from layouts import NUM_CLASSES, LayoutSpec
+from layouts.codecs import FrameLayouts
+from layouts.errors import InputError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+class SequenceLike(Protocol):
+    name: str
+    num_frames: int
+    spec: LayoutSpec
+
+    def rgb(self, i: int) -> np.ndarray: ...
+    def layouts(self, i: int) -> FrameLayouts: ...
+    def camera_positions(self) -> np.ndarray: ...
+
+
+def resize_image(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
+    """uint8 ``(H, W, 3)`` -> uint8 ``(height, width, 3)`` (antialiased bilinear)."""
+    if rgb.ndim == 2:
+        rgb = np.repeat(rgb[..., None], 3, axis=2)
+    if rgb.ndim != 3 or rgb.shape[2] not in (3, 4):
+        raise InputError(f"image must be (H, W, 3), got shape {rgb.shape}")
+    rgb = np.ascontiguousarray(rgb[..., :3])
+    if rgb.shape[:2] == (height, width):
+        return rgb
+    return np.asarray(Image.fromarray(rgb).resize((width, height), Image.BILINEAR))
+
+
+def to_tensor(images: np.ndarray) -> torch.Tensor:
+    """uint8 ``(..., H, W, 3)`` -> float ``(..., 3, H, W)`` in [0, 1]."""
+    t = torch.from_numpy(np.array(images, dtype=np.float32)).div_(255.0)
+    return t.movedim(-1, -3).contiguous()
+
+
+def resample_layout(stack: np.ndarray, size: int) -> np.ndarray:
+    """``(R, D, D)`` class ids -> ``(R, size, size)``: each target cell takes the class covering most of it.
+
+    Ties go to the rarer class (box over shelf over background). Upsampling is nearest.
+    """
+    r, d, _ = stack.shape
+    if d == size:
+        return stack
+    onehot = F.one_hot(torch.from_numpy(stack.astype(np.int64)), NUM_CLASSES).permute(0, 3, 1, 2).float()
+    mode = "area" if size < d else "nearest"
+    cover = F.interpolate(onehot, size=(size, size), mode=mode)
+    cover += torch.arange(NUM_CLASSES, dtype=torch.float32).view(1, -1, 1, 1) * 1e-4
+    return cover.argmax(1).numpy().astype(np.uint8)
+
+
+def resample_columns(mask: np.ndarray, size: int) -> np.ndarray:
+    """``(D,)`` bool per column -> ``(size,)``: a target column counts only if all it covers does.
+
+    Upsampling is nearest.
+    """
+    d = mask.shape[0]
+    if d == size:
+        return mask
+    m = torch.from_numpy(np.asarray(mask, np.float32)).view(1, 1, d)
+    mode = "area" if size < d else "nearest"
+    return (F.interpolate(m, size=size, mode=mode)[0, 0] >= 1 - 1e-6).numpy()
+
+
+def check_spec_compatible(model_spec: LayoutSpec, data_spec: LayoutSpec, source: str) -> None:
+    """Same slots and metric extents (the resolution may differ); else one-line error."""
+    a = (model_spec.num_slots, model_spec.x_extent, model_spec.z_extent, model_spec.h_extent)
+    b = (data_spec.num_slots, data_spec.x_extent, data_spec.z_extent, data_spec.h_extent)
+    if not np.allclose(a, b):
+        raise InputError(
+            f"{source}: layout spec (R, x, z, h extents) {b} differs from the model's {a}; "
+            "the model only predicts the layouts it was trained for"
+        )
+
+
+class WindowDataset(torch.utils.data.Dataset):
+    """Windows of ``seq_len`` frames over sequences, as tensors ready for the model and losses.
+
+    Item: ``images (T, 3, H, W)`` float, ``top``/``front`` ``(T, R, D, D)`` int64, ``visible``
+    ``(T, D)`` bool, ``cam_x (T,)`` float metres, ``flipped`` bool.
+    """
+
+    def __init__(
+        self,
+        sequences: list[SequenceLike],
+        *,
+        seq_len: int,
+        input_size: tuple[int, int],
+        spec: LayoutSpec,
+        augment: bool = False,
+        seed: int = 0,
+    ) -> None:
+        if not sequences:
+            raise InputError("no sequences to read (is the split empty?)")
+        self.sequences = sequences
+        self.seq_len = seq_len
+        self.width, self.height = input_size
+        self.spec = spec
+        self.augment = augment
+        self.seed = seed
+        self.epoch = 0
+        self.index: list[tuple[int, int]] = []
+        self._cam_x: list[np.ndarray] = []
+        for si, seq in enumerate(sequences):
+            check_spec_compatible(spec, seq.spec, str(getattr(seq, "root", seq.name)))
+            pos = np.asarray(seq.camera_positions(), dtype=np.float64)
+            if pos.shape != (seq.num_frames, 3):
+                raise InputError(f"{seq.name}: camera positions have shape {pos.shape}, want ({seq.num_frames}, 3)")
+            self._cam_x.append(pos[:, 0])
+            self.index.extend((si, t) for t in range(seq.num_frames))
+
+    def set_epoch(self, epoch: int) -> None:
+        """Vary the augmentation per epoch while keeping runs reproducible."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def frame_ids(self, t: int) -> list[int]:
+        return [max(0, t - self.seq_len + 1 + k) for k in range(self.seq_len)]
+
+    def _frame(self, seq: SequenceLike, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        img = resize_image(seq.rgb(i), self.width, self.height)
+        lay = seq.layouts(i)
+        d = self.spec.size
+        top = resample_layout(lay.top, d)
+        front = resample_layout(lay.front, d)
+        vis = np.ones(d, bool) if lay.visible is None else resample_columns(lay.visible, d)
+        return img, top, front, vis
+
+    def __getitem__(self, idx: int) -> dict[str, Any]:
+        si, t = self.index[idx]
+        seq = self.sequences[si]
+        ids = self.frame_ids(t)
+        frames = [self._frame(seq, i) for i in ids]
+        imgs = np.stack([f[0] for f in frames]).astype(np.float32)
+        top = np.stack([f[1] for f in frames])
+        front = np.stack([f[2] for f in frames])
+        vis = np.stack([f[3] for f in frames])
+        cam_x = self._cam_x[si][ids].astype(np.float32)
+        flipped = False
+        if self.augment:
+            rng = np.random.default_rng([self.seed, self.epoch, idx])
+            imgs = colour_jitter(imgs, rng)
+            if rng.random() < 0.5:
+                flipped = True
+                imgs = imgs[:, :, ::-1]
+                top, front, vis = top[..., ::-1], front[..., ::-1], vis[:, ::-1]
+                cam_x = -cam_x
+        images = torch.from_numpy(np.ascontiguousarray(imgs)).div_(255.0).permute(0, 3, 1, 2).contiguous()
+        return {
+            "images": images,
+            "top": torch.from_numpy(np.ascontiguousarray(top).astype(np.int64)),
+            "front": torch.from_numpy(np.ascontiguousarray(front).astype(np.int64)),
+            "visible": torch.from_numpy(np.ascontiguousarray(vis)),
+            "cam_x": torch.from_numpy(np.ascontiguousarray(cam_x)),
+            "flipped": flipped,
+        }
+
+
+def colour_jitter(imgs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """One random brightness / contrast / saturation / channel-gain change for all frames (float 0..255)."""
+    b = rng.uniform(0.7, 1.3)
+    c = rng.uniform(0.7, 1.3)
+    s = rng.uniform(0.6, 1.4)
+    gain = rng.uniform(0.9, 1.1, size=3).astype(np.float32)
+    x = imgs * b
+    mean = x.mean(axis=(1, 2, 3), keepdims=True)
+    x = (x - mean) * c + mean
+    grey = x.mean(axis=3, keepdims=True)
+    x = (x - grey) * s + grey
+    x = x * gain
+    return np.clip(x, 0.0, 255.0).astype(np.float32)
+
+
+class ImageFolderSequence:
+    """Any folder of images, in natural name order, as a sequence without ground truth."""
+
+    def __init__(self, folder: str | os.PathLike) -> None:
+        self.root = Path(folder)
+        if not self.root.is_dir():
+            raise InputError(f"{self.root}: image folder not found")
+        key = lambda p: [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", p.name)]  # noqa: E731
+        self.paths = sorted((p for p in self.root.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=key)
+        if not self.paths:
+            raise InputError(f"{self.root}: no images ({', '.join(IMAGE_SUFFIXES)}) found")
+        self.name = self.root.name
+        self.num_frames = len(self.paths)
+
+    def rgb(self, i: int) -> np.ndarray:
+        p = self.paths[i]
+        try:
+            with Image.open(p) as im:
+                return np.asarray(im.convert("RGB"))
+        except (OSError, ValueError) as e:
+            raise InputError(f"{p}: not a readable image ({e})") from None
+
+    def image_size(self) -> tuple[int, int]:
+        h, w = self.rgb(0).shape[:2]
+        return w, h

@@ -1,0 +1,90 @@
+"""Inference: streaming (state carried frame to frame) and windowed (the paper's) modes.
+
+Streaming runs the encoder once per frame and advances the ConvLSTM one step, so frame t sees
+the whole prefix ``0..t``. Windowed mode reproduces training: frame t is predicted from the
+window ``t-T+1..t`` (first frame repeated at the start) from a fresh ConvLSTM state. Encoder
+features are cached across windows, so it also costs one encoder pass per frame; pass
+``recompute=True`` for the naive form that re-encodes the whole window every frame.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable, Iterator
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from layouts import VIEWS
+from network.data import resize_image, to_tensor
+from network.model import MVRackLay
+
+MODES = ("stream", "window")
+
+
+class Predictor:
+    """Wraps a model for frame-by-frame prediction from uint8 RGB images of any size."""
+
+    def __init__(self, model: MVRackLay) -> None:
+        self.model = model.eval()
+        self.cfg = model.cfg
+
+    def preprocess(self, rgb: np.ndarray) -> torch.Tensor:
+        img = resize_image(np.asarray(rgb), self.cfg.input_width, self.cfg.input_height)
+        return to_tensor(img)[None]
+
+    @torch.no_grad()
+    def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
+        """Logits ``{view: (R, 3, D, D)}`` per frame, carrying the ConvLSTM state."""
+        state = None
+        for rgb in frames:
+            out, state = self.model.step(self.preprocess(rgb), state)
+            yield {v: o[0] for v, o in out.items()}
+
+    @torch.no_grad()
+    def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
+        """Logits per frame from the window of ``seq_len`` frames ending there (fresh state each)."""
+        m, t_len = self.model, self.cfg.seq_len
+        images: deque[torch.Tensor] = deque(maxlen=t_len)
+        feats: deque[torch.Tensor] = deque(maxlen=t_len)
+        for rgb in frames:
+            x = self.preprocess(rgb)
+            if recompute:
+                if not images:
+                    images.extend([x] * t_len)
+                images.append(x)
+                out = m(torch.stack(list(images), 1))
+                yield {v: o[0, -1] for v, o in out.items()}
+                continue
+            f3, f4, f5 = m.encode(x)
+            if not feats:
+                feats.extend([f5] * t_len)
+            feats.append(f5)
+            if self.cfg.use_lstm:
+                seq, _ = m.temporal(torch.stack(list(feats), 1))
+                top = seq[:, -1]
+            else:
+                top = m.temporal(f5)
+            out = m.decode(f3, f4, top)
+            yield {v: o[0] for v, o in out.items()}
+
+    def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
+        if mode == "stream":
+            return self.stream(frames)
+        if mode == "window":
+            return self.window(frames)
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+
+
+def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarray:
+    """``(R, 3, D, D)`` logits -> ``(R, size, size)`` uint8 class ids (bilinear on logits when resizing)."""
+    if size is not None and size != logits.shape[-1]:
+        logits = F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
+    return logits.argmax(1).to(torch.uint8).numpy()
+
+
+def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:
+    """Both views' class-id stacks from one frame's logits."""
+    return {v: logits_to_layout(out[v], size) for v in VIEWS}

@@ -1,0 +1,394 @@
+"""Training loop: supervised + LSGAN + consistency losses, validation, checkpoints, resume.
+
+A run folder holds ``last.pt`` / ``best.pt`` (+ ``.json`` records) and ``metrics.jsonl`` (one
+JSON object per epoch: step, wall and CPU minutes, mean losses, validation Table I). Epochs are
+``steps_per_epoch`` optimiser steps over randomly drawn windows; the learning rate follows a
+cosine from ``lr`` to ``lr * lr_floor`` over the run (by steps or by the minute budget, whichever
+is further along). ``resume=True`` continues from ``last.pt`` with its optimiser state, step count
+and elapsed time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from layouts import NUM_CLASSES, VIEWS, LayoutSpec
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_text
+from network.checkpoint import load_checkpoint, save_checkpoint
+from network.data import WindowDataset
+from network.evaluate import evaluate_sequences, score
+from network.losses import (
+    consistency_loss,
+    lsgan_discriminator_loss,
+    lsgan_generator_loss,
+    one_hot_layouts,
+    supervised_loss,
+)
+from network.model import ModelConfig, MVRackLay, build_discriminators
+from network.resnet import load_imagenet_weights
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings (the model's own settings live in `ModelConfig`)."""
+
+    frames_per_step: int = 16  #: batch = frames_per_step // seq_len windows (same frames for every variant)
+    steps_per_epoch: int = 200
+    epochs: int = 40
+    minutes: float = 0.0  #: wall-clock training budget (0 = none); stops after the step that crosses it
+    lr: float = 1e-3
+    lr_floor: float = 0.05
+    weight_decay: float = 1e-5
+    disc_lr: float = 1e-4
+    class_weights: tuple[float, float, float] = (1.0, 1.0, 2.0)
+    dice_weight: float = 0.5
+    adv_weight: float = 0.01
+    short_weight: float = 0.1
+    long_weight: float = 0.05
+    augment: bool = True
+    seed: int = 0
+    threads: int = 2
+    workers: int = 0
+    val_frames: int = 0  #: frames per validation sequence (0 = all)
+    val_sequences: int = 0  #: validation sequences used (0 = all)
+    val_mode: str = "window"
+    imagenet_weights: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def validate(self) -> None:
+        for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads"):
+            if getattr(self, name) < 1:
+                raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        for name in ("minutes", "lr", "dice_weight", "adv_weight", "short_weight", "long_weight", "workers"):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0:
+                raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
+        if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
+            raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
+        if self.val_mode not in ("window", "stream"):
+            raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
+
+
+def open_generated(root: str | Path):
+    """Open a WareSynth dataset folder (the generator's reader), with a one-line error if it is not one."""
+    from waresynth.dataset import open_dataset  # the dataset reader is the one allowed waresynth import
+
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: dataset folder not found")
+    return open_dataset(root)
+
+
+def _nominal_distance(seqs: list[Any]) -> float | None:
+    vals = []
+    for s in seqs[:50]:
+        try:
+            vals.extend(float(s.frame(i)["distance"]) for i in range(s.num_frames))
+        except (AttributeError, KeyError, TypeError, ValueError):
+            return None
+    return float(np.mean(vals)) if vals else None
+
+
+class Trainer:
+    """Owns the model, optimisers and run folder; `fit` trains until the epochs or minutes run out."""
+
+    def __init__(
+        self,
+        model_cfg: ModelConfig,
+        train_cfg: TrainConfig,
+        train_seqs: list[Any],
+        val_seqs: list[Any],
+        out: str | Path,
+        *,
+        resume: bool = False,
+        data_info: dict[str, Any] | None = None,
+        progress: bool = True,
+    ) -> None:
+        train_cfg.validate()
+        self.mcfg, self.tcfg = model_cfg, train_cfg
+        self.out = Path(out)
+        self.progress = progress
+        torch.set_num_threads(train_cfg.threads)
+        torch.manual_seed(train_cfg.seed)
+        self.model = MVRackLay(model_cfg)
+        if train_cfg.imagenet_weights:
+            load_imagenet_weights(self.model.encoder, train_cfg.imagenet_weights)
+        self.discs = build_discriminators(model_cfg) if train_cfg.adv_weight > 0 else None
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
+        self.opt_d = (
+            torch.optim.Adam(self.discs.parameters(), lr=train_cfg.disc_lr, betas=(0.5, 0.999)) if self.discs else None
+        )
+        self.cw = torch.tensor(train_cfg.class_weights, dtype=torch.float32)
+        self.train_ds = WindowDataset(
+            train_seqs,
+            seq_len=model_cfg.seq_len,
+            input_size=(model_cfg.input_width, model_cfg.input_height),
+            spec=model_cfg.spec,
+            augment=train_cfg.augment,
+            seed=train_cfg.seed,
+        )
+        self.val_seqs = val_seqs[: train_cfg.val_sequences or None]
+        self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)
+        self.step = 0
+        self.epoch = 0
+        self.wall_s = 0.0
+        self.cpu_s = 0.0
+        self.best = -math.inf
+        self.history: list[dict[str, Any]] = []
+        first = train_seqs[0]
+        intr = getattr(first, "intrinsics", None)
+        self.info = {
+            "data": data_info or {},
+            "intrinsics": intr.to_dict() if intr is not None else None,
+            "nominal_distance": _nominal_distance(train_seqs),
+            "train_frames": len(self.train_ds),
+            "train_sequences": len(train_seqs),
+        }
+        self.out.mkdir(parents=True, exist_ok=True)
+        if resume:
+            self._resume()
+        elif (self.out / "last.pt").exists():
+            raise InputError(f"{self.out}: already holds a run (last.pt); pass --resume or choose another --out")
+
+    # ------------------------------------------------------------------ state
+    def _record(self, metrics: dict[str, Any] | None) -> dict[str, Any]:
+        return {
+            "model_config": self.mcfg.to_dict(),
+            "variant": self.mcfg.variant,
+            "input_size": [self.mcfg.input_width, self.mcfg.input_height],
+            "spec": self.mcfg.spec.to_dict(),
+            "train_config": asdict(self.tcfg),
+            "step": self.step,
+            "epoch": self.epoch,
+            "train_wall_minutes": self.wall_s / 60,
+            "train_cpu_minutes": self.cpu_s / 60,
+            "best_score": None if self.best == -math.inf else self.best,
+            "metrics": metrics,
+            **self.info,
+        }
+
+    def _payload(self) -> dict[str, Any]:
+        p: dict[str, Any] = {
+            "model": self.model.state_dict(),
+            "optimizer": self.opt.state_dict(),
+            "step": self.step,
+            "epoch": self.epoch,
+            "wall_s": self.wall_s,
+            "cpu_s": self.cpu_s,
+            "best": self.best if self.best != -math.inf else -1.0,
+        }
+        if self.discs is not None and self.opt_d is not None:
+            p["discriminators"] = self.discs.state_dict()
+            p["optimizer_d"] = self.opt_d.state_dict()
+        return p
+
+    def _resume(self) -> None:
+        path = self.out / "last.pt"
+        payload, record = load_checkpoint(path)
+        saved = ModelConfig.from_dict(record.get("model_config"), str(path))
+        if saved != self.mcfg:
+            raise InputError(f"{path}: was trained with a different model config ({saved.variant}); use the same flags")
+        try:
+            self.model.load_state_dict(payload["model"])
+            self.opt.load_state_dict(payload["optimizer"])
+            if self.discs is not None and self.opt_d is not None and "discriminators" in payload:
+                self.discs.load_state_dict(payload["discriminators"])
+                self.opt_d.load_state_dict(payload["optimizer_d"])
+        except (KeyError, RuntimeError, ValueError) as e:
+            raise InputError(f"{path}: cannot resume from it ({str(e).splitlines()[0][:160]})") from None
+        self.step = int(payload["step"])
+        self.epoch = int(payload["epoch"])
+        self.wall_s = float(payload["wall_s"])
+        self.cpu_s = float(payload["cpu_s"])
+        self.best = float(payload["best"]) if float(payload["best"]) >= 0 else -math.inf
+        mpath = self.out / "metrics.jsonl"
+        if mpath.exists():
+            self.history = [json.loads(line) for line in mpath.read_text().splitlines() if line.strip()]
+
+    # ------------------------------------------------------------------ schedule
+    def _progress(self) -> float:
+        total = self.tcfg.epochs * self.tcfg.steps_per_epoch
+        p = self.step / total
+        if self.tcfg.minutes > 0:
+            p = max(p, self.wall_s / (60 * self.tcfg.minutes))
+        return min(p, 1.0)
+
+    def _set_lr(self) -> float:
+        f = self.tcfg.lr_floor + (1 - self.tcfg.lr_floor) * 0.5 * (1 + math.cos(math.pi * self._progress()))
+        lr = self.tcfg.lr * f
+        for g in self.opt.param_groups:
+            g["lr"] = lr
+        return lr
+
+    def _done(self) -> bool:
+        if self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes:
+            return True
+        return self.epoch >= self.tcfg.epochs
+
+    # ------------------------------------------------------------------ one step
+    def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
+        t = self.tcfg
+        self.model.train()
+        out = self.model(batch["images"])
+        losses: dict[str, torch.Tensor] = {}
+        losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight) for v in VIEWS)
+        if self.mcfg.seq_len > 1 and (t.short_weight > 0 or t.long_weight > 0):
+            spec = self.mcfg.spec
+            losses["short"] = sum(
+                consistency_loss(out[v], batch["cam_x"], batch["visible"], spec, long_range=False) for v in VIEWS
+            )
+            losses["long"] = sum(
+                consistency_loss(out[v], batch["cam_x"], batch["visible"], spec, long_range=True) for v in VIEWS
+            )
+        fakes = {v: out[v].flatten(0, 1).softmax(2) for v in VIEWS}
+        if self.discs is not None:
+            losses["adv"] = sum(lsgan_generator_loss(self.discs[v](fakes[v])) for v in VIEWS)
+        total = losses["sup"]
+        total = total + t.short_weight * losses.get("short", 0) + t.long_weight * losses.get("long", 0)
+        total = total + t.adv_weight * losses.get("adv", 0)
+        self.opt.zero_grad(set_to_none=True)
+        total.backward()
+        self.opt.step()
+        if self.discs is not None and self.opt_d is not None:
+            d_loss = 0
+            for v in VIEWS:
+                real = one_hot_layouts(batch[v].flatten(0, 1), NUM_CLASSES)
+                d_loss = d_loss + lsgan_discriminator_loss(self.discs[v](real), self.discs[v](fakes[v].detach()))
+            self.opt_d.zero_grad(set_to_none=True)
+            d_loss.backward()
+            self.opt_d.step()
+            losses["disc"] = d_loss
+        self.step += 1
+        res = {k: float(v.detach()) for k, v in losses.items()}
+        res["total"] = float(total.detach())
+        return res
+
+    # ------------------------------------------------------------------ loop
+    def validate(self) -> dict[str, Any] | None:
+        if not self.val_seqs:
+            return None
+        return evaluate_sequences(
+            self.model.eval(),
+            self.val_seqs,
+            mode=self.tcfg.val_mode,
+            max_frames=self.tcfg.val_frames or None,
+            progress=self.progress,
+        )
+
+    def _loader(self) -> torch.utils.data.DataLoader:
+        self.train_ds.set_epoch(self.epoch)
+        g = torch.Generator().manual_seed(self.tcfg.seed * 100003 + self.epoch)
+        n = self.tcfg.steps_per_epoch * self.batch
+        sampler = torch.utils.data.RandomSampler(
+            self.train_ds, replacement=len(self.train_ds) < n, num_samples=n, generator=g
+        )
+        return torch.utils.data.DataLoader(
+            self.train_ds,
+            batch_size=self.batch,
+            sampler=sampler,
+            num_workers=self.tcfg.workers,
+            drop_last=True,
+            persistent_workers=False,
+        )
+
+    def _save(self, name: str, metrics: dict[str, Any] | None) -> None:
+        save_checkpoint(self.out / f"{name}.pt", self._payload(), self._record(metrics))
+
+    def _log(self, entry: dict[str, Any]) -> None:
+        self.history.append(entry)
+        text = "".join(json.dumps(e, sort_keys=True) + "\n" for e in self.history)
+        atomic_write_text(self.out / "metrics.jsonl", text)
+
+    def fit(self) -> dict[str, Any]:
+        """Train to the end of the budget; returns the last record."""
+        record: dict[str, Any] = {}
+        while not self._done():
+            sums: dict[str, float] = {}
+            n = 0
+            bar = tqdm(
+                self._loader(),
+                total=self.tcfg.steps_per_epoch,
+                desc=f"epoch {self.epoch + 1}/{self.tcfg.epochs}",
+                unit="step",
+                disable=not self.progress,
+                leave=False,
+            )
+            try:
+                for batch in bar:
+                    w0, c0 = time.perf_counter(), time.process_time()
+                    lr = self._set_lr()
+                    res = self.train_step(batch)
+                    self.wall_s += time.perf_counter() - w0
+                    self.cpu_s += time.process_time() - c0
+                    for k, v in res.items():
+                        sums[k] = sums.get(k, 0.0) + v
+                    n += 1
+                    bar.set_postfix(loss=f"{res['total']:.3f}", lr=f"{lr:.1e}")
+                    if self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes:
+                        break
+            except KeyboardInterrupt:
+                self._save("last", None)
+                raise
+            finally:
+                bar.close()
+            self.epoch += 1
+            val = self.validate()
+            entry: dict[str, Any] = {
+                "epoch": self.epoch,
+                "step": self.step,
+                "train_wall_minutes": round(self.wall_s / 60, 4),
+                "train_cpu_minutes": round(self.cpu_s / 60, 4),
+                "lr": self.opt.param_groups[0]["lr"],
+                "loss": {k: v / max(n, 1) for k, v in sums.items()},
+            }
+            if val:
+                s = score(val)
+                entry["val_score"] = s
+                entry["val_visible"] = _compact(val["visible"])
+                entry["val_all"] = _compact(val["all"])
+                if s > self.best:
+                    self.best = s
+                    self._save("best", {"visible": val["visible"], "all": val["all"]})
+            self._log(entry)
+            record = self._record({"visible": val["visible"], "all": val["all"]} if val else None)
+            self._save("last", record["metrics"])
+            if not val:
+                self._save("best", None)
+            tqdm.write(_summary(entry)) if self.progress else print(_summary(entry), flush=True)
+        return record
+
+
+def _compact(table: dict[str, Any]) -> dict[str, Any]:
+    return {
+        v: {c: {k: (None if isinstance(x, float) and math.isnan(x) else x) for k, x in m.items()} for c, m in d.items()}
+        for v, d in table.items()
+    }
+
+
+def _summary(e: dict[str, Any]) -> str:
+    s = f"epoch {e['epoch']} step {e['step']} {e['train_wall_minutes']:.1f} min loss {e['loss'].get('total', float('nan')):.3f}"
+    if "val_visible" in e:
+        t = e["val_visible"]
+        f = lambda x: "nan" if x is None else f"{100 * x:.1f}"  # noqa: E731
+        s += (
+            f" | val mIoU top rack {f(t['top']['rack']['miou'])} box {f(t['top']['box']['miou'])}"
+            f" front rack {f(t['front']['rack']['miou'])} box {f(t['front']['box']['miou'])}"
+        )
+    return s
+
+
+def default_model_config(variant: str, spec: LayoutSpec, layout_size: int, **kw: Any) -> ModelConfig:
+    """The model for a dataset: its slots and extents at the model's own resolution."""
+    from dataclasses import replace
+
+    return ModelConfig(variant=variant, spec=replace(spec, size=layout_size), **kw)

@@ -1,0 +1,458 @@
+"""Merge: F_{t+1} = merge(F_t, f_{t+1}), streaming, in one global frame.
+
+`MapBuilder` keeps only the map itself (fused boxes, a per-slot shelf-evidence strip along X at
+layout resolution, running means of shelf heights) plus the previous frame's top layout for the
+correlation fallback: memory does not grow with the frames already merged (the per-frame step
+records are a few numbers each).
+
+Fusion rules per box (frame boxes are matched to map boxes of the same slot one-to-one by the
+Hungarian assignment on footprint overlap, each extent normalised by the smaller box so a box cut
+by the image border still matches its whole self):
+
+* an edge seen whole (not cut) is averaged over its whole observations; an edge only ever seen
+  cut grows outwards (min / max) as more of the box comes into view;
+* the oriented footprint (centre, width, depth, yaw) averages whole observations only;
+* depth range, height and confidence average all observations (cut ones weigh less);
+* a map box counts how often it was inside the visible range (``seen``) and how often it was
+  observed; boxes observed in fewer than ``min_support`` of those frames are dropped at the end
+  (noise blobs of single frames), as are boxes never observed whole with a low confidence.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from layouts.spec import LayoutSpec
+from stitching.lift import FrameBox, FrameReconstruction
+from stitching.shift import Edges, ShiftConfig, correlate_shift, vote_offset
+from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
+
+CUT_WEIGHT = 0.3
+RACK_SLOT = 1000  # slot code offset for rack-end edges, so they only pair with rack ends
+
+
+@dataclass(frozen=True)
+class MergeConfig:
+    match_score: float = 0.5  #: minimum overlap score for a frame box to update a map box
+    min_support: float = 0.3  #: observed / seen below this drops a box at the end
+    min_rack_length: float = 0.3  #: metres; shorter shelf runs are not racks
+    rack_gap_fill: float = 0.08  #: metres; shelf runs closer than this are one rack
+
+
+class _Box:
+    """Accumulator of one map box (global X)."""
+
+    __slots__ = (
+        "slot",
+        "x0",
+        "x1",
+        "nl",
+        "nr",
+        "z0",
+        "z1",
+        "wz",
+        "h",
+        "n_full",
+        "cx",
+        "cz",
+        "w",
+        "d",
+        "c4",
+        "s4",
+        "n_obs",
+        "n_seen",
+        "conf",
+    )
+
+    def __init__(self, fb: FrameBox, off: float):
+        self.slot = fb.slot
+        self.x0, self.x1 = fb.x0 + off, fb.x1 + off
+        self.nl = 0 if fb.cut_left else 1
+        self.nr = 0 if fb.cut_right else 1
+        self.z0 = self.z1 = self.h = self.wz = 0.0
+        self.n_full = 0
+        self.cx = self.cz = self.w = self.d = self.c4 = self.s4 = 0.0
+        self.n_obs = 0
+        self.n_seen = 1
+        self.conf = 0.0
+        self._fuse_common(fb, off)
+
+    @property
+    def width(self) -> float:
+        return self.x1 - self.x0
+
+    @property
+    def depth(self) -> float:
+        return self.z1 - self.z0
+
+    def _fuse_common(self, fb: FrameBox, off: float) -> None:
+        whole = not (fb.cut_left or fb.cut_right)
+        wt = 1.0 if whole else CUT_WEIGHT
+        t = self.wz + wt
+        self.z0 = (self.z0 * self.wz + fb.z0 * wt) / t
+        self.z1 = (self.z1 * self.wz + fb.z1 * wt) / t
+        self.h = (self.h * self.wz + fb.height * wt) / t
+        self.wz = t
+        self.n_obs += 1
+        self.conf += fb.confidence
+        if whole:
+            yaw, w, d = fb.yaw, fb.w, fb.d
+            if self.n_full:
+                # Align to the running yaw modulo 90 degrees (a rectangle's yaw is ambiguous there).
+                mean = math.atan2(self.s4, self.c4) / 4
+                k = round((yaw - mean) / (math.pi / 2))
+                yaw -= k * math.pi / 2
+                if k % 2:
+                    w, d = d, w
+            n = self.n_full
+            self.cx = (self.cx * n + fb.cx + off) / (n + 1)
+            self.cz = (self.cz * n + fb.cz) / (n + 1)
+            self.w = (self.w * n + w) / (n + 1)
+            self.d = (self.d * n + d) / (n + 1)
+            self.c4 += math.cos(4 * yaw)
+            self.s4 += math.sin(4 * yaw)
+            self.n_full = n + 1
+
+    def fuse(self, fb: FrameBox, off: float) -> None:
+        x0, x1 = fb.x0 + off, fb.x1 + off
+        if not fb.cut_left:
+            self.x0 = x0 if self.nl == 0 else (self.x0 * self.nl + x0) / (self.nl + 1)
+            self.nl += 1
+        elif self.nl == 0:
+            self.x0 = min(self.x0, x0)
+        if not fb.cut_right:
+            self.x1 = x1 if self.nr == 0 else (self.x1 * self.nr + x1) / (self.nr + 1)
+            self.nr += 1
+        elif self.nr == 0:
+            self.x1 = max(self.x1, x1)
+        self._fuse_common(fb, off)
+
+    def cuboid_params(self) -> tuple[float, float, float, float, float]:
+        """(cx, cz, w, d, yaw) of the fused footprint."""
+        if self.n_full:
+            yaw = math.atan2(self.s4, self.c4) / 4
+            if abs(yaw) > 1e-3:
+                return self.cx, self.cz, self.w, self.d, yaw
+        return (self.x0 + self.x1) / 2, (self.z0 + self.z1) / 2, self.width, self.depth, 0.0
+
+
+class MapBuilder:
+    """Streaming stitcher: call `add` once per frame in order, then `build` for the `WarehouseMap`."""
+
+    def __init__(
+        self,
+        spec: LayoutSpec,
+        merge: MergeConfig | None = None,
+        shift: ShiftConfig | None = None,
+        board_thickness: float = 0.06,
+    ):
+        self.spec = spec
+        self.cfg = merge or MergeConfig()
+        self.shift_cfg = shift or ShiftConfig()
+        self.board_thickness = board_thickness
+        R = spec.num_slots
+        self.dx = spec.x_extent / spec.size
+        self.boxes: list[list[_Box]] = [[] for _ in range(R)]
+        # Shelf evidence strip: bins of width dx, global bin index = g0 + position.
+        self.g0 = 0
+        self.votes = np.zeros((R, 0), np.int32)
+        self.seen = np.zeros((R, 0), np.int32)
+        self.slot_present = np.zeros(R)
+        self.slot_frames = 0
+        self.clear = np.zeros(R)
+        self.nclear = np.zeros(R)
+        self.zr = np.zeros((R, 2))
+        self.nshelf = np.zeros(R)
+        self.steps: list[StepRecord] = []
+        self.ends: list[list] = []  # fused rack ends: [slot, side (0 left, 1 right), x, count]
+        self._prev_top: np.ndarray | None = None
+        self._offset = 0.0
+        self._velocity = 0.0
+
+    # ------------------------------------------------------------------ registration
+    def _frame_edges(self, rec: FrameReconstruction) -> Edges:
+        rows = []
+        for b in rec.boxes:
+            w = math.nan if (b.cut_left or b.cut_right) else b.x1 - b.x0
+            zc, d = (b.z0 + b.z1) / 2, b.z1 - b.z0
+            if not b.cut_left:
+                rows.append((b.slot, 0, b.x0, w, d, zc, b.height))
+            if not b.cut_right:
+                rows.append((b.slot, 1, b.x1, w, d, zc, b.height))
+        return _edges(rows)
+
+    def _map_edges(self, lo: float, hi: float) -> Edges:
+        rows = []
+        for slot_boxes in self.boxes:
+            for m in slot_boxes:
+                if m.x1 < lo or m.x0 > hi:
+                    continue
+                w = m.width if (m.nl and m.nr) else math.nan
+                zc = (m.z0 + m.z1) / 2
+                if m.nl:
+                    rows.append((m.slot, 0, m.x0, w, m.depth, zc, m.h, m.nl))
+                if m.nr:
+                    rows.append((m.slot, 1, m.x1, w, m.depth, zc, m.h, m.nr))
+        return _edges(rows)
+
+    def _frame_rack_edges(self, rec: FrameReconstruction) -> Edges:
+        rows = []
+        for sh in rec.shelves:
+            for x0, x1, cut_l, cut_r in sh.segments:
+                if not cut_l:
+                    rows.append((sh.slot + RACK_SLOT, 0, x0, math.nan, 0.0, 0.0, 0.0))
+                if not cut_r:
+                    rows.append((sh.slot + RACK_SLOT, 1, x1, math.nan, 0.0, 0.0, 0.0))
+        return _edges(rows)
+
+    def _map_rack_edges(self, lo: float, hi: float) -> Edges:
+        """Fused rack ends (shelf-run ends) between ``lo`` and ``hi``."""
+        return _edges(
+            [(slot + RACK_SLOT, side, x, math.nan, 0.0, 0.0, 0.0, n) for slot, side, x, n in self.ends if lo <= x <= hi]
+        )
+
+    def _merge_ends(self, rec: FrameReconstruction, off: float) -> None:
+        """Average whole rack ends into the map's ends (within two columns), or add new ones."""
+        for sh in rec.shelves:
+            for x0, x1, cut_l, cut_r in sh.segments:
+                for side, x, cut in ((0, x0 + off, cut_l), (1, x1 + off, cut_r)):
+                    if cut:
+                        continue
+                    for e in self.ends:
+                        if e[0] == sh.slot and e[1] == side and abs(e[2] - x) <= 2 * self.dx:
+                            e[2] = (e[2] * e[3] + x) / (e[3] + 1)
+                            e[3] += 1
+                            break
+                    else:
+                        self.ends.append([sh.slot, side, x, 1])
+
+    def register(self, rec: FrameReconstruction, top: np.ndarray | None) -> StepRecord:
+        """Estimate this frame's camera offset in the map (does not change the map)."""
+        idx = len(self.steps)
+        if idx == 0:
+            return StepRecord(0, 0.0, 0.0, 0, 1.0, "first", 0)
+        cfg = self.shift_cfg
+        pred = self._offset
+        half = self.spec.x_extent / 2 + cfg.max_step
+        # Box edges and rack ends vote together (each kind only pairs with its own kind).
+        fe = _concat(self._frame_edges(rec), self._frame_rack_edges(rec))
+        me = _concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
+        off, support, conf = vote_offset(fe, me, pred, cfg, self.dx)
+        method = "edges"
+        if support < cfg.min_support:
+            method, conf, off = "prediction", 0.0, self._offset + self._velocity
+            if top is not None and self._prev_top is not None:
+                s, c = correlate_shift(self._prev_top, top, self.spec)
+                if c >= cfg.min_corr_conf and abs(s) <= cfg.max_step:
+                    off, conf, method = self._offset + s, c * 0.5, "correlation"
+        shift = off - self._offset
+        direction = 0 if abs(shift) < 0.25 * self.dx else int(math.copysign(1, shift))
+        return StepRecord(idx, off, shift, direction, conf, method, int(support))
+
+    # ------------------------------------------------------------------ merging
+    def add(self, rec: FrameReconstruction, top: np.ndarray | None = None, frame: int | None = None) -> StepRecord:
+        """Register one frame and fuse it into the map; returns its step record."""
+        step = self.register(rec, top)
+        if frame is not None:
+            step.frame = frame
+        off = step.offset
+        self._velocity = step.shift if step.method != "prediction" else self._velocity
+        self._offset = off
+        self.steps.append(step)
+        self._prev_top = top
+        self._merge_shelves(rec, off)
+        self._merge_ends(rec, off)
+        lo = self.spec.col_to_x(rec.vis_lo) + off
+        hi = self.spec.col_to_x(rec.vis_hi) + off
+        by_slot: list[list[FrameBox]] = [[] for _ in self.boxes]
+        for b in rec.boxes:
+            by_slot[b.slot].append(b)
+        for r, fbs in enumerate(by_slot):
+            if not rec.shelves[r].present:
+                continue
+            near = [m for m in self.boxes[r] if m.x1 > lo - 0.5 and m.x0 < hi + 0.5]
+            for m in near:
+                if m.x0 >= lo and m.x1 <= hi:
+                    m.n_seen += 1
+            self._merge_slot(r, fbs, near, off)
+        return step
+
+    def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[_Box], off: float) -> None:
+        if not fbs:
+            return
+        matched: dict[int, int] = {}
+        if near:
+            score = np.zeros((len(fbs), len(near)))
+            for i, f in enumerate(fbs):
+                fx0, fx1 = f.x0 + off, f.x1 + off
+                for j, m in enumerate(near):
+                    ix = min(fx1, m.x1) - max(fx0, m.x0)
+                    iz = min(f.z1, m.z1) - max(f.z0, m.z0)
+                    if ix <= 0 or iz <= 0:
+                        continue
+                    sx = ix / max(min(fx1 - fx0, m.width), 1e-6)
+                    sz = iz / max(min(f.z1 - f.z0, m.depth), 1e-6)
+                    score[i, j] = sx * sz
+            ri, ci = linear_sum_assignment(-score)
+            matched = {int(i): int(j) for i, j in zip(ri, ci) if score[i, j] >= self.cfg.match_score}
+        for i, f in enumerate(fbs):
+            if i in matched:
+                near[matched[i]].fuse(f, off)
+            elif near and score[i].max() >= self.cfg.match_score:
+                # A second piece of an already matched box (a split detection): fuse, never duplicate.
+                near[int(np.argmax(score[i]))].fuse(f, off)
+            else:
+                self.boxes[r].append(_Box(f, off))
+
+    def _merge_shelves(self, rec: FrameReconstruction, off: float) -> None:
+        spec = self.spec
+        n = rec.vis_hi - rec.vis_lo
+        self.slot_frames += 1
+        if n <= 0:
+            return
+        x_first = float(spec.col_to_x(rec.vis_lo + 0.5)) + off
+        g_first = int(math.floor(x_first / self.dx))
+        self._grow(g_first, g_first + n)
+        a = g_first - self.g0
+        for s in rec.shelves:
+            cols = s.shelf_cols[rec.vis_lo : rec.vis_hi]
+            self.seen[s.slot, a : a + n] += 1
+            self.votes[s.slot, a : a + n] += cols
+            if s.present:
+                self.slot_present[s.slot] += 1
+                k = self.nshelf[s.slot]
+                self.zr[s.slot] = (self.zr[s.slot] * k + np.asarray(s.z_range)) / (k + 1)
+                self.nshelf[s.slot] = k + 1
+                if s.clear_height > 0:  # a front view without the shelf says nothing about heights
+                    k = self.nclear[s.slot]
+                    self.clear[s.slot] = (self.clear[s.slot] * k + s.clear_height) / (k + 1)
+                    self.nclear[s.slot] = k + 1
+
+    def _grow(self, g_lo: int, g_hi: int) -> None:
+        R = self.votes.shape[0]
+        cur_lo, cur_hi = self.g0, self.g0 + self.votes.shape[1]
+        if self.votes.shape[1] == 0:
+            cur_lo = cur_hi = g_lo
+        new_lo, new_hi = min(cur_lo, g_lo), max(cur_hi, g_hi)
+        if new_lo == self.g0 and new_hi == self.g0 + self.votes.shape[1]:
+            return
+        # Grow in chunks so that repeated small extensions stay cheap.
+        pad = 64
+        new_lo = new_lo - pad if new_lo < cur_lo else new_lo
+        new_hi = new_hi + pad if new_hi > cur_hi else new_hi
+        votes = np.zeros((R, new_hi - new_lo), np.int32)
+        seen = np.zeros((R, new_hi - new_lo), np.int32)
+        a = cur_lo - new_lo
+        votes[:, a : a + self.votes.shape[1]] = self.votes
+        seen[:, a : a + self.seen.shape[1]] = self.seen
+        self.votes, self.seen, self.g0 = votes, seen, new_lo
+
+    # ------------------------------------------------------------------ output
+    def build(self, origin_world: tuple[float, float, float] | None = None, meta: dict | None = None) -> WarehouseMap:
+        """The current map as a `WarehouseMap` (racks from the shelf strip, boxes with stable ids)."""
+        cfg = self.cfg
+        R = self.votes.shape[0]
+        frames = max(self.slot_frames, 1)
+        present = self.slot_present / frames >= 0.5
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = np.where(self.seen > 0, self.votes / np.maximum(self.seen, 1), 0.0)
+        shelf_bins = (frac >= 0.5) & present[:, None]
+        any_bins = shelf_bins.any(axis=0)
+        runs = _bin_runs(any_bins, int(round(cfg.rack_gap_fill / self.dx)))
+        racks: list[MapRack] = []
+        rack_ranges = []
+        for a, b in runs:
+            x0, x1 = (self.g0 + a) * self.dx, (self.g0 + b) * self.dx
+            if x1 - x0 >= cfg.min_rack_length:
+                rack_ranges.append((x0, x1))
+        # Board heights from the fused clear heights: H_0 = 0, H_{r+1} = H_r + clear_r + thickness.
+        boards = np.concatenate([[0.0], np.cumsum(self.clear + self.board_thickness)])[:R]
+        boxes_out: list[list[tuple[float, _Box]]] = [[] for _ in range(len(rack_ranges))]
+        for r in range(R):
+            for m in _dedup(self.boxes[r], cfg.match_score):
+                if m.n_obs < cfg.min_support * max(m.n_seen, 1):
+                    continue
+                mean_conf = m.conf / m.n_obs
+                if m.n_full == 0 and (m.nl == 0 or m.nr == 0) and mean_conf < 0.3:
+                    continue
+                cx = (m.x0 + m.x1) / 2
+                if not rack_ranges:
+                    continue
+                k = int(np.argmin([0 if x0 <= cx <= x1 else min(abs(cx - x0), abs(cx - x1)) for x0, x1 in rack_ranges]))
+                boxes_out[k].append((cx, m))
+        for k, (x0, x1) in enumerate(rack_ranges):
+            rid = f"rack_{k:02d}"
+            shelves = []
+            for r in range(R):
+                if not present[r]:
+                    continue
+                sid = f"{rid}/shelf_{r:02d}"
+                board, clear = float(boards[r]), float(self.clear[r])
+                items = sorted(((cx, m) for cx, m in boxes_out[k] if m.slot == r), key=lambda t: (t[0], t[1].z0))
+                boxes = []
+                for j, (_, m) in enumerate(items):
+                    cx, cz, w, d, yaw = m.cuboid_params()
+                    conf = m.conf / m.n_obs * min(1.0, m.n_obs / 3)
+                    if m.n_full == 0:
+                        conf *= 0.7
+                    boxes.append(
+                        MapBox(
+                            f"{sid}/box_{j:03d}",
+                            (cx, -(board + m.h / 2), cz),
+                            (w, m.h, d),
+                            yaw,
+                            float(conf),
+                            m.n_obs,
+                        )
+                    )
+                s_conf = float(self.slot_present[r] / frames)
+                shelves.append(MapShelf(sid, r, board, clear, (x0, x1), tuple(self.zr[r]), s_conf, boxes))
+            racks.append(MapRack(rid, (x0, x1), shelves))
+        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, dict(meta or {}))
+
+
+def _overlap(a: _Box, b: _Box) -> float:
+    ix = min(a.x1, b.x1) - max(a.x0, b.x0)
+    iz = min(a.z1, b.z1) - max(a.z0, b.z0)
+    if ix <= 0 or iz <= 0:
+        return 0.0
+    return ix / max(min(a.width, b.width), 1e-6) * iz / max(min(a.depth, b.depth), 1e-6)
+
+
+def _dedup(boxes: list[_Box], thr: float) -> list[_Box]:
+    """Drop boxes that overlap a better-observed box by ``thr`` or more (kept box absorbs the count)."""
+    order = sorted(boxes, key=lambda m: (-m.n_obs, m.x0))
+    kept: list[_Box] = []
+    for m in order:
+        host = next((k for k in kept if _overlap(k, m) >= thr), None)
+        if host is None:
+            kept.append(m)
+        else:
+            host.n_seen = max(host.n_seen, m.n_seen)
+    return sorted(kept, key=lambda m: m.x0)
+
+
+def _concat(a: Edges, b: Edges) -> Edges:
+    return Edges(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in ("slot", "side", "x", "w", "d", "z", "h", "n")))
+
+
+def _edges(rows: list[tuple]) -> Edges:
+    if not rows:
+        return Edges.empty()
+    a = np.array([r if len(r) == 8 else (*r, 1) for r in rows], dtype=float)
+    return Edges(a[:, 0].astype(int), a[:, 1].astype(int), a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6], a[:, 7])
+
+
+def _bin_runs(mask: np.ndarray, fill: int) -> list[tuple[int, int]]:
+    """Runs of True, joining runs separated by at most ``fill`` False bins."""
+    idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(idx) > fill + 1)
+    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
+    ends = np.concatenate([idx[breaks], [idx[-1]]]) + 1
+    return list(zip(starts.tolist(), ends.tolist()))

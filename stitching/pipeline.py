@@ -1,0 +1,121 @@
+"""Detect -> lift -> shift -> merge over a sequence of layouts from any source.
+
+>>> result = reconstruct(frames, spec)          # doctest: +SKIP
+>>> result.map.save("warehouse.json")           # doctest: +SKIP
+
+``frames`` yields `layouts.codecs.FrameLayouts` (or ``(top, front)`` / ``(top, front, visible)``
+tuples); a `layouts.codecs.LayoutFolder` is read with `folder_frames`. Frames are processed one
+at a time and not kept (streaming); ``on_frame`` sees each frame's reconstruction and step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.errors import InputError
+from layouts.spec import LayoutSpec
+from stitching.detect import DetectConfig, detect_frame
+from stitching.lift import FrameReconstruction, LiftConfig, lift_frame
+from stitching.merge import MapBuilder, MergeConfig
+from stitching.shift import ShiftConfig
+from stitching.warehouse_map import StepRecord, WarehouseMap
+
+
+@dataclass(frozen=True)
+class StitchConfig:
+    """All stitching settings in one place."""
+
+    detect: DetectConfig = field(default_factory=DetectConfig)
+    lift: LiftConfig = field(default_factory=LiftConfig)
+    shift: ShiftConfig = field(default_factory=ShiftConfig)
+    merge: MergeConfig = field(default_factory=MergeConfig)
+
+    @classmethod
+    def noisy(cls, board_thickness: float = 0.06) -> StitchConfig:
+        """Settings for network output: a 3x3 opening of the box masks before labelling."""
+        return cls(detect=DetectConfig(opening=1), lift=LiftConfig(board_thickness=board_thickness))
+
+
+@dataclass
+class Reconstruction:
+    map: WarehouseMap
+    frames: int
+
+
+FrameInput = FrameLayouts | tuple
+
+
+def _as_frame(item: FrameInput, i: int) -> FrameLayouts:
+    if isinstance(item, FrameLayouts):
+        return item
+    if isinstance(item, tuple) and len(item) in (2, 3):
+        return FrameLayouts(*item)
+    raise InputError(f"frame {i}: expected FrameLayouts or (top, front[, visible]), got {type(item).__name__}")
+
+
+def folder_frames(folder: LayoutFolder, indices: Iterable[int] | None = None) -> Iterator[tuple[int, FrameLayouts]]:
+    """``(index, FrameLayouts)`` for the frames of a layout folder, in index order."""
+    for i in indices if indices is not None else folder.indices():
+        yield i, folder.read(i)
+
+
+class Stitcher:
+    """Stateful, streaming: ``push`` one frame at a time, ``map()`` whenever needed."""
+
+    def __init__(self, spec: LayoutSpec, config: StitchConfig | None = None):
+        if not isinstance(spec, LayoutSpec):
+            raise InputError(f"spec must be a LayoutSpec, got {type(spec).__name__}")
+        self.spec = spec
+        self.config = config or StitchConfig()
+        self.builder = MapBuilder(spec, self.config.merge, self.config.shift, self.config.lift.board_thickness)
+        self.count = 0
+
+    def push(self, frame: FrameInput, index: int | None = None) -> tuple[FrameReconstruction, StepRecord]:
+        """Detect, lift, register and merge one frame."""
+        idx = self.count if index is None else int(index)
+        fl = _as_frame(frame, idx)
+        det = detect_frame(fl.top, fl.front, self.spec, fl.visible, self.config.detect, name=f"frame {idx}")
+        rec = lift_frame(det, self.config.lift)
+        top = fl.top
+        if fl.visible is not None and not fl.visible.all():
+            top = top * fl.visible[None, None, :].astype(np.uint8)  # unseen columns are guesses
+        step = self.builder.add(rec, top, frame=idx)
+        self.count += 1
+        return rec, step
+
+    def map(self, origin_world: tuple[float, float, float] | None = None, meta: dict | None = None) -> WarehouseMap:
+        return self.builder.build(origin_world, meta)
+
+
+def reconstruct(
+    frames: Iterable[FrameInput] | Iterable[tuple[int, FrameLayouts]],
+    spec: LayoutSpec,
+    config: StitchConfig | None = None,
+    on_frame: Callable[[int, FrameLayouts, FrameReconstruction, StepRecord, Stitcher], None] | None = None,
+    origin_world: tuple[float, float, float] | None = None,
+    meta: dict | None = None,
+    indexed: bool = False,
+) -> Reconstruction:
+    """Stitch a sequence of layouts into a `WarehouseMap` (``indexed``: items are ``(index, frame)``)."""
+    st = Stitcher(spec, config)
+    for i, item in enumerate(frames):
+        idx, fr = (item[0], item[1]) if indexed else (i, item)
+        fl = _as_frame(fr, idx)
+        rec, step = st.push(fl, idx)
+        if on_frame is not None:
+            on_frame(idx, fl, rec, step, st)
+    return Reconstruction(st.map(origin_world, meta), st.count)
+
+
+def frame_arrays(top: np.ndarray, front: np.ndarray, visible: np.ndarray | None = None) -> list[FrameLayouts]:
+    """Split ``(N, R, D, D)`` top/front arrays (and ``(N, D)`` visible) into per-frame inputs."""
+    top, front = np.asarray(top), np.asarray(front)
+    if top.ndim != 4 or front.shape != top.shape:
+        raise InputError(f"top/front must both be (N, R, D, D), got {top.shape} and {front.shape}")
+    if visible is not None and np.asarray(visible).shape != (top.shape[0], top.shape[-1]):
+        raise InputError(f"visible must be (N, D) = {(top.shape[0], top.shape[-1])}, got {np.asarray(visible).shape}")
+    return [FrameLayouts(top[i], front[i], None if visible is None else visible[i]) for i in range(top.shape[0])]

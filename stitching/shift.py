@@ -1,0 +1,126 @@
+"""Shift: where a frame sits along the row relative to what is already mapped.
+
+Two estimators, the second a fallback:
+
+* `vote_offset`: box edges of the new frame vs. box edges already in the map (which holds the
+  previous frames fused). Every pair of like edges (same slot, left/left or right/right, similar
+  depth, height and, when both are whole, width) proposes an offset; the offset with the most
+  distinct supporting frame edges within ``tol`` wins (a 1D consensus, so mismatched pairs are
+  outliers that cannot pull it), ties go to the hypothesis nearest the prediction, and the
+  answer is the mean of the supporters (pixel-quantised edges average out). Matching against the
+  fused map rather than only the previous frame keeps the error from accumulating frame by frame.
+* `correlate_shift`: phase correlation (``skimage.registration.phase_cross_correlation``,
+  sub-pixel) of the previous and current top-view layouts, used when too few edges agree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from layouts.classes import BOX
+from layouts.spec import LayoutSpec
+
+
+@dataclass(frozen=True)
+class ShiftConfig:
+    max_step: float = 0.45  #: metres; largest |offset - previous offset| considered
+    tol_px: float = 1.05  #: layout columns; supporters of a hypothesis lie this close to it (edges are
+    #: quantised to whole columns, so the two neighbouring quantisation levels must both count)
+    size_tol: float = 0.06  #: metres; like edges must agree this well in depth/height/width
+    min_support: int = 2  #: distinct agreeing frame edges needed to trust the box vote
+    min_corr_conf: float = 0.2  #: below this the correlation result is not used
+
+
+@dataclass
+class Edges:
+    """Box edges as parallel arrays: slot, side (0 left, 1 right), x, width (nan if cut), depth, z, height, count."""
+
+    slot: np.ndarray
+    side: np.ndarray
+    x: np.ndarray
+    w: np.ndarray
+    d: np.ndarray
+    z: np.ndarray
+    h: np.ndarray
+    n: np.ndarray  #: observations behind each edge (its weight in the refinement)
+
+    @classmethod
+    def empty(cls) -> Edges:
+        e = np.zeros(0)
+        return cls(e.astype(int), e.astype(int), e, e, e, e, e, e)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+
+def vote_offset(frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig, dx: float) -> tuple[float, int, float]:
+    """Consensus offset ``map_x - frame_x``: (offset, distinct supporting frame edges, confidence).
+
+    ``dx`` is the layout's metres per column (the quantisation step of the edges).
+    """
+    tol = cfg.tol_px * dx
+    if len(frame) == 0 or len(mapped) == 0:
+        return predicted, 0, 0.0
+    off = mapped.x[None, :] - frame.x[:, None]
+    ok = (frame.slot[:, None] == mapped.slot[None, :]) & (frame.side[:, None] == mapped.side[None, :])
+    ok &= np.abs(off - predicted) <= cfg.max_step
+    ok &= np.abs(frame.d[:, None] - mapped.d[None, :]) <= cfg.size_tol
+    ok &= np.abs(frame.h[:, None] - mapped.h[None, :]) <= cfg.size_tol
+    ok &= np.abs(frame.z[:, None] - mapped.z[None, :]) <= cfg.size_tol
+    dw = np.abs(frame.w[:, None] - mapped.w[None, :])
+    ok &= ~(dw > cfg.size_tol)  # nan (a cut width) never rejects
+    fi, mi = np.nonzero(ok)
+    if fi.size == 0:
+        return predicted, 0, 0.0
+    hyp = off[fi, mi]
+    close = np.abs(hyp[:, None] - hyp[None, :]) <= tol  # (H, H)
+    # Distinct frame edges supporting each hypothesis.
+    nf = len(frame)
+    support = np.zeros((len(hyp), nf), bool)
+    rows, cols = np.nonzero(close)
+    support[rows, fi[cols]] = True
+    count = support.sum(axis=1)
+    best_count = count.max()
+    cand = np.flatnonzero(count == best_count)
+    best = cand[np.argmin(np.abs(hyp[cand] - predicted))]
+    # Refine: mean of one supporter per frame edge (the pair nearest the centre) within tol, twice.
+    centre = float(hyp[best])
+    weight = np.maximum(mapped.n[mi], 1.0)
+    for _ in range(2):
+        chosen: dict[int, tuple[float, float]] = {}
+        sel = np.flatnonzero(np.abs(hyp - centre) <= tol)
+        for k in sel.tolist():
+            f, h = int(fi[k]), float(hyp[k])
+            if f not in chosen or abs(h - centre) < abs(chosen[f][0] - centre):
+                chosen[f] = (h, float(weight[k]))
+        if not chosen:
+            break
+        hs, ws = np.array(list(chosen.values())).T
+        centre = float(np.average(hs, weights=ws))
+    offset = centre
+    conf = float(min(1.0, best_count / max(4.0, 0.5 * nf)))
+    return offset, int(best_count), conf
+
+
+def correlate_shift(prev_top: np.ndarray, cur_top: np.ndarray, spec: LayoutSpec) -> tuple[float, float]:
+    """Camera shift (metres, + = camera moved to +X) between two top-view stacks by phase correlation.
+
+    Returns ``(shift, confidence)``; confidence 0 when either layout is blank.
+    """
+    from skimage.registration import phase_cross_correlation
+
+    a = (prev_top != 0).astype(np.float32) + (prev_top == BOX)
+    b = (cur_top != 0).astype(np.float32) + (cur_top == BOX)
+    a = a.reshape(-1, a.shape[-1])
+    b = b.reshape(-1, b.shape[-1])
+    if a.std() == 0 or b.std() == 0:
+        return 0.0, 0.0
+    shift, error, _ = phase_cross_correlation(a, b, upsample_factor=20, normalization=None)
+    # `shift` moves `b` onto `a`: content moves left (-col) when the camera moves right, so the
+    # shift that brings it back is +col for a camera move to +X.
+    dx = spec.x_extent / spec.size
+    if abs(shift[0]) > 0.5:  # a row offset means the stacks do not describe the same shelves
+        return float(shift[1] * dx), 0.0
+    return float(shift[1] * dx), float(max(0.0, 1.0 - error))

@@ -1,0 +1,238 @@
+"""`WarehouseMap`: racks -> shelves -> boxes as metric cuboids, with ids, confidences and JSON I/O.
+
+Map frame: the shelf-centric frame of the first frame and slot 0 (DESIGN.md axes): X = metres
+along the row from the first camera X, Y down with ``Y = 0`` at the top of slot 0's board (so a
+height ``h`` above that board is ``Y = -h``), Z about the rack mid-depth. Boxes use the
+generator's cuboid convention: ``center``, ``size = (w, h, d)``, ``yaw`` turning the width axis
+to ``(cos yaw, sin yaw)`` in ``(x, z)``. ``origin_world`` (optional) places the map in a world
+frame: ``world = map + origin_world``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, load_json
+from stitching.geometry import Cuboid
+
+MAP_FORMAT = "mvracklay-warehouse-map"
+MAP_VERSION = 1
+
+
+@dataclass
+class MapBox:
+    id: str
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    yaw: float
+    confidence: float
+    observations: int
+
+    @property
+    def cuboid(self) -> Cuboid:
+        return Cuboid(tuple(self.center), tuple(self.size), self.yaw)
+
+
+@dataclass
+class MapShelf:
+    id: str
+    slot: int  #: shelf slot, counted from the lowest visible shelf
+    board_height: float  #: metres above slot 0's board
+    clear_height: float
+    x_range: tuple[float, float]
+    z_range: tuple[float, float]
+    confidence: float
+    boxes: list[MapBox] = field(default_factory=list)
+
+    @property
+    def cuboid(self) -> Cuboid:
+        """The free space above the board up to the next board (the shelf's volume)."""
+        x0, x1 = self.x_range
+        z0, z1 = self.z_range
+        return Cuboid(
+            ((x0 + x1) / 2, -(self.board_height + self.clear_height / 2), (z0 + z1) / 2),
+            (x1 - x0, self.clear_height, z1 - z0),
+        )
+
+
+@dataclass
+class MapRack:
+    id: str
+    x_range: tuple[float, float]
+    shelves: list[MapShelf] = field(default_factory=list)
+
+
+@dataclass
+class StepRecord:
+    """One frame's registration: offset of its camera X in the map, and how it was found."""
+
+    frame: int
+    offset: float  #: camera X of this frame in the map frame
+    shift: float  #: offset change since the previous merged frame
+    direction: int  #: +1 moving to +X, -1 to -X, 0 still / unknown
+    confidence: float
+    method: str  #: 'first', 'edges' (box edges and rack ends), 'correlation', 'prediction'
+    matches: int
+
+
+@dataclass
+class WarehouseMap:
+    racks: list[MapRack]
+    steps: list[StepRecord]
+    board_thickness: float
+    origin_world: tuple[float, float, float] | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    # ----------------------------------------------------------- queries
+    def shelves(self) -> list[MapShelf]:
+        return [s for r in self.racks for s in r.shelves]
+
+    def boxes(self) -> list[MapBox]:
+        return [b for s in self.shelves() for b in s.boxes]
+
+    def box_cuboids(self) -> list[Cuboid]:
+        return [b.cuboid for b in self.boxes()]
+
+    def shelf(self, shelf_id: str) -> MapShelf:
+        for s in self.shelves():
+            if s.id == shelf_id:
+                return s
+        raise InputError(f"no shelf {shelf_id!r} in the map (have {[s.id for s in self.shelves()][:8]} ...)")
+
+    @property
+    def camera_offsets(self) -> list[float]:
+        return [s.offset for s in self.steps]
+
+    # ----------------------------------------------------------- JSON
+    def to_dict(self) -> dict[str, Any]:
+        def r6(v):
+            return [round(float(x), 6) for x in v]
+
+        return {
+            "format": MAP_FORMAT,
+            "version": MAP_VERSION,
+            "frame": "X along the row from the first camera X, Y down from slot 0's board top, Z about rack mid-depth (metres)",
+            "origin_world": None if self.origin_world is None else r6(self.origin_world),
+            "board_thickness": round(self.board_thickness, 6),
+            "meta": self.meta,
+            "steps": [
+                {
+                    "frame": s.frame,
+                    "offset": round(s.offset, 6),
+                    "shift": round(s.shift, 6),
+                    "direction": s.direction,
+                    "confidence": round(s.confidence, 4),
+                    "method": s.method,
+                    "matches": s.matches,
+                }
+                for s in self.steps
+            ],
+            "racks": [
+                {
+                    "id": r.id,
+                    "x_range": r6(r.x_range),
+                    "shelves": [
+                        {
+                            "id": s.id,
+                            "slot": s.slot,
+                            "board_height": round(s.board_height, 6),
+                            "clear_height": round(s.clear_height, 6),
+                            "x_range": r6(s.x_range),
+                            "z_range": r6(s.z_range),
+                            "confidence": round(s.confidence, 4),
+                            "boxes": [
+                                {
+                                    "id": b.id,
+                                    "center": r6(b.center),
+                                    "size": r6(b.size),
+                                    "yaw": round(b.yaw, 6),
+                                    "confidence": round(b.confidence, 4),
+                                    "observations": b.observations,
+                                }
+                                for b in s.boxes
+                            ],
+                        }
+                        for s in r.shelves
+                    ],
+                }
+                for r in self.racks
+            ],
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any, source: str = "warehouse map") -> WarehouseMap:
+        if not isinstance(d, dict) or d.get("format") != MAP_FORMAT:
+            raise InputError(f"{source}: not a warehouse map (format must be {MAP_FORMAT!r})")
+        if d.get("version") != MAP_VERSION:
+            raise InputError(f"{source}: warehouse map version {d.get('version')!r} is not supported")
+        try:
+            racks = []
+            for r in d["racks"]:
+                shelves = []
+                for s in r["shelves"]:
+                    boxes = [
+                        MapBox(
+                            str(b["id"]),
+                            _vec(b["center"], 3),
+                            _vec(b["size"], 3),
+                            float(b["yaw"]),
+                            float(b["confidence"]),
+                            int(b["observations"]),
+                        )
+                        for b in s["boxes"]
+                    ]
+                    shelves.append(
+                        MapShelf(
+                            str(s["id"]),
+                            int(s["slot"]),
+                            float(s["board_height"]),
+                            float(s["clear_height"]),
+                            _vec(s["x_range"], 2),
+                            _vec(s["z_range"], 2),
+                            float(s["confidence"]),
+                            boxes,
+                        )
+                    )
+                racks.append(MapRack(str(r["id"]), _vec(r["x_range"], 2), shelves))
+            steps = [
+                StepRecord(
+                    int(s["frame"]),
+                    float(s["offset"]),
+                    float(s["shift"]),
+                    int(s["direction"]),
+                    float(s["confidence"]),
+                    str(s["method"]),
+                    int(s["matches"]),
+                )
+                for s in d["steps"]
+            ]
+            origin = d.get("origin_world")
+            return cls(
+                racks,
+                steps,
+                float(d["board_thickness"]),
+                None if origin is None else _vec(origin, 3),
+                dict(d.get("meta") or {}),
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{source}: malformed warehouse map ({type(e).__name__}: {e})") from None
+
+    def save(self, path: str | os.PathLike) -> None:
+        atomic_write_json(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> WarehouseMap:
+        return cls.from_dict(load_json(path), str(path))
+
+
+def _vec(v: Any, n: int) -> tuple[float, ...]:
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise ValueError(f"expected {n} numbers, got {v!r}")
+    out = tuple(float(x) for x in v)
+    if not all(math.isfinite(x) for x in out):
+        raise ValueError(f"non-finite value in {v!r}")
+    return out

@@ -1,0 +1,26 @@
+"""Shared fixtures: a tiny WareSynth dataset generated once per test session."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+# Import the working tree's packages even where an older editable install maps them elsewhere.
+_ROOT = str(Path(__file__).resolve().parents[1])
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+
+from layouts.spec import LayoutSpec  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """3 sequences x 8 frames, 128x128 images, layouts D=64, seed 7 (a few seconds)."""
+    from waresynth.generate import generate_dataset
+
+    out = tmp_path_factory.mktemp("waresynth") / "tiny"
+    return generate_dataset(
+        out, num_sequences=3, frames=8, image_size=(128, 128), spec=LayoutSpec(size=64), seed=7, progress=False
+    )

@@ -1,0 +1,120 @@
+"""Training learns, checkpoints round-trip and resume, bad checkpoints are refused safely."""
+
+from __future__ import annotations
+
+import json
+import math
+import pickle
+
+import pytest
+import torch
+
+from layouts import InputError, LayoutSpec
+from network.checkpoint import export_weights, load_checkpoint, load_model, save_checkpoint
+from network.evaluate import evaluate_sequences
+from network.model import ModelConfig, MVRackLay
+from network.toy import ToySequence
+from network.train import TrainConfig, Trainer
+
+SPEC = LayoutSpec(num_slots=2, size=16)
+
+
+def tiny(variant: str = "mvracklay-disc-4") -> ModelConfig:
+    return ModelConfig(
+        variant=variant, input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=16, decoder_width=8
+    )
+
+
+def seqs(n: int = 2, frames: int = 6):
+    return [ToySequence(SPEC, num_frames=frames, step_cols=2, seed=s, name=f"toy{s}") for s in range(n)]
+
+
+def test_fitting_a_handful_of_frames_lowers_loss_and_raises_iou(tmp_path):
+    data = seqs()
+    tcfg = TrainConfig(
+        frames_per_step=8, steps_per_epoch=20, epochs=3, lr=1e-2, dice_weight=0.0, augment=False, seed=0, threads=1
+    )
+    trainer = Trainer(tiny("mvracklay-4"), tcfg, data, data, tmp_path / "run", progress=False)
+    before = evaluate_sequences(trainer.model.eval(), data, progress=False)
+    trainer.fit()
+    after = evaluate_sequences(trainer.model.eval(), data, progress=False)
+    hist = [json.loads(s) for s in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert len(hist) == 3 and hist[-1]["step"] == 60
+    assert hist[-1]["loss"]["sup"] < 0.6 * hist[0]["loss"]["sup"]
+    for view in ("top", "front"):
+        assert after["visible"][view]["rack"]["miou"] > max(0.8, before["visible"][view]["rack"]["miou"] + 0.2)
+    box = after["visible"]["front"]["box"]["miou"]
+    assert not math.isnan(box) and box > before["visible"]["front"]["box"]["miou"] + 0.1
+    assert (tmp_path / "run" / "best.pt").exists() and (tmp_path / "run" / "best.json").exists()
+
+
+def test_checkpoint_round_trip_resume_and_export(tmp_path):
+    data = seqs(1, 5)
+    tcfg = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=1, seed=1, threads=1)
+    run = tmp_path / "run"
+    Trainer(tiny(), tcfg, data, data, run, progress=False).fit()
+    model, record = load_model(run / "last.pt")
+    assert record["variant"] == "mvracklay-disc-4" and record["step"] == 2
+    assert LayoutSpec.from_dict(record["spec"]) == SPEC
+    assert json.loads((run / "last.json").read_text())["model_config"] == tiny().to_dict()
+    payload, _ = load_checkpoint(run / "last.pt")
+    fresh = MVRackLay(tiny())
+    fresh.load_state_dict(payload["model"])
+    fresh.eval()
+    x = torch.rand(1, 4, 3, 64, 64)
+    with torch.no_grad():
+        torch.testing.assert_close(model(x)["top"], fresh(x)["top"])
+    # Resume continues the step count with the optimiser state; a fresh run into the folder is refused.
+    with pytest.raises(InputError, match="--resume"):
+        Trainer(tiny(), tcfg, data, data, run, progress=False)
+    tcfg2 = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=2, seed=1, threads=1)
+    t2 = Trainer(tiny(), tcfg2, data, data, run, resume=True, progress=False)
+    assert t2.step == 2 and t2.opt.state_dict()["state"]
+    t2.fit()
+    assert load_checkpoint(run / "last.pt")[1]["step"] == 4
+    with pytest.raises(InputError, match="different model config"):
+        Trainer(tiny("mvracklay-4"), tcfg2, data, data, run, resume=True, progress=False)
+    # fp16 export loads back into a float32 model.
+    export_weights(run / "last.pt", tmp_path / "w.pt")
+    p, rec = load_checkpoint(tmp_path / "w.pt")
+    assert rec["dtype"] == "float16" and "optimizer" not in p
+    assert p["model"]["encoder.conv1.weight"].dtype == torch.float16
+    m16, _ = load_model(tmp_path / "w.pt")
+    with torch.no_grad():
+        agree = (m16(x)["top"].argmax(3) == model(x)["top"].argmax(3)).float().mean()
+    assert agree > 0.9  # near-tied logits of an untrained model may flip
+
+
+class _Evil:
+    def __init__(self, path):
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (self.path, "w"))
+
+
+def test_corrupt_or_pickled_checkpoints_are_refused(tmp_path):
+    good = tmp_path / "good.pt"
+    save_checkpoint(good, {"model": MVRackLay(tiny()).state_dict()}, {"model_config": tiny().to_dict()})
+    data = good.read_bytes()
+    trunc = tmp_path / "trunc.pt"
+    trunc.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match=r"trunc\.pt: not a readable checkpoint"):
+        load_model(trunc)
+    sentinel = tmp_path / "pwned"
+    evil = tmp_path / "evil.pt"
+    torch.save({"model": {}, "record_json": "{}", "x": _Evil(str(sentinel))}, evil)
+    with pytest.raises(InputError, match=r"evil\.pt: holds pickled Python objects"):
+        load_model(evil)
+    assert not sentinel.exists()
+    raw = tmp_path / "raw.pt"
+    raw.write_bytes(pickle.dumps(_Evil(str(sentinel))))
+    with pytest.raises(InputError, match=r"raw\.pt"):
+        load_model(raw)
+    assert not sentinel.exists()
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(2)}, other)
+    with pytest.raises(InputError, match="not an MVRackLay checkpoint"):
+        load_model(other)
+    with pytest.raises(InputError, match="not found"):
+        load_model(tmp_path / "missing.pt")

@@ -1,0 +1,8 @@
+"""WareSynth: procedural synthetic warehouses with ground-truth rack layouts.
+
+`waresynth.generate.generate_dataset` writes a dataset (docs/waresynth.md);
+`waresynth.dataset.open_dataset` reads one without torch.
+"""
+
+DATASET_FORMAT = "waresynth"
+DATASET_VERSION = 1

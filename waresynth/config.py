@@ -1,0 +1,196 @@
+"""Generator configuration: the embedded defaults, user overrides and validation.
+
+A config is a nested JSON object (see ``default_config.json`` and docs/waresynth.md). A user
+config overrides any subset of keys; keys starting with ``_`` are comments. Unknown keys and
+bad values are refused with one line naming the key, e.g.
+``config.json: camera.distance must be [low, high] with low <= high, got [3, 2]``.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+from layouts.errors import InputError
+from layouts.fileio import load_json
+
+DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.json")
+
+#: Texture names each section may use (renderer patterns).
+TEXTURES: dict[str, tuple[str, ...]] = {
+    "rack": ("plain", "perforated", "noise"),
+    "boxes": ("plain", "tape", "label", "noise"),
+    "floor": ("plain", "tiles", "noise"),
+    "wall": ("plain", "bricks", "panels", "noise"),
+}
+
+_INF = math.inf
+#: Allowed value range per key ("*" matches any density preset name) and whether it is an integer.
+_BOUNDS: dict[str, tuple[float, float, bool]] = {
+    "camera.hfov_deg": (10.0, 150.0, False),
+    "camera.distance": (0.3, 50.0, False),
+    "camera.height": (0.2, 50.0, False),
+    "camera.step": (0.0, 10.0, False),
+    "camera.reverse_probability": (0.0, 1.0, False),
+    "rack.levels": (1, 12, True),
+    "rack.first_level": (0.0, 10.0, False),
+    "rack.spacing": (0.2, 10.0, False),
+    "rack.top_clearance": (0.1, 10.0, False),
+    "rack.depth": (0.2, 10.0, False),
+    "rack.width": (0.5, 50.0, False),
+    "rack.gap": (0.2, 50.0, False),
+    "rack.wide_gap_probability": (0.0, 1.0, False),
+    "rack.wide_gap": (0.2, 50.0, False),
+    "rack.board_thickness": (0.005, 0.5, False),
+    "rack.upright_width": (0.01, 0.5, False),
+    "rack.colour_jitter": (0.0, 1.0, False),
+    "boxes.density.*.weight": (0.0, _INF, False),
+    "boxes.density.*.gap": (0.0, 50.0, False),
+    "boxes.density.*.empty_probability": (0.0, 1.0, False),
+    "boxes.density.*.stack_probability": (0.0, 1.0, False),
+    "boxes.width": (0.05, 10.0, False),
+    "boxes.depth": (0.05, 10.0, False),
+    "boxes.height": (0.05, 10.0, False),
+    "boxes.max_stack": (1, 20, True),
+    "boxes.head_room": (0.0, 5.0, False),
+    "boxes.setback": (0.0, 5.0, False),
+    "boxes.yaw_deg": (0.0, 90.0, False),
+    "boxes.yaw_probability": (0.0, 1.0, False),
+    "boxes.reflectance": (0.0, 1.0, False),
+    "boxes.colour_jitter": (0.0, 1.0, False),
+    "background.busy_probability": (0.0, 1.0, False),
+    "background.wall_distance": (0.2, 100.0, False),
+    "background.busy_wall_distance": (0.5, 100.0, False),
+    "background.background_rack_distance": (0.3, 100.0, False),
+    "background.props_per_gap": (0, 50, True),
+    "background.end_props": (0, 50, True),
+    "floor.colour_jitter": (0.0, 1.0, False),
+    "wall.colour_jitter": (0.0, 1.0, False),
+    "lighting.ambient": (0.0, 1.0, False),
+    "lighting.intensity": (0.0, 5.0, False),
+    "lighting.light_height": (0.5, 100.0, False),
+    "lighting.light_offset_z": (-50.0, 50.0, False),
+    "lighting.shadow_strength": (0.0, 1.0, False),
+    "sensor.noise_sigma": (0.0, 100.0, False),
+    "sensor.gain": (0.1, 10.0, False),
+}
+
+
+def default_config() -> dict[str, Any]:
+    """The embedded default config (a fresh copy, comment keys removed)."""
+    text = DEFAULT_CONFIG_PATH.read_text(encoding="utf-8")
+    return _strip_comments(json.loads(text))
+
+
+def _strip_comments(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {k: _strip_comments(v) for k, v in d.items() if not (isinstance(k, str) and k.startswith("_"))}
+    return d
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _bounds_for(key: str) -> tuple[float, float, bool] | None:
+    if key in _BOUNDS:
+        return _BOUNDS[key]
+    parts = key.split(".")
+    if len(parts) == 4 and parts[:2] == ["boxes", "density"]:
+        return _BOUNDS.get(f"boxes.density.*.{parts[3]}")
+    return None
+
+
+def _check_leaf(src: str, key: str, value: Any, default: Any) -> None:
+    """Check one user value against the type of the default and the key's bounds."""
+    section = key.split(".")[0]
+    if key.endswith("textures"):
+        allowed = TEXTURES[section]
+        if not isinstance(value, list) or not value or not all(isinstance(t, str) and t in allowed for t in value):
+            raise InputError(f"{src}: {key} must be a non-empty list of textures from {list(allowed)}, got {value!r}")
+        return
+    if key.endswith("colours"):
+        ok = (
+            isinstance(value, list)
+            and value
+            and all(isinstance(c, list) and len(c) == 3 and all(_is_num(x) and 0 <= x <= 255 for x in c) for c in value)
+        )
+        if not ok:
+            raise InputError(f"{src}: {key} must be a non-empty list of [r, g, b] with values in 0..255, got {value!r}")
+        return
+    bounds = _bounds_for(key)
+    lo, hi, integer = bounds if bounds else (-_INF, _INF, False)
+    kind = "an integer" if integer else "a number"
+    if isinstance(default, list):
+        if not (isinstance(value, list) and len(value) == 2 and all(_is_num(x) for x in value)):
+            raise InputError(f"{src}: {key} must be [low, high] ({kind} each), got {value!r}")
+        if value[0] > value[1]:
+            raise InputError(f"{src}: {key} must be [low, high] with low <= high, got {value!r}")
+        items = value
+    else:
+        if not _is_num(value):
+            raise InputError(f"{src}: {key} must be {kind}, got {value!r}")
+        items = [value]
+    for x in items:
+        if integer and float(x) != int(x):
+            raise InputError(f"{src}: {key} must be {kind}, got {value!r}")
+        if not lo <= x <= hi:
+            raise InputError(f"{src}: {key} must lie in [{lo:g}, {hi:g}], got {value!r}")
+
+
+def _merge(src: str, base: dict[str, Any], user: dict[str, Any], prefix: str = "") -> None:
+    for k, v in user.items():
+        if isinstance(k, str) and k.startswith("_"):
+            continue
+        key = f"{prefix}{k}"
+        if k not in base:
+            raise InputError(f"{src}: unknown key {key!r}")
+        if isinstance(base[k], dict):
+            if not isinstance(v, dict):
+                raise InputError(f"{src}: {key} must be an object, got {v!r}")
+            _merge(src, base[k], v, key + ".")
+        else:
+            _check_leaf(src, key, v, base[k])
+            base[k] = copy.deepcopy(v)
+
+
+def _check_whole(src: str, cfg: dict[str, Any]) -> None:
+    """Checks across keys, after merging."""
+    weights = [p["weight"] for p in cfg["boxes"]["density"].values()]
+    if sum(weights) <= 0:
+        raise InputError(f"{src}: boxes.density weights must not all be 0")
+    b = cfg["boxes"]
+    if b["height"][0] + b["head_room"] >= cfg["rack"]["spacing"][0] - cfg["rack"]["board_thickness"][1]:
+        raise InputError(
+            f"{src}: boxes.height[0] + boxes.head_room must be below the smallest clear height "
+            f"(rack.spacing[0] - rack.board_thickness[1])"
+        )
+    if b["width"][1] > cfg["rack"]["width"][0] - 2 * cfg["rack"]["upright_width"][1] - 0.05:
+        raise InputError(f"{src}: boxes.width[1] must fit between the uprights of the narrowest rack (rack.width[0])")
+    if b["depth"][0] + b["setback"][0] > cfg["rack"]["depth"][0]:
+        raise InputError(f"{src}: boxes.depth[0] + boxes.setback[0] must not exceed rack.depth[0]")
+
+
+def load_config(config: dict[str, Any] | str | os.PathLike | None = None) -> dict[str, Any]:
+    """Effective config: the defaults overridden by ``config`` (a dict, a JSON file path or None)."""
+    cfg = default_config()
+    if config is None:
+        return cfg
+    if isinstance(config, (str, os.PathLike)):
+        src = str(config)
+        if not Path(config).is_file():
+            raise InputError(f"{src}: config file not found")
+        user = load_json(config)
+    elif isinstance(config, dict):
+        src, user = "config", config
+    else:
+        raise InputError(f"config must be a dict, a JSON file path or None, got {type(config).__name__}")
+    if not isinstance(user, dict):
+        raise InputError(f"{src}: config must be a JSON object, got {type(user).__name__}")
+    _merge(src, cfg, copy.deepcopy(user))
+    _check_whole(src, cfg)
+    return cfg

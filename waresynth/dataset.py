@@ -1,0 +1,166 @@
+"""Torch-free reader for WareSynth datasets (format in docs/conventions.md and docs/waresynth.md).
+
+>>> ds = open_dataset("data/waresynth")                 # doctest: +SKIP
+>>> seq = ds.sequences("train")[0]                      # doctest: +SKIP
+>>> rgb, lay = seq.rgb(0), seq.layouts(0)               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from layouts.camera import Intrinsics
+from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.errors import InputError
+from layouts.fileio import load_json
+from layouts.spec import LayoutSpec
+from waresynth import DATASET_FORMAT, DATASET_VERSION
+from waresynth.imageio import read_png
+
+SPLITS = ("train", "val", "test")
+
+
+class Sequence:
+    """One camera sequence: images, ground-truth layouts, per-frame records and the scene."""
+
+    def __init__(self, root: Path, name: str, split: str, spec: LayoutSpec):
+        self.root = Path(root)
+        self.name = name
+        self.split = split
+        self.spec = spec
+        if not self.root.is_dir():
+            raise InputError(f"{self.root}: sequence folder not found (incomplete dataset? re-run generate to resume)")
+
+    def __repr__(self) -> str:
+        return f"Sequence({self.name!r}, split={self.split!r}, frames={self.num_frames})"
+
+    @cached_property
+    def meta(self) -> dict[str, Any]:
+        path = self.root / "meta.json"
+        meta = load_json(path)
+        if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+            raise InputError(f"{path}: not a WareSynth sequence meta.json (no frames list)")
+        return meta
+
+    @cached_property
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics.from_dict(self.meta.get("intrinsics"), str(self.root / "meta.json"))
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.meta["frames"])
+
+    def __len__(self) -> int:
+        return self.num_frames
+
+    def _index(self, i: int) -> int:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.num_frames:
+            raise InputError(f"{self.name}: frame index must be an integer in [0, {self.num_frames}), got {i!r}")
+        return int(i)
+
+    def frame(self, i: int) -> dict[str, Any]:
+        """Per-frame record: index, camera_position, distance, rack_mid_z, slots, visible_fraction."""
+        return self.meta["frames"][self._index(i)]
+
+    def rgb_path(self, i: int) -> Path:
+        return self.root / "rgb" / f"{self._index(i):06d}.png"
+
+    def depth_path(self, i: int) -> Path:
+        return self.root / "depth" / f"{self._index(i):06d}.png"
+
+    def semantic_path(self, i: int) -> Path:
+        return self.root / "semantic" / f"{self._index(i):06d}.png"
+
+    def instance_path(self, i: int) -> Path:
+        return self.root / "instance" / f"{self._index(i):06d}.png"
+
+    def rgb(self, i: int) -> np.ndarray:
+        """uint8 (H, W, 3)."""
+        return read_png(self.rgb_path(i), np.uint8, channels=3)
+
+    def depth(self, i: int) -> np.ndarray:
+        """float32 (H, W) Z depth in metres; 0 where no surface was hit."""
+        return read_png(self.depth_path(i), np.uint16).astype(np.float32) / np.float32(1000.0)
+
+    def semantic(self, i: int) -> np.ndarray:
+        """uint8 (H, W) ids of `waresynth.semantics`."""
+        return read_png(self.semantic_path(i), np.uint8)
+
+    def instance(self, i: int) -> np.ndarray:
+        """int32 (H, W) instance ids (scene.json "instances"; 0 = none)."""
+        return read_png(self.instance_path(i), np.uint16).astype(np.int32)
+
+    @cached_property
+    def layout_folder(self) -> LayoutFolder:
+        return LayoutFolder(self.root / "layouts")
+
+    def layouts(self, i: int) -> FrameLayouts:
+        """Ground-truth top/front layouts (R, D, D) and visible columns of frame ``i``."""
+        return self.layout_folder.read(self._index(i))
+
+    def scene(self) -> dict[str, Any]:
+        """The world-frame scene (racks -> shelves -> boxes, clutter, walls, instances)."""
+        path = self.root / "scene.json"
+        d = load_json(path)
+        if not isinstance(d, dict) or "racks" not in d:
+            raise InputError(f"{path}: not a WareSynth scene.json (no racks)")
+        return d
+
+    def camera_positions(self) -> np.ndarray:
+        """(N, 3) float64 world camera positions, one per frame."""
+        return np.array([f["camera_position"] for f in self.meta["frames"]], np.float64).reshape(-1, 3)
+
+
+class Dataset:
+    """A WareSynth dataset folder: the manifest plus its sequences."""
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError(f"{self.root}: dataset folder not found")
+        mpath = self.root / "manifest.json"
+        if not mpath.is_file():
+            raise InputError(f"{self.root}: not a WareSynth dataset (no manifest.json)")
+        m = load_json(mpath)
+        if not isinstance(m, dict) or m.get("format") != DATASET_FORMAT:
+            raise InputError(f"{mpath}: not a WareSynth manifest (format is not {DATASET_FORMAT!r})")
+        if m.get("version") != DATASET_VERSION:
+            raise InputError(f"{mpath}: dataset version {m.get('version')!r} is not supported (want {DATASET_VERSION})")
+        for key in ("seed", "config", "spec", "image_size", "sequences"):
+            if key not in m:
+                raise InputError(f"{mpath}: manifest lacks {key!r}")
+        self.manifest: dict[str, Any] = m
+        self.spec = LayoutSpec.from_dict(m["spec"], str(mpath))
+        self.config: dict[str, Any] = m["config"]
+        self.seed = int(m["seed"])
+        w, h = m["image_size"]
+        self.image_size: tuple[int, int] = (int(w), int(h))
+        self._entries = {e["name"]: e for e in m["sequences"]}
+
+    def __repr__(self) -> str:
+        return f"Dataset({str(self.root)!r}, sequences={len(self._entries)})"
+
+    def sequences(self, split: str | None = None) -> list[Sequence]:
+        """Sequences in manifest order, optionally of one split ('train', 'val', 'test')."""
+        if split is not None and split not in SPLITS:
+            raise InputError(f"split must be one of {SPLITS} or None, got {split!r}")
+        return [self.sequence(n) for n, e in self._entries.items() if split is None or e["split"] == split]
+
+    def sequence(self, name: str) -> Sequence:
+        if name not in self._entries:
+            raise InputError(f"{self.root}: no sequence named {name!r}")
+        return Sequence(self.root / name, name, self._entries[name]["split"], self.spec)
+
+    def complete(self) -> bool:
+        """True when every sequence of the manifest is on disk."""
+        return all((self.root / n / "meta.json").is_file() for n in self._entries)
+
+
+def open_dataset(root: str | os.PathLike) -> Dataset:
+    """Open a WareSynth dataset folder (one-line `InputError` if it is not one)."""
+    return Dataset(root)

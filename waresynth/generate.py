@@ -1,0 +1,289 @@
+"""Dataset writer: many sequences (scene + camera path each) rendered with ground truth to disk.
+
+Layout on disk: docs/conventions.md ("WareSynth dataset on disk") and docs/waresynth.md.
+Sequence k's seed comes from ``numpy.random.SeedSequence(seed).spawn(N)[k]``, so its bytes do
+not depend on the worker count; each sequence is written under a temporary name and renamed
+when complete, so an interrupted run resumes where it stopped and a re-run gives identical bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing as mp
+import os
+import resource
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from layouts.camera import Intrinsics
+from layouts.codecs import LayoutFolder
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, load_json
+from layouts.spec import LayoutSpec
+from waresynth import DATASET_FORMAT, DATASET_VERSION
+from waresynth.config import load_config
+from waresynth.groundtruth import frame_layouts, frame_slots
+from waresynth.imageio import write_png
+from waresynth.render import Renderer
+from waresynth.scene import build_scene
+
+SPLITS = ("train", "val", "test")
+MANIFEST = "manifest.json"
+
+
+def sequence_name(k: int) -> str:
+    return f"seq_{k:05d}"
+
+
+def sequence_seeds(seed: int, n: int) -> list[int]:
+    """Independent per-sequence seeds (63-bit ints) from one dataset seed."""
+    return [int(c.generate_state(1, np.uint64)[0] >> np.uint64(1)) for c in np.random.SeedSequence(seed).spawn(n)]
+
+
+def assign_splits(seed: int, n: int, fractions: tuple[float, float, float]) -> list[str]:
+    """Split sequences by the seed; every split with a positive fraction gets one when n allows."""
+    counts = [int(math.floor(f * n)) for f in fractions]
+    rema = sorted(range(3), key=lambda i: (-(fractions[i] * n - counts[i]), i))
+    for i in rema[: n - sum(counts)]:
+        counts[i] += 1
+    positive = [i for i in range(3) if fractions[i] > 0]
+    if n >= len(positive):
+        for i in positive:
+            if counts[i] == 0:
+                j = max(range(3), key=lambda k: counts[k])
+                counts[j] -= 1
+                counts[i] += 1
+    labels = [SPLITS[i] for i in range(3) for _ in range(counts[i])]
+    order = np.random.default_rng([seed, 0x5D117]).permutation(n)
+    out = [""] * n
+    for label, k in zip(labels, order):
+        out[int(k)] = label
+    return out
+
+
+# ----------------------------------------------------------------------------- one sequence
+def write_sequence(
+    root: Path,
+    entry: dict[str, Any],
+    spec: LayoutSpec,
+    cfg: dict[str, Any],
+    image_size: tuple[int, int],
+    nthreads: int = 1,
+    on_frame: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Render one sequence into ``root/.NAME.tmp`` and rename it to ``root/NAME`` when complete.
+
+    Returns what it cost in the process that wrote it: name, frames, cpu_seconds, max_rss_mib.
+    """
+    cpu0 = time.process_time()
+    name, seed, frames = entry["name"], int(entry["seed"]), int(entry["frames"])
+    final, tmp = root / name, root / f".{name}.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    intr = Intrinsics.from_fov(image_size[0], image_size[1], cfg["camera"]["hfov_deg"])
+    scene_rng = np.random.default_rng(np.random.SeedSequence([seed, 0]))
+    noise_rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
+    scene = build_scene(scene_rng, cfg, intr, frames)
+    renderer = Renderer(scene, intr, nthreads=nthreads, noise_seed=int(noise_rng.integers(2**63)))
+    for sub in ("rgb", "depth", "semantic", "instance"):
+        (tmp / sub).mkdir(parents=True)
+    folder = LayoutFolder.create(tmp / "layouts", spec)
+    slots = frame_slots(scene, spec)
+    distance = scene.camera.distance
+    records = []
+    for i, pos in enumerate(scene.camera.positions):
+        fr = renderer.render(pos, noise_rng)
+        fname = f"{i:06d}.png"
+        write_png(tmp / "rgb" / fname, fr.rgb)
+        write_png(tmp / "depth" / fname, fr.depth_mm)
+        write_png(tmp / "semantic" / fname, fr.semantic)
+        write_png(tmp / "instance" / fname, fr.instance)
+        lay = frame_layouts(scene, spec, float(pos[0]))
+        folder.write(i, lay)
+        records.append(
+            {
+                "index": i,
+                "camera_position": [float(v) for v in pos],
+                "distance": float(distance),
+                "rack_mid_z": float(scene.rack_mid_z),
+                "slots": [
+                    {**sl, "origin": [float(pos[0]), sl["board_top_y"], float(scene.rack_mid_z)]} for sl in slots
+                ],
+                "visible_fraction": float(lay.visible.mean()),
+            }
+        )
+        if on_frame:
+            on_frame()
+    atomic_write_json(tmp / "scene.json", scene.to_dict())
+    meta = {
+        "name": name,
+        "split": entry["split"],
+        "seed": seed,
+        "num_frames": frames,
+        "image_size": [intr.width, intr.height],
+        "intrinsics": intr.to_dict(),
+        "step": float(scene.camera.step),
+        "camera": {"height": scene.camera.height, "distance": distance, "hfov_deg": cfg["camera"]["hfov_deg"]},
+        "rack_mid_z": float(scene.rack_mid_z),
+        "visible_levels": scene.visible_levels,
+        "background": scene.background,
+        "density": scene.density,
+        "frames": records,
+    }
+    atomic_write_json(tmp / "meta.json", meta)
+    os.replace(tmp, final)
+    return {
+        "name": name,
+        "frames": frames,
+        "cpu_seconds": time.process_time() - cpu0,
+        "max_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def _worker(args: tuple) -> dict[str, Any]:
+    root, entry, spec_d, cfg, image_size, nthreads = args
+    return write_sequence(Path(root), entry, LayoutSpec.from_dict(spec_d), cfg, tuple(image_size), nthreads)
+
+
+# ----------------------------------------------------------------------------- whole dataset
+def _check_int(name: str, v: Any, lo: int, hi: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
+        raise InputError(f"{name} must be an integer in [{lo}, {hi}], got {v!r}")
+    return int(v)
+
+
+def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
+    """None when ``root`` holds this very dataset (complete or not), else why it does not."""
+    mpath = root / MANIFEST
+    if not mpath.is_file():
+        return f"{root}: not empty and not a WareSynth dataset"
+    try:
+        old = load_json(mpath)
+    except InputError as e:
+        return str(e)
+    if not isinstance(old, dict) or old.get("format") != DATASET_FORMAT:
+        return f"{mpath}: not a WareSynth manifest"
+    manifest = json.loads(json.dumps(manifest))
+    if old != manifest:
+        diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
+        return f"{root}: holds a different WareSynth dataset ({', '.join(diff)} differ)"
+    return None
+
+
+def _prepare_root(root: Path, manifest: dict[str, Any], overwrite: bool) -> None:
+    """Create ``root``, or accept it for resuming, or refuse (or with ``overwrite`` delete) a foreign one."""
+    if root.exists() and not root.is_dir():
+        raise InputError(f"{root}: exists and is not a directory")
+    if root.is_dir() and any(root.iterdir()):
+        problem = _same_dataset_problem(root, manifest)
+        if problem is not None and not overwrite:
+            raise InputError(f"{problem}; choose another folder or pass --overwrite")
+        if problem is not None:
+            resolved = root.resolve()
+            if (
+                resolved == Path(resolved.anchor)
+                or resolved == Path.home().resolve()
+                or Path.cwd().resolve().is_relative_to(resolved)
+            ):
+                raise InputError(
+                    f"{root}: refusing to overwrite a filesystem root, the home folder or the working folder"
+                )
+            shutil.rmtree(root)
+    root.mkdir(parents=True, exist_ok=True)
+
+
+def generate_dataset(
+    out_dir: str | os.PathLike,
+    *,
+    num_sequences: int,
+    frames: int,
+    image_size: tuple[int, int] = (256, 256),
+    spec: LayoutSpec | None = None,
+    seed: int = 0,
+    config: dict[str, Any] | str | os.PathLike | None = None,
+    workers: int = 1,
+    overwrite: bool = False,
+    progress: bool = True,
+    splits: tuple[float, float, float] = (0.9, 0.05, 0.05),
+    stats: list[dict[str, Any]] | None = None,
+) -> Path:
+    """Generate (or resume) a WareSynth dataset in ``out_dir``; returns its path.
+
+    Complete sequences already on disk are skipped; a non-empty folder that is not this same
+    dataset is refused unless ``overwrite``. ``config`` is a dict, a JSON path or None (defaults).
+    ``stats``, when a list, receives one cost record per sequence written (see `write_sequence`).
+    """
+    num_sequences = _check_int("num_sequences", num_sequences, 1, 100000)
+    frames = _check_int("frames", frames, 1, 100000)
+    seed = _check_int("seed", seed, 0, 2**63 - 1)
+    workers = _check_int("workers", workers, 1, 256)
+    if spec is None:
+        spec = LayoutSpec()
+    if not isinstance(spec, LayoutSpec):
+        raise InputError(f"spec must be a LayoutSpec, got {type(spec).__name__}")
+    if not (isinstance(image_size, (tuple, list)) and len(image_size) == 2):
+        raise InputError(f"image_size must be (width, height), got {image_size!r}")
+    w = _check_int("image width", image_size[0], 16, 8192)
+    h = _check_int("image height", image_size[1], 16, 8192)
+    if not (
+        isinstance(splits, (tuple, list))
+        and len(splits) == 3
+        and all(isinstance(f, (int, float)) and not isinstance(f, bool) and f >= 0 for f in splits)
+        and abs(sum(splits) - 1.0) < 1e-6
+    ):
+        raise InputError(f"splits must be three fractions (train, val, test) >= 0 summing to 1, got {splits!r}")
+    cfg = load_config(config)
+    root = Path(out_dir)
+    labels = assign_splits(seed, num_sequences, tuple(float(f) for f in splits))
+    seeds = sequence_seeds(seed, num_sequences)
+    entries = [
+        {"name": sequence_name(k), "split": labels[k], "seed": seeds[k], "frames": frames} for k in range(num_sequences)
+    ]
+    manifest = {
+        "format": DATASET_FORMAT,
+        "version": DATASET_VERSION,
+        "seed": seed,
+        "config": cfg,
+        "spec": spec.to_dict(),
+        "image_size": [w, h],
+        "splits": [float(f) for f in splits],
+        "sequences": entries,
+    }
+    _prepare_root(root, manifest, overwrite)
+    atomic_write_json(root / MANIFEST, manifest)
+    for stale in root.glob(".seq_*.tmp"):
+        shutil.rmtree(stale)
+    todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
+    if not todo:
+        return root
+    cores = os.cpu_count() or 1
+    workers = min(workers, len(todo))
+    bar = tqdm(total=len(todo) * frames, unit="frame", desc="generate", disable=not progress, dynamic_ncols=True)
+    try:
+        if workers == 1:
+            for e in todo:
+                st = write_sequence(root, e, spec, cfg, (w, h), nthreads=cores, on_frame=lambda: bar.update(1))
+                if stats is not None:
+                    stats.append(st)
+        else:
+            nthreads = max(1, cores // workers)
+            jobs = [(str(root), e, spec.to_dict(), cfg, (w, h), nthreads) for e in todo]
+            # forkserver: workers fork from a clean server that imported the renderer once
+            # (no threads inherited from this process, no per-worker import cost).
+            ctx = mp.get_context("forkserver")
+            ctx.set_forkserver_preload(["waresynth.generate"])
+            with ctx.Pool(workers) as pool:
+                for st in pool.imap_unordered(_worker, jobs, chunksize=1):
+                    bar.update(frames)
+                    if stats is not None:
+                        stats.append(st)
+    finally:
+        bar.close()
+    return root
