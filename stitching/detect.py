@@ -177,21 +177,37 @@ def _split_positions(score: np.ndarray, thr: float, min_cols: int, n: int) -> li
 
 
 def _piece(
-    spec: LayoutSpec, sub: np.ndarray, r_off: int, c_off: int, vis: tuple[int, int], cfg: DetectConfig
+    spec: LayoutSpec,
+    sub: np.ndarray,
+    r_off: int,
+    c_off: int,
+    vis: tuple[int, int],
+    cfg: DetectConfig,
+    trim: tuple[int, int] = (0, 0),
 ) -> TopBox | None:
-    """Metric footprint of one component piece ``sub`` (bool, rows x cols) placed at (r_off, c_off)."""
+    """Metric footprint of one component piece ``sub`` (bool, rows x cols) placed at (r_off, c_off).
+
+    ``trim`` = columns next to a split on the (left, right) side: the split position is uncertain
+    by a few columns, so those columns are left out of the depth range (they may hold the
+    neighbour's rows), and a split piece gets no oriented fit.
+    """
     cols = np.flatnonzero(sub.any(axis=0))
-    rows = np.flatnonzero(sub.any(axis=1))
     if cols.size == 0:
         return None
     a, b = int(cols[0]), int(cols[-1]) + 1
+    core = sub
+    if trim != (0, 0) and sub.shape[1] - trim[0] - trim[1] >= 3:
+        core = sub[:, trim[0] : sub.shape[1] - trim[1]]
+    rows = np.flatnonzero(core.any(axis=1))
+    if rows.size == 0:
+        return None
     ra, rb = int(rows[0]), int(rows[-1]) + 1
     c0, c1 = c_off + a, c_off + b
     x0, x1 = float(spec.col_to_x(c0)), float(spec.col_to_x(c1))
     z1, z0 = float(spec.row_to_a("top", r_off + ra)), float(spec.row_to_a("top", r_off + rb))
     cx, cz, w, d, yaw = (x0 + x1) / 2, (z0 + z1) / 2, x1 - x0, z1 - z0, 0.0
     area = int(sub.sum())
-    if cfg.fit_yaw and area >= 30 and area < cfg.yaw_fill * (b - a) * (rb - ra):
+    if cfg.fit_yaw and trim == (0, 0) and area >= 30 and area < cfg.yaw_fill * (b - a) * (rb - ra):
         # A convex shape's hull vertices are all column extremes: the top and bottom pixel of each column.
         s = sub[ra:rb, a:b]
         has_c = s.any(axis=0)
@@ -202,11 +218,15 @@ def _piece(
         pv = np.concatenate([top_r, bot_r]) + (r_off + ra) + 0.5
         px, pz = spec.to_metres("top", pu, pv)
         rcx, rcz, rw, rd, ryaw = min_area_rect(np.column_stack([px, pz]))
-        # Pixel centres lie half a pixel inside the true edges: grow by one pixel along each axis.
+        # Outermost pixel centres lie up to a pixel inside a true edge. Along a slanted side the
+        # centres take many sub-pixel phases, so the extreme one is nearly on the edge; only when a
+        # side crosses under one pixel step does the half-pixel gap of an axis-aligned edge remain.
         dx, dz = spec.pixel_size("top")
+        steps = min(rw, rd) * abs(np.sin(ryaw)) / min(dx, dz)
+        grow = 0.5 * float(np.clip(1.0 - steps, 0.0, 1.0))
         cy, sy = abs(np.cos(ryaw)), abs(np.sin(ryaw))
-        rw += dx * cy + dz * sy
-        rd += dx * sy + dz * cy
+        rw += 2 * grow * (dx * cy + dz * sy)
+        rd += 2 * grow * (dx * sy + dz * cy)
         if rw * rd < w * d:  # only keep the oriented fit when it is the tighter description
             cx, cz, w, d, yaw = rcx, rcz, rw, rd, ryaw
     m = int(round(cfg.cut_margin / (spec.x_extent / spec.size)))
@@ -287,12 +307,13 @@ def detect_frame(
     labels, n = ndimage.label(box_mask, structure=_STRUCT)
     min_px = cfg.min_box_area / (dx * dz)
     slots: list[SlotDetections] = []
+    cut_cols = int(round(cfg.cut_margin / dx))
     for r in range(R):
         cols = np.zeros(D, bool)
         cols[lo:hi] = shelf_frac[r] >= cfg.shelf_fraction
         present = bool(cols.any())
         segs = [
-            (float(spec.col_to_x(a)), float(spec.col_to_x(b)), a <= lo, b >= hi)
+            (float(spec.col_to_x(a)), float(spec.col_to_x(b)), a <= lo + cut_cols, b >= hi - cut_cols)
             for a, b in _runs(cols)
             if (b - a) * dx >= 0.1
         ]
@@ -332,14 +353,16 @@ def detect_frame(
                 cuts = _split_positions(score, cfg.split_step, min_cols, ncol)
                 edges = [0, *cuts, ncol]
                 pieces = list(zip(edges[:-1], edges[1:]))
+            trim = max(2, int(np.ceil(0.04 / dx)))
             for a, b in pieces:
                 piece = sub[:, a:b]
                 if piece.sum() < min_px:
                     continue
-                tb = _piece(spec, piece, rs.start, c_off + a, (lo, hi), cfg)
+                t = (trim if a > 0 else 0, trim if b < ncol else 0)
+                tb = _piece(spec, piece, rs.start, c_off + a, (lo, hi), cfg, t)
                 if tb is not None:
                     slots[r].boxes.append(tb)
     for s in slots:
         s.boxes.sort(key=lambda b: b.x0)
         s.front = _front_runs(spec, s.box_height, h_steps[s.slot], lo, hi, cfg)
-    return FrameDetections(slots, lo, hi, int(round(cfg.cut_margin / dx)))
+    return FrameDetections(slots, lo, hi, cut_cols)

@@ -183,6 +183,9 @@ class MapBuilder:
                 rows.append((b.slot, 0, b.x0, w, d, zc, b.height))
             if not b.cut_right:
                 rows.append((b.slot, 1, b.x1, w, d, zc, b.height))
+            if b.yaw != 0.0 and not (b.cut_left or b.cut_right):
+                # A turned box's fitted centre is sub-pixel accurate (its slanted sides cross many columns).
+                rows.append((b.slot, 2, b.cx, w, d, zc, b.height))
         return _edges(rows)
 
     def _map_edges(self, lo: float, hi: float) -> Edges:
@@ -197,6 +200,8 @@ class MapBuilder:
                     rows.append((m.slot, 0, m.x0, w, m.depth, zc, m.h, m.nl))
                 if m.nr:
                     rows.append((m.slot, 1, m.x1, w, m.depth, zc, m.h, m.nr))
+                if m.n_full and abs(math.atan2(m.s4, m.c4)) > 1e-3:
+                    rows.append((m.slot, 2, m.cx, w, m.depth, zc, m.h, m.n_full))
         return _edges(rows)
 
     def _frame_rack_edges(self, rec: FrameReconstruction) -> Edges:
@@ -241,12 +246,12 @@ class MapBuilder:
         # Box edges and rack ends vote together (each kind only pairs with its own kind).
         fe = _concat(self._frame_edges(rec), self._frame_rack_edges(rec))
         me = _concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
-        off, support, conf = vote_offset(fe, me, pred, cfg, self.dx)
+        off, support, conf = vote_offset(fe, me, pred, cfg, self.dx, pred + self._velocity)
         method = "edges"
         if support < cfg.min_support:
             method, conf, off = "prediction", 0.0, self._offset + self._velocity
             if top is not None and self._prev_top is not None:
-                s, c = correlate_shift(self._prev_top, top, self.spec)
+                s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
                 if c >= cfg.min_corr_conf and abs(s) <= cfg.max_step:
                     off, conf, method = self._offset + s, c * 0.5, "correlation"
         shift = off - self._offset
@@ -437,7 +442,9 @@ def _dedup(boxes: list[_Box], thr: float) -> list[_Box]:
 
 
 def _concat(a: Edges, b: Edges) -> Edges:
-    return Edges(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in ("slot", "side", "x", "w", "d", "z", "h", "n")))
+    return Edges(
+        *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in ("slot", "side", "x", "w", "d", "z", "h", "n"))
+    )
 
 
 def _edges(rows: list[tuple]) -> Edges:

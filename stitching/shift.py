@@ -30,7 +30,7 @@ class ShiftConfig:
     #: quantised to whole columns, so the two neighbouring quantisation levels must both count)
     size_tol: float = 0.06  #: metres; like edges must agree this well in depth/height/width
     min_support: int = 2  #: distinct agreeing frame edges needed to trust the box vote
-    min_corr_conf: float = 0.2  #: below this the correlation result is not used
+    min_corr_conf: float = 0.5  #: profile correlation below this is not used
 
 
 @dataclass
@@ -55,10 +55,14 @@ class Edges:
         return len(self.x)
 
 
-def vote_offset(frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig, dx: float) -> tuple[float, int, float]:
+def vote_offset(
+    frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig, dx: float, expected: float | None = None
+) -> tuple[float, int, float]:
     """Consensus offset ``map_x - frame_x``: (offset, distinct supporting frame edges, confidence).
 
-    ``dx`` is the layout's metres per column (the quantisation step of the edges).
+    ``dx`` is the layout's metres per column (the quantisation step of the edges). Hypotheses lie
+    within ``max_step`` of ``predicted`` (the previous offset: the camera may reverse); ties go to
+    the one nearest ``expected`` (constant velocity; default ``predicted``).
     """
     tol = cfg.tol_px * dx
     if len(frame) == 0 or len(mapped) == 0:
@@ -84,10 +88,10 @@ def vote_offset(frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig,
     count = support.sum(axis=1)
     best_count = count.max()
     cand = np.flatnonzero(count == best_count)
-    best = cand[np.argmin(np.abs(hyp[cand] - predicted))]
+    best = cand[np.argmin(np.abs(hyp[cand] - (predicted if expected is None else expected)))]
     # Refine: mean of one supporter per frame edge (the pair nearest the centre) within tol, twice.
     centre = float(hyp[best])
-    weight = np.maximum(mapped.n[mi], 1.0)
+    weight = np.sqrt(np.maximum(mapped.n[mi], 1.0))
     for _ in range(2):
         chosen: dict[int, tuple[float, float]] = {}
         sel = np.flatnonzero(np.abs(hyp - centre) <= tol)
@@ -104,23 +108,47 @@ def vote_offset(frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig,
     return offset, int(best_count), conf
 
 
-def correlate_shift(prev_top: np.ndarray, cur_top: np.ndarray, spec: LayoutSpec) -> tuple[float, float]:
-    """Camera shift (metres, + = camera moved to +X) between two top-view stacks by phase correlation.
+def _profiles(top: np.ndarray) -> np.ndarray:
+    """Per slot, the fraction of rows that are box and that are not background, per column: (2R, D)."""
+    rows = top.shape[1]
+    box = np.count_nonzero(top == BOX, axis=1) / rows
+    shelf = np.count_nonzero(top, axis=1) / rows
+    return np.concatenate([box, shelf]).astype(np.float64)
 
-    Returns ``(shift, confidence)``; confidence 0 when either layout is blank.
+
+def correlate_shift(
+    prev_top: np.ndarray, cur_top: np.ndarray, spec: LayoutSpec, max_step: float = 0.45
+) -> tuple[float, float]:
+    """Camera shift (metres, + = camera moved to +X) between two top-view stacks, and a confidence.
+
+    Correlates the per-column profiles (box fraction and shelf fraction of each slot; averaging
+    over rows makes them robust to scattered pixel flips) over lags up to ``max_step``, with a
+    parabolic sub-pixel peak. Content moves to -X when the camera moves to +X, so the current
+    profile at column c matches the previous one at c + lag. Confidence: the Pearson
+    correlation at the peak (0 when either layout is blank).
     """
-    from skimage.registration import phase_cross_correlation
-
-    a = (prev_top != 0).astype(np.float32) + (prev_top == BOX)
-    b = (cur_top != 0).astype(np.float32) + (cur_top == BOX)
-    a = a.reshape(-1, a.shape[-1])
-    b = b.reshape(-1, b.shape[-1])
+    a, b = _profiles(prev_top), _profiles(cur_top)
+    D = a.shape[1]
     if a.std() == 0 or b.std() == 0:
         return 0.0, 0.0
-    shift, error, _ = phase_cross_correlation(a, b, upsample_factor=20, normalization=None)
-    # `shift` moves `b` onto `a`: content moves left (-col) when the camera moves right, so the
-    # shift that brings it back is +col for a camera move to +X.
     dx = spec.x_extent / spec.size
-    if abs(shift[0]) > 0.5:  # a row offset means the stacks do not describe the same shelves
-        return float(shift[1] * dx), 0.0
-    return float(shift[1] * dx), float(max(0.0, 1.0 - error))
+    m = max(1, min(int(np.ceil(max_step / dx)), D // 2))
+    lags = np.arange(-m, m + 1)
+    score = np.full(len(lags), -np.inf)
+    for k, lag in enumerate(lags):
+        pa = a[:, max(lag, 0) : D + min(lag, 0)]
+        pb = b[:, max(-lag, 0) : D + min(-lag, 0)]
+        va, vb = pa - pa.mean(), pb - pb.mean()
+        den = np.sqrt((va * va).sum() * (vb * vb).sum())
+        if den > 0:
+            score[k] = float((va * vb).sum() / den)
+    k = int(np.argmax(score))
+    if not np.isfinite(score[k]):
+        return 0.0, 0.0
+    lag = float(lags[k])
+    if 0 < k < len(lags) - 1 and np.isfinite(score[k - 1]) and np.isfinite(score[k + 1]):
+        l, c, r = score[k - 1], score[k], score[k + 1]
+        den = l - 2 * c + r
+        if den < 0:
+            lag += float(np.clip(0.5 * (l - r) / den, -0.5, 0.5))
+    return lag * dx, float(max(0.0, score[k]))

@@ -246,3 +246,25 @@ def test_intrinsics_and_visible_columns():
         Intrinsics(0, 1, 0, 0, 10, 10)
     pix = k.project(np.array([[0.0, 0.0, 2.0], [1.0, 0.0, 2.0]]))
     assert pix[0].tolist() == [128.0, 128.0] and pix[1, 0] > 128
+
+
+def test_atomic_write_gives_normal_permissions_and_leaves_no_temp(tmp_path):
+    import os
+    import stat
+
+    from layouts.fileio import atomic_write_json, load_json
+
+    atomic_write_json(tmp_path / "a.json", {"b": 1, "a": 2})
+    assert load_json(tmp_path / "a.json") == {"a": 2, "b": 1}
+    assert (tmp_path / "a.json").read_text().startswith('{\n  "a": 2')
+    mode = stat.S_IMODE(os.stat(tmp_path / "a.json").st_mode)
+    assert mode & 0o044 == 0o044 & ~_current_umask()
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+
+
+def _current_umask() -> int:
+    import os
+
+    m = os.umask(0)
+    os.umask(m)
+    return m

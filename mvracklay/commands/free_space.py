@@ -27,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--margin", type=float, default=0.02, help="clearance in metres on each side and above the box")
     p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--csv", action="store_true", help="print CSV (one row per shelf) instead of a table")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +45,16 @@ def run(args: argparse.Namespace) -> int:
     if args.box:
         w, d, h = parse_box(args.box)
         placements = [f for f in fits(wmap, w, d, h, args.margin) if not args.shelf or f.shelf == args.shelf]
+    if args.json and args.csv:
+        raise InputError("choose one of --json and --csv")
+    if args.csv:
+        cols = ["shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume"]
+        cols += ["occupancy", "confidence"]
+        print(",".join(cols))
+        for r in rows:
+            d = r.to_dict()
+            print(",".join(str(d[c]) for c in cols))
+        return 0
     if args.json:
         out = {"map": str(path), "shelves": [r.to_dict() for r in rows]}
         if args.box:
