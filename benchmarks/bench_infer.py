@@ -4,7 +4,8 @@ Streaming: one encoder pass and one ConvLSTM step per frame (what ``mvracklay pr
 Windowed (cached): the paper's window of seq_len frames from a fresh state per frame, reusing
 cached encoder features. Windowed (recompute): the naive form that re-encodes the whole window.
 Speed does not depend on the weights, so the model is built from its config (random weights)
-unless --checkpoint is given. Images are fed at the model's input size (no resize).
+unless --checkpoint is given. Images are fed at the model's input size (no resize). On a shared machine the best of several
+passes is the figure least disturbed by other processes; the median is printed beside it.
 
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
 """
@@ -28,7 +29,8 @@ from network.infer import Predictor  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
 
-def bench(pred: Predictor, frames: list[np.ndarray], mode: str, warmup: int = 4) -> float:
+def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, warmup: int = 4) -> list[float]:
+    """frames/s of each of ``repeats`` passes over ``frames`` (after a warm-up)."""
     run = {
         "stream": lambda f: pred.stream(f),
         "window": lambda f: pred.window(f),
@@ -36,9 +38,12 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, warmup: int = 4)
     }[mode]
     for _ in run(frames[:warmup]):
         pass
-    t = time.perf_counter()
-    n = sum(1 for _ in run(frames))
-    return n / (time.perf_counter() - t)
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        n = sum(1 for _ in run(frames))
+        out.append(n / (time.perf_counter() - t))
+    return out
 
 
 def main() -> int:
@@ -48,6 +53,7 @@ def main() -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 256], help="square input sizes")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=3, help="passes per case; the best and median are shown")
     ap.add_argument("--modes", nargs="+", default=["stream", "window", "window-recompute"])
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
@@ -60,17 +66,20 @@ def main() -> int:
         base, cfg = None, ModelConfig(variant=args.variant)
     rng = np.random.default_rng(0)
     rows = []
-    print(f"torch {torch.__version__}, {args.threads} threads, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
-          f"layouts {cfg.spec.shape}")
+    print(
+        f"torch {torch.__version__}, {args.threads} threads, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
+        f"layouts {cfg.spec.shape}"
+    )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
         pred = Predictor(model)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
-            fps = bench(pred, frames, mode)
-            rows.append({"size": size, "mode": mode, "fps": fps, "threads": args.threads})
-            print(f"{size}x{size}  {mode:<17} {fps:7.1f} frames/s")
+            fps = bench(pred, frames, mode, args.repeats)
+            best, med = max(fps), float(np.median(fps))
+            rows.append({"size": size, "mode": mode, "fps_best": best, "fps_median": med, "threads": args.threads})
+            print(f"{size}x{size}  {mode:<17} best {best:7.1f}  median {med:7.1f} frames/s")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
     return 0

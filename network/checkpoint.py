@@ -92,13 +92,20 @@ def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
     return model, record
 
 
-def export_weights(src: str | os.PathLike, dst: str | os.PathLike, half: bool = True) -> dict[str, Any]:
-    """Strip a training checkpoint to the model's weights (fp16 by default) for shipping."""
+def export_weights(
+    src: str | os.PathLike, dst: str | os.PathLike, half: bool = True, note: str | None = None
+) -> dict[str, Any]:
+    """Strip a training checkpoint to the model's weights (fp16 by default) for shipping.
+
+    ``note`` (how it was trained, what it reproduces) is kept in the record beside it.
+    """
     payload, record = load_checkpoint(src)
     state = {k: (v.half() if half and v.is_floating_point() else v) for k, v in payload["model"].items()}
     record = dict(record)
     record["exported_from"] = Path(src).name
     record["dtype"] = "float16" if half else "float32"
+    if note:
+        record["note"] = note
     record.pop("format", None)
     record.pop("format_version", None)
     save_checkpoint(dst, {"model": state}, record)

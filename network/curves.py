@@ -53,9 +53,9 @@ def plot_curves(runs: dict[str, str | Path], out: str | Path, x_key: str = "trai
         for t in range(6):
             x = x0 + (x1 - x0) * t / 5
             d.line([x, y1, x, y1 + 4], fill="black")
-            d.text((x - 10, y1 + 6), f"{xmax * t / 5:.0f}" if xmax >= 5 else f"{xmax * t / 5:.1f}", fill="black")
+            d.text((x - 10, y1 + 6), f"{xmax * t / 5:.0f}" if xmax >= 20 else f"{xmax * t / 5:.1f}", fill="black")
         d.text((x1 - 120, y1 + 18), x_key.replace("_", " "), fill="black")
-        for i, (label, es) in enumerate(data.items()):
+        for i, es in enumerate(data.values()):
             pts = []
             for e in es:
                 v = e["val_visible"][view][cls]["miou"]

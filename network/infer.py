@@ -88,3 +88,11 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
 def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:
     """Both views' class-id stacks from one frame's logits."""
     return {v: logits_to_layout(out[v], size) for v in VIEWS}
+
+
+def predict_layouts(
+    model: MVRackLay, frames: Iterable[np.ndarray], mode: str = "stream", size: int | None = None
+) -> Iterator[dict[str, np.ndarray]]:
+    """``{"top", "front"}`` uint8 ``(R, size, size)`` class ids per frame of uint8 RGB images (any size)."""
+    for out in Predictor(model).run(frames, mode):
+        yield frame_layouts(out, size)

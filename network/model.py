@@ -48,7 +48,7 @@ class ModelConfig:
     input_width: int = 128
     input_height: int = 128
     spec: LayoutSpec = field(default_factory=lambda: LayoutSpec(size=64))
-    encoder_width: int = 64  #: ResNet-18 base width (64 = standard, needed for ImageNet weights)
+    encoder_width: int = 32  #: ResNet-18 base width (64 = standard, needed for ImageNet weights)
     hidden: int = 128  #: ConvLSTM channels
     lstm_layers: int = 2
     decoder_width: int = 32

@@ -311,7 +311,7 @@ class Trainer:
 
     def fit(self) -> dict[str, Any]:
         """Train to the end of the budget; returns the last record."""
-        record: dict[str, Any] = {}
+        record: dict[str, Any] = self._record(None)
         while not self._done():
             sums: dict[str, float] = {}
             n = 0

@@ -8,7 +8,9 @@
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
 #
 # Every step resumes: re-running skips finished sequences and continues runs from RUN/last.pt.
-# Override the folders with DATA=... RUNS=...; MINUTES=... shortens the runs for a smoke check.
+# Override the folders with DATA=... RUNS=...; for a smoke check of the whole recipe, shrink it, e.g.
+#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES=20 HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 MINUTES=0.5 \
+#   WEIGHTS=/tmp/r/w.pt CURVES=/tmp/r/curves.png scripts/train_default.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
@@ -16,12 +18,25 @@ DATA=${DATA:-data}
 RUNS=${RUNS:-runs}
 MINUTES=${MINUTES:-120}
 WORKERS=${WORKERS:-2}
+TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-2000}
+HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
+HELDOUT_FRAMES=${HELDOUT_FRAMES:-50}
+WEIGHTS=${WEIGHTS:-weights/mvracklay-disc-4.pt}
+CURVES=${CURVES:-docs/network_curves.png}
 
 # 1. Data. 2,000 scenes x 12 frames = 24,000 training frames (90/5/5 train/val/test split by the
 #    generator), 256x256 images, layouts R=3, D=128; the model reads them at 128x128 and predicts D=64.
-$PY -m mvracklay generate "$DATA/train" --sequences 2000 --frames 12 --size 256 --seed 101 --workers "$WORKERS"
+$PY -m mvracklay generate "$DATA/train" --sequences "$TRAIN_SEQUENCES" --frames 12 --size 256 --seed 101 --workers "$WORKERS"
 #    Held-out: 24 sequences x 50 frames (>= 20 sequences), dataset seed 202.
-$PY -m mvracklay generate "$DATA/heldout" --sequences 24 --frames 50 --size 256 --seed 202 --workers "$WORKERS"
+$PY -m mvracklay generate "$DATA/heldout" --sequences "$HELDOUT_SEQUENCES" --frames "$HELDOUT_FRAMES" --size 256 --seed 202 --workers "$WORKERS"
+
+#    No held-out sequence seed may appear in the training set.
+$PY - "$DATA/train/manifest.json" "$DATA/heldout/manifest.json" <<'PYEOF'
+import json, sys
+seeds = [{e["seed"] for e in json.load(open(p))["sequences"]} for p in sys.argv[1:]]
+assert not seeds[0] & seeds[1], "held-out sequence seeds overlap the training set"
+print(f"held-out: {len(seeds[1])} sequence seeds, none used in training ({len(seeds[0])})")
+PYEOF
 
 # 2. Train (same data, same frames per step, same budget). Validation every 250 steps on 20 val sequences.
 for V in mvracklay-disc-4 racklay; do
@@ -38,6 +53,6 @@ $PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "
     --mode stream --json "$RUNS/mvracklay-disc-4/table1_stream.json" | tee "$RUNS/mvracklay-disc-4/table1_stream.txt"
 
 # 4. Curves, speed, shipped weights.
-$PY -m network.curves docs/network_curves.png "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "racklay=$RUNS/racklay"
+$PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "racklay=$RUNS/racklay"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256
-$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out weights/mvracklay-disc-4.pt
+$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS"

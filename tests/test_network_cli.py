@@ -10,15 +10,43 @@ import pytest
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
 
-TINY = ["--input-size", "64", "64", "--layout-size", "16", "--encoder-width", "8", "--hidden", "16",
-        "--decoder-width", "8", "--threads", "1", "--quiet"]
+TINY = [
+    "--input-size",
+    "64",
+    "64",
+    "--layout-size",
+    "16",
+    "--encoder-width",
+    "8",
+    "--hidden",
+    "16",
+    "--decoder-width",
+    "8",
+    "--threads",
+    "1",
+    "--quiet",
+]
 
 
 @pytest.fixture(scope="module")
 def run_dir(tiny_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("net") / "run"
-    rc = main(["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "2",
-               "--frames-per-step", "4", *TINY])
+    rc = main(
+        [
+            "train",
+            "--data",
+            str(tiny_dataset),
+            "--out",
+            str(out),
+            "--epochs",
+            "1",
+            "--steps-per-epoch",
+            "2",
+            "--frames-per-step",
+            "4",
+            *TINY,
+        ]
+    )
     assert rc == 0
     return out
 
@@ -34,8 +62,24 @@ def test_train_writes_checkpoints_metrics_and_records(run_dir):
 
 def test_evaluate_prints_table_and_json(run_dir, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "eval.json"
-    rc = main(["evaluate", "--checkpoint", str(run_dir / "best.pt"), "--data", str(tiny_dataset), "--split", "all",
-               "--max-frames", "3", "--threads", "1", "--quiet", "--json", str(out)])
+    rc = main(
+        [
+            "evaluate",
+            "--checkpoint",
+            str(run_dir / "best.pt"),
+            "--data",
+            str(tiny_dataset),
+            "--split",
+            "all",
+            "--max-frames",
+            "3",
+            "--threads",
+            "1",
+            "--quiet",
+            "--json",
+            str(out),
+        ]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     assert "top    rack" in text and "columns in view" in text and "all cells" in text
@@ -47,8 +91,23 @@ def test_predict_writes_a_layout_folder_reconstruct_can_read(run_dir, tiny_datas
     seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
     for mode, src in (("stream", seq), ("window", seq / "rgb")):
         out = tmp_path / mode
-        rc = main(["predict", str(src), "--checkpoint", str(run_dir / "best.pt"), "--out", str(out),
-                   "--mode", mode, "--layout-size", "32", "--threads", "1", "--quiet"])
+        rc = main(
+            [
+                "predict",
+                str(src),
+                "--checkpoint",
+                str(run_dir / "best.pt"),
+                "--out",
+                str(out),
+                "--mode",
+                mode,
+                "--layout-size",
+                "32",
+                "--threads",
+                "1",
+                "--quiet",
+            ]
+        )
         assert rc == 0
         folder = LayoutFolder(out)
         assert folder.indices() == list(range(8)) and folder.spec.size == 32

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
 from layouts import InputError, LayoutSpec
-from network.infer import Predictor
+from network.infer import Predictor, predict_layouts
 from network.model import VARIANTS, ModelConfig, MVRackLay, build_discriminators
 from network.resnet import ResNet18Encoder, load_imagenet_weights
 from network.toy import ToySequence
@@ -84,15 +85,24 @@ def test_windowed_predictor_matches_the_window_forward():
             for v in ("top", "front"):
                 torch.testing.assert_close(cached[t][v], ref[v][0, -1], rtol=1e-4, atol=1e-5)
                 torch.testing.assert_close(naive[t][v], ref[v][0, -1], rtol=1e-4, atol=1e-5)
-        # The first frame's stream and window differ only by the repeated-frame warm-up.
         assert streamed[0]["top"].shape == cached[0]["top"].shape
+    lay = list(predict_layouts(model, [f[:40] for f in frames], "window", size=32))
+    assert len(lay) == 6 and lay[0]["front"].shape == (2, 32, 32) and lay[0]["top"].dtype == np.uint8
+    assert lay[5]["top"].max() <= 2
 
 
 def test_resnet_has_torchvision_names_and_loads_a_state_dict(tmp_path):
     enc = ResNet18Encoder(64)
     keys = set(enc.state_dict())
-    for k in ("conv1.weight", "bn1.running_mean", "layer1.0.conv1.weight", "layer1.0.bn1.weight",
-              "layer2.0.downsample.0.weight", "layer2.0.downsample.1.running_var", "layer4.1.bn2.bias"):
+    for k in (
+        "conv1.weight",
+        "bn1.running_mean",
+        "layer1.0.conv1.weight",
+        "layer1.0.bn1.weight",
+        "layer2.0.downsample.0.weight",
+        "layer2.0.downsample.1.running_var",
+        "layer4.1.bn2.bias",
+    ):
         assert k in keys
     assert sum(v.numel() for k, v in enc.state_dict().items() if k.endswith("weight") or k.endswith("bias")) == 11176512
     torch.manual_seed(3)

@@ -85,6 +85,17 @@ def test_checkpoint_round_trip_resume_and_export(tmp_path):
     assert agree > 0.9  # near-tied logits of an untrained model may flip
 
 
+def test_same_seed_gives_the_same_weights(tmp_path):
+    data = seqs(1, 5)
+    states = []
+    for k in range(2):
+        tcfg = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=1, seed=3, threads=1)
+        Trainer(tiny(), tcfg, data, [], tmp_path / f"r{k}", progress=False).fit()
+        states.append(load_checkpoint(tmp_path / f"r{k}" / "last.pt")[0]["model"])
+    for key, v in states[0].items():
+        assert torch.equal(v, states[1][key]), key
+
+
 class _Evil:
     def __init__(self, path):
         self.path = path

@@ -56,6 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--val-sequences", type=int, default=t.val_sequences, help="0 = all 'val' sequences")
     g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
     g.add_argument("--val-mode", choices=["window", "stream"], default=t.val_mode)
+    p.add_argument("--note", help="with --export: a line on how the weights were trained, kept in their JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     if args.export:
         from network.checkpoint import export_weights
 
-        export_weights(args.export, args.out)
+        export_weights(args.export, args.out, note=args.note)
         size = args.out.stat().st_size / 2**20
         print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
         return 0
@@ -119,7 +120,9 @@ def run(args: argparse.Namespace) -> int:
         "image_size": list(getattr(ds, "image_size", ())),
     }
     resume = bool(args.resume and (args.out / "last.pt").is_file())
-    trainer = Trainer(mcfg, tcfg, train_seqs, val_seqs, args.out, resume=resume, data_info=info, progress=not args.quiet)
+    trainer = Trainer(
+        mcfg, tcfg, train_seqs, val_seqs, args.out, resume=resume, data_info=info, progress=not args.quiet
+    )
     print(
         f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
         f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, batch {trainer.batch} x {mcfg.seq_len} frames"
