@@ -4,7 +4,7 @@ Each image counts once, together with its depth, semantic and instance PNGs, its
 and its share of meta.json/scene.json. Prints images/s (wall clock, including process start-up
 of the workers) and the peak resident memory of this process and of its largest worker.
 
-    .venv/bin/python benchmarks/bench_generate.py --sequences 4 --frames 25 --workers 2
+    .venv/bin/python benchmarks/bench_generate.py --sequences 4 --frames 50 --workers 2
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from waresynth.generate import generate_dataset  # noqa: E402
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sequences", type=int, default=4)
-    ap.add_argument("--frames", type=int, default=25)
+    ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--size", type=int, default=512, help="image width and height")
     ap.add_argument("--layout-size", type=int, default=128)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)

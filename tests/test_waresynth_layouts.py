@@ -122,3 +122,30 @@ def test_frame_records_match_layouts(tiny_dataset):
                 col = (lay.front[r] != 0).sum(0)
                 expect = min(slot["clear_height"], spec.h_extent) / spec.pixel_size("front")[1]
                 assert abs(col.max() - expect) <= 1.0
+
+
+def test_box_pixels_lie_on_their_scene_cuboid(tiny_dataset):
+    """Depth + instance images back-project onto the cuboid scene.json gives each box (yaw convention)."""
+    ds = open_dataset(tiny_dataset)
+    checked = yawed = 0
+    for seq in ds.sequences():
+        intr = seq.intrinsics
+        boxes = {b["instance_id"]: b for r in seq.scene()["racks"] for s in r["shelves"] for b in s["boxes"]}
+        for i in range(0, seq.num_frames, 3):
+            cam = np.array(seq.frame(i)["camera_position"])
+            depth, inst = seq.depth(i), seq.instance(i)
+            v, u = np.nonzero(np.isin(inst, list(boxes)))
+            z = depth[v, u].astype(np.float64)
+            pts = np.stack([(u + 0.5 - intr.cx) / intr.fx * z, (v + 0.5 - intr.cy) / intr.fy * z, z], 1) + cam
+            for iid in np.unique(inst[v, u]):
+                b = boxes[int(iid)]
+                q = pts[inst[v, u] == iid] - np.array(b["center"])
+                c, s = math.cos(b["yaw"]), math.sin(b["yaw"])
+                local = np.stack([c * q[:, 0] + s * q[:, 2], q[:, 1], -s * q[:, 0] + c * q[:, 2]], 1)
+                half = np.array(b["size"]) / 2
+                inside = (np.abs(local) <= half + 0.006).all(1)
+                on_face = (np.abs(np.abs(local) - half) <= 0.006).any(1)
+                assert (inside & on_face).mean() >= 0.97, b["id"]
+                checked += 1
+                yawed += abs(b["yaw"]) > 0.05
+    assert checked > 20 and yawed > 0

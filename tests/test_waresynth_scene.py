@@ -37,6 +37,15 @@ def test_scene_structure(seed):
     for k in scene.visible_levels:
         clear = scene.racks[0].shelves[k].clear_height
         assert level_visible(intr, scene.camera.height, scene.camera.distance, row["levels"][k], clear)
+    # The renderer relies on the floor being below and the wall behind everything else.
+    wall = next(p for p in scene.parts if p.semantic == semantics.WALL)
+    wall_front = wall.center[2] - wall.size[2] / 2
+    for p in scene.parts:
+        if p.semantic in (semantics.FLOOR, semantics.WALL):
+            continue
+        reach = 0.5 * (abs(math.sin(p.yaw)) * p.size[0] + abs(math.cos(p.yaw)) * p.size[2])
+        assert p.center[2] + reach <= wall_front + 1e-9
+        assert p.center[1] + p.size[1] / 2 <= 1e-9
     for a, b in zip(scene.racks, scene.racks[1:]):
         assert b.x_min - a.x_max >= 0.2 - 1e-9
     xs = scene.camera.positions[:, 0]

@@ -3,6 +3,3 @@
 `waresynth.generate.generate_dataset` writes a dataset (docs/waresynth.md);
 `waresynth.dataset.open_dataset` reads one without torch.
 """
-
-DATASET_FORMAT = "waresynth"
-DATASET_VERSION = 1

@@ -19,10 +19,11 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.spec import LayoutSpec
-from waresynth import DATASET_FORMAT, DATASET_VERSION
 from waresynth.imageio import read_png
 
 SPLITS = ("train", "val", "test")
+DATASET_FORMAT = "waresynth"  #: manifest.json "format"
+DATASET_VERSION = 1  #: manifest.json "version"; bump when the on-disk meaning changes
 
 
 class Sequence:

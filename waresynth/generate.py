@@ -27,8 +27,8 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
-from waresynth import DATASET_FORMAT, DATASET_VERSION
 from waresynth.config import load_config
+from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
 from waresynth.render import Renderer
@@ -150,6 +150,22 @@ def write_sequence(
 def _worker(args: tuple) -> dict[str, Any]:
     root, entry, spec_d, cfg, image_size, nthreads = args
     return write_sequence(Path(root), entry, LayoutSpec.from_dict(spec_d), cfg, tuple(image_size), nthreads)
+
+
+def _pool_context() -> mp.context.BaseContext:
+    """Fork while this process has not rendered (no Open3D threads to inherit; workers start at
+    once with everything imported); otherwise fork from a clean forkserver that imported the
+    renderer once."""
+    from waresynth import render
+
+    methods = mp.get_all_start_methods()
+    if not render.RENDERER_USED and "fork" in methods:
+        return mp.get_context("fork")
+    if "forkserver" in methods:
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["waresynth.generate"])
+        return ctx
+    return mp.get_context("spawn")
 
 
 # ----------------------------------------------------------------------------- whole dataset
@@ -275,11 +291,7 @@ def generate_dataset(
         else:
             nthreads = max(1, cores // workers)
             jobs = [(str(root), e, spec.to_dict(), cfg, (w, h), nthreads) for e in todo]
-            # forkserver: workers fork from a clean server that imported the renderer once
-            # (no threads inherited from this process, no per-worker import cost).
-            ctx = mp.get_context("forkserver")
-            ctx.set_forkserver_preload(["waresynth.generate"])
-            with ctx.Pool(workers) as pool:
+            with _pool_context().Pool(workers) as pool:
                 for st in pool.imap_unordered(_worker, jobs, chunksize=1):
                     bar.update(frames)
                     if stats is not None:

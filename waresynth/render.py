@@ -86,12 +86,19 @@ def _noise(x: np.ndarray, y: np.ndarray, z: np.ndarray, freq: float) -> np.ndarr
     return _NOISE[(ix << 12) | (iy << 6) | iz]
 
 
+#: Whether this process has built a renderer (and so may run Open3D/TBB threads): forking it is
+#: then unsafe, and the dataset writer starts its workers from a clean forkserver instead.
+RENDERER_USED = False
+
+
 class Renderer:
     """Renders one scene from any camera position (a pure translation facing +Z)."""
 
     def __init__(
         self, scene: Scene, intrinsics: Intrinsics, nthreads: int = 1, exact: bool = False, noise_seed: int = 0
     ):
+        global RENDERER_USED
+        RENDERER_USED = True
         self.scene = scene
         self.intr = intrinsics
         self.nthreads = int(nthreads)
@@ -259,12 +266,12 @@ class Renderer:
     # ------------------------------------------------------------------ shading
     def _albedo(self, prim, px, py, pz) -> list[np.ndarray]:
         """Albedo channels (3 x (N,)) at the hit points, with the procedural textures."""
-        pat = self.t_pattern[prim]
+        pat = np.take(self.t_pattern, prim)
         present = np.bincount(pat, minlength=len(PATTERNS))
         # Fine grain everywhere: 2 cm value noise on (x + z, y), pre-scaled to a factor 0.94..1.
         gi = ((px + pz) * np.float32(50.0) + _NOISE_SHIFT).astype(np.int32) & 255
         gj = (py * np.float32(50.0) + _NOISE_SHIFT).astype(np.int32) & 255
-        f = _GRAIN[(gi << 8) | gj]
+        f = np.take(_GRAIN, (gi << 8) | gj)
 
         def where(name):
             return np.flatnonzero(pat == PATTERNS[name]) if present[PATTERNS[name]] else np.zeros(0, np.intp)
@@ -313,7 +320,7 @@ class Renderer:
         if len(m):
             q = px[m] / self.p_scale[self.t_part[prim[m]]]
             f[m] *= (np.where(q % 1.0 < 0.02, 0.6, 1.0) * (0.92 + 0.08 * np.cos(q * 2 * np.pi * 8))).astype(np.float32)
-        cols = [tab[prim] * f for tab in self.t_col]
+        cols = [np.take(tab, prim) * f for tab in self.t_col]
         m = where("label")
         if len(m):
             part, lx, ly, _ = local(m)
@@ -330,17 +337,23 @@ class Renderer:
         w, h = self.intr.width, self.intr.height
         origin = np.asarray(position, np.float32)
         t, prim, agree = self._trace(origin)
+        self._face = prim >> 1  # uint32 face ids (both triangles of a face share one)
+        prim = prim.astype(np.intp)  # one conversion for the many table look-ups below
         self._prim_flat = prim
         miss = prim == self.n_tris
-        t = np.where(miss, np.float32(0), t)
+        t[miss] = 0.0
         dx, dy, dz = self.dflat
         # Cameras stay >= 0.2 m above the floor, so every hit is deeper than 0.5 mm (never 0).
-        depth_mm = np.clip(np.rint(t * dz * np.float32(1000.0)), 0, 65535).astype(np.uint16)
-        semantic = self.t_sem[prim]
-        instance = self.t_inst[prim]
+        z_mm = t * dz
+        z_mm *= np.float32(1000.0)
+        np.rint(z_mm, out=z_mm)
+        np.clip(z_mm, 0, 65535, out=z_mm)
+        depth_mm = z_mm.astype(np.uint16)
+        semantic = np.take(self.t_sem, prim)
+        instance = np.take(self.t_inst, prim)
 
         px, py, pz = origin[0] + t * dx, origin[1] + t * dy, origin[2] + t * dz
-        nx, ny, nz = (n[prim] for n in self.t_n)
+        nx, ny, nz = (np.take(n, prim) for n in self.t_n)
         cols = self._albedo(prim, px, py, pz)
 
         # Misses have t = 0 and a zero normal: no diffuse, no highlight, and the miss row of the
@@ -362,7 +375,7 @@ class Renderer:
         ndh *= ndh
         ndh8 = ndh * ndh
         ndh8 *= ndh8
-        spec = (self.t_refl[prim] * gain) * ndh8 * ndh8 * ndh8 * vis  # (n.h)^24
+        spec = (np.take(self.t_refl, prim) * gain) * ndh8 * ndh8 * ndh8 * vis  # (n.h)^24
         spec[ndl <= 0] = 0.0
         spec += np.float32(0.5)  # rounds on the cast to uint8
         shade = np.float32(light["ambient"]) * gain + diffuse
@@ -396,7 +409,7 @@ class Renderer:
         hb, wb = h // 2, w // 2
         v4 = vis.reshape(hb, 2, wb, 2)
         lit4 = lit.reshape(hb, 2, wb, 2)
-        face4 = (self._prim_flat >> 1).reshape(hb, 2, wb, 2)
+        face4 = self._face.reshape(hb, 2, wb, 2)
         cidx = np.arange(h * w).reshape(hb, 2, wb, 2)[:, 0, :, 0]
         csel = cidx[lit4[:, 0, :, 0]]
         vis[csel] = np.where(self._occluded(px, py, pz, csel), dark, one)
@@ -413,7 +426,7 @@ class Renderer:
             count = np.zeros((hb, wb), np.float32)
             for cf, cv in corners:
                 m = cf == f
-                total += np.where(m, cv, np.float32(0))
+                np.add(total, cv, out=total, where=m)
                 count += m
             v4[:, sy, :, sx] = np.where(count > 0, total / np.maximum(count, one), one)
             need[:, sy, :, sx] = (count == 0) & lit4[:, sy, :, sx]

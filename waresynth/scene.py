@@ -449,7 +449,12 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
             zc = Z_FRONT + 0.2 + d / 2 + _u(rng, [0.0, max(wall_z - Z_FRONT - 0.5 - d, 0.0)])
             prop("end_prop", (xc, -h / 2, zc), (w, h, d), _u(rng, [-0.6, 0.6]))
 
-    # Floor and back wall: large thin cuboids with procedural textures.
+    # Floor and back wall: large thin cuboids with procedural textures. Nothing may stand behind
+    # the wall (the renderer treats it as the farthest surface), so it moves back if needed.
+    far = max(
+        p.center[2] + 0.5 * (abs(math.sin(p.yaw)) * p.size[0] + abs(math.cos(p.yaw)) * p.size[2]) for p in b.parts
+    )
+    wall_z = max(wall_z, far + 0.05)
     fc, wc = cfg["floor"], cfg["wall"]
     span0, span1 = min(row_x0, float(xs.min())) - 40.0, max(row_x1, float(xs.max())) + 40.0
     walls: list[dict[str, Any]] = []
