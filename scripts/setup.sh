@@ -29,3 +29,12 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -n
     .venv/bin/python -c "import torch, open3d, trimesh, rerun, skimage" || { echo "setup: install failed" >&2; exit 1; }
     touch "$stamp"
 fi
+
+# The Khronos glTF validator (npm) for the .glb conformance test; skipped where node is absent.
+if command -v npm >/dev/null 2>&1 && [ -f package-lock.json ]; then
+    if [ ! -d node_modules/gltf-validator ] || [ package-lock.json -nt node_modules/.package-lock.json ]; then
+        echo "setup: installing the glTF validator (npm ci)"
+        npm ci --no-audit --no-fund --silent 2>&1 | grep -v 'Unknown user config' || true
+        [ -d node_modules/gltf-validator ] || echo "setup: npm ci failed; the glTF validator test will be skipped" >&2
+    fi
+fi

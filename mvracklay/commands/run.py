@@ -1,0 +1,95 @@
+"""``mvracklay run``: the main job, from a video or image folder to a 3D warehouse map and free space."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from layouts.errors import InputError
+
+NAME = "run"
+HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
+DESCRIPTION = (
+    "Run the MVRackLay network over INPUT frame by frame (streaming: one encoder pass per frame, the ConvLSTM "
+    "state carried), stitch the per-frame layouts into one 3D map of the rack row, and write OUT/layouts/ "
+    "(a layout folder for 'mvracklay reconstruct'), OUT/warehouse.json, OUT/warehouse.glb and "
+    "OUT/warehouse.rrd; then print the free space per shelf. INPUT is a WareSynth sequence folder, any folder "
+    "of ordered PNG/JPEG images (natural name order, all the same size) or a video file. The camera should "
+    "move sideways along one rack row at a roughly constant distance, facing the racks, without turning. "
+    "Intrinsics: --camera JSON, else the sequence's meta.json, else the default camera (60 deg horizontal "
+    "field of view, principal point at the centre) at the frame size. No ground truth is needed. A failed run "
+    "leaves OUT as it was."
+)
+ORDER = 10
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", metavar="INPUT", help="sequence folder, image folder or video file")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="model checkpoint (.pt); default: the shipped weights/mvracklay-disc-4.pt",
+    )
+    p.add_argument(
+        "--camera",
+        type=Path,
+        help="JSON with the camera intrinsics: fx, fy, cx, cy in pixels and the width, height they refer to",
+    )
+    p.add_argument("--mode", choices=["stream", "window"], default="stream", help="network inference mode")
+    p.add_argument("--max-frames", type=int, default=0, help="process at most N frames (0 = all)")
+    p.add_argument(
+        "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
+    )
+    p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
+    p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
+    p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
+    p.add_argument("--no-rgb", action="store_true", help="do not log the RGB frames to Rerun")
+    p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
+    p.add_argument("--no-opening", action="store_true", help="no 3x3 opening of predicted box masks before stitching")
+    p.add_argument("--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for the network")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mvracklay.frames import open_source
+    from mvracklay.pipeline import RunConfig, run_pipeline, spawn_viewer
+    from stitching.free_space import format_table
+
+    if args.spawn and args.no_rrd:
+        raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
+    cfg = RunConfig(
+        checkpoint=args.checkpoint,
+        camera=args.camera,
+        mode=args.mode,
+        max_frames=args.max_frames,
+        layout_size=args.layout_size,
+        distance=args.distance,
+        rrd=not args.no_rrd,
+        rgb=not args.no_rgb,
+        map_every=args.map_every,
+        opening=not args.no_opening,
+        board_thickness=args.board_thickness,
+        threads=args.threads,
+        progress=not args.quiet,
+    )
+    cfg.validate()
+    from mvracklay.pipeline import resolve_checkpoint
+
+    resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
+    source = open_source(args.input)
+    res = run_pipeline(source, args.out, cfg)
+    wmap = res.map
+    print(
+        f"{res.frames} frames ({source.kind}, {source.width}x{source.height}, camera: {res.intrinsics_source}) -> "
+        f"{len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes"
+    )
+    t = res.seconds
+    rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
+    print(f"speed: {rate} (wall, this machine)")
+    print(format_table(res.free_space))
+    print("wrote " + ", ".join(str(p) for p in res.paths.values()))
+    if args.spawn:
+        spawn_viewer(res.out / "warehouse.rrd")
+    return 0

@@ -1,0 +1,253 @@
+"""Ordered frame sources for `mvracklay run`: a WareSynth sequence, a folder of images, or a video.
+
+Every source is validated when opened (one-line `InputError` naming the file and the problem) and
+streams its frames as uint8 RGB arrays ``(H, W, 3)``: nothing holds a whole video in memory.
+Camera intrinsics come from the sequence's meta.json, a ``--camera`` JSON file, or the default
+camera (the generator's: 60 degree horizontal field of view, square pixels, principal point at the
+image centre) scaled to the frame size.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from layouts import Intrinsics
+from layouts.errors import InputError
+from layouts.fileio import load_json
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
+DEFAULT_HFOV_DEG = 60.0
+"""Horizontal field of view of the default camera (the generator's default, waresynth/default_config.json)."""
+
+
+def natural_key(path: Path) -> list[Any]:
+    """Sort key putting ``frame2.png`` before ``frame10.png``."""
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", path.name)]
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (OSError, ValueError, Image.DecompressionBombError) as e:
+        raise InputError(f"{path}: not a readable image ({type(e).__name__})") from None
+
+
+def _read_rgb(path: Path, size: tuple[int, int]) -> np.ndarray:
+    try:
+        with Image.open(path) as im:
+            if im.size != size:
+                raise InputError(f"{path}: {im.size[0]}x{im.size[1]}, but the first image is {size[0]}x{size[1]}")
+            return np.asarray(im.convert("RGB"))
+    except (OSError, ValueError, Image.DecompressionBombError) as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{path}: not a readable image ({type(e).__name__})") from None
+
+
+@dataclass
+class FrameSource:
+    """An ordered, validated source of RGB frames.
+
+    ``kind`` is ``sequence`` (WareSynth folder), ``images`` or ``video``; ``num_frames`` is None
+    when a video container does not say. ``intrinsics`` and ``records`` (per-frame camera records)
+    are known only for a WareSynth sequence.
+    """
+
+    kind: str
+    path: Path
+    width: int
+    height: int
+    num_frames: int | None
+    intrinsics: Intrinsics | None = None
+    records: list[dict[str, Any]] | None = None
+    image_paths: list[Path] = field(default_factory=list, repr=False)
+
+    def frames(self, max_frames: int | None = None) -> Iterator[np.ndarray]:
+        """Stream the frames in order (at most ``max_frames``)."""
+        limit = max_frames if max_frames else None
+        if self.kind == "video":
+            yield from _video_frames(self.path, (self.width, self.height), limit)
+            return
+        paths = self.image_paths[:limit] if limit else self.image_paths
+        for p in paths:
+            yield _read_rgb(p, (self.width, self.height))
+
+    def frame_count(self, max_frames: int | None = None) -> int | None:
+        """Frames that `frames` will yield (None when unknown before decoding)."""
+        if self.num_frames is None:
+            return None
+        return min(self.num_frames, max_frames) if max_frames else self.num_frames
+
+    def distance(self, index: int) -> float | None:
+        """Camera-to-rack-front distance of a frame when the source records it."""
+        if self.records and index < len(self.records):
+            d = self.records[index].get("distance")
+            if isinstance(d, (int, float)) and math.isfinite(d) and d > 0:
+                return float(d)
+        return None
+
+
+def _image_folder(folder: Path, kind: str = "images") -> FrameSource:
+    paths = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=natural_key)
+    if not paths:
+        raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) found")
+    size = _image_size(paths[0])
+    for p in paths[1:]:
+        s = _image_size(p)
+        if s != size:
+            raise InputError(f"{p}: {s[0]}x{s[1]}, but the first image ({paths[0].name}) is {size[0]}x{size[1]}")
+    return FrameSource(kind, folder, size[0], size[1], len(paths), image_paths=paths)
+
+
+def _sequence(folder: Path) -> FrameSource:
+    meta_path = folder / "meta.json"
+    meta = load_json(meta_path)
+    if not isinstance(meta, dict):
+        raise InputError(f"{meta_path}: not a WareSynth meta.json (want a JSON object)")
+    src = _image_folder(folder / "rgb", "sequence")
+    src.path = folder
+    if "intrinsics" in meta:
+        intr = Intrinsics.from_dict(meta["intrinsics"], str(meta_path))
+        src.intrinsics = (
+            intr if (intr.width, intr.height) == (src.width, src.height) else intr.scaled(src.width, src.height)
+        )
+    frames = meta.get("frames")
+    if isinstance(frames, list) and all(isinstance(f, dict) for f in frames):
+        src.records = frames
+    return src
+
+
+def _open_video(path: Path):
+    import av
+
+    try:
+        container = av.open(str(path))
+    except (av.FFmpegError, OSError, ValueError) as e:
+        raise InputError(f"{path}: not a readable video ({type(e).__name__})") from None
+    if not container.streams.video:
+        container.close()
+        raise InputError(f"{path}: holds no video stream")
+    return container
+
+
+def _video_frames(path: Path, size: tuple[int, int], limit: int | None) -> Iterator[np.ndarray]:
+    import av
+
+    container = _open_video(path)
+    try:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        n = 0
+        try:
+            for frame in container.decode(stream):
+                rgb = frame.to_ndarray(format="rgb24")
+                if (rgb.shape[1], rgb.shape[0]) != size:
+                    raise InputError(
+                        f"{path}: frame {n} is {rgb.shape[1]}x{rgb.shape[0]}, the first frame {size[0]}x{size[1]}"
+                    )
+                yield rgb
+                n += 1
+                if limit and n >= limit:
+                    return
+        except av.FFmpegError as e:
+            raise InputError(f"{path}: video decoding failed after {n} frames ({type(e).__name__})") from None
+    finally:
+        container.close()
+
+
+def _video(path: Path) -> FrameSource:
+    import av
+
+    container = _open_video(path)
+    try:
+        stream = container.streams.video[0]
+        try:
+            first = next(container.decode(stream), None)
+        except av.FFmpegError as e:
+            raise InputError(f"{path}: not a decodable video ({type(e).__name__})") from None
+        if first is None:
+            raise InputError(f"{path}: the video holds no frames")
+        n = int(stream.frames or 0) or None
+        return FrameSource("video", path, int(first.width), int(first.height), n)
+    finally:
+        container.close()
+
+
+def open_source(path: str | os.PathLike) -> FrameSource:
+    """Open INPUT: a WareSynth sequence folder (meta.json + rgb/), a folder of images, or a video file."""
+    p = Path(path)
+    if p.is_dir():
+        if (p / "meta.json").is_file() and (p / "rgb").is_dir():
+            return _sequence(p)
+        return _image_folder(p)
+    if p.is_file():
+        if p.suffix.lower() in IMAGE_SUFFIXES:
+            raise InputError(f"{p}: a single image; give the folder holding the ordered frames")
+        return _video(p)
+    raise InputError(f"{p}: input not found (want a sequence folder, an image folder or a video file)")
+
+
+def default_intrinsics(width: int, height: int) -> Intrinsics:
+    """The documented default camera at this frame size: 60 deg horizontal FOV, centred principal point."""
+    return Intrinsics.from_fov(width, height, DEFAULT_HFOV_DEG)
+
+
+def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
+    """Intrinsics from a ``--camera`` JSON file, scaled to the frame size.
+
+    The file holds ``layouts.Intrinsics`` fields (fx, fy, cx, cy in pixels; width, height of the
+    image they refer to, default the frame size), at the top level or under ``"intrinsics"``.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"--camera {p}: file not found")
+    d = load_json(p)
+    if isinstance(d, dict) and isinstance(d.get("intrinsics"), dict):
+        d = d["intrinsics"]
+    if not isinstance(d, dict):
+        raise InputError(f"--camera {p}: want a JSON object with fx, fy, cx, cy (and width, height)")
+    d = {"width": width, "height": height, **d}
+    intr = Intrinsics.from_dict(d, f"--camera {p}")
+    return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
+
+
+def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = None) -> tuple[Intrinsics, str]:
+    """``(intrinsics, where they came from)``: ``--camera`` first, then the sequence, then the default."""
+    if camera is not None:
+        return load_camera(camera, source.width, source.height), f"--camera {camera}"
+    if source.intrinsics is not None:
+        return source.intrinsics, f"{source.path / 'meta.json'}"
+    return default_intrinsics(source.width, source.height), f"default ({DEFAULT_HFOV_DEG:g} deg horizontal FOV)"
+
+
+def camera_mismatch(
+    intr: Intrinsics, trained: Intrinsics, fov_tol_deg: float = 2.0, pp_tol: float = 0.02
+) -> str | None:
+    """Why ``intr`` differs from the training camera (None when it matches within tolerance).
+
+    Images are resized to the model's input, so only the fields of view and the principal point
+    relative to the image size matter.
+    """
+    problems = []
+    if abs(intr.hfov_deg - trained.hfov_deg) > fov_tol_deg:
+        problems.append(f"horizontal FOV {intr.hfov_deg:.1f} deg vs {trained.hfov_deg:.1f}")
+    vfov = math.degrees(2 * math.atan(intr.height / (2 * intr.fy)))
+    vfov_t = math.degrees(2 * math.atan(trained.height / (2 * trained.fy)))
+    if abs(vfov - vfov_t) > fov_tol_deg:
+        problems.append(f"vertical FOV {vfov:.1f} deg vs {vfov_t:.1f}")
+    pp = (intr.cx / intr.width, intr.cy / intr.height)
+    pp_t = (trained.cx / trained.width, trained.cy / trained.height)
+    if max(abs(pp[0] - pp_t[0]), abs(pp[1] - pp_t[1])) > pp_tol:
+        problems.append(f"principal point at ({pp[0]:.2f}, {pp[1]:.2f}) of the image vs ({pp_t[0]:.2f}, {pp_t[1]:.2f})")
+    return "; ".join(problems) or None

@@ -1,0 +1,342 @@
+"""The main job: frames -> network (streaming) -> layouts -> stitching -> .glb / .json / .rrd / free space.
+
+>>> from mvracklay.frames import open_source
+>>> result = run_pipeline(open_source("my_frames/"), "out/mine")   # doctest: +SKIP
+>>> print(format_table(result.free_space))                          # doctest: +SKIP
+
+Frames stream through: each is decoded, predicted (one encoder pass, ConvLSTM state carried),
+written to ``OUT/layouts/``, stitched into the growing map and logged to Rerun, then dropped.
+Everything is written into a staging folder beside OUT and moved into OUT only when the run
+succeeds, so a failed run leaves OUT as it was.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from layouts import Intrinsics
+from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_bytes
+from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
+from network.checkpoint import load_model
+from network.infer import MODES, Predictor, frame_layouts
+from stitching import rerun_log
+from stitching.detect import DetectConfig
+from stitching.export_gltf import export_glb, map_cuboids
+from stitching.free_space import ShelfFreeSpace, free_space
+from stitching.lift import LiftConfig
+from stitching.pipeline import StitchConfig, Stitcher
+from stitching.warehouse_map import WarehouseMap
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_CHECKPOINT = REPO_ROOT / "weights" / "mvracklay-disc-4.pt"
+DEFAULT_DISTANCE = 2.6
+"""Camera-to-rack-front distance (m) used for the visible columns when neither the input nor the model says."""
+OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
+RRD_MAX_WIDTH = 640
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Settings of one run (see `mvracklay run --help`)."""
+
+    checkpoint: Path | None = None
+    camera: Path | None = None
+    mode: str = "stream"
+    max_frames: int = 0
+    layout_size: int = 0
+    distance: float | None = None
+    rrd: bool = True
+    rgb: bool = True
+    map_every: int = 1
+    opening: bool = True
+    board_thickness: float = 0.06
+    threads: int = 2
+    progress: bool = True
+
+    def validate(self) -> None:
+        if self.mode not in MODES:
+            raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.max_frames < 0:
+            raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
+        if self.layout_size and not 8 <= self.layout_size <= 1024:
+            raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
+        if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
+            raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
+        if self.map_every < 1:
+            raise InputError(f"--map-every must be >= 1, got {self.map_every}")
+        if not 0 <= self.board_thickness < 1:
+            raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
+        if self.threads < 1:
+            raise InputError(f"--threads must be >= 1, got {self.threads}")
+
+
+@dataclass
+class RunResult:
+    """What a run wrote and found."""
+
+    out: Path
+    frames: int
+    map: WarehouseMap
+    free_space: list[ShelfFreeSpace]
+    intrinsics: Intrinsics
+    intrinsics_source: str
+    warnings: list[str] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def paths(self) -> dict[str, Path]:
+        return {name: self.out / name for name in OUTPUTS if (self.out / name).exists()}
+
+
+def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
+    """The checkpoint to run: ``path``, else the shipped weights (one-line error when there are none)."""
+    if path is None:
+        if not DEFAULT_CHECKPOINT.is_file():
+            raise InputError(
+                f"no trained model shipped ({DEFAULT_CHECKPOINT.relative_to(REPO_ROOT)} is absent): "
+                "train one with 'mvracklay train' (see docs/network.md) and pass --checkpoint PATH"
+            )
+        return DEFAULT_CHECKPOINT
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"--checkpoint {p}: file not found")
+    return p
+
+
+def trained_intrinsics(record: dict[str, Any], source: str) -> Intrinsics | None:
+    """The camera the model was trained with, from its checkpoint record (None when unrecorded)."""
+    d = record.get("intrinsics")
+    return Intrinsics.from_dict(d, f"{source} (intrinsics)") if isinstance(d, dict) else None
+
+
+def stitch_config(cfg: RunConfig) -> StitchConfig:
+    det = DetectConfig(opening=1) if cfg.opening else DetectConfig()
+    return StitchConfig(detect=det, lift=LiftConfig(board_thickness=cfg.board_thickness))
+
+
+def _staging_dir(out: Path) -> Path:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if stage.exists():
+        shutil.rmtree(stage)
+    stage.mkdir()
+    return stage
+
+
+def _publish(stage: Path, out: Path) -> None:
+    """Move the staged outputs into OUT, replacing those of an earlier run."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    made = {p.name for p in stage.iterdir()}
+    for name in OUTPUTS:  # an earlier run's output this run did not write (e.g. --no-rrd) would be stale
+        old = out / name
+        if name not in made and old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old)
+        elif name not in made and (old.exists() or old.is_symlink()):
+            old.unlink()
+    for item in sorted(stage.iterdir()):
+        dst = out / item.name
+        if dst.is_dir() and not dst.is_symlink():
+            shutil.rmtree(dst)
+        elif dst.exists() or dst.is_symlink():
+            dst.unlink()
+        os.replace(item, dst)
+    stage.rmdir()
+
+
+def empty_glb_bytes() -> bytes:
+    """A valid binary glTF holding one empty scene (trimesh refuses to export a scene without meshes)."""
+    doc = {
+        "asset": {"version": "2.0", "generator": "mvracklay (empty map)"},
+        "scene": 0,
+        "scenes": [{"name": "warehouse"}],
+    }
+    body = json.dumps(doc, separators=(",", ":"), sort_keys=True).encode()
+    body += b" " * (-len(body) % 4)
+    return b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", len(body)) + b"JSON" + body
+
+
+def write_glb(wmap: WarehouseMap, path: Path) -> None:
+    """`stitching.export_gltf.export_glb`, or an empty scene when the map holds no shelf or box."""
+    if map_cuboids(wmap):
+        export_glb(wmap, path)
+    else:
+        atomic_write_bytes(path, empty_glb_bytes())
+
+
+def _thumbnail(rgb: np.ndarray) -> np.ndarray:
+    """RGB for the recording, at most `RRD_MAX_WIDTH` wide (keeps .rrd files of HD video small)."""
+    h, w = rgb.shape[:2]
+    if w <= RRD_MAX_WIDTH:
+        return rgb
+    from PIL import Image
+
+    size = (RRD_MAX_WIDTH, max(1, round(h * RRD_MAX_WIDTH / w)))
+    return np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BILINEAR))
+
+
+def _decimate(path: list, limit: int = 256) -> list:
+    """At most ``limit`` points of the camera path (first and last kept), so long videos log a bounded path per frame."""
+    if len(path) <= limit:
+        return path
+    idx = np.unique(np.linspace(0, len(path) - 1, limit).round().astype(int))
+    return [path[i] for i in idx]
+
+
+def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None, float | None, float | None]:
+    """World origin of the map and camera height/distance in the map frame, from a sequence's first record."""
+    if not source.records:
+        return None, None, None
+    from stitching.evaluate import origin_from_record
+
+    try:
+        origin = origin_from_record(source.records[0])
+    except InputError:
+        return None, None, None
+    p0 = source.records[0]["camera_position"]
+    return origin, float(p0[1]) - origin[1], float(p0[2]) - origin[2]
+
+
+def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | None = None) -> RunResult:
+    """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}."""
+    cfg = cfg or RunConfig()
+    cfg.validate()
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    seconds: dict[str, float] = {}
+    warnings: list[str] = []
+    t0 = time.perf_counter()
+    ckpt = resolve_checkpoint(cfg.checkpoint)
+    torch.set_num_threads(cfg.threads)
+    model, record = load_model(ckpt)
+    intr, intr_source = resolve_intrinsics(source, cfg.camera)
+    trained = trained_intrinsics(record, str(ckpt))
+    if trained is not None:
+        why = camera_mismatch(intr, trained)
+        if why:
+            warnings.append(
+                f"camera ({intr_source}) differs from the one the model was trained with: {why}; layouts may be mis-scaled"
+            )
+            print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
+    spec = model.cfg.spec
+    if cfg.layout_size and cfg.layout_size != spec.size:
+        from dataclasses import replace
+
+        spec = replace(spec, size=cfg.layout_size)
+    nominal = record.get("nominal_distance")
+    default_distance = cfg.distance or (float(nominal) if isinstance(nominal, (int, float)) else DEFAULT_DISTANCE)
+    origin, cam_y, cam_z = _map_origin(source)
+    seconds["load"] = time.perf_counter() - t0
+
+    stage = _staging_dir(out)
+    rec = None
+    try:
+        folder = LayoutFolder.create(stage / "layouts", spec)
+        stitcher = Stitcher(spec, stitch_config(cfg))
+        if cfg.rrd:
+            rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd")
+        pred = Predictor(model)
+        current: dict[str, np.ndarray] = {}
+
+        def feed():
+            for rgb in source.frames(cfg.max_frames or None):
+                current["rgb"] = rgb
+                yield rgb
+
+        path: list[tuple[float, float, float]] = []
+        t_pred = t_stitch = t_log = 0.0
+        n = 0
+        bar = tqdm(
+            total=source.frame_count(cfg.max_frames or None),
+            desc=f"predict+stitch ({cfg.mode})",
+            unit="frame",
+            disable=not cfg.progress,
+            file=sys.stderr,
+        )
+        outputs = pred.run(feed(), cfg.mode)
+        while True:
+            ta = time.perf_counter()
+            logits = next(outputs, None)
+            if logits is None:
+                break
+            lay = frame_layouts(logits, spec.size)
+            dist = cfg.distance or source.distance(n) or default_distance
+            fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
+            folder.write(n, fl)
+            tb = time.perf_counter()
+            frame_rec, step = stitcher.push(fl, n)
+            tc = time.perf_counter()
+            if rec is not None:
+                path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
+                rgb = _thumbnail(current["rgb"]) if cfg.rgb else None
+                rerun_log.log_frame(rec, n, fl, frame_rec, step.offset, rgb, _decimate(path))
+                if n % cfg.map_every == 0:
+                    rerun_log.log_map(rec, stitcher.map(), n, spec.num_slots)
+            td = time.perf_counter()
+            t_pred, t_stitch, t_log = t_pred + tb - ta, t_stitch + tc - tb, t_log + td - tc
+            n += 1
+            bar.update(1)
+        bar.close()
+        if n == 0:
+            raise InputError(f"{source.path}: no frames to process")
+        seconds.update(predict=t_pred, stitch=t_stitch, rerun=t_log)
+
+        t1 = time.perf_counter()
+        meta = {
+            "input": str(source.path),
+            "input_kind": source.kind,
+            "frames": n,
+            "checkpoint": str(ckpt),
+            "mode": cfg.mode,
+            "intrinsics": intr.to_dict(),
+            "spec": spec.to_dict(),
+        }
+        wmap = stitcher.map(origin, meta)
+        steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])
+        with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
+            wmap.save(stage / "warehouse.json")
+            eb.update(1)
+            write_glb(wmap, stage / "warehouse.glb")
+            eb.update(1)
+            if rec is not None:
+                if (n - 1) % cfg.map_every:
+                    rerun_log.log_map(rec, wmap, n - 1, spec.num_slots)
+                rec.flush()
+                rec.disconnect()
+                rec = None
+                eb.update(1)
+        _publish(stage, out)
+        seconds["export"] = time.perf_counter() - t1
+    except BaseException:
+        if rec is not None:
+            rec.disconnect()
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds)
+
+
+def spawn_viewer(rrd: Path) -> None:
+    """Open the Rerun viewer on a written recording (detached; the run does not wait for it)."""
+    exe = Path(sys.executable).with_name("rerun")
+    cmd = [str(exe), str(rrd)] if exe.is_file() else [sys.executable, "-m", "rerun", str(rrd)]
+    try:
+        subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    except OSError as e:
+        raise InputError(f"cannot start the Rerun viewer ({e}); open the recording with: rerun {rrd}") from None

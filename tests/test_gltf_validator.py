@@ -1,0 +1,91 @@
+"""warehouse.glb passes the Khronos glTF validator (npm gltf-validator) with zero errors.
+
+Runs scripts/validate_gltf.mjs with node; skipped when node or node_modules/gltf-validator is
+missing (install with `npm ci` in the repository root).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import torch
+
+from layouts.spec import LayoutSpec
+from mvracklay.cli import main
+from mvracklay.pipeline import write_glb
+from network.checkpoint import save_checkpoint
+from network.model import ModelConfig, MVRackLay
+from stitching.warehouse_map import WarehouseMap
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "scripts" / "validate_gltf.mjs"
+NODE = shutil.which("node")
+
+pytestmark = [
+    pytest.mark.skipif(NODE is None, reason="node is not installed (the glTF validator runs on Node.js)"),
+    pytest.mark.skipif(
+        not (ROOT / "node_modules" / "gltf-validator").is_dir(),
+        reason="npm package gltf-validator not installed: run 'npm ci' in the repository root",
+    ),
+]
+
+
+def validate(path: Path) -> dict:
+    """The validator's full JSON report for ``path``."""
+    proc = subprocess.run([NODE, str(SCRIPT), str(path), "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode in (0, 1), proc.stderr
+    return json.loads(proc.stdout)
+
+
+def _errors(report: dict) -> list[str]:
+    return [
+        f"{m['code']} at {m.get('pointer')}: {m['message']}" for m in report["issues"]["messages"] if m["severity"] == 0
+    ]
+
+
+@pytest.fixture(scope="module")
+def untrained_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    torch.manual_seed(0)
+    cfg = ModelConfig(
+        spec=LayoutSpec(size=32), input_width=64, input_height=64, encoder_width=8, hidden=16, decoder_width=8
+    )
+    path = tmp_path_factory.mktemp("gltf_ckpt") / "tiny.pt"
+    save_checkpoint(path, {"model": MVRackLay(cfg).state_dict()}, {"model_config": cfg.to_dict()})
+    return path
+
+
+def test_ground_truth_reconstruction_glb_is_valid(tiny_dataset: Path, tmp_path: Path):
+    out = tmp_path / "gt"
+    assert main(["reconstruct", str(tiny_dataset / "seq_00000"), "--out", str(out), "--no-rrd", "--quiet"]) == 0
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    assert wmap.boxes()
+    report = validate(out / "warehouse.glb")
+    assert report["issues"]["numErrors"] == 0, _errors(report)
+    assert report["info"]["drawCallCount"] == len(wmap.boxes()) + len(wmap.shelves())
+
+
+def test_pipeline_glb_is_valid(tiny_dataset: Path, untrained_checkpoint: Path, tmp_path: Path):
+    out = tmp_path / "run"
+    argv = ["run", str(tiny_dataset / "seq_00001"), "--out", str(out), "--checkpoint", str(untrained_checkpoint)]
+    assert main([*argv, "--no-rrd", "--quiet", "--max-frames", "4"]) == 0
+    report = validate(out / "warehouse.glb")
+    assert report["issues"]["numErrors"] == 0, _errors(report)
+
+
+def test_empty_map_glb_is_valid(tmp_path: Path):
+    path = tmp_path / "empty.glb"
+    write_glb(WarehouseMap(racks=[], steps=[], board_thickness=0.06), path)
+    report = validate(path)
+    assert report["issues"]["numErrors"] == 0, _errors(report)
+
+
+def test_validator_reports_errors_on_a_broken_file(tmp_path: Path):
+    path = tmp_path / "broken.glb"
+    path.write_bytes(b"glTF" + b"\x02\x00\x00\x00" + b"\xff" * 40)
+    proc = subprocess.run([NODE, str(SCRIPT), str(path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode in (1, 2)
+    assert proc.returncode == 2 or not proc.stdout.startswith("errors 0 ")

@@ -1,0 +1,173 @@
+"""`mvracklay run` end to end on a tiny generated sequence with a tiny trained checkpoint."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from layouts.codecs import LayoutFolder
+from mvracklay.cli import main
+from stitching.export_gltf import load_glb_cuboid_bounds
+from stitching.rerun_log import read_entities
+from stitching.warehouse_map import WarehouseMap
+
+TINY_NET = [
+    "--input-size",
+    "64",
+    "64",
+    "--layout-size",
+    "16",
+    "--encoder-width",
+    "8",
+    "--hidden",
+    "16",
+    "--decoder-width",
+    "8",
+    "--threads",
+    "1",
+    "--quiet",
+]
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A checkpoint trained for two steps with `mvracklay train` (a few seconds)."""
+    out = tmp_path_factory.mktemp("pipeline_net") / "run"
+    args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "2"]
+    assert main([*args, "--frames-per-step", "4", *TINY_NET]) == 0
+    return out / "best.pt"
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tiny_dataset: Path) -> Path:
+    return tiny_dataset / "seq_00000"
+
+
+@pytest.fixture(scope="module")
+def run_out(seq_dir: Path, checkpoint: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("pipeline_run") / "out"
+    argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--layout-size", "64"]
+    assert main([*argv, "--threads", "1", "--quiet"]) == 0
+    return out
+
+
+def test_run_writes_all_outputs(run_out: Path, seq_dir: Path):
+    for name in ("warehouse.json", "warehouse.glb", "warehouse.rrd", "layouts/spec.json"):
+        assert (run_out / name).is_file(), name
+    folder = LayoutFolder(run_out / "layouts")
+    assert folder.indices() == list(range(8))
+    fl = folder.read(0)
+    assert fl.top.shape == (3, 64, 64) and fl.visible is not None and fl.visible.any()
+    assert not [p for p in run_out.parent.iterdir() if ".partial-" in p.name]
+
+
+def test_outputs_load_and_agree_with_the_map(run_out: Path):
+    wmap = WarehouseMap.load(run_out / "warehouse.json")
+    assert len(wmap.steps) == 8 and wmap.origin_world is not None
+    assert wmap.meta["input_kind"] == "sequence" and wmap.meta["frames"] == 8
+    # the .glb holds exactly one node per shelf board and box of the map, each a cuboid
+    nodes = load_glb_cuboid_bounds(run_out / "warehouse.glb")
+    want = {s.id for s in wmap.shelves()} | {b.id for b in wmap.boxes()}
+    assert want and set(nodes) == want
+    scene = trimesh.load(str(run_out / "warehouse.glb"), force="scene")
+    assert len(scene.geometry) == len(want)
+    for b in wmap.boxes():
+        v = nodes[b.id]
+        assert np.allclose(v.mean(0), b.cuboid.center, atol=1e-4)
+    # the recording holds the logged entities, one map batch per slot
+    ents = read_entities(run_out / "warehouse.rrd")
+    for e in ("/camera/rgb", "/world/frame/boxes", "/world/map/shelves", "/world/camera/path"):
+        assert e in ents
+    assert {f"/world/map/slot_{r}" for r in range(3)} <= ents
+    assert {f"/layouts/{v}/slot_{r}" for v in ("top", "front") for r in range(3)} <= ents
+
+
+def test_layouts_feed_reconstruct(run_out: Path, tmp_path: Path):
+    out = tmp_path / "rec"
+    assert main(["reconstruct", str(run_out / "layouts"), "--out", str(out), "--no-rrd", "--noisy", "--quiet"]) == 0
+    a = WarehouseMap.load(out / "warehouse.json")
+    b = WarehouseMap.load(run_out / "warehouse.json")
+    assert sorted(x.id for x in a.boxes()) == sorted(x.id for x in b.boxes())
+
+
+def test_run_prints_free_space_table(seq_dir: Path, checkpoint: Path, tmp_path: Path, capsys):
+    out = tmp_path / "o"
+    argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--no-rrd", "--quiet"]
+    assert main([*argv, "--max-frames", "3", "--mode", "window"]) == 0
+    text = capsys.readouterr().out
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    assert "free_len" in text and len(wmap.steps) == 3
+    for s in wmap.shelves():
+        assert s.id in text
+    assert not (out / "warehouse.rrd").exists()
+
+
+def test_same_input_same_bytes(run_out: Path, seq_dir: Path, checkpoint: Path, tmp_path: Path):
+    out = tmp_path / "again"
+    argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--layout-size", "64"]
+    assert main([*argv, "--threads", "1", "--quiet", "--no-rrd"]) == 0
+    for name in ("warehouse.glb", "layouts/000005.npz"):
+        assert (out / name).read_bytes() == (run_out / name).read_bytes(), name
+    a, b = json.loads((out / "warehouse.json").read_text()), json.loads((run_out / "warehouse.json").read_text())
+    assert a["racks"] == b["racks"] and a["steps"] == b["steps"]
+
+
+def test_image_folder_input(seq_dir: Path, checkpoint: Path, tmp_path: Path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, p in enumerate(sorted((seq_dir / "rgb").glob("*.png"))[:5]):
+        (frames / f"img{i}.png").write_bytes(p.read_bytes())  # natural order: img2 before img10
+    out = tmp_path / "o"
+    assert main(["run", str(frames), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet"]) == 0
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    assert wmap.meta["input_kind"] == "images" and len(wmap.steps) == 5 and wmap.origin_world is None
+    assert "camera: default" in capsys.readouterr().out
+
+
+def test_video_input(seq_dir: Path, checkpoint: Path, tmp_path: Path):
+    import av
+
+    from waresynth.imageio import read_png
+
+    video = tmp_path / "walk.mp4"
+    with av.open(str(video), "w") as container:
+        stream = container.add_stream("mpeg4", rate=10)
+        stream.width, stream.height, stream.pix_fmt = 128, 128, "yuv420p"
+        for p in sorted((seq_dir / "rgb").glob("*.png"))[:6]:
+            frame = av.VideoFrame.from_ndarray(read_png(p, np.uint8, 3), format="rgb24")
+            for packet in stream.encode(frame):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    out = tmp_path / "o"
+    argv = ["run", str(video), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet", "--max-frames", "4"]
+    assert main(argv) == 0
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    assert wmap.meta["input_kind"] == "video" and len(wmap.steps) == 4
+    assert LayoutFolder(out / "layouts").indices() == [0, 1, 2, 3]
+
+
+def test_camera_json_and_mismatch_warning(seq_dir: Path, checkpoint: Path, tmp_path: Path, capsys):
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"fx": 40.0, "fy": 40.0, "cx": 64.0, "cy": 64.0, "width": 128, "height": 128}))
+    out = tmp_path / "o"
+    argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--camera", str(cam)]
+    assert main([*argv, "--quiet", "--no-rrd", "--max-frames", "2"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(err) == 1 and "horizontal FOV" in err[0] and "trained" in err[0]
+    assert WarehouseMap.load(out / "warehouse.json").meta["intrinsics"]["fx"] == 40.0
+
+
+def test_rerun_replaces_earlier_outputs_and_keeps_other_files(seq_dir: Path, checkpoint: Path, tmp_path: Path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    base = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet", "--no-rrd"]
+    assert main([*base, "--max-frames", "4"]) == 0
+    assert main([*base, "--max-frames", "2"]) == 0
+    assert LayoutFolder(out / "layouts").indices() == [0, 1]
+    assert (out / "notes.txt").read_text() == "mine"
