@@ -14,7 +14,9 @@ def _score(ds):
     for seq in ds.sequences():
         z_front = seq.scene()["row"]["z_front"]
         for i in range(seq.num_frames):
-            got = depth_projection_layouts(seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec)
+            got = depth_projection_layouts(
+                seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec
+            )
             gt = seq.layouts(i)
             assert got.top.shape == gt.top.shape == got.front.shape
             for view in ("top", "front"):
@@ -44,3 +46,20 @@ def test_depth_projection_rejects_bad_input(tiny_dataset):
         depth_projection_layouts(bad, sem, seq.intrinsics, seq.frame(0), z_front, seq.spec)
     with pytest.raises(InputError, match="must both be"):
         depth_projection_layouts(depth[:10], sem, seq.intrinsics, seq.frame(0), z_front, seq.spec)
+
+
+def test_evaluate_baseline_cli(tiny_dataset, tmp_path, capsys):
+    import json
+
+    from mvracklay.cli import main
+
+    out = tmp_path / "r.json"
+    assert (
+        main(["evaluate-baseline", "--data", str(tiny_dataset), "--split", "all", "--json", str(out), "--quiet"]) == 0
+    )
+    printed = capsys.readouterr().out
+    assert "columns in view" in printed and "front  rack" in printed
+    res = json.loads(out.read_text())
+    assert res["frames"] == 24 and 0 < res["visible"]["front"]["rack"]["miou"] <= 1
+    assert main(["evaluate-baseline", "--data", str(tmp_path / "nope")]) == 2
+    assert "nope" in capsys.readouterr().err

@@ -1,0 +1,85 @@
+"""``mvracklay evaluate-baseline``: Table I of the depth-projection baseline on a generated dataset."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json
+from layouts.metrics import LayoutMetrics, format_table
+from layouts.spec import VIEWS
+from mvracklay.baselines.depth_projection import depth_projection_layouts
+from waresynth.dataset import open_dataset
+
+NAME = "evaluate-baseline"
+HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
+DESCRIPTION = (
+    "Back-project each frame's ground-truth depth with its ground-truth semantic masks into shelf-centric "
+    "layouts (no learning, no amodal reasoning: see mvracklay/baselines/depth_projection.py) and score them "
+    "like 'mvracklay evaluate' does a checkpoint: what seeing alone gives."
+)
+ORDER = 32
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data", type=Path, required=True, help="dataset folder written by 'mvracklay generate'")
+    p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
+    p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
+    p.add_argument("--json", type=Path, help="also write the result as JSON here")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def evaluate_depth_projection(sequences, max_frames: int | None = None, progress: bool = True) -> dict:
+    """``{"all": table, "visible": table, "frames": n}`` of the baseline over ``sequences``."""
+    m_all, m_vis = LayoutMetrics(), LayoutMetrics()
+    total = sum(s.num_frames if not max_frames else min(s.num_frames, max_frames) for s in sequences)
+    frames = 0
+    with tqdm(total=total, desc="depth projection", unit="frame", disable=not progress, leave=False) as bar:
+        for seq in sequences:
+            z_front = float(seq.scene()["row"]["z_front"])
+            n = seq.num_frames if not max_frames else min(seq.num_frames, max_frames)
+            for i in range(n):
+                got = depth_projection_layouts(
+                    seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec
+                )
+                gt = seq.layouts(i)
+                vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
+                for v in VIEWS:
+                    m_all.update(getattr(got, v), getattr(gt, v), v)
+                    m_vis.update(getattr(got, v), getattr(gt, v), v, valid=vis)
+                frames += 1
+                bar.update(1)
+    return {"all": m_all.result(), "visible": m_vis.result(), "frames": frames}
+
+
+def _finite(obj):
+    """NaN (a mean over no pairs) -> null, so the JSON is standard."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, float) and obj != obj:
+        return None
+    return obj
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.max_frames < 0:
+        raise InputError(f"--max-frames must be >= 0, got {args.max_frames}")
+    ds = open_dataset(args.data)
+    seqs = ds.sequences(None if args.split == "all" else args.split)
+    if not seqs:
+        raise InputError(f"{args.data}: has no '{args.split}' sequences")
+    res = evaluate_depth_projection(seqs, args.max_frames or None, progress=not args.quiet)
+    title = f"depth-projection baseline on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences"
+    print(format_table(res["visible"], title + " -- columns in view"))
+    print()
+    print(format_table(res["all"], title + " -- all cells"))
+    if args.json:
+        atomic_write_json(
+            args.json, _finite({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
+        )
+        print(f"wrote {args.json}")
+    return 0
