@@ -30,10 +30,11 @@ class Predictor:
     def __init__(self, model: MVRackLay) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
+        self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def preprocess(self, rgb: np.ndarray) -> torch.Tensor:
         img = resize_image(np.asarray(rgb), self.cfg.input_width, self.cfg.input_height)
-        return to_tensor(img)[None]
+        return to_tensor(img)[None].to(self.device)
 
     @torch.no_grad()
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
@@ -82,7 +83,7 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
     """``(R, 3, D, D)`` logits -> ``(R, size, size)`` uint8 class ids (bilinear on logits when resizing)."""
     if size is not None and size != logits.shape[-1]:
         logits = F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
-    return logits.argmax(1).to(torch.uint8).numpy()
+    return logits.argmax(1).to(torch.uint8).cpu().numpy()
 
 
 def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:

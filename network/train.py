@@ -5,7 +5,14 @@ JSON object per epoch: step, wall and CPU minutes, mean losses, validation Table
 ``steps_per_epoch`` optimiser steps over randomly drawn windows; the learning rate follows a
 cosine from ``lr`` to ``lr * lr_floor`` over the run (by steps or by the minute budget, whichever
 is further along). ``resume=True`` continues from ``last.pt`` with its optimiser state, step count
-and elapsed time.
+and elapsed time; a checkpoint taken inside an epoch (``checkpoint_every``, Ctrl-C) resumes at the
+same place in the epoch's seeded window order, so a killed and resumed run trains on the same
+windows as an uninterrupted one.
+
+Under torchrun (`network.distributed`) the model and discriminators are wrapped in
+`DistributedDataParallel`: every rank draws its own share of windows, gradients are averaged, and
+only rank 0 validates and writes checkpoints, metrics and progress bars. Elapsed time is the
+slowest rank's, so the learning rate and the minute budget agree on every rank.
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
@@ -26,6 +35,15 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import load_checkpoint, save_checkpoint
 from network.data import WindowDataset
+from network.distributed import (
+    DistEnv,
+    ListSampler,
+    all_reduce,
+    device_for,
+    gather_fingerprints,
+    rank_indices,
+    state_fingerprint,
+)
 from network.evaluate import evaluate_sequences, score
 from network.losses import (
     consistency_loss,
@@ -63,12 +81,18 @@ class TrainConfig:
     val_sequences: int = 0  #: validation sequences used (0 = all)
     val_mode: str = "window"
     imagenet_weights: str | None = None
+    checkpoint_every: int = 0  #: also write last.pt every this many steps (0 = at epoch ends only)
+    device: str = "cpu"  #: cpu, cuda or auto (cuda:LOCAL_RANK when CUDA is present)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def validate(self) -> None:
         for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads"):
             if getattr(self, name) < 1:
                 raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.checkpoint_every < 0:
+            raise InputError(f"--checkpoint-every must be >= 0, got {self.checkpoint_every}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
         for name in ("minutes", "lr", "dice_weight", "adv_weight", "short_weight", "long_weight", "workers"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
@@ -99,8 +123,31 @@ def _nominal_distance(seqs: list[Any]) -> float | None:
     return float(np.mean(vals)) if vals else None
 
 
+class _DiscriminatorLoss(nn.Module):
+    """Both views' LSGAN discriminator loss in one forward, so one DDP wrapper covers a whole update."""
+
+    def __init__(self, discs: nn.ModuleDict) -> None:
+        super().__init__()
+        self.discs = discs
+
+    def forward(self, real: dict[str, torch.Tensor], fake: dict[str, torch.Tensor]) -> torch.Tensor:
+        loss = 0
+        for v in VIEWS:
+            loss = loss + lsgan_discriminator_loss(self.discs[v](real[v]), self.discs[v](fake[v]))
+        return loss
+
+
+def _is_tmp_of(path: Path, names: tuple[str, ...]) -> bool:
+    """A temporary file `layouts.fileio.atomic_write_bytes` left behind for one of ``names``."""
+    return path.name.endswith(".tmp") and any(path.name.startswith(f".{n}.") for n in names)
+
+
 class Trainer:
-    """Owns the model, optimisers and run folder; `fit` trains until the epochs or minutes run out."""
+    """Owns the model, optimisers and run folder; `fit` trains until the epochs or minutes run out.
+
+    ``dist_env`` places the process in a torchrun job (the process group must already be
+    initialised, see `network.distributed.init_process_group`); None = one process.
+    """
 
     def __init__(
         self,
@@ -113,22 +160,31 @@ class Trainer:
         resume: bool = False,
         data_info: dict[str, Any] | None = None,
         progress: bool = True,
+        dist_env: DistEnv | None = None,
     ) -> None:
         train_cfg.validate()
         self.mcfg, self.tcfg = model_cfg, train_cfg
+        self.env = dist_env or DistEnv()
+        if self.env.enabled and not (torch.distributed.is_available() and torch.distributed.is_initialized()):
+            raise RuntimeError("distributed training: call network.distributed.init_process_group first")
+        self.is_main = self.env.is_main
+        self.device = device_for(self.env, train_cfg.device)
         self.out = Path(out)
-        self.progress = progress
+        self.progress = progress and self.is_main
         torch.set_num_threads(train_cfg.threads)
-        torch.manual_seed(train_cfg.seed)
+        torch.manual_seed(train_cfg.seed)  # the same initial weights on every rank (DDP also broadcasts rank 0's)
         self.model = MVRackLay(model_cfg)
         if train_cfg.imagenet_weights:
             load_imagenet_weights(self.model.encoder, train_cfg.imagenet_weights)
         self.discs = build_discriminators(model_cfg) if train_cfg.adv_weight > 0 else None
+        self.model.to(self.device)
+        if self.discs is not None:
+            self.discs.to(self.device)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
         self.opt_d = (
             torch.optim.Adam(self.discs.parameters(), lr=train_cfg.disc_lr, betas=(0.5, 0.999)) if self.discs else None
         )
-        self.cw = torch.tensor(train_cfg.class_weights, dtype=torch.float32)
+        self.cw = torch.tensor(train_cfg.class_weights, dtype=torch.float32, device=self.device)
         self.train_ds = WindowDataset(
             train_seqs,
             seq_len=model_cfg.seq_len,
@@ -141,6 +197,8 @@ class Trainer:
         self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)
         self.step = 0
         self.epoch = 0
+        self.epoch_step = 0  #: optimiser steps already done in the current epoch
+        self.epoch_sums: dict[str, float] = {}  #: loss sums over those steps (this rank's)
         self.wall_s = 0.0
         self.cpu_s = 0.0
         self.best = -math.inf
@@ -154,11 +212,26 @@ class Trainer:
             "train_frames": len(self.train_ds),
             "train_sequences": len(train_seqs),
         }
+        self.fingerprints: list[str] = []
         self.out.mkdir(parents=True, exist_ok=True)
+        if self.env.enabled:
+            seen = all_reduce([float(resume)], "sum", self.device)[0]
+            if 0 < seen < self.env.world_size:
+                raise InputError(
+                    f"{self.out / 'last.pt'}: found by {int(seen)} of {self.env.world_size} ranks; "
+                    "a multi-node run needs --out on a filesystem shared by every node"
+                )
         if resume:
             self._resume()
         elif (self.out / "last.pt").exists():
             raise InputError(f"{self.out}: already holds a run (last.pt); pass --resume or choose another --out")
+        self.net: nn.Module = self.model
+        self.disc_loss: nn.Module | None = _DiscriminatorLoss(self.discs) if self.discs is not None else None
+        if self.env.enabled:
+            ids = [self.device] if self.device.type == "cuda" else None
+            self.net = DistributedDataParallel(self.model, device_ids=ids)
+            if self.disc_loss is not None:
+                self.disc_loss = DistributedDataParallel(self.disc_loss, device_ids=ids)
 
     # ------------------------------------------------------------------ state
     def _record(self, metrics: dict[str, Any] | None) -> dict[str, Any]:
@@ -174,6 +247,8 @@ class Trainer:
             "train_cpu_minutes": self.cpu_s / 60,
             "best_score": None if self.best == -math.inf else self.best,
             "metrics": metrics,
+            "world_size": self.env.world_size,
+            "replica_fingerprints": self.fingerprints,
             **self.info,
         }
 
@@ -186,6 +261,9 @@ class Trainer:
             "wall_s": self.wall_s,
             "cpu_s": self.cpu_s,
             "best": self.best if self.best != -math.inf else -1.0,
+            "epoch_step": self.epoch_step,
+            "epoch_sums": dict(self.epoch_sums),
+            "world_size": self.env.world_size,
         }
         if self.discs is not None and self.opt_d is not None:
             p["discriminators"] = self.discs.state_dict()
@@ -208,12 +286,26 @@ class Trainer:
             raise InputError(f"{path}: cannot resume from it ({str(e).splitlines()[0][:160]})") from None
         self.step = int(payload["step"])
         self.epoch = int(payload["epoch"])
+        self.epoch_step = int(payload.get("epoch_step", 0))
+        self.epoch_sums = {str(k): float(v) for k, v in dict(payload.get("epoch_sums", {})).items()}
         self.wall_s = float(payload["wall_s"])
         self.cpu_s = float(payload["cpu_s"])
         self.best = float(payload["best"]) if float(payload["best"]) >= 0 else -math.inf
+        self.best = max(self.best, _best_on_disk(self.out / "best.json"))
+        if self.env.enabled:
+            lo, hi = all_reduce([float(self.step), -float(self.step)], "min", self.device)
+            if lo != -hi:
+                raise InputError(f"{path}: ranks read different steps ({int(lo)}..{int(-hi)}); is --out shared?")
         mpath = self.out / "metrics.jsonl"
         if mpath.exists():
-            self.history = [json.loads(line) for line in mpath.read_text().splitlines() if line.strip()]
+            # Epochs logged after this checkpoint (a crash between the log and the save) are dropped.
+            lines = [json.loads(line) for line in mpath.read_text().splitlines() if line.strip()]
+            self.history = [e for e in lines if int(e.get("step", 0)) <= self.step]
+        if self.is_main:
+            names = ("last.pt", "last.json", "best.pt", "best.json", "metrics.jsonl")
+            for p in self.out.iterdir():
+                if _is_tmp_of(p, names):
+                    p.unlink(missing_ok=True)  # a write cut short by a crash; the final name was never touched
 
     # ------------------------------------------------------------------ schedule
     def _progress(self) -> float:
@@ -238,8 +330,9 @@ class Trainer:
     # ------------------------------------------------------------------ one step
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         t = self.tcfg
-        self.model.train()
-        out = self.model(batch["images"])
+        batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
+        self.net.train()
+        out = self.net(batch["images"])
         losses: dict[str, torch.Tensor] = {}
         losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight) for v in VIEWS)
         if self.mcfg.seq_len > 1 and (t.short_weight > 0 or t.long_weight > 0):
@@ -259,11 +352,9 @@ class Trainer:
         self.opt.zero_grad(set_to_none=True)
         total.backward()
         self.opt.step()
-        if self.discs is not None and self.opt_d is not None:
-            d_loss = 0
-            for v in VIEWS:
-                real = one_hot_layouts(batch[v].flatten(0, 1), NUM_CLASSES)
-                d_loss = d_loss + lsgan_discriminator_loss(self.discs[v](real), self.discs[v](fakes[v].detach()))
+        if self.disc_loss is not None and self.opt_d is not None:
+            real = {v: one_hot_layouts(batch[v].flatten(0, 1), NUM_CLASSES) for v in VIEWS}
+            d_loss = self.disc_loss(real, {v: fakes[v].detach() for v in VIEWS})
             self.opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             self.opt_d.step()
@@ -285,39 +376,67 @@ class Trainer:
             progress=self.progress,
         )
 
-    def _loader(self) -> torch.utils.data.DataLoader:
-        self.train_ds.set_epoch(self.epoch)
+    def epoch_indices(self) -> list[int]:
+        """This rank's windows for the current epoch, in order, without those of steps already done."""
         g = torch.Generator().manual_seed(self.tcfg.seed * 100003 + self.epoch)
         n = self.tcfg.steps_per_epoch * self.batch
-        sampler = torch.utils.data.RandomSampler(
-            self.train_ds, replacement=len(self.train_ds) < n, num_samples=n, generator=g
-        )
+        idx = rank_indices(len(self.train_ds), n, rank=self.env.rank, world_size=self.env.world_size, generator=g)
+        return idx[self.epoch_step * self.batch :]
+
+    def _loader(self) -> torch.utils.data.DataLoader:
+        self.train_ds.set_epoch(self.epoch)
         return torch.utils.data.DataLoader(
             self.train_ds,
             batch_size=self.batch,
-            sampler=sampler,
+            sampler=ListSampler(self.epoch_indices()),
             num_workers=self.tcfg.workers,
             drop_last=True,
             persistent_workers=False,
+            pin_memory=self.device.type == "cuda",
         )
 
     def _save(self, name: str, metrics: dict[str, Any] | None) -> None:
-        save_checkpoint(self.out / f"{name}.pt", self._payload(), self._record(metrics))
+        if self.is_main:
+            save_checkpoint(self.out / f"{name}.pt", self._payload(), self._record(metrics))
+
+    def _sync_fingerprints(self) -> None:
+        """Every rank's weight fingerprint into the record (a collective: all ranks call it together)."""
+        if self.env.enabled:
+            self.fingerprints = gather_fingerprints(weights_fingerprint(self.model, self.discs), self.device)
+            if len(set(self.fingerprints)) > 1 and self.is_main:
+                print(f"warning: replicas' weights differ at step {self.step}: {self.fingerprints}", flush=True)
 
     def _log(self, entry: dict[str, Any]) -> None:
         self.history.append(entry)
         text = "".join(json.dumps(e, sort_keys=True) + "\n" for e in self.history)
         atomic_write_text(self.out / "metrics.jsonl", text)
 
+    def _timed(self, w0: float, c0: float) -> None:
+        """Add one step's wall and CPU time: wall = the slowest rank's, CPU = summed over ranks."""
+        dw, dc = time.perf_counter() - w0, time.process_time() - c0
+        if self.env.enabled:
+            dw = all_reduce([dw], "max", self.device)[0]
+            dc = all_reduce([dc], "sum", self.device)[0]
+        self.wall_s += dw
+        self.cpu_s += dc
+
+    def _epoch_means(self) -> dict[str, float]:
+        """Mean losses of the epoch over every rank's steps."""
+        keys = sorted(self.epoch_sums)
+        vals = all_reduce([self.epoch_sums[k] for k in keys] + [float(self.epoch_step)], "sum", self.device)
+        n = max(vals[-1], 1.0)
+        return {k: v / n for k, v in zip(keys, vals[:-1])}
+
     def fit(self) -> dict[str, Any]:
         """Train to the end of the budget; returns the last record."""
         record: dict[str, Any] = self._record(None)
+        metrics: dict[str, Any] | None = None
+        every = self.tcfg.checkpoint_every
         while not self._done():
-            sums: dict[str, float] = {}
-            n = 0
             bar = tqdm(
                 self._loader(),
                 total=self.tcfg.steps_per_epoch,
+                initial=self.epoch_step,
                 desc=f"epoch {self.epoch + 1}/{self.tcfg.epochs}",
                 unit="step",
                 disable=not self.progress,
@@ -328,44 +447,75 @@ class Trainer:
                     w0, c0 = time.perf_counter(), time.process_time()
                     lr = self._set_lr()
                     res = self.train_step(batch)
-                    self.wall_s += time.perf_counter() - w0
-                    self.cpu_s += time.process_time() - c0
+                    self.epoch_step += 1
                     for k, v in res.items():
-                        sums[k] = sums.get(k, 0.0) + v
-                    n += 1
+                        self.epoch_sums[k] = self.epoch_sums.get(k, 0.0) + v
+                    self._timed(w0, c0)
                     bar.set_postfix(loss=f"{res['total']:.3f}", lr=f"{lr:.1e}")
                     if self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes:
                         break
+                    if every and self.step % every == 0 and self.epoch_step < self.tcfg.steps_per_epoch:
+                        self._sync_fingerprints()
+                        self._save("last", metrics)
             except KeyboardInterrupt:
-                self._save("last", None)
+                self._save("last", metrics)
                 raise
             finally:
                 bar.close()
+            losses = self._epoch_means()
             self.epoch += 1
-            val = self.validate()
+            self.epoch_step, self.epoch_sums = 0, {}
+            val = self.validate() if self.is_main else None
             entry: dict[str, Any] = {
                 "epoch": self.epoch,
                 "step": self.step,
                 "train_wall_minutes": round(self.wall_s / 60, 4),
                 "train_cpu_minutes": round(self.cpu_s / 60, 4),
                 "lr": self.opt.param_groups[0]["lr"],
-                "loss": {k: v / max(n, 1) for k, v in sums.items()},
+                "loss": losses,
             }
+            if self.env.enabled:
+                entry["world_size"] = self.env.world_size
             if val:
                 s = score(val)
                 entry["val_score"] = s
                 entry["val_visible"] = _compact(val["visible"])
                 entry["val_all"] = _compact(val["all"])
+                metrics = {"visible": val["visible"], "all": val["all"]}
                 if s > self.best:
                     self.best = s
-                    self._save("best", {"visible": val["visible"], "all": val["all"]})
-            self._log(entry)
-            record = self._record({"visible": val["visible"], "all": val["all"]} if val else None)
+                    self._save("best", metrics)
+            if self.is_main:
+                self._log(entry)
+            self._sync_fingerprints()
+            record = self._record(metrics if val else None)
             self._save("last", record["metrics"])
             if not val:
                 self._save("best", None)
-            tqdm.write(_summary(entry)) if self.progress else print(_summary(entry), flush=True)
+            if self.is_main:
+                tqdm.write(_summary(entry)) if self.progress else print(_summary(entry), flush=True)
         return record
+
+
+def weights_fingerprint(model: nn.Module, discs: nn.Module | None = None) -> str:
+    """SHA-256 of the trainable weights (model, then discriminators): what DDP keeps identical on every rank.
+
+    BatchNorm running statistics are left out: each rank updates them from its own batch and DDP
+    re-broadcasts rank 0's at every forward, so the checkpoint (rank 0) holds rank 0's.
+    """
+    params = {f"model.{k}": p for k, p in model.named_parameters()}
+    if discs is not None:
+        params.update({f"discs.{k}": p for k, p in discs.named_parameters()})
+    return state_fingerprint(params)
+
+
+def _best_on_disk(path: Path) -> float:
+    """The score recorded beside best.pt (it may be newer than last.pt after a crash); -inf if none."""
+    try:
+        v = json.loads(path.read_text()).get("best_score")
+        return float(v) if v is not None and math.isfinite(float(v)) else -math.inf
+    except (OSError, ValueError, TypeError, AttributeError):
+        return -math.inf
 
 
 def _compact(table: dict[str, Any]) -> dict[str, Any]:

@@ -12,6 +12,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
 from layouts.metrics import format_table
 from network.checkpoint import load_model
+from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.train import open_generated
 
@@ -32,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument(
+        "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
+    )
     p.add_argument("--json", type=Path, help="also write the full result as JSON here")
     p.add_argument("--quiet", action="store_true")
 
@@ -49,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
+    model.to(single_process_device(NAME, args.device))
     ds = open_generated(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:

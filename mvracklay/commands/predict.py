@@ -18,6 +18,7 @@ from layouts.errors import InputError
 from layouts.fileio import load_json
 from network.checkpoint import load_model
 from network.data import ImageFolderSequence
+from network.distributed import single_process_device
 from network.infer import Predictor, frame_layouts
 
 NAME = "predict"
@@ -42,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
     p.add_argument("--distance", type=float, help="camera to rack front in metres (for the visible columns)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument(
+        "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
+    )
     p.add_argument("--quiet", action="store_true")
 
 
@@ -67,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
+    model.to(single_process_device(NAME, args.device))
     seq_dir = args.seq_dir
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():

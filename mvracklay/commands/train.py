@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from layouts.errors import InputError
+from network.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
 from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.train import TrainConfig, Trainer, default_model_config, open_generated
 
@@ -15,7 +16,11 @@ HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, r
 DESCRIPTION = (
     "Train a variant on the 'train' split of DATA, validating with the Table I metrics on the 'val' split "
     "after every epoch. RUN receives last.pt / best.pt (+ .json records) and metrics.jsonl; --resume "
-    "continues an interrupted run. --export CKPT writes a fp16 weights-only copy of a checkpoint to --out."
+    "continues an interrupted run (also after kill -9: --checkpoint-every N bounds the lost steps). "
+    "Under torchrun (torchrun --nproc_per_node=N -m mvracklay train ...) it trains with "
+    "DistributedDataParallel: gloo on CPU, NCCL on GPUs, each rank on its own share of the windows, "
+    "rank 0 writing checkpoints and metrics; see docs/distributed.md. "
+    "--export CKPT writes a fp16 weights-only copy of a checkpoint to --out."
 )
 ORDER = 30
 
@@ -52,6 +57,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seed", type=int, default=t.seed)
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
     g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
+    g.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=t.checkpoint_every,
+        metavar="STEPS",
+        help="also write last.pt every STEPS optimiser steps (0 = at epoch ends only); bounds the work a crash loses",
+    )
+    g.add_argument(
+        "--device",
+        choices=["auto", "cpu", "cuda"],
+        default="auto",
+        help="auto = cuda:LOCAL_RANK when CUDA is present, else CPU",
+    )
+    g.add_argument(
+        "--dist-timeout",
+        type=float,
+        default=DEFAULT_TIMEOUT_MIN,
+        metavar="MIN",
+        help="under torchrun: minutes a rank may wait for the others (rank 0 validates while they wait)",
+    )
     g = p.add_argument_group("validation")
     g.add_argument("--val-sequences", type=int, default=t.val_sequences, help="0 = all 'val' sequences")
     g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
@@ -61,9 +86,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    env = DistEnv.from_env()
     if args.export:
         from network.checkpoint import export_weights
 
+        if not env.is_main:
+            return 0
         export_weights(args.export, args.out, note=args.note)
         size = args.out.stat().st_size / 2**20
         print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
@@ -75,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
     for name in ("lr", "minutes"):
         if not math.isfinite(getattr(args, name)):
             raise InputError(f"--{name} must be finite")
+    if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
+        raise InputError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
     ds = open_generated(args.data)
     train_seqs = ds.sequences("train")
     val_seqs = ds.sequences("val")
@@ -111,7 +141,10 @@ def run(args: argparse.Namespace) -> int:
         val_sequences=args.val_sequences,
         val_mode=args.val_mode,
         imagenet_weights=str(args.imagenet_weights) if args.imagenet_weights else None,
+        checkpoint_every=args.checkpoint_every,
+        device=args.device,
     )
+    tcfg.validate()
     info = {
         "root": str(args.data),
         "seed": getattr(ds, "seed", None),
@@ -120,17 +153,35 @@ def run(args: argparse.Namespace) -> int:
         "image_size": list(getattr(ds, "image_size", ())),
     }
     resume = bool(args.resume and (args.out / "last.pt").is_file())
-    trainer = Trainer(
-        mcfg, tcfg, train_seqs, val_seqs, args.out, resume=resume, data_info=info, progress=not args.quiet
-    )
-    print(
-        f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
-        f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, batch {trainer.batch} x {mcfg.seq_len} frames"
-        + (f", resuming at step {trainer.step}" if resume else "")
-    )
-    record = trainer.fit()
-    print(
-        f"done: step {record['step']}, {record['train_wall_minutes']:.1f} training minutes; "
-        f"checkpoints in {args.out} (best score {record['best_score']})"
-    )
+    device = device_for(env, args.device)
+    backend = init_process_group(env, device, args.dist_timeout) if env.enabled else None
+    try:
+        trainer = Trainer(
+            mcfg,
+            tcfg,
+            train_seqs,
+            val_seqs,
+            args.out,
+            resume=resume,
+            data_info=info,
+            progress=not args.quiet,
+            dist_env=env,
+        )
+        if env.is_main:
+            procs = f", {env.world_size} processes ({backend})" if env.enabled else ""
+            print(
+                f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
+                f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, "
+                f"batch {trainer.batch} x {mcfg.seq_len} frames per process on {device}{procs}"
+                + (f", resuming at step {trainer.step}" if resume else ""),
+                flush=True,
+            )
+        record = trainer.fit()
+    finally:
+        shutdown()
+    if env.is_main:
+        print(
+            f"done: step {record['step']}, {record['train_wall_minutes']:.1f} training minutes; "
+            f"checkpoints in {args.out} (best score {record['best_score']})"
+        )
     return 0
