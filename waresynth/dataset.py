@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import os
+import re
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,17 @@ from waresynth.imageio import read_png
 SPLITS = ("train", "val", "test")
 DATASET_FORMAT = "waresynth"  #: manifest.json "format"
 DATASET_VERSION = 1  #: manifest.json "version"; bump when the on-disk meaning changes
+
+
+_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}")
+
+
+def check_sequence_name(name: Any, source: str | os.PathLike) -> str:
+    """A manifest's sequence name must be a plain folder name inside the dataset: no path
+    separators, no ``..``, not absolute (a manifest must not point outside its dataset)."""
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise InputError(f"{source}: sequence name {name!r} is not a plain folder name inside the dataset, refused")
+    return name
 
 
 class Sequence:
@@ -138,10 +150,25 @@ class Dataset:
         self.manifest: dict[str, Any] = m
         self.spec = LayoutSpec.from_dict(m["spec"], str(mpath))
         self.config: dict[str, Any] = m["config"]
-        self.seed = int(m["seed"])
-        w, h = m["image_size"]
-        self.image_size: tuple[int, int] = (int(w), int(h))
-        self._entries = {e["name"]: e for e in m["sequences"]}
+        try:
+            w, h = m["image_size"]
+            self.image_size: tuple[int, int] = (int(w), int(h))
+            self.seed = int(m["seed"])
+        except (TypeError, ValueError):
+            raise InputError(f"{mpath}: image_size must be [width, height] and seed an integer") from None
+        seqs = m["sequences"]
+        if not isinstance(seqs, list):
+            raise InputError(f"{mpath}: 'sequences' must be a list")
+        self._entries: dict[str, dict[str, Any]] = {}
+        for e in seqs:
+            if not isinstance(e, dict):
+                raise InputError(f"{mpath}: sequence entries must be objects, got {type(e).__name__}")
+            name = check_sequence_name(e.get("name"), mpath)
+            if e.get("split") not in SPLITS:
+                raise InputError(f"{mpath}: sequence {name} has split {e.get('split')!r}, not one of {SPLITS}")
+            if name in self._entries:
+                raise InputError(f"{mpath}: sequence {name} listed twice")
+            self._entries[name] = e
 
     def __repr__(self) -> str:
         return f"Dataset({str(self.root)!r}, sequences={len(self._entries)})"

@@ -169,6 +169,61 @@ def _pool_context() -> mp.context.BaseContext:
 
 
 # ----------------------------------------------------------------------------- whole dataset
+def build_manifest(
+    *,
+    num_sequences: int,
+    frames: int,
+    image_size: tuple[int, int],
+    spec: LayoutSpec,
+    seed: int,
+    cfg: dict[str, Any],
+    splits: tuple[float, float, float],
+) -> dict[str, Any]:
+    """The manifest of the whole (unsharded) dataset: everything that fixes its bytes."""
+    labels = assign_splits(seed, num_sequences, splits)
+    seeds = sequence_seeds(seed, num_sequences)
+    entries = [
+        {"name": sequence_name(k), "split": labels[k], "seed": seeds[k], "frames": frames} for k in range(num_sequences)
+    ]
+    return {
+        "format": DATASET_FORMAT,
+        "version": DATASET_VERSION,
+        "seed": seed,
+        "config": cfg,
+        "spec": spec.to_dict(),
+        "image_size": [int(image_size[0]), int(image_size[1])],
+        "splits": [float(f) for f in splits],
+        "sequences": entries,
+    }
+
+
+def parse_shard(shard: tuple[int, int] | str) -> tuple[int, int]:
+    """``"i/n"`` or ``(i, n)`` -> ``(i, n)`` with ``0 <= i < n`` (one-line error otherwise)."""
+    if isinstance(shard, str):
+        parts = shard.split("/")
+        try:
+            i, n = (int(p) for p in parts)
+        except ValueError:
+            raise InputError(f"--shard must be I/N (e.g. 0/4), got {shard!r}") from None
+    elif isinstance(shard, (tuple, list)) and len(shard) == 2:
+        i, n = shard
+    else:
+        raise InputError(f"shard must be (index, count) or 'I/N', got {shard!r}")
+    n = _check_int("shard count", n, 1, 100000)
+    i = _check_int("shard index", i, 0, n - 1)
+    return i, n
+
+
+def shard_manifest(full: dict[str, Any], index: int, count: int) -> dict[str, Any]:
+    """Shard ``index`` of ``count``: sequences k with ``k % count == index`` plus a ``shard`` record."""
+    seqs = full["sequences"]
+    return {
+        **full,
+        "sequences": [e for k, e in enumerate(seqs) if k % count == index],
+        "shard": {"index": index, "count": count, "num_sequences": len(seqs)},
+    }
+
+
 def _check_int(name: str, v: Any, lo: int, hi: int) -> int:
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi:
         raise InputError(f"{name} must be an integer in [{lo}, {hi}], got {v!r}")
@@ -229,12 +284,15 @@ def generate_dataset(
     progress: bool = True,
     splits: tuple[float, float, float] = (0.9, 0.05, 0.05),
     stats: list[dict[str, Any]] | None = None,
+    shard: tuple[int, int] | str | None = None,
 ) -> Path:
     """Generate (or resume) a WareSynth dataset in ``out_dir``; returns its path.
 
     Complete sequences already on disk are skipped; a non-empty folder that is not this same
     dataset is refused unless ``overwrite``. ``config`` is a dict, a JSON path or None (defaults).
     ``stats``, when a list, receives one cost record per sequence written (see `write_sequence`).
+    ``shard`` ``(i, n)`` or ``"i/n"`` writes only the sequences k with ``k % n == i`` (a partial
+    dataset that `waresynth.shards.merge_shards` joins with the other shards).
     """
     num_sequences = _check_int("num_sequences", num_sequences, 1, 100000)
     frames = _check_int("frames", frames, 1, 100000)
@@ -255,23 +313,22 @@ def generate_dataset(
         and abs(sum(splits) - 1.0) < 1e-6
     ):
         raise InputError(f"splits must be three fractions (train, val, test) >= 0 summing to 1, got {splits!r}")
+    if shard is not None:
+        shard = parse_shard(shard)
     cfg = load_config(config)
     root = Path(out_dir)
-    labels = assign_splits(seed, num_sequences, tuple(float(f) for f in splits))
-    seeds = sequence_seeds(seed, num_sequences)
-    entries = [
-        {"name": sequence_name(k), "split": labels[k], "seed": seeds[k], "frames": frames} for k in range(num_sequences)
-    ]
-    manifest = {
-        "format": DATASET_FORMAT,
-        "version": DATASET_VERSION,
-        "seed": seed,
-        "config": cfg,
-        "spec": spec.to_dict(),
-        "image_size": [w, h],
-        "splits": [float(f) for f in splits],
-        "sequences": entries,
-    }
+    manifest = build_manifest(
+        num_sequences=num_sequences,
+        frames=frames,
+        image_size=(w, h),
+        spec=spec,
+        seed=seed,
+        cfg=cfg,
+        splits=tuple(float(f) for f in splits),
+    )
+    if shard is not None:
+        manifest = shard_manifest(manifest, *shard)
+    entries = manifest["sequences"]
     _prepare_root(root, manifest, overwrite)
     atomic_write_json(root / MANIFEST, manifest)
     for stale in root.glob(".seq_*.tmp"):

@@ -45,6 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--overwrite", action="store_true", help="delete a non-empty OUT (or export folder) that is not this dataset"
     )
+    p.add_argument(
+        "--shard",
+        metavar="I/N",
+        default=None,
+        help="write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
+        "join the shards with `mvracklay merge-shards`",
+    )
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
 
 
@@ -63,6 +70,13 @@ def run(args: argparse.Namespace) -> int:
     ):
         if not lo <= value <= hi:
             raise InputError(f"{flag} must be in [{lo}, {hi}], got {value}")
+    shard = None
+    if args.shard is not None:
+        from waresynth.generate import parse_shard
+
+        shard = parse_shard(args.shard)
+        if args.format != "native":
+            raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
     spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
     root = generate_dataset(
         args.out,
@@ -75,11 +89,13 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.no_progress,
+        shard=shard,
     )
     ds = open_dataset(root)
     counts = {s: len(ds.sequences(s)) for s in ("train", "val", "test")}
+    what = "" if shard is None else f" (shard {shard[0]}/{shard[1]}; join with `mvracklay merge-shards`)"
     print(
-        f"{root}: {sum(counts.values())} sequences x {args.frames} frames "
+        f"{root}{what}: {sum(counts.values())} sequences x {args.frames} frames "
         f"(train {counts['train']}, val {counts['val']}, test {counts['test']}), "
         f"images {args.size}x{args.size}, layouts {spec.shape}"
     )
