@@ -125,6 +125,12 @@ def _sequence(folder: Path) -> FrameSource:
     frames = meta.get("frames")
     if isinstance(frames, list) and all(isinstance(f, dict) for f in frames):
         src.records = frames
+        expected = [folder / "rgb" / f"{i:06d}.png" for i in range(len(frames))]
+        present = set(src.image_paths or [])
+        missing = [p for p in expected if p not in present]
+        if missing:
+            more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+            raise InputError(f"{missing[0]}: missing, but {meta_path} records {len(frames)} frames{more}")
     return src
 
 

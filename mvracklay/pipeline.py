@@ -129,7 +129,7 @@ def stitch_config(cfg: RunConfig) -> StitchConfig:
     return StitchConfig(detect=det, lift=LiftConfig(board_thickness=cfg.board_thickness))
 
 
-def _staging_dir(out: Path) -> Path:
+def staging_dir(out: Path) -> Path:
     out.parent.mkdir(parents=True, exist_ok=True)
     stage = out.parent / f".{out.name}.partial-{os.getpid()}"
     if stage.exists():
@@ -138,13 +138,17 @@ def _staging_dir(out: Path) -> Path:
     return stage
 
 
-def _publish(stage: Path, out: Path) -> None:
-    """Move the staged outputs into OUT, replacing those of an earlier run."""
+def publish(stage: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
+    """Move the staged outputs into OUT, replacing those of an earlier run.
+
+    Of the ``managed`` names, an earlier run's output this run did not write is removed (it would
+    be stale); nothing else in OUT is touched.
+    """
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     made = {p.name for p in stage.iterdir()}
-    for name in OUTPUTS:  # an earlier run's output this run did not write (e.g. --no-rrd) would be stale
+    for name in managed:
         old = out / name
         if name not in made and old.is_dir() and not old.is_symlink():
             shutil.rmtree(old)
@@ -245,7 +249,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
-    stage = _staging_dir(out)
+    stage = staging_dir(out)
     rec = None
     try:
         folder = LayoutFolder.create(stage / "layouts", spec)
@@ -322,7 +326,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
                 rec.disconnect()
                 rec = None
                 eb.update(1)
-        _publish(stage, out)
+        publish(stage, out)
         seconds["export"] = time.perf_counter() - t1
     except BaseException:
         if rec is not None:

@@ -350,20 +350,7 @@ CASES = [
     ),
 ]
 
-XFAIL: dict[str, str] = {
-    "png-reconstruct": (
-        "mvracklay/commands/reconstruct.py starts OUT/warehouse.rrd before reading the frames, so a bad frame "
-        "leaves a partial warehouse.rrd (needs a staging folder, as `run` has)"
-    ),
-    "missing-rgb-run": (
-        "mvracklay/frames.py lists SEQ/rgb/*.png and does not check them against meta.json's frames, so a "
-        "deleted frame is silently skipped (exit 0)"
-    ),
-    "missing-layout-reconstruct": (
-        "mvracklay/commands/reconstruct.py stitches the NNNNNN.npz files present and does not check for gaps "
-        "against meta.json's frames, so a deleted layout file is silently skipped (exit 0)"
-    ),
-}
+XFAIL: dict[str, str] = {}
 
 
 def _params():

@@ -145,3 +145,19 @@ def test_yawed_box_footprint_counts_exactly():
     # Turned 90 degrees the 0.5 x 0.6 box spans [-0.05, 0.55] along X; only its part on the shelf counts.
     assert fs.free_length == pytest.approx(0.5 - 0.05, abs=1e-9)
     assert fs.free_area == pytest.approx(2.0 - 0.55 * 0.5 - 0.8)
+
+
+def test_reconstruct_into_a_run_folder_keeps_its_layouts(tiny_dataset, tmp_path):
+    """Re-stitching OUT/layouts into OUT itself must not delete the layouts it reads."""
+    import shutil
+
+    from mvracklay.cli import main
+
+    seq = tiny_dataset / "seq_00000"
+    out = tmp_path / "run"
+    shutil.copytree(seq / "layouts", out / "layouts")
+    before = sorted(p.name for p in (out / "layouts").iterdir())
+    assert main(["reconstruct", str(out / "layouts"), "--out", str(out), "--no-rrd", "--quiet"]) == 0
+    assert sorted(p.name for p in (out / "layouts").iterdir()) == before
+    assert (out / "warehouse.json").is_file() and (out / "warehouse.glb").is_file()
+    assert not any(p.name.startswith(".") for p in tmp_path.iterdir())

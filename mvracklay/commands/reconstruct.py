@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 import time
 from pathlib import Path
 
 from layouts.codecs import LayoutFolder, read_layout_spec
 from layouts.errors import InputError
+from mvracklay.pipeline import publish, staging_dir, write_glb
 from stitching.detect import DetectConfig
 from stitching.lift import LiftConfig
 from stitching.pipeline import StitchConfig, Stitcher
@@ -23,6 +25,8 @@ DESCRIPTION = (
     "OUT/warehouse.json, OUT/warehouse.glb and OUT/warehouse.rrd."
 )
 ORDER = 60
+#: what reconstruct writes (an OUT/layouts folder, e.g. from `run`, is never touched)
+MAP_OUTPUTS = ("warehouse.json", "warehouse.glb", "warehouse.rrd")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -86,11 +90,6 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
-    from stitching import rerun_log
-    from stitching.export_gltf import export_glb
-
     seq_dir = Path(args.seq_dir)
     if not seq_dir.is_dir():
         raise InputError(f"{seq_dir}: folder not found")
@@ -103,8 +102,34 @@ def run(args: argparse.Namespace) -> int:
     seq = open_sequence(seq_dir)
     if seq is not None and seq.num_frames < indices[-1] + 1:
         raise InputError(f"{folder.root}: frame {indices[-1]} has no record in {seq_dir / 'meta.json'}")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if seq is not None and args.layouts == "gt" and len(indices) != seq.num_frames:
+        gap = sorted(set(range(seq.num_frames)) - set(indices))[0]
+        raise InputError(
+            f"{folder.path(gap)}: missing, but {seq_dir / 'meta.json'} records {seq.num_frames} frames "
+            f"({seq.num_frames - len(indices)} layout files missing)"
+        )
+    final_out = Path(args.out)
+    if final_out.exists() and not final_out.is_dir():
+        raise InputError(f"--out {final_out}: exists and is not a folder")
+    out = staging_dir(final_out)  # outputs appear in OUT only when the whole run succeeded
+    try:
+        _reconstruct(args, seq, folder, indices, out)
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)
+        raise
+    publish(out, final_out, managed=MAP_OUTPUTS)
+    print(
+        f"wrote {final_out / 'warehouse.json'}, {final_out / 'warehouse.glb'}"
+        + ("" if args.no_rrd or args.spawn else f", {final_out / 'warehouse.rrd'}")
+    )
+    return 0
+
+
+def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: list[int], out: Path) -> None:
+    from tqdm import tqdm
+
+    from stitching import rerun_log
+
     origin = origin_of(seq, indices[0])
     stitcher = Stitcher(folder.spec, stitch_config(args))
     rec = None
@@ -134,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {"layouts": str(folder.root), "frames": len(indices), "spec": folder.spec.to_dict()}
     wmap = stitcher.map(origin, meta)
     wmap.save(out / "warehouse.json")
-    export_glb(wmap, out / "warehouse.glb")
+    write_glb(wmap, out / "warehouse.glb")
     if rec is not None:
         rec.flush()
         rec.disconnect()
@@ -142,7 +167,5 @@ def run(args: argparse.Namespace) -> int:
     fps = len(indices) / t_stitch if t_stitch > 0 else float("inf")
     print(
         f"{len(indices)} frames -> {len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {n_boxes} boxes "
-        f"(stitching {fps:.0f} frames/s); wrote {out / 'warehouse.json'}, {out / 'warehouse.glb'}"
-        + ("" if rec is None or args.spawn else f", {out / 'warehouse.rrd'}")
+        f"(stitching {fps:.0f} frames/s)"
     )
-    return 0
