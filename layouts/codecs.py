@@ -116,6 +116,8 @@ class FrameLayouts:
             raise LayoutError(f"{name}: top {self.top.shape} and front {self.front.shape} shapes differ")
         if self.visible is not None:
             v = self.visible
+            if not isinstance(v, np.ndarray):
+                raise LayoutError(f"{name}: visible must be a numpy bool array, got {type(v).__name__}")
             if v.dtype != bool or v.shape != (self.top.shape[2],):
                 raise LayoutError(
                     f"{name}: visible must be bool of shape ({self.top.shape[2]},), got {v.dtype} {v.shape}"

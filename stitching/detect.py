@@ -262,6 +262,8 @@ def _front_runs(
 
 def check_frame(top: np.ndarray, front: np.ndarray, spec: LayoutSpec, visible: np.ndarray | None, name: str) -> None:
     """Validate one frame's arrays against ``spec`` with a one-line error naming ``name``."""
+    if visible is not None and not isinstance(visible, np.ndarray):
+        raise LayoutError(f"{name}: visible must be a numpy bool array, got {type(visible).__name__}")
     FrameLayouts(top, front, visible).validate(spec, name)
 
 

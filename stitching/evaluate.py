@@ -191,9 +191,11 @@ def evaluate_map(
                 }
             )
     true_dx = [float(r["camera_position"][0]) - origin[0] for r in records]
-    est = [s.offset for s in wmap.steps]
-    n = min(len(true_dx), len(est))
-    errs = [abs(est[i] - true_dx[i]) for i in range(n)]
+    if len(wmap.steps) == len(records):
+        errs = [abs(s.offset - t) for s, t in zip(wmap.steps, true_dx)]
+    else:  # a bounded step history (MergeConfig.keep_steps): score the frames it kept, by frame index
+        by_index = {int(r.get("index", i)): t for i, (r, t) in enumerate(zip(records, true_dx))}
+        errs = [abs(s.offset - by_index[s.frame]) for s in wmap.steps if s.frame in by_index]
     return EvalResult(
         precision=tp / (tp + fp) if tp + fp else 1.0,
         recall=tp / (tp + fn) if tp + fn else 1.0,

@@ -48,10 +48,16 @@ class LiftConfig:
     min_profile_fraction: float = 0.3  #: share of a top box's columns with front box pixels to use them
 
     def __post_init__(self) -> None:
-        if not np.isfinite(self.board_thickness) or self.board_thickness < 0:
+        for name in ("board_thickness", "match_iou", "min_profile_fraction"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise LayoutError(f"LiftConfig.{name} must be a finite number, got {v!r}")
+        if self.board_thickness < 0:
             raise LayoutError(f"LiftConfig.board_thickness must be >= 0 metres, got {self.board_thickness!r}")
         if not 0 <= self.match_iou <= 1:
             raise LayoutError(f"LiftConfig.match_iou must be in [0, 1], got {self.match_iou!r}")
+        if not 0 <= self.min_profile_fraction <= 1:
+            raise LayoutError(f"LiftConfig.min_profile_fraction must be in [0, 1], got {self.min_profile_fraction!r}")
 
 
 @dataclass

@@ -2,15 +2,20 @@
 
 `MapBuilder` keeps only the map itself (fused boxes, a per-slot shelf-evidence strip along X at
 layout resolution, running means of shelf heights) plus the previous frame's top layout for the
-correlation fallback: memory does not grow with the frames already merged (the per-frame step
-records are a few numbers each).
+correlation fallback: memory does not grow with the frames already merged. The one exception is
+the camera path, one `StepRecord` per frame (``MergeConfig.keep_steps = None``, the default, which
+``warehouse.json`` stores); ``keep_steps = N`` keeps only the last N beside running totals
+(`StepStats`), so memory is bounded by the map alone. Map boxes and rack ends are indexed by X
+(`stitching.xindex.XIndex`), so a frame's cost depends on what is near it, not on how much of the
+row is already mapped (time grows linearly with the frame count on a long aisle).
 
 Fusion rules per box (frame boxes are matched to map boxes of the same slot one-to-one by the
 Hungarian assignment on footprint overlap, each extent normalised by the smaller box so a box cut
 by the image border still matches its whole self):
 
 * an edge seen whole (not cut) is averaged over its whole observations; an edge only ever seen
-  cut grows outwards (min / max) as more of the box comes into view;
+  cut grows outwards (min / max) as more of the box comes into view, but never makes the box
+  wider than the layout's X extent (a longer "box" is a merged blob, not a box);
 * the oriented footprint (centre, width, depth, yaw) averages whole observations only;
 * depth range, height and confidence average all observations (cut ones weigh less);
 * a map box counts how often it was inside the visible range (``seen``) and how often it was
@@ -20,16 +25,20 @@ by the image border still matches its whole self):
 
 from __future__ import annotations
 
+import bisect
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 from stitching.lift import FrameBox, FrameReconstruction
 from stitching.shift import Edges, ShiftConfig, correlate_shift, vote_offset
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
+from stitching.xindex import XIndex
 
 CUT_WEIGHT = 0.3
 RACK_SLOT = 1000  # slot code offset for rack-end edges, so they only pair with rack ends
@@ -41,6 +50,56 @@ class MergeConfig:
     min_support: float = 0.3  #: observed / seen below this drops a box at the end
     min_rack_length: float = 0.3  #: metres; shorter shelf runs are not racks
     rack_gap_fill: float = 0.08  #: metres; shelf runs closer than this are one rack
+    keep_steps: int | None = None  #: StepRecords kept: None = every frame, N = the last N (plus `StepStats`)
+
+    def __post_init__(self) -> None:
+        for name in ("match_score", "min_support", "min_rack_length", "rack_gap_fill"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise LayoutError(f"MergeConfig.{name} must be a finite number >= 0, got {v!r}")
+        k = self.keep_steps
+        if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
+            raise LayoutError(f"MergeConfig.keep_steps must be None or an integer >= 0, got {k!r}")
+
+
+@dataclass
+class StepStats:
+    """Running totals over every step record, kept whatever ``keep_steps`` is (a few numbers)."""
+
+    frames: int = 0
+    methods: dict[str, int] = field(default_factory=dict)  #: frames per registration method
+    reversals: int = 0  #: direction changes between moving frames (+1 <-> -1)
+    path_length: float = 0.0  #: sum of |shift|, metres
+    offset_min: float = 0.0
+    offset_max: float = 0.0
+    confidence_min: float = 1.0
+    confidence_mean: float = 0.0
+    last_direction: int = 0
+
+    def add(self, step: StepRecord) -> None:
+        n = self.frames
+        self.methods[step.method] = self.methods.get(step.method, 0) + 1
+        if step.direction and self.last_direction and step.direction != self.last_direction:
+            self.reversals += 1
+        if step.direction:
+            self.last_direction = step.direction
+        self.path_length += abs(step.shift)
+        self.offset_min = step.offset if n == 0 else min(self.offset_min, step.offset)
+        self.offset_max = step.offset if n == 0 else max(self.offset_max, step.offset)
+        self.confidence_min = min(self.confidence_min, step.confidence)
+        self.confidence_mean = (self.confidence_mean * n + step.confidence) / (n + 1)
+        self.frames = n + 1
+
+    def to_dict(self) -> dict:
+        return {
+            "frames": self.frames,
+            "methods": dict(sorted(self.methods.items())),
+            "reversals": self.reversals,
+            "path_length": round(self.path_length, 6),
+            "offset_range": [round(self.offset_min, 6), round(self.offset_max, 6)],
+            "confidence_min": round(self.confidence_min, 4),
+            "confidence_mean": round(self.confidence_mean, 4),
+        }
 
 
 class _Box:
@@ -66,6 +125,7 @@ class _Box:
         "n_obs",
         "n_seen",
         "conf",
+        "ident",
     )
 
     def __init__(self, fb: FrameBox, off: float):
@@ -79,6 +139,7 @@ class _Box:
         self.n_obs = 0
         self.n_seen = 1
         self.conf = 0.0
+        self.ident = -1  # position in its slot's box list (set by MapBuilder)
         self._fuse_common(fb, off)
 
     @property
@@ -131,6 +192,23 @@ class _Box:
             self.x1 = max(self.x1, x1)
         self._fuse_common(fb, off)
 
+    def limit_width(self, max_w: float, min_w: float) -> None:
+        """Keep the X extent within ``[min_w, max_w]``: a cut edge stops growing at ``max_w`` (whole
+        edges hold); edges averaged from different observations never cross (at least ``min_w``)."""
+        if self.x1 - self.x0 < min_w:
+            c = (self.x0 + self.x1) / 2
+            self.x0, self.x1 = c - min_w / 2, c + min_w / 2
+            return
+        if self.x1 - self.x0 <= max_w:
+            return
+        if self.nl and not self.nr:
+            self.x1 = self.x0 + max_w
+        elif self.nr and not self.nl:
+            self.x0 = self.x1 - max_w
+        else:
+            c = (self.x0 + self.x1) / 2
+            self.x0, self.x1 = c - max_w / 2, c + max_w / 2
+
     def cuboid_params(self) -> tuple[float, float, float, float, float]:
         """(cx, cz, w, d, yaw) of the fused footprint."""
         if self.n_full:
@@ -167,8 +245,15 @@ class MapBuilder:
         self.nclear = np.zeros(R)
         self.zr = np.zeros((R, 2))
         self.nshelf = np.zeros(R)
-        self.steps: list[StepRecord] = []
+        keep = self.cfg.keep_steps
+        self.steps: list[StepRecord] | deque[StepRecord] = [] if keep is None else deque(maxlen=keep)
+        self.step_stats = StepStats()
+        self.frames = 0  # frames added
         self.ends: list[list] = []  # fused rack ends: [slot, side (0 left, 1 right), x, count]
+        # X indexes (ids = list positions): boxes per slot keyed by x0, rack ends keyed by x.
+        self._box_index = [XIndex() for _ in range(R)]
+        self._end_index = XIndex()
+        self._max_w = 0.0  # widest map box so far: bounds how far left of a range a box may start
         self._prev_top: np.ndarray | None = None
         self._offset = 0.0
         self._velocity = 0.0
@@ -190,8 +275,8 @@ class MapBuilder:
 
     def _map_edges(self, lo: float, hi: float) -> Edges:
         rows = []
-        for slot_boxes in self.boxes:
-            for m in slot_boxes:
+        for r in range(len(self.boxes)):
+            for m in self._boxes_near(r, lo, hi):
                 if m.x1 < lo or m.x0 > hi:
                     continue
                 w = m.width if (m.nl and m.nr) else math.nan
@@ -216,9 +301,23 @@ class MapBuilder:
 
     def _map_rack_edges(self, lo: float, hi: float) -> Edges:
         """Fused rack ends (shelf-run ends) between ``lo`` and ``hi``."""
-        return _edges(
-            [(slot + RACK_SLOT, side, x, math.nan, 0.0, 0.0, 0.0, n) for slot, side, x, n in self.ends if lo <= x <= hi]
-        )
+        rows = []
+        for i in self._end_index.query(lo, hi):
+            slot, side, x, n = self.ends[i]
+            if lo <= x <= hi:
+                rows.append((slot + RACK_SLOT, side, x, math.nan, 0.0, 0.0, 0.0, n))
+        return _edges(rows)
+
+    def _boxes_near(self, r: int, lo: float, hi: float) -> list[_Box]:
+        """Slot ``r``'s map boxes that may overlap ``[lo, hi]`` (a superset), in creation order."""
+        boxes = self.boxes[r]
+        return [boxes[i] for i in self._box_index[r].query(lo - self._max_w, hi)]
+
+    def _add_box(self, r: int, m: _Box) -> None:
+        m.ident = len(self.boxes[r])
+        self._box_index[r].add(m.ident, m.x0)
+        self.boxes[r].append(m)
+        self._max_w = max(self._max_w, m.width)
 
     def _merge_ends(self, rec: FrameReconstruction, off: float) -> None:
         """Average whole rack ends into the map's ends (within two columns), or add new ones."""
@@ -227,17 +326,20 @@ class MapBuilder:
                 for side, x, cut in ((0, x0 + off, cut_l), (1, x1 + off, cut_r)):
                     if cut:
                         continue
-                    for e in self.ends:
+                    for i in self._end_index.query(x - 2 * self.dx, x + 2 * self.dx):
+                        e = self.ends[i]
                         if e[0] == sh.slot and e[1] == side and abs(e[2] - x) <= 2 * self.dx:
                             e[2] = (e[2] * e[3] + x) / (e[3] + 1)
                             e[3] += 1
+                            self._end_index.move(i, e[2])
                             break
                     else:
+                        self._end_index.add(len(self.ends), x)
                         self.ends.append([sh.slot, side, x, 1])
 
     def register(self, rec: FrameReconstruction, top: np.ndarray | None) -> StepRecord:
         """Estimate this frame's camera offset in the map (does not change the map)."""
-        idx = len(self.steps)
+        idx = self.frames
         if idx == 0:
             return StepRecord(0, 0.0, 0.0, 0, 1.0, "first", 0)
         cfg = self.shift_cfg
@@ -268,6 +370,8 @@ class MapBuilder:
         self._velocity = step.shift if step.method != "prediction" else self._velocity
         self._offset = off
         self.steps.append(step)
+        self.step_stats.add(step)
+        self.frames += 1
         self._prev_top = top
         self._merge_shelves(rec, off)
         self._merge_ends(rec, off)
@@ -279,7 +383,7 @@ class MapBuilder:
         for r, fbs in enumerate(by_slot):
             if not rec.shelves[r].present:
                 continue
-            near = [m for m in self.boxes[r] if m.x1 > lo - 0.5 and m.x0 < hi + 0.5]
+            near = [m for m in self._boxes_near(r, lo - 0.5, hi + 0.5) if m.x1 > lo - 0.5 and m.x0 < hi + 0.5]
             for m in near:
                 if m.x0 >= lo and m.x1 <= hi:
                     m.n_seen += 1
@@ -306,12 +410,17 @@ class MapBuilder:
             matched = {int(i): int(j) for i, j in zip(ri, ci) if score[i, j] >= self.cfg.match_score}
         for i, f in enumerate(fbs):
             if i in matched:
-                near[matched[i]].fuse(f, off)
+                m = near[matched[i]]
             elif near and score[i].max() >= self.cfg.match_score:
                 # A second piece of an already matched box (a split detection): fuse, never duplicate.
-                near[int(np.argmax(score[i]))].fuse(f, off)
+                m = near[int(np.argmax(score[i]))]
             else:
-                self.boxes[r].append(_Box(f, off))
+                self._add_box(r, _Box(f, off))
+                continue
+            m.fuse(f, off)
+            m.limit_width(self.spec.x_extent, self.dx)
+            self._box_index[r].move(m.ident, m.x0)
+            self._max_w = max(self._max_w, m.width)
 
     def _merge_shelves(self, rec: FrameReconstruction, off: float) -> None:
         spec = self.spec
@@ -345,8 +454,8 @@ class MapBuilder:
         new_lo, new_hi = min(cur_lo, g_lo), max(cur_hi, g_hi)
         if new_lo == self.g0 and new_hi == self.g0 + self.votes.shape[1]:
             return
-        # Grow in chunks so that repeated small extensions stay cheap.
-        pad = 64
+        # Grow geometrically so that a long aisle copies the strip O(log length) times, not O(length).
+        pad = max(64, self.votes.shape[1])
         new_lo = new_lo - pad if new_lo < cur_lo else new_lo
         new_hi = new_hi + pad if new_hi > cur_hi else new_hi
         votes = np.zeros((R, new_hi - new_lo), np.int32)
@@ -377,6 +486,7 @@ class MapBuilder:
         # Board heights from the fused clear heights: H_0 = 0, H_{r+1} = H_r + clear_r + thickness.
         boards = np.concatenate([[0.0], np.cumsum(self.clear + self.board_thickness)])[:R]
         boxes_out: list[list[tuple[float, _Box]]] = [[] for _ in range(len(rack_ranges))]
+        rack_starts = [x0 for x0, _ in rack_ranges]
         for r in range(R):
             for m in _dedup(self.boxes[r], cfg.match_score):
                 if m.n_obs < cfg.min_support * max(m.n_seen, 1):
@@ -387,8 +497,7 @@ class MapBuilder:
                 cx = (m.x0 + m.x1) / 2
                 if not rack_ranges:
                     continue
-                k = int(np.argmin([0 if x0 <= cx <= x1 else min(abs(cx - x0), abs(cx - x1)) for x0, x1 in rack_ranges]))
-                boxes_out[k].append((cx, m))
+                boxes_out[_nearest_range(rack_ranges, rack_starts, cx)].append((cx, m))
         for k, (x0, x1) in enumerate(rack_ranges):
             rid = f"rack_{k:02d}"
             shelves = []
@@ -417,7 +526,9 @@ class MapBuilder:
                 s_conf = float(self.slot_present[r] / frames)
                 shelves.append(MapShelf(sid, r, board, clear, (x0, x1), tuple(self.zr[r]), s_conf, boxes))
             racks.append(MapRack(rid, (x0, x1), shelves))
-        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, dict(meta or {}))
+        meta = dict(meta or {})
+        meta.setdefault("step_summary", self.step_stats.to_dict())
+        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta)
 
 
 def _overlap(a: _Box, b: _Box) -> float:
@@ -429,16 +540,36 @@ def _overlap(a: _Box, b: _Box) -> float:
 
 
 def _dedup(boxes: list[_Box], thr: float) -> list[_Box]:
-    """Drop boxes that overlap a better-observed box by ``thr`` or more (kept box absorbs the count)."""
+    """Drop boxes that overlap a better-observed box by ``thr`` or more (kept box absorbs the count).
+
+    The host is the first kept box (in keeping order) that overlaps enough; only kept boxes whose
+    X range can overlap are tested (an X index), so this is near-linear in the number of boxes.
+    """
     order = sorted(boxes, key=lambda m: (-m.n_obs, m.x0))
     kept: list[_Box] = []
+    index = XIndex()
+    max_w = max((m.width for m in boxes), default=0.0)
     for m in order:
-        host = next((k for k in kept if _overlap(k, m) >= thr), None)
+        host = next((kept[i] for i in index.query(m.x0 - max_w, m.x1) if _overlap(kept[i], m) >= thr), None)
         if host is None:
+            index.add(len(kept), m.x0)
             kept.append(m)
         else:
             host.n_seen = max(host.n_seen, m.n_seen)
     return sorted(kept, key=lambda m: m.x0)
+
+
+def _nearest_range(ranges: list[tuple[float, float]], starts: list[float], x: float) -> int:
+    """Index of the sorted, disjoint range containing ``x``, else the nearest one (the first on ties)."""
+    k = bisect.bisect_right(starts, x) - 1
+    best, best_d = -1, math.inf
+    for j in (k, k + 1):
+        if 0 <= j < len(ranges):
+            x0, x1 = ranges[j]
+            d = 0.0 if x0 <= x <= x1 else min(abs(x - x0), abs(x - x1))
+            if d < best_d:
+                best, best_d = j, d
+    return best
 
 
 def _concat(a: Edges, b: Edges) -> Edges:

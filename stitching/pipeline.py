@@ -20,7 +20,7 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from stitching.detect import DetectConfig, detect_frame
 from stitching.lift import FrameReconstruction, LiftConfig, lift_frame
-from stitching.merge import MapBuilder, MergeConfig
+from stitching.merge import MapBuilder, MergeConfig, StepStats
 from stitching.shift import ShiftConfig
 from stitching.warehouse_map import StepRecord, WarehouseMap
 
@@ -33,6 +33,18 @@ class StitchConfig:
     lift: LiftConfig = field(default_factory=LiftConfig)
     shift: ShiftConfig = field(default_factory=ShiftConfig)
     merge: MergeConfig = field(default_factory=MergeConfig)
+
+    def __post_init__(self) -> None:
+        for name, kind in (
+            ("detect", DetectConfig),
+            ("lift", LiftConfig),
+            ("shift", ShiftConfig),
+            ("merge", MergeConfig),
+        ):
+            if not isinstance(getattr(self, name), kind):
+                raise InputError(
+                    f"StitchConfig.{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}"
+                )
 
     @classmethod
     def noisy(cls, board_thickness: float = 0.06) -> StitchConfig:
@@ -57,6 +69,12 @@ def _as_frame(item: FrameInput, i: int) -> FrameLayouts:
     raise InputError(f"frame {i}: expected FrameLayouts or (top, front[, visible]), got {type(item).__name__}")
 
 
+def _frame_index(index: object) -> int:
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+        raise InputError(f"frame index must be an integer >= 0, got {index!r}")
+    return int(index)
+
+
 def folder_frames(folder: LayoutFolder, indices: Iterable[int] | None = None) -> Iterator[tuple[int, FrameLayouts]]:
     """``(index, FrameLayouts)`` for the frames of a layout folder, in index order."""
     for i in indices if indices is not None else folder.indices():
@@ -64,7 +82,12 @@ def folder_frames(folder: LayoutFolder, indices: Iterable[int] | None = None) ->
 
 
 class Stitcher:
-    """Stateful, streaming: ``push`` one frame at a time, ``map()`` whenever needed."""
+    """Stateful, streaming: ``push`` one frame at a time, ``map()`` whenever needed.
+
+    Memory is the map (proportional to the length of row covered) plus one `StepRecord` per frame
+    for the camera path; ``StitchConfig(merge=MergeConfig(keep_steps=N))`` keeps only the last N
+    records (running totals stay in `step_stats`).
+    """
 
     def __init__(self, spec: LayoutSpec, config: StitchConfig | None = None):
         if not isinstance(spec, LayoutSpec):
@@ -76,7 +99,7 @@ class Stitcher:
 
     def push(self, frame: FrameInput, index: int | None = None) -> tuple[FrameReconstruction, StepRecord]:
         """Detect, lift, register and merge one frame."""
-        idx = self.count if index is None else int(index)
+        idx = self.count if index is None else _frame_index(index)
         fl = _as_frame(frame, idx)
         det = detect_frame(fl.top, fl.front, self.spec, fl.visible, self.config.detect, name=f"frame {idx}")
         rec = lift_frame(det, self.config.lift)
@@ -87,7 +110,23 @@ class Stitcher:
         self.count += 1
         return rec, step
 
+    @property
+    def step_stats(self) -> StepStats:
+        """Totals over every frame's registration (frames, methods, path length, offsets, confidence)."""
+        return self.builder.step_stats
+
     def map(self, origin_world: tuple[float, float, float] | None = None, meta: dict | None = None) -> WarehouseMap:
+        """The map so far; ``origin_world`` (three finite metres) places it in a world frame."""
+        if origin_world is not None:
+            try:
+                ow = tuple(float(v) for v in origin_world)
+            except (TypeError, ValueError):
+                ow = ()
+            if len(ow) != 3 or not all(np.isfinite(ow)):
+                raise InputError(f"origin_world must be three finite numbers (metres), got {origin_world!r}")
+            origin_world = ow
+        if meta is not None and not isinstance(meta, dict):
+            raise InputError(f"meta must be a dict, got {type(meta).__name__}")
         return self.builder.build(origin_world, meta)
 
 

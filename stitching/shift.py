@@ -15,11 +15,13 @@ Two estimators, the second a fallback:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from layouts.classes import BOX
+from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 
 
@@ -31,6 +33,15 @@ class ShiftConfig:
     size_tol: float = 0.06  #: metres; like edges must agree this well in depth/height/width
     min_support: int = 2  #: distinct agreeing frame edges needed to trust the box vote
     min_corr_conf: float = 0.5  #: profile correlation below this is not used
+
+    def __post_init__(self) -> None:
+        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise LayoutError(f"ShiftConfig.{name} must be a finite number >= 0, got {v!r}")
+        m = self.min_support
+        if isinstance(m, bool) or not isinstance(m, int) or m < 0:
+            raise LayoutError(f"ShiftConfig.min_support must be an integer >= 0, got {m!r}")
 
 
 @dataclass

@@ -9,7 +9,9 @@ translating along the row, and per-frame top/front layouts rasterised with
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,6 +185,42 @@ def make_sequence(
             }
         )
     return SyntheticSequence(spec, scene, recs, lays)
+
+
+def stream_frames(
+    scene: dict, spec: LayoutSpec, xs: Iterable[float], distance: float = 2.6, levels: int | None = None
+) -> Iterator[FrameLayouts]:
+    """Ground-truth layouts for camera X positions ``xs``, one frame at a time (nothing is kept).
+
+    For long aisles: each frame rasterises only the racks near the camera (racks are looked up by
+    X), so the cost per frame does not grow with the row length, and memory holds one frame.
+    """
+    racks = sorted(scene["racks"], key=lambda r: r["x_min"])
+    starts = [r["x_min"] for r in racks]
+    widest = max((r["x_max"] - r["x_min"] for r in racks), default=0.0)
+    n_levels = len(scene["row"]["levels"]) if levels is None else levels
+    slot_levels = list(range(min(n_levels, spec.num_slots)))
+    visible = Intrinsics.from_fov(256, 256, 60.0).visible_columns(spec, distance)
+    half = spec.x_extent / 2 + 1.0
+    for x in xs:
+        x = float(x)
+        a = bisect.bisect_left(starts, x - half - widest)
+        b = bisect.bisect_right(starts, x + half)
+        fl = render_frame({"row": scene["row"], "racks": racks[a:b]}, spec, x, slot_levels)
+        fl.visible = visible.copy()
+        yield fl
+
+
+def long_aisle(
+    seed: int, frames: int, spec: LayoutSpec | None = None, step: float = 0.1, levels: int = 3
+) -> tuple[dict, np.ndarray]:
+    """A row long enough for ``frames`` camera steps of ``step`` metres, and the camera X per frame."""
+    spec = spec or LayoutSpec()
+    rng = np.random.default_rng(seed)
+    length = abs(step) * frames + spec.x_extent + 4.0
+    scene = random_scene(rng, length=length, levels=levels)
+    xs = spec.x_extent / 2 + 1.0 + step * np.arange(frames)
+    return scene, xs
 
 
 def degrade(fl: FrameLayouts, rng: np.random.Generator, morph_px: int = 1, flip_fraction: float = 0.03) -> FrameLayouts:
