@@ -13,6 +13,7 @@ from layouts.errors import InputError
 from mvracklay.pipeline import publish, staging_dir, write_glb
 from stitching.detect import DetectConfig
 from stitching.lift import LiftConfig
+from stitching.merge import MergeConfig
 from stitching.pipeline import StitchConfig, Stitcher
 
 NAME = "reconstruct"
@@ -45,6 +46,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer instead of writing the .rrd")
     p.add_argument("--no-rgb", action="store_true", help="do not log RGB frames to Rerun")
     p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
+    p.add_argument(
+        "--keep-steps",
+        type=int,
+        default=0,
+        help="keep the per-frame camera steps of only the last N frames in the map (0 = all); bounds memory on endless streams",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -86,7 +93,14 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
     if not (args.board_thickness >= 0 and args.board_thickness < 1):
         raise InputError(f"--board-thickness must be in [0, 1) metres, got {args.board_thickness}")
     det = DetectConfig(opening=1) if getattr(args, "noisy", False) else DetectConfig()
-    return StitchConfig(detect=det, lift=LiftConfig(board_thickness=args.board_thickness))
+    keep = getattr(args, "keep_steps", 0)
+    if keep < 0:
+        raise InputError(f"--keep-steps must be >= 0, got {keep}")
+    return StitchConfig(
+        detect=det,
+        lift=LiftConfig(board_thickness=args.board_thickness),
+        merge=MergeConfig(keep_steps=keep or None),
+    )
 
 
 def run(args: argparse.Namespace) -> int:
