@@ -22,8 +22,8 @@ from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
 from waresynth.generate import generate_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
-WEIGHTS = ROOT / "weights" / "mvracklay-disc-4.pt"
+#: a valid checkpoint, trained for the table by the `checkpoint` fixture (never the shipped weights)
+_VALID: dict[str, Path] = {}
 SEQ = "seq_00000"
 
 
@@ -35,6 +35,19 @@ class Payload:
 
     def __reduce__(self):
         return (open, (self.marker, "w"))
+
+
+@pytest.fixture(scope="module")
+def checkpoint(base: Path, tmp_path_factory) -> Path:
+    """A valid checkpoint for the table, trained for two steps on ``base`` (a few seconds)."""
+    out = tmp_path_factory.mktemp("bad_net") / "run"
+    tiny = ["--input-size", "64", "64", "--layout-size", "16", "--encoder-width", "8", "--hidden", "16"]
+    tiny += ["--decoder-width", "8", "--threads", "1", "--quiet", "--frames-per-step", "2"]
+    assert (
+        main(["train", "--data", str(base), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "2", *tiny]) == 0
+    )
+    _VALID["ckpt"] = out / "best.pt"
+    return out / "best.pt"
 
 
 @pytest.fixture(scope="module")
@@ -84,7 +97,8 @@ def pickled_checkpoint(path: Path, marker: Path) -> None:
 
 
 def truncated_checkpoint(path: Path, marker: Path) -> None:
-    path.write_bytes(WEIGHTS.read_bytes()[: 1 << 20])
+    data = _VALID["ckpt"].read_bytes()
+    path.write_bytes(data[: len(data) // 2])
 
 
 # ------------------------------------------------------------------------- the table
@@ -107,7 +121,7 @@ def _reconstruct_layouts(ds, t):
 
 def _run(ds, t, ckpt=None):
     argv = ["run", str(ds / SEQ), "--out", str(t / "out"), "--quiet", "--threads", "1", "--no-rrd"]
-    return argv + (["--checkpoint", str(ckpt)] if ckpt else [])
+    return argv + ["--checkpoint", str(ckpt or _VALID["ckpt"])]
 
 
 def _evaluate(ds, t):
@@ -360,7 +374,7 @@ def _params():
 
 
 @pytest.mark.parametrize("corrupt, argv, names, problem", list(_params()))
-def test_bad_input_one_line(base, tmp_path, capsys, corrupt, argv, names, problem):
+def test_bad_input_one_line(base, checkpoint, tmp_path, capsys, corrupt, argv, names, problem):
     ds = tmp_path / "ds"
     shutil.copytree(base, ds)
     corrupt(ds, tmp_path)
