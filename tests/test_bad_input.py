@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from tiny_net import TINY_NET
 
 from layouts.codecs import load_frame, load_racklay
 from layouts.errors import InputError
@@ -41,8 +42,7 @@ class Payload:
 def checkpoint(base: Path, tmp_path_factory) -> Path:
     """A valid checkpoint for the table, trained for two steps on ``base`` (a few seconds)."""
     out = tmp_path_factory.mktemp("bad_net") / "run"
-    tiny = ["--input-size", "64", "64", "--layout-size", "16", "--encoder-width", "8", "--hidden", "16"]
-    tiny += ["--decoder-width", "8", "--threads", "1", "--quiet", "--frames-per-step", "2"]
+    tiny = [*TINY_NET, "--frames-per-step", "2"]
     assert (
         main(["train", "--data", str(base), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "2", *tiny]) == 0
     )

@@ -6,26 +6,12 @@ import json
 
 import numpy as np
 import pytest
+from tiny_net import TINY_NET
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
 
-TINY = [
-    "--input-size",
-    "64",
-    "64",
-    "--layout-size",
-    "16",
-    "--encoder-width",
-    "8",
-    "--hidden",
-    "16",
-    "--decoder-width",
-    "8",
-    "--threads",
-    "1",
-    "--quiet",
-]
+TINY = TINY_NET
 
 
 @pytest.fixture(scope="module")

@@ -8,29 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from tiny_net import TINY_NET
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
 from stitching.export_gltf import load_glb_cuboid_bounds
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
-
-TINY_NET = [
-    "--input-size",
-    "64",
-    "64",
-    "--layout-size",
-    "16",
-    "--encoder-width",
-    "8",
-    "--hidden",
-    "16",
-    "--decoder-width",
-    "8",
-    "--threads",
-    "1",
-    "--quiet",
-]
 
 
 @pytest.fixture(scope="module")
