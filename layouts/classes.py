@@ -17,9 +17,9 @@ CLASS_COLOURS: dict[int, tuple[int, int, int]] = {
 }
 
 
-def colourise(layout: np.ndarray) -> np.ndarray:
-    """Map a class-id array of any shape to uint8 RGB (shape + (3,)) for display."""
+def colourise(ids: np.ndarray, colours: dict[int, tuple[int, int, int]] = CLASS_COLOURS) -> np.ndarray:
+    """Map a uint8 id array of any shape to RGB (shape + (3,)) with ``colours`` (layout classes by default)."""
     lut = np.zeros((256, 3), np.uint8)
-    for cid, rgb in CLASS_COLOURS.items():
+    for cid, rgb in colours.items():
         lut[cid] = rgb
-    return lut[np.asarray(layout, dtype=np.uint8)]
+    return lut[np.asarray(ids, dtype=np.uint8)]

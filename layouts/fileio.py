@@ -82,6 +82,17 @@ def atomic_save_npz(path: str | os.PathLike, compressed: bool = True, **arrays: 
     atomic_write_bytes(path, npz_bytes(compressed, **arrays))
 
 
+def nan_to_null(obj: Any) -> Any:
+    """A copy of nested dicts/lists with NaN floats as None, so JSON stays standard (NaN = mean over nothing)."""
+    if isinstance(obj, dict):
+        return {k: nan_to_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [nan_to_null(v) for v in obj]
+    if isinstance(obj, float) and obj != obj:
+        return None
+    return obj
+
+
 def load_npy(path: str | os.PathLike) -> np.ndarray:
     """Load a ``.npy`` without pickle; any problem becomes one line naming the file."""
     path = Path(path)

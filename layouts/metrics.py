@@ -107,6 +107,25 @@ class LayoutMetrics:
         return out
 
 
+class FrameScorer:
+    """Table I over all cells and over the columns in view, fed one frame at a time."""
+
+    def __init__(self) -> None:
+        self.all = LayoutMetrics()
+        self.visible = LayoutMetrics()
+
+    def update(self, pred: dict[str, np.ndarray], gt) -> None:
+        """``pred`` maps view -> ``(R, D, D)``; ``gt`` has ``top``, ``front`` and ``visible`` (None = all)."""
+        for view in VIEWS:
+            g = getattr(gt, view)
+            self.all.update(pred[view], g, view)
+            vis = gt.visible if gt.visible is not None else np.ones(g.shape[-1], bool)
+            self.visible.update(pred[view], g, view, valid=vis)
+
+    def result(self) -> dict[str, dict]:
+        return {"all": self.all.result(), "visible": self.visible.result()}
+
+
 def format_table(result: dict, title: str = "") -> str:
     """Table I as text: rows view x class, columns mIoU / mAP (per-slot averaged) and pooled."""
     lines = []

@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from layouts import VIEWS
-from layouts.metrics import METRIC_CLASSES, LayoutMetrics
+from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, check_spec_compatible
 from network.infer import Predictor, frame_layouts
 from network.model import MVRackLay
@@ -30,7 +30,7 @@ def evaluate_sequences(
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode}`` over the given sequences."""
     pred = Predictor(model)
-    m_all, m_vis = LayoutMetrics(), LayoutMetrics()
+    scorer = FrameScorer()
     total = sum(s.num_frames if max_frames is None else min(s.num_frames, max_frames) for s in sequences)
     bar = tqdm(total=total, desc=f"evaluate ({mode})", unit="frame", disable=not progress, leave=False)
     frames = 0
@@ -39,17 +39,11 @@ def evaluate_sequences(
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
         d = seq.spec.size
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
-            gt = seq.layouts(i)
-            lay = frame_layouts(out, d)
-            for v in VIEWS:
-                g = gt.top if v == "top" else gt.front
-                m_all.update(lay[v], g, v)
-                vis = gt.visible if gt.visible is not None else np.ones(d, bool)
-                m_vis.update(lay[v], g, v, valid=vis)
+            scorer.update(frame_layouts(out, d), seq.layouts(i))
             frames += 1
             bar.update(1)
     bar.close()
-    return {"all": m_all.result(), "visible": m_vis.result(), "frames": frames, "mode": mode}
+    return {**scorer.result(), "frames": frames, "mode": mode}
 
 
 def score(result: dict[str, Any], part: str = "visible") -> float:

@@ -129,21 +129,28 @@ class Sequence:
         return np.array([f["camera_position"] for f in self.meta["frames"]], np.float64).reshape(-1, 3)
 
 
+def read_manifest(folder: Path, kind: str = "dataset") -> tuple[Path, dict[str, Any]]:
+    """``(path, manifest)`` of a dataset (or shard) folder, checking its format and version."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: {kind} folder not found")
+    mpath = folder / "manifest.json"
+    if not mpath.is_file():
+        raise InputError(f"{folder}: not a WareSynth {kind} (no manifest.json)")
+    m = load_json(mpath)
+    if not isinstance(m, dict) or m.get("format") != DATASET_FORMAT:
+        raise InputError(f"{mpath}: not a WareSynth manifest (format is not {DATASET_FORMAT!r})")
+    if m.get("version") != DATASET_VERSION:
+        raise InputError(f"{mpath}: dataset version {m.get('version')!r} is not supported (want {DATASET_VERSION})")
+    return mpath, m
+
+
 class Dataset:
     """A WareSynth dataset folder: the manifest plus its sequences."""
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
-        if not self.root.is_dir():
-            raise InputError(f"{self.root}: dataset folder not found")
-        mpath = self.root / "manifest.json"
-        if not mpath.is_file():
-            raise InputError(f"{self.root}: not a WareSynth dataset (no manifest.json)")
-        m = load_json(mpath)
-        if not isinstance(m, dict) or m.get("format") != DATASET_FORMAT:
-            raise InputError(f"{mpath}: not a WareSynth manifest (format is not {DATASET_FORMAT!r})")
-        if m.get("version") != DATASET_VERSION:
-            raise InputError(f"{mpath}: dataset version {m.get('version')!r} is not supported (want {DATASET_VERSION})")
+        mpath, m = read_manifest(self.root)
         for key in ("seed", "config", "spec", "image_size", "sequences"):
             if key not in m:
                 raise InputError(f"{mpath}: manifest lacks {key!r}")

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from layouts.classes import colourise
+
 VOID = 0  #: no surface hit (beyond the walls)
 FLOOR = 1
 WALL = 2
@@ -42,7 +44,4 @@ SEMANTIC_COLOURS: dict[int, tuple[int, int, int]] = {
 
 def colourise_semantic(sem: np.ndarray) -> np.ndarray:
     """Map a semantic id image (H, W) to uint8 RGB (H, W, 3) for display."""
-    lut = np.zeros((256, 3), np.uint8)
-    for cid, rgb in SEMANTIC_COLOURS.items():
-        lut[cid] = rgb
-    return lut[np.asarray(sem, dtype=np.uint8)]
+    return colourise(sem, SEMANTIC_COLOURS)

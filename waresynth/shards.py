@@ -21,7 +21,7 @@ from tqdm import tqdm
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
-from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION, check_sequence_name
+from waresynth.dataset import check_sequence_name, read_manifest
 from waresynth.generate import MANIFEST, build_manifest
 
 #: manifest keys that must agree between shards (they fix every sequence's bytes)
@@ -29,16 +29,7 @@ SETTINGS = ("format", "version", "seed", "config", "spec", "image_size", "splits
 
 
 def _read_shard(folder: Path) -> dict[str, Any]:
-    if not folder.is_dir():
-        raise InputError(f"{folder}: shard folder not found")
-    mpath = folder / MANIFEST
-    if not mpath.is_file():
-        raise InputError(f"{folder}: not a WareSynth shard (no manifest.json)")
-    m = load_json(mpath)
-    if not isinstance(m, dict) or m.get("format") != DATASET_FORMAT:
-        raise InputError(f"{mpath}: not a WareSynth manifest")
-    if m.get("version") != DATASET_VERSION:
-        raise InputError(f"{mpath}: dataset version {m.get('version')!r} is not supported (want {DATASET_VERSION})")
+    mpath, m = read_manifest(folder, "shard")
     shard = m.get("shard")
     if not (
         isinstance(shard, dict) and all(isinstance(shard.get(k), int) for k in ("index", "count", "num_sequences"))

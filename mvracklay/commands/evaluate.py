@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import torch
 
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_json
+from layouts.fileio import atomic_write_json, nan_to_null
 from layouts.metrics import format_table
 from network.checkpoint import load_model
 from network.distributed import single_process_device
@@ -40,14 +39,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true")
 
 
-def _clean(obj):
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, float) and math.isnan(obj):
-        return None
-    return obj
-
-
 def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
@@ -72,6 +63,6 @@ def run(args: argparse.Namespace) -> int:
             "variant": record.get("variant"),
             **res,
         }
-        atomic_write_json(args.json, _clean(out))
+        atomic_write_json(args.json, nan_to_null(out))
         print(f"wrote {args.json}")
     return 0

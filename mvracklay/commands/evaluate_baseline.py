@@ -5,13 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_json
-from layouts.metrics import LayoutMetrics, format_table
-from layouts.spec import VIEWS
+from layouts.fileio import atomic_write_json, nan_to_null
+from layouts.metrics import FrameScorer, format_table
 from mvracklay.baselines.depth_projection import depth_projection_layouts
 from waresynth.dataset import open_dataset
 
@@ -35,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def evaluate_depth_projection(sequences, max_frames: int | None = None, progress: bool = True) -> dict:
     """``{"all": table, "visible": table, "frames": n}`` of the baseline over ``sequences``."""
-    m_all, m_vis = LayoutMetrics(), LayoutMetrics()
+    scorer = FrameScorer()
     total = sum(s.num_frames if not max_frames else min(s.num_frames, max_frames) for s in sequences)
     frames = 0
     with tqdm(total=total, desc="depth projection", unit="frame", disable=not progress, leave=False) as bar:
@@ -46,23 +44,10 @@ def evaluate_depth_projection(sequences, max_frames: int | None = None, progress
                 got = depth_projection_layouts(
                     seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec
                 )
-                gt = seq.layouts(i)
-                vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
-                for v in VIEWS:
-                    m_all.update(getattr(got, v), getattr(gt, v), v)
-                    m_vis.update(getattr(got, v), getattr(gt, v), v, valid=vis)
+                scorer.update({"top": got.top, "front": got.front}, seq.layouts(i))
                 frames += 1
                 bar.update(1)
-    return {"all": m_all.result(), "visible": m_vis.result(), "frames": frames}
-
-
-def _finite(obj):
-    """NaN (a mean over no pairs) -> null, so the JSON is standard."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, float) and obj != obj:
-        return None
-    return obj
+    return {**scorer.result(), "frames": frames}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(res["all"], title + " -- all cells"))
     if args.json:
         atomic_write_json(
-            args.json, _finite({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
+            args.json, nan_to_null({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
         )
         print(f"wrote {args.json}")
     return 0
