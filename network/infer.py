@@ -59,16 +59,15 @@ class Predictor:
                 out = m(torch.stack(list(images), 1))
                 yield {v: o[0, -1] for v, o in out.items()}
                 continue
-            f3, f4, f5 = m.encode(x)
+            f2, f3, f4, f5 = m.encode(x)
             if not feats:
                 feats.extend([f5] * t_len)
             feats.append(f5)
             if self.cfg.use_lstm:
-                seq, _ = m.temporal(torch.stack(list(feats), 1))
-                top = seq[:, -1]
+                top = m.temporal_window(torch.stack(list(feats), 1))[:, -1]
             else:
                 top = m.temporal(f5)
-            out = m.decode(f3, f4, top)
+            out = m.decode((f2, f3, f4, top))
             yield {v: o[0] for v, o in out.items()}
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:

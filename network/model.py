@@ -7,7 +7,8 @@ transform* collapses each feature column's vertical axis into a new vertical axi
 connections from the 1/16 and 1/8 maps -> ``R x 3`` class logits at ``D x D``. Image columns
 stay aligned with layout X throughout (nothing mixes columns except local convolutions), which
 is what lets it train quickly; the vertical mapping (image rows -> depth or height above a
-shelf board) is learned per view.
+shelf board) is learned per view. With ``fine_skip`` (the default for new models) a fourth
+column transform brings in the 1/4 map, which sharpens box edges along X.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, a plain convolution in place of the ConvLSTM).
@@ -52,6 +53,7 @@ class ModelConfig:
     hidden: int = 128  #: ConvLSTM channels
     lstm_layers: int = 2
     decoder_width: int = 32
+    fine_skip: bool = True  #: also feed the 1/4 encoder map to the decoders (sharper box edges)
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -64,6 +66,8 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.fine_skip, bool):
+            raise InputError(f"fine_skip must be true or false, got {self.fine_skip!r}")
         if not isinstance(self.spec, LayoutSpec):
             raise InputError(f"spec must be a LayoutSpec, got {type(self.spec).__name__}")
 
@@ -95,6 +99,7 @@ class ModelConfig:
             raise InputError(f"{source}: unknown model config keys {unknown}")
         if "spec" in d:
             d["spec"] = LayoutSpec.from_dict(d["spec"], f"{source} (spec)")
+        d.setdefault("fine_skip", False)  # records written before the 1/4 skip existed
         try:
             return cls(**d)
         except (TypeError, InputError) as e:
@@ -128,10 +133,15 @@ class ColumnTransform(nn.Module):
         return y.reshape(n, self.cout, self.rows, w)
 
 
-class ViewDecoder(nn.Module):
-    """One view's decoder: column transforms of three scales, upsampling, ``R x 3`` logits at D x D."""
+#: Encoder features of a batch of frames: the 1/4, 1/8 and 1/16 maps and the reduced 1/32 map.
+Features = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 
-    def __init__(self, cfg: ModelConfig, c3: int, c4: int) -> None:
+
+class ViewDecoder(nn.Module):
+    """One view's decoder: column transforms of three (four with ``fine_skip``) scales, upsampling,
+    ``R x 3`` logits at D x D."""
+
+    def __init__(self, cfg: ModelConfig, c2: int, c3: int, c4: int) -> None:
         super().__init__()
         h, w = cfg.input_height, cfg.input_width
         w5 = w // 32
@@ -139,20 +149,26 @@ class ViewDecoder(nn.Module):
         self.t5 = ColumnTransform(cfg.hidden, h // 32, 4 * dw, w5)
         self.t4 = ColumnTransform(c4, h // 16, 2 * dw, 2 * w5)
         self.t3 = ColumnTransform(c3, h // 8, dw, 4 * w5)
+        fine = max(dw // 2, 1)
+        self.t2 = ColumnTransform(c2, h // 4, fine, 8 * w5) if cfg.fine_skip else None
         self.b4 = _conv_bn_relu(6 * dw, 2 * dw)
         self.b3 = _conv_bn_relu(3 * dw, dw)
-        self.b2 = _conv_bn_relu(dw, dw)
+        self.b2 = _conv_bn_relu(dw + (fine if cfg.fine_skip else 0), dw)
         self.b1 = _conv_bn_relu(dw, dw)
         self.out = nn.Conv2d(dw, cfg.spec.num_slots * NUM_CLASSES, 1)
         self.size = cfg.spec.size
         self.slots = cfg.spec.num_slots
 
-    def forward(self, f3: torch.Tensor, f4: torch.Tensor, f5: torch.Tensor) -> torch.Tensor:
+    def forward(self, feats: Features) -> torch.Tensor:
+        f2, f3, f4, f5 = feats
         up = lambda t: F.interpolate(t, scale_factor=2.0, mode="nearest")  # noqa: E731
         x = self.t5(f5)
         x = self.b4(torch.cat([up(x), self.t4(f4)], 1))
         x = self.b3(torch.cat([up(x), self.t3(f3)], 1))
-        x = self.b1(up(self.b2(up(x))))
+        x = up(x)
+        if self.t2 is not None:
+            x = torch.cat([x, self.t2(f2)], 1)
+        x = self.b1(up(self.b2(x)))
         x = self.out(x)
         if x.shape[-1] != self.size or x.shape[-2] != self.size:
             x = F.interpolate(x, size=(self.size, self.size), mode="bilinear", align_corners=False)
@@ -193,13 +209,13 @@ class MVRackLay(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.encoder = ResNet18Encoder(cfg.encoder_width)
-        c3, c4, c5 = self.encoder.channels[1:]
+        c2, c3, c4, c5 = self.encoder.channels
         self.reduce = _conv_bn_relu(c5, cfg.hidden, 1)
         if cfg.use_lstm:
             self.temporal: nn.Module = StackedConvLSTM(cfg.hidden, cfg.hidden, cfg.lstm_layers)
         else:
             self.temporal = _conv_bn_relu(cfg.hidden, cfg.hidden)
-        self.decoders = nn.ModuleDict({v: ViewDecoder(cfg, c3, c4) for v in VIEWS})
+        self.decoders = nn.ModuleDict({v: ViewDecoder(cfg, c2, c3, c4) for v in VIEWS})
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -208,36 +224,39 @@ class MVRackLay(nn.Module):
         if (h, w) != (self.cfg.input_height, self.cfg.input_width):
             raise InputError(f"model expects images of {self.cfg.input_width}x{self.cfg.input_height}, got {w}x{h}")
 
-    def encode(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Encoder features of frames ``(N, 3, H, W)``: (1/8, 1/16, reduced 1/32)."""
+    def encode(self, x: torch.Tensor) -> Features:
+        """Encoder features of frames ``(N, 3, H, W)``: (1/4, 1/8, 1/16, reduced 1/32)."""
         self._check(x)
-        f3, f4, f5 = self.encoder((x - self.mean) / self.std)
-        return f3, f4, self.reduce(f5)
+        f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
+        return f2, f3, f4, self.reduce(f5)
 
-    def decode(self, f3: torch.Tensor, f4: torch.Tensor, f5: torch.Tensor) -> dict[str, torch.Tensor]:
-        return {v: self.decoders[v](f3, f4, f5) for v in VIEWS}
+    def decode(self, feats: Features) -> dict[str, torch.Tensor]:
+        """Per-view logits from encoder features whose 1/32 map has passed the temporal block."""
+        return {v: self.decoders[v](feats) for v in VIEWS}
+
+    def temporal_window(self, f5: torch.Tensor) -> torch.Tensor:
+        """The temporal block over a window ``(B, T, C, h, w)`` of reduced 1/32 maps, same shape out."""
+        if self.cfg.use_lstm:
+            return self.temporal(f5)[0]
+        return self.temporal(f5.flatten(0, 1)).unflatten(0, f5.shape[:2])
 
     def forward(self, images: torch.Tensor) -> dict[str, torch.Tensor]:
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
         b, t = images.shape[:2]
-        f3, f4, f5 = self.encode(images.flatten(0, 1))
-        if self.cfg.use_lstm:
-            seq, _ = self.temporal(f5.unflatten(0, (b, t)))
-            f5 = seq.flatten(0, 1)
-        else:
-            f5 = self.temporal(f5)
-        out = self.decode(f3, f4, f5)
+        f2, f3, f4, f5 = self.encode(images.flatten(0, 1))
+        f5 = self.temporal_window(f5.unflatten(0, (b, t))).flatten(0, 1)
+        out = self.decode((f2, f3, f4, f5))
         return {v: o.unflatten(0, (b, t)) for v, o in out.items()}
 
     def step(self, image: torch.Tensor, state: State | None = None) -> tuple[dict[str, torch.Tensor], State | None]:
         """Streaming: one frame ``(B, 3, H, W)``; returns ``{view: (B, R, 3, D, D)}`` and the new state."""
-        f3, f4, f5 = self.encode(image)
+        f2, f3, f4, f5 = self.encode(image)
         if self.cfg.use_lstm:
             f5, state = self.temporal.step(f5, state)
         else:
             f5 = self.temporal(f5)
-        return self.decode(f3, f4, f5), state
+        return self.decode((f2, f3, f4, f5)), state
 
 
 def build_discriminators(cfg: ModelConfig) -> nn.ModuleDict | None:

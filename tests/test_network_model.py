@@ -55,6 +55,29 @@ def test_variant_sequence_lengths_and_bad_config():
         MVRackLay(cfg).step(torch.rand(1, 3, 32, 64))
 
 
+def test_fine_skip_feeds_the_quarter_map_and_old_records_load_without_it():
+    torch.manual_seed(0)
+    cfg = tiny()
+    assert cfg.fine_skip
+    model = MVRackLay(cfg).eval()
+    x = torch.rand(1, 3, 64, 64)
+    f2, f3, f4, f5 = model.encode(x)
+    assert f2.shape[-2:] == (16, 16) and f5.shape[-2:] == (2, 2)
+    base = model.decode((f2, f3, f4, f5))["front"]
+    bumped = model.decode((f2 + 1.0, f3, f4, f5))["front"]
+    assert not torch.allclose(base, bumped)  # the 1/4 map reaches the logits
+    old = cfg.to_dict()
+    del old["fine_skip"]
+    coarse = ModelConfig.from_dict(old)
+    assert not coarse.fine_skip
+    plain = MVRackLay(coarse).eval()
+    assert plain.decoders["top"].t2 is None
+    g2, g3, g4, g5 = plain.encode(x)
+    assert torch.equal(plain.decode((g2 + 1.0, g3, g4, g5))["top"], plain.decode((g2, g3, g4, g5))["top"])
+    with pytest.raises(InputError, match="fine_skip"):
+        ModelConfig(fine_skip="yes")
+
+
 def test_streaming_equals_convlstm_over_the_prefix():
     torch.manual_seed(1)
     model = MVRackLay(tiny()).eval()

@@ -26,7 +26,12 @@ ORDER = 30
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", type=Path, help="dataset folder written by 'mvracklay generate'")
+    p.add_argument(
+        "--data",
+        type=Path,
+        nargs="+",
+        help="dataset folder(s) written by 'mvracklay generate' (several are joined; same layout spec)",
+    )
     p.add_argument("--out", type=Path, required=True, help="run folder (or the weights file with --export)")
     p.add_argument("--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT)
     p.add_argument("--resume", action="store_true", help="continue from RUN/last.pt when it exists (else start)")
@@ -38,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--encoder-width", type=int, default=m.encoder_width, help="ResNet-18 base width (64 = standard)")
     g.add_argument("--hidden", type=int, default=m.hidden, help="ConvLSTM channels")
     g.add_argument("--decoder-width", type=int, default=m.decoder_width)
+    g.add_argument(
+        "--no-fine-skip", action="store_true", help="decoders without the 1/4-scale skip (the older, coarser model)"
+    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     t = TrainConfig()
     g = p.add_argument_group("optimisation")
@@ -105,11 +113,15 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name} must be finite")
     if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
         raise InputError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
-    ds = open_generated(args.data)
-    train_seqs = ds.sequences("train")
-    val_seqs = ds.sequences("val")
+    datasets = [open_generated(d) for d in args.data]
+    ds = datasets[0]
+    for d, other in zip(args.data[1:], datasets[1:]):
+        if other.spec != ds.spec:
+            raise InputError(f"{d}: layout spec {other.spec.to_dict()} differs from {args.data[0]}'s")
+    train_seqs = [s for d in datasets for s in d.sequences("train")]
+    val_seqs = [s for d in datasets for s in d.sequences("val")]
     if not train_seqs:
-        raise InputError(f"{args.data}: has no 'train' sequences")
+        raise InputError(f"{', '.join(map(str, args.data))}: no 'train' sequences")
     variant = args.variant
     adv = args.adv_weight if VARIANTS[variant][2] else 0.0
     mcfg = default_model_config(
@@ -121,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
         encoder_width=args.encoder_width,
         hidden=args.hidden,
         decoder_width=args.decoder_width,
+        fine_skip=not args.no_fine_skip,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,
@@ -146,8 +159,8 @@ def run(args: argparse.Namespace) -> int:
     )
     tcfg.validate()
     info = {
-        "root": str(args.data),
-        "seed": getattr(ds, "seed", None),
+        "root": str(args.data[0]) if len(args.data) == 1 else [str(d) for d in args.data],
+        "seed": getattr(ds, "seed", None) if len(datasets) == 1 else [getattr(d, "seed", None) for d in datasets],
         "train_sequences": len(train_seqs),
         "val_sequences": len(val_seqs),
         "image_size": list(getattr(ds, "image_size", ())),
