@@ -1,58 +1,77 @@
 #!/usr/bin/env bash
 # Full training recipe for the shipped model and the README's Table I (2 CPU cores, CPU-only torch).
 #
-#   1. data: a training set (dataset seed 101) and a held-out set with another dataset seed (202),
-#      so no held-out sequence seed was ever used in training;
-#   2. train mvracklay-disc-4 and the racklay baseline for 120 minutes each on the same data;
-#   3. Table I of both on the held-out set (windowed mode, as in the paper, and streaming);
+#   1. data: three training sets (dataset seeds 101, 103, 104; 6,500 scenes) and a held-out set with
+#      another dataset seed (202), so no held-out sequence seed was ever used in training;
+#   2. train mvracklay-disc-4, mvracklay-4 and the racklay baseline on the same data with the same
+#      budget, side by side (one torch thread each, so the three share the 2 cores alike);
+#   3. Table I of all three on the held-out set (windowed mode, as in the paper, and streaming for the
+#      default), and reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
 #
 # Every step resumes: re-running skips finished sequences and continues runs from RUN/last.pt.
 # Override the folders with DATA=... RUNS=...; for a smoke check of the whole recipe, shrink it, e.g.
-#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES=20 HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 MINUTES=0.5 \
+#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 MINUTES=0.5 \
 #   WEIGHTS=/tmp/r/w.pt CURVES=/tmp/r/curves.png scripts/train_default.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs}
-MINUTES=${MINUTES:-120}
+MINUTES=${MINUTES:-110}
 WORKERS=${WORKERS:-2}
-TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-2000}
+TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
 HELDOUT_FRAMES=${HELDOUT_FRAMES:-50}
 WEIGHTS=${WEIGHTS:-weights/mvracklay-disc-4.pt}
 CURVES=${CURVES:-docs/network_curves.png}
+VARIANTS="mvracklay-disc-4 mvracklay-4 racklay"
 
-# 1. Data. 2,000 scenes x 12 frames = 24,000 training frames (90/5/5 train/val/test split by the
-#    generator), 256x256 images, layouts R=3, D=128; the model reads them at 128x128 and predicts D=64.
-$PY -m mvracklay generate "$DATA/train" --sequences "$TRAIN_SEQUENCES" --frames 12 --size 256 --seed 101 --workers "$WORKERS"
+# 1. Data: 6,500 scenes x 12 frames (90/5/5 train/val/test split by the generator), 128x128 images,
+#    layouts R=3, D=128; the model reads 128x128 and predicts D=64. (At 128x128 the generator writes
+#    ~200 frames/s on the 2 cores, so the three sets take ~7 minutes.)
+read -r N1 N2 N3 <<< "$TRAIN_SEQUENCES"
+TRAIN=()
+for PAIR in "train128:$N1:101" "train128b:$N2:103" "train128c:$N3:104"; do
+    IFS=: read -r NAME N SEED <<< "$PAIR"
+    $PY -m mvracklay generate "$DATA/$NAME" --sequences "$N" --frames 12 --size 128 --seed "$SEED" --workers "$WORKERS"
+    TRAIN+=("$DATA/$NAME")
+done
 #    Held-out: 24 sequences x 50 frames (>= 20 sequences), dataset seed 202.
-$PY -m mvracklay generate "$DATA/heldout" --sequences "$HELDOUT_SEQUENCES" --frames "$HELDOUT_FRAMES" --size 256 --seed 202 --workers "$WORKERS"
+HELDOUT="$DATA/heldout128"
+$PY -m mvracklay generate "$HELDOUT" --sequences "$HELDOUT_SEQUENCES" --frames "$HELDOUT_FRAMES" --size 128 --seed 202 --workers "$WORKERS"
 
-#    No held-out sequence seed may appear in the training set.
-$PY - "$DATA/train/manifest.json" "$DATA/heldout/manifest.json" <<'PYEOF'
+#    No held-out sequence seed may appear in a training set.
+$PY - "$HELDOUT/manifest.json" "${TRAIN[@]/%//manifest.json}" <<'PYEOF'
 import json, sys
-seeds = [{e["seed"] for e in json.load(open(p))["sequences"]} for p in sys.argv[1:]]
-assert not seeds[0] & seeds[1], "held-out sequence seeds overlap the training set"
-print(f"held-out: {len(seeds[1])} sequence seeds, none used in training ({len(seeds[0])})")
+held, *train = [{e["seed"] for e in json.load(open(p))["sequences"]} for p in sys.argv[1:]]
+used = set().union(*train)
+assert not held & used, "held-out sequence seeds overlap a training set"
+print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)})")
 PYEOF
 
-# 2. Train (same data, same frames per step, same budget). Validation every 250 steps on 20 val sequences.
-for V in mvracklay-disc-4 racklay; do
-    $PY -m mvracklay train --data "$DATA/train" --out "$RUNS/$V" --variant "$V" --resume \
-        --minutes "$MINUTES" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0
+# 2. Train the three variants side by side (same data, same frames per step, same budget).
+#    Validation every 250 steps on 20 val sequences x 12 frames (not counted in the budget).
+for V in $VARIANTS; do
+    $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$V" --variant "$V" --resume --threads 1 --quiet \
+        --minutes "$MINUTES" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 \
+        > "$RUNS/$V.log" 2>&1 &
 done
+wait
 
-# 3. Table I on every held-out sequence (all 24 x 50 frames).
-for V in mvracklay-disc-4 racklay; do
-    $PY -m mvracklay evaluate --checkpoint "$RUNS/$V/best.pt" --data "$DATA/heldout" --split all \
+# 3. Table I on every held-out sequence (all 24 x 50 frames); reconstruction accuracy.
+for V in $VARIANTS; do
+    $PY -m mvracklay evaluate --checkpoint "$RUNS/$V/best.pt" --data "$HELDOUT" --split all \
         --json "$RUNS/$V/table1_window.json" | tee "$RUNS/$V/table1_window.txt"
 done
-$PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$DATA/heldout" --split all \
+$PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$HELDOUT" --split all \
     --mode stream --json "$RUNS/mvracklay-disc-4/table1_stream.json" | tee "$RUNS/mvracklay-disc-4/table1_stream.txt"
+$PY -m mvracklay eval-reconstruction "$HELDOUT" | tee "$RUNS/reconstruction_gt.txt"
+$PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --noisy \
+    | tee "$RUNS/reconstruction_pred.txt"
 
 # 4. Curves, speed, shipped weights.
-$PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "racklay=$RUNS/racklay"
+$PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-4=$RUNS/mvracklay-4" \
+    "racklay=$RUNS/racklay"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS"

@@ -119,7 +119,12 @@ def test_train_joins_several_datasets_and_refuses_a_different_spec(tiny_dataset,
     from waresynth.generate import generate_dataset
 
     other = generate_dataset(
-        tmp_path / "other", num_sequences=2, frames=4, image_size=(128, 128), spec=LayoutSpec(size=64), seed=8,
+        tmp_path / "other",
+        num_sequences=2,
+        frames=4,
+        image_size=(128, 128),
+        spec=LayoutSpec(size=64),
+        seed=8,
         progress=False,
     )
     out = tmp_path / "run"
@@ -130,10 +135,33 @@ def test_train_joins_several_datasets_and_refuses_a_different_spec(tiny_dataset,
     assert rec["data"]["root"] == [str(tiny_dataset), str(other)]
     assert rec["data"]["train_sequences"] == n_train and rec["data"]["seed"] == [7, 8]
     coarse = generate_dataset(
-        tmp_path / "coarse", num_sequences=1, frames=2, image_size=(128, 128), spec=LayoutSpec(size=32), seed=9,
+        tmp_path / "coarse",
+        num_sequences=1,
+        frames=2,
+        image_size=(128, 128),
+        spec=LayoutSpec(size=32),
+        seed=9,
         progress=False,
     )
     capsys.readouterr()
     assert main(["train", "--data", str(tiny_dataset), str(coarse), "--out", str(tmp_path / "r2"), *TINY]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "coarse" in err and "differs" in err
+
+
+def test_eval_reconstruction_with_a_checkpoint_scores_the_predicted_layouts(run_dir, tiny_dataset, tmp_path, capsys):
+    seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
+    ckpt = str(run_dir / "best.pt")
+    capsys.readouterr()
+    assert main(["eval-reconstruction", str(seq), "--checkpoint", ckpt, "--threads", "1", "--json", "--quiet"]) == 0
+    direct = json.loads(capsys.readouterr().out)
+    pred = tmp_path / "pred"
+    assert main(["predict", str(seq), "--checkpoint", ckpt, "--out", str(pred), "--threads", "1", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["eval-reconstruction", str(seq), "--layouts", str(pred), "--json", "--quiet"]) == 0
+    via_folder = json.loads(capsys.readouterr().out)
+    assert direct == via_folder
+    gt = main(["eval-reconstruction", str(seq), "--json", "--quiet"])
+    assert gt == 0 and json.loads(capsys.readouterr().out)["summary"]["recall"] == 1.0
+    assert main(["eval-reconstruction", str(seq), "--checkpoint", ckpt, "--layouts", str(pred)]) == 2
+    assert "--checkpoint" in capsys.readouterr().err

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +26,9 @@ DESCRIPTION = (
     "degraded like network output) and compare the map with scene.json: box precision/recall at 3D "
     "IoU >= --iou (unit: a ground-truth stack), mean 3D IoU, per-shelf box-count accuracy, free-length "
     "error and end-of-sequence drift of the estimated camera shifts. The map is placed in the world "
-    "using only the first frame's record. PATH is a dataset folder (manifest.json) or one sequence."
+    "using only the first frame's record. PATH is a dataset folder (manifest.json) or one sequence. "
+    "--checkpoint scores the network instead: each sequence's layouts are predicted (streaming by default), "
+    "then stitched and scored the same way (add --noisy for the clean-up settings meant for network output)."
 )
 ORDER = 62
 
@@ -33,6 +36,13 @@ ORDER = 62
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", metavar="PATH", help="WareSynth dataset or sequence folder")
     p.add_argument("--layouts", default="gt", help="'gt' or a layout folder (single sequence only)")
+    p.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="predict each sequence's layouts with this model (e.g. weights/mvracklay-disc-4.pt) and score those",
+    )
+    p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
+    p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -151,14 +161,38 @@ def run(args: argparse.Namespace) -> int:
     seqs = _sequences(path, args.split, args.limit)
     if (args.layouts != "gt" or args.map) and len(seqs) != 1:
         raise InputError("--layouts DIR and --map need a single sequence folder as PATH")
+    if args.checkpoint and (args.layouts != "gt" or args.map):
+        raise InputError("--checkpoint predicts the layouts itself: drop --layouts / --map")
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
+    model = record = None
+    if args.checkpoint:
+        import torch
+
+        from network.checkpoint import load_model
+
+        if args.threads < 1:
+            raise InputError(f"--threads must be >= 1, got {args.threads}")
+        torch.set_num_threads(args.threads)
+        model, record = load_model(args.checkpoint)
     results = []
-    for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):
-        folder = seq.layout_folder if args.layouts == "gt" else resolve_layouts(seq.root, args.layouts)
-        wmap = WarehouseMap.load(args.map) if args.map else None
-        res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap)
-        results.append((seq.name, res))
+    with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
+        for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):
+            if model is not None:
+                from mvracklay.commands.predict import predict_folder
+
+                out = Path(tmp) / seq.name
+                predict_folder(
+                    model, record, seq.root, out, mode=args.mode, progress=False, source=str(args.checkpoint)
+                )
+                folder = LayoutFolder(out)
+            elif args.layouts == "gt":
+                folder = seq.layout_folder
+            else:
+                folder = resolve_layouts(seq.root, args.layouts)
+            wmap = WarehouseMap.load(args.map) if args.map else None
+            res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap)
+            results.append((seq.name, res))
     summary = summarise(results)
     if args.json:
         out = {"summary": summary, "sequences": {n: r.to_dict() for n, r in results}}

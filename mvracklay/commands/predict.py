@@ -7,6 +7,7 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -20,6 +21,7 @@ from network.checkpoint import load_model
 from network.data import ImageFolderSequence
 from network.distributed import single_process_device
 from network.infer import Predictor, frame_layouts
+from network.model import MVRackLay
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -72,7 +74,40 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
-    seq_dir = args.seq_dir
+    n = predict_folder(
+        model,
+        record,
+        args.seq_dir,
+        args.out,
+        mode=args.mode,
+        layout_size=args.layout_size,
+        intrinsics=args.intrinsics,
+        distance=args.distance,
+        progress=not args.quiet,
+        source=str(args.checkpoint),
+    )
+    print(f"wrote {n} frames of layouts to {args.out}")
+    return 0
+
+
+def predict_folder(
+    model: MVRackLay,
+    record: dict[str, Any],
+    seq_dir: Path,
+    out: Path,
+    *,
+    mode: str = "stream",
+    layout_size: int = 0,
+    intrinsics: str | None = None,
+    distance: float | None = None,
+    progress: bool = True,
+    source: str = "checkpoint",
+) -> int:
+    """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
+
+    Visible columns use the sequence's intrinsics and per-frame distance when ``meta.json`` has them,
+    else ``intrinsics`` / ``distance``, else the camera and mean distance in ``record``.
+    """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
         meta = load_json(seq_dir / "meta.json")
@@ -80,16 +115,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         seq = ImageFolderSequence(seq_dir)
     width, height = seq.image_size()
-    if args.intrinsics:
-        intr = _parse_intrinsics(args.intrinsics, width, height)
+    if intrinsics:
+        intr = _parse_intrinsics(intrinsics, width, height)
     elif isinstance(meta, dict) and "intrinsics" in meta:
         intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
     elif record.get("intrinsics"):
-        intr = Intrinsics.from_dict(record["intrinsics"], str(args.checkpoint)).scaled(width, height)
+        intr = Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height)
     else:
         intr = Intrinsics.from_fov(width, height, 60.0)
     if record.get("intrinsics"):
-        trained = Intrinsics.from_dict(record["intrinsics"], str(args.checkpoint))
+        trained = Intrinsics.from_dict(record["intrinsics"], source)
         if abs(trained.hfov_deg - intr.hfov_deg) > 2.0:
             print(
                 f"mvracklay predict: warning: camera horizontal FOV {intr.hfov_deg:.1f} deg differs from the "
@@ -97,20 +132,19 @@ def run(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None
-    default_distance = args.distance or record.get("nominal_distance") or 2.6
+    default_distance = distance or record.get("nominal_distance") or 2.6
 
-    spec = model.cfg.spec if not args.layout_size else replace(model.cfg.spec, size=args.layout_size)
-    folder = LayoutFolder.create(args.out, spec)
+    spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
+    folder = LayoutFolder.create(out, spec)
     pred = Predictor(model)
-    bar = tqdm(total=seq.num_frames, desc=f"predict ({args.mode})", unit="frame", disable=args.quiet)
-    for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), args.mode)):
-        lay = frame_layouts(out, spec.size)
+    bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
+    for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
+        lay = frame_layouts(logits, spec.size)
         dist = default_distance
-        if args.distance is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
+        if distance is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
             dist = float(frames_meta[i]["distance"])
         visible = np.asarray(intr.visible_columns(spec, dist), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
         bar.update(1)
     bar.close()
-    print(f"wrote {seq.num_frames} frames of layouts {spec.shape} to {args.out}")
-    return 0
+    return seq.num_frames
