@@ -63,7 +63,9 @@ class TrainConfig:
     frames_per_step: int = 16  #: batch = frames_per_step // seq_len windows (same frames for every variant)
     steps_per_epoch: int = 200
     epochs: int = 40
-    minutes: float = 0.0  #: wall-clock training budget (0 = none); stops after the step that crosses it
+    minutes: float = (
+        0.0  #: budget in wall-clock minutes of optimiser steps (0 = none; loading and validation not counted)
+    )
     lr: float = 1e-3
     lr_floor: float = 0.05
     weight_decay: float = 1e-5

@@ -18,7 +18,7 @@ cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs}
-MINUTES=${MINUTES:-110}
+MINUTES=${MINUTES:-85}  # minutes of training steps per run (data loading and validation not counted)
 WORKERS=${WORKERS:-2}
 TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
@@ -74,4 +74,5 @@ $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/mvracklay-di
 $PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-4=$RUNS/mvracklay-4" \
     "racklay=$RUNS/racklay"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256
-$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS"
+$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS" \
+    --note "scripts/train_default.sh (MINUTES=$MINUTES): mvracklay-disc-4 beside mvracklay-4 and racklay, one thread each on 2 cores"

@@ -51,7 +51,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("optimisation")
     g.add_argument("--epochs", type=int, default=t.epochs)
     g.add_argument("--steps-per-epoch", type=int, default=t.steps_per_epoch)
-    g.add_argument("--minutes", type=float, default=t.minutes, help="wall-clock training budget (0 = none)")
+    g.add_argument(
+        "--minutes",
+        type=float,
+        default=t.minutes,
+        help="budget: wall-clock minutes spent in optimiser steps (data loading and validation not counted; 0 = none)",
+    )
     g.add_argument("--frames-per-step", type=int, default=t.frames_per_step, help="frames per batch (all variants)")
     g.add_argument("--lr", type=float, default=t.lr)
     g.add_argument(
