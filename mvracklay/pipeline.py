@@ -33,7 +33,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
-from network.infer import MODES, Predictor, frame_layouts
+from network.infer import MODES, Predictor, frame_layouts, rescale_x
 from stitching import rerun_log
 from stitching.detect import DetectConfig
 from stitching.export_gltf import export_glb, map_cuboids
@@ -60,6 +60,7 @@ class RunConfig:
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
+    rescale: bool = True  #: resample layouts along X to the known camera-to-rack distance (see rescale_x)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -280,8 +281,11 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             logits = next(outputs, None)
             if logits is None:
                 break
+            known = cfg.distance or source.distance(n)
+            if cfg.rescale and known and isinstance(nominal, (int, float)) and nominal > 0:
+                logits = rescale_x(logits, known / float(nominal))
             lay = frame_layouts(logits, spec.size)
-            dist = cfg.distance or source.distance(n) or default_distance
+            dist = known or default_distance
             fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
             folder.write(n, fl)
             tb = time.perf_counter()

@@ -9,6 +9,7 @@ features are cached across windows, so it also costs one encoder pass per frame;
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Iterable, Iterator
 from typing import Any
@@ -83,6 +84,35 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
     if size is not None and size != logits.shape[-1]:
         logits = F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
     return logits.argmax(1).to(torch.uint8).cpu().numpy()
+
+
+def rescale_x(out: dict[str, torch.Tensor], scale: float) -> dict[str, torch.Tensor]:
+    """Resample one frame's logits ``{view: (R, 3, D, D)}`` along X: content at x moves to ``scale * x``.
+
+    One image cannot tell the camera-to-rack distance (rack, shelf and box sizes all vary), so
+    the network lays a frame out as if seen from the training data's mean distance. When the
+    true distance d is known, ``scale = d / nominal`` puts the layout at its metric width again;
+    columns that come from outside the predicted extent become background.
+    """
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale must be a positive number, got {scale}")
+    if abs(scale - 1.0) < 1e-6:
+        return out
+    res = {}
+    for v, lg in out.items():
+        d = lg.shape[-1]
+        g = ((torch.arange(d, dtype=torch.float64, device=lg.device) + 0.5) * 2 / d - 1) / scale
+        src = (g + 1) * d / 2 - 0.5  # continuous source column of each output column
+        lo = src.floor().clamp(0, d - 1).long()
+        hi = (lo + 1).clamp(max=d - 1)
+        w = (src - lo).clamp(0, 1).to(lg.dtype)
+        r = lg.index_select(-1, lo) * (1 - w) + lg.index_select(-1, hi) * w
+        outside = g.abs() > 1
+        if bool(outside.any()):
+            r[..., outside] = 0
+            r[:, 0][..., outside] = 1  # background wins outside the predicted extent
+        res[v] = r
+    return res
 
 
 def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from layouts import InputError, LayoutSpec
+from layouts import VIEWS, InputError, LayoutSpec
 from network.infer import Predictor, predict_layouts
 from network.model import VARIANTS, ModelConfig, MVRackLay, build_discriminators
 from network.resnet import ResNet18Encoder, load_imagenet_weights
@@ -149,3 +149,28 @@ def test_resnet_has_torchvision_names_and_loads_a_state_dict(tmp_path):
         load_imagenet_weights(ResNet18Encoder(32), path)
     with pytest.raises(InputError, match="not found"):
         load_imagenet_weights(enc, tmp_path / "nope.pth")
+
+
+def test_rescale_x_moves_content_to_its_metric_place():
+    from network.infer import frame_layouts, rescale_x
+
+    spec = LayoutSpec(num_slots=1, size=64)
+    lay = np.zeros((1, 64, 64), np.uint8)
+    c0, c1 = (int(round(float(spec.x_to_col(x)))) for x in (0.3, 0.6))
+    lay[0, :, c0:c1] = 2  # a box from x = 0.3 to 0.6 m
+    lay[0, :, :8] = 1  # shelf from x = -1.5 to -1.125 m
+    logits = {
+        v: torch.nn.functional.one_hot(torch.from_numpy(lay).long(), 3).permute(0, 3, 1, 2).float() for v in VIEWS
+    }
+    assert rescale_x(logits, 1.0) is logits
+    for s in (0.9, 1.1):
+        out = frame_layouts(rescale_x(logits, s))["front"][0]
+        cols = np.flatnonzero(out[10] == 2)
+        lo, hi = spec.col_to_x(cols[0]), spec.col_to_x(cols[-1] + 1)
+        assert abs(lo - 0.3 * s) <= spec.x_extent / 64 and abs(hi - 0.6 * s) <= spec.x_extent / 64
+        if s < 1:  # x < -1.5 * 0.9 lies beyond the predicted extent: background
+            assert (out[:, :3] == 0).all() and (out[:, 4:6] == 1).all()
+        else:  # the shelf spreads out to -1.24 m
+            assert (out[:, :5] == 1).all() and (out[:, 7] == 0).all()
+    with pytest.raises(ValueError):
+        rescale_x(logits, 0.0)

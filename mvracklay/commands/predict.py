@@ -20,7 +20,7 @@ from layouts.fileio import load_json
 from network.checkpoint import load_model
 from network.data import ImageFolderSequence
 from network.distributed import single_process_device
-from network.infer import Predictor, frame_layouts
+from network.infer import Predictor, frame_layouts, rescale_x
 from network.model import MVRackLay
 
 NAME = "predict"
@@ -31,7 +31,10 @@ DESCRIPTION = (
     "'mvracklay reconstruct' reads. Streaming mode carries the ConvLSTM state frame to frame (one encoder "
     "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
     "Visible columns come from the camera intrinsics and the camera-to-rack distance: from meta.json when "
-    "present, else --intrinsics / --distance, else the camera and mean distance the model was trained with."
+    "present, else --intrinsics / --distance, else the camera and mean distance the model was trained with. "
+    "One image cannot tell how far the racks are, so the network lays frames out as seen from its training "
+    "data's mean distance; when the distance is known (meta.json or --distance) the layouts are resampled "
+    "along X to it (--no-rescale keeps them as predicted)."
 )
 ORDER = 32
 
@@ -44,6 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
     p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
     p.add_argument("--distance", type=float, help="camera to rack front in metres (for the visible columns)")
+    p.add_argument(
+        "--no-rescale",
+        action="store_true",
+        help="keep the layouts at the model's nominal distance even when the camera-to-rack distance is known",
+    )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -85,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         distance=args.distance,
         progress=not args.quiet,
         source=str(args.checkpoint),
+        rescale=not args.no_rescale,
     )
     print(f"wrote {n} frames of layouts to {args.out}")
     return 0
@@ -102,11 +111,14 @@ def predict_folder(
     distance: float | None = None,
     progress: bool = True,
     source: str = "checkpoint",
+    rescale: bool = True,
 ) -> int:
     """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
 
     Visible columns use the sequence's intrinsics and per-frame distance when ``meta.json`` has them,
-    else ``intrinsics`` / ``distance``, else the camera and mean distance in ``record``.
+    else ``intrinsics`` / ``distance``, else the camera and mean distance in ``record``. When the
+    distance is known (``distance`` or meta.json) and ``rescale`` is on, each frame's layouts are
+    resampled along X from the model's nominal distance to it (`network.infer.rescale_x`).
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -132,17 +144,22 @@ def predict_folder(
                 file=sys.stderr,
             )
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None
-    default_distance = distance or record.get("nominal_distance") or 2.6
+    nominal = record.get("nominal_distance")
+    nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
+    default_distance = distance or nominal or 2.6
 
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(model)
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
     for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
+        known = distance
+        if known is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
+            known = float(frames_meta[i]["distance"])
+        if rescale and known and nominal:
+            logits = rescale_x(logits, known / nominal)
         lay = frame_layouts(logits, spec.size)
-        dist = default_distance
-        if distance is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
-            dist = float(frames_meta[i]["distance"])
+        dist = known or default_distance
         visible = np.asarray(intr.visible_columns(spec, dist), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
         bar.update(1)
