@@ -110,3 +110,58 @@ def export_weights(
     record.pop("format_version", None)
     save_checkpoint(dst, {"model": state}, record)
     return record
+
+
+#: settings a warm start must share with its source (the rest of the weights' shapes follow from them)
+_INIT_SHARED = ("input_width", "input_height", "spec", "encoder_width", "hidden", "decoder_width", "fine_skip")
+
+
+def init_weights_from(
+    model: MVRackLay, path: str | os.PathLike, discs: torch.nn.Module | None = None
+) -> dict[str, Any]:
+    """Warm start: copy a trained checkpoint's weights (any variant) into a fresh ``model``.
+
+    A single-frame ``racklay`` checkpoint fills everything of a sequence model with
+    ``temporal_residual`` except the ConvLSTM (its plain temporal block becomes the residual
+    block's ``pre``; the zero-initialised correction keeps the start equal to the source).
+    Discriminators are copied too when both have them. Returns a summary for the run's record:
+    the source, its training minutes, and the tensors left at their fresh values.
+    """
+    payload, record = load_checkpoint(path)
+    src_cfg = ModelConfig.from_dict(record.get("model_config"), f"{path} (model_config)")
+    for name in _INIT_SHARED:
+        if getattr(src_cfg, name) != getattr(model.cfg, name):
+            raise InputError(
+                f"{path}: cannot warm-start from it: {name} is {getattr(src_cfg, name)!r}, "
+                f"the new model has {getattr(model.cfg, name)!r}"
+            )
+    state = dict(payload["model"])
+    own = model.state_dict()
+    if not src_cfg.use_lstm and model.cfg.use_lstm:
+        if not model.cfg.temporal_residual:
+            raise InputError(f"{path}: a single-frame checkpoint only warm-starts a model with temporal_residual")
+        state = {
+            ("temporal.pre." + k[len("temporal.") :] if k.startswith("temporal.") else k): v for k, v in state.items()
+        }
+    elif src_cfg.use_lstm != model.cfg.use_lstm or src_cfg.temporal_residual != model.cfg.temporal_residual:
+        state = {k: v for k, v in state.items() if not k.startswith("temporal.")}
+    take = {k: v.to(own[k].dtype) for k, v in state.items() if k in own and tuple(v.shape) == tuple(own[k].shape)}
+    model.load_state_dict(take, strict=False)
+    fresh = sorted(set(own) - set(take))
+    src_discs = payload.get("discriminators")
+    copied_discs = False
+    if discs is not None and isinstance(src_discs, dict):
+        d_own = discs.state_dict()
+        if set(src_discs) == set(d_own) and all(tuple(src_discs[k].shape) == tuple(d_own[k].shape) for k in d_own):
+            discs.load_state_dict(src_discs)
+            copied_discs = True
+    return {
+        "path": str(path),
+        "variant": src_cfg.variant,
+        "step": record.get("step"),
+        "train_wall_minutes": record.get("train_wall_minutes"),
+        "train_cpu_minutes": record.get("train_cpu_minutes"),
+        "fresh_tensors": len(fresh),
+        "fresh_prefixes": sorted({".".join(k.split(".")[:2]) for k in fresh}),
+        "discriminators": copied_discs,
+    }

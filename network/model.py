@@ -8,7 +8,9 @@ connections from the 1/16 and 1/8 maps -> ``R x 3`` class logits at ``D x D``. I
 stay aligned with layout X throughout (nothing mixes columns except local convolutions), which
 is what lets it train quickly; the vertical mapping (image rows -> depth or height above a
 shelf board) is learned per view. With ``fine_skip`` (the default for new models) a fourth
-column transform brings in the 1/4 map, which sharpens box edges along X.
+column transform brings in the 1/4 map, which sharpens box edges along X. With
+``temporal_residual`` (also the default) the ConvLSTM adds a zero-initialised correction to the
+single-frame block, so a sequence model can start from trained ``racklay`` weights.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, a plain convolution in place of the ConvLSTM).
@@ -25,7 +27,7 @@ from torch import nn
 
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.errors import InputError
-from network.convlstm import StackedConvLSTM, State
+from network.convlstm import ResidualConvLSTM, StackedConvLSTM, State
 from network.resnet import ResNet18Encoder
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
@@ -54,6 +56,7 @@ class ModelConfig:
     lstm_layers: int = 2
     decoder_width: int = 32
     fine_skip: bool = True  #: also feed the 1/4 encoder map to the decoders (sharper box edges)
+    temporal_residual: bool = True  #: ConvLSTM as a zero-initialised correction to the single-frame block
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
@@ -66,8 +69,9 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
-        if not isinstance(self.fine_skip, bool):
-            raise InputError(f"fine_skip must be true or false, got {self.fine_skip!r}")
+        for name in ("fine_skip", "temporal_residual"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if not isinstance(self.spec, LayoutSpec):
             raise InputError(f"spec must be a LayoutSpec, got {type(self.spec).__name__}")
 
@@ -100,6 +104,7 @@ class ModelConfig:
         if "spec" in d:
             d["spec"] = LayoutSpec.from_dict(d["spec"], f"{source} (spec)")
         d.setdefault("fine_skip", False)  # records written before the 1/4 skip existed
+        d.setdefault("temporal_residual", False)  # ... and before the residual ConvLSTM
         try:
             return cls(**d)
         except (TypeError, InputError) as e:
@@ -211,8 +216,11 @@ class MVRackLay(nn.Module):
         self.encoder = ResNet18Encoder(cfg.encoder_width)
         c2, c3, c4, c5 = self.encoder.channels
         self.reduce = _conv_bn_relu(c5, cfg.hidden, 1)
-        if cfg.use_lstm:
-            self.temporal: nn.Module = StackedConvLSTM(cfg.hidden, cfg.hidden, cfg.lstm_layers)
+        if cfg.use_lstm and cfg.temporal_residual:
+            pre = _conv_bn_relu(cfg.hidden, cfg.hidden)
+            self.temporal: nn.Module = ResidualConvLSTM(pre, cfg.hidden, cfg.lstm_layers)
+        elif cfg.use_lstm:
+            self.temporal = StackedConvLSTM(cfg.hidden, cfg.hidden, cfg.lstm_layers)
         else:
             self.temporal = _conv_bn_relu(cfg.hidden, cfg.hidden)
         self.decoders = nn.ModuleDict({v: ViewDecoder(cfg, c2, c3, c4) for v in VIEWS})

@@ -33,7 +33,7 @@ from tqdm import tqdm
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
-from network.checkpoint import load_checkpoint, save_checkpoint
+from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
 from network.data import WindowDataset
 from network.distributed import (
     DistEnv,
@@ -83,6 +83,7 @@ class TrainConfig:
     val_sequences: int = 0  #: validation sequences used (0 = all)
     val_mode: str = "window"
     imagenet_weights: str | None = None
+    init_from: str | None = None  #: warm start: a checkpoint whose weights seed the model (see init_weights_from)
     checkpoint_every: int = 0  #: also write last.pt every this many steps (0 = at epoch ends only)
     device: str = "cpu"  #: cpu, cuda or auto (cuda:LOCAL_RANK when CUDA is present)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -179,6 +180,9 @@ class Trainer:
         if train_cfg.imagenet_weights:
             load_imagenet_weights(self.model.encoder, train_cfg.imagenet_weights)
         self.discs = build_discriminators(model_cfg) if train_cfg.adv_weight > 0 else None
+        init_info = None
+        if train_cfg.init_from and not resume:
+            init_info = init_weights_from(self.model, train_cfg.init_from, self.discs)
         self.model.to(self.device)
         if self.discs is not None:
             self.discs.to(self.device)
@@ -214,6 +218,8 @@ class Trainer:
             "train_frames": len(self.train_ds),
             "train_sequences": len(train_seqs),
         }
+        if init_info is not None:
+            self.info["init_from"] = init_info
         self.fingerprints: list[str] = []
         self.out.mkdir(parents=True, exist_ok=True)
         if self.env.enabled:
@@ -276,6 +282,8 @@ class Trainer:
         path = self.out / "last.pt"
         payload, record = load_checkpoint(path)
         saved = ModelConfig.from_dict(record.get("model_config"), str(path))
+        if isinstance(record.get("init_from"), dict):
+            self.info["init_from"] = record["init_from"]
         if saved != self.mcfg:
             raise InputError(f"{path}: was trained with a different model config ({saved.variant}); use the same flags")
         try:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
 
 from layouts import VIEWS, InputError, LayoutSpec
+from network.convlstm import StackedConvLSTM
 from network.infer import Predictor, predict_layouts
 from network.model import VARIANTS, ModelConfig, MVRackLay, build_discriminators
 from network.resnet import ResNet18Encoder, load_imagenet_weights
@@ -67,20 +70,26 @@ def test_fine_skip_feeds_the_quarter_map_and_old_records_load_without_it():
     bumped = model.decode((f2 + 1.0, f3, f4, f5))["front"]
     assert not torch.allclose(base, bumped)  # the 1/4 map reaches the logits
     old = cfg.to_dict()
-    del old["fine_skip"]
+    del old["fine_skip"], old["temporal_residual"]
     coarse = ModelConfig.from_dict(old)
-    assert not coarse.fine_skip
+    assert not coarse.fine_skip and not coarse.temporal_residual
+    assert isinstance(MVRackLay(coarse).temporal, StackedConvLSTM)  # shipped older weights keep their layout
     plain = MVRackLay(coarse).eval()
     assert plain.decoders["top"].t2 is None
     g2, g3, g4, g5 = plain.encode(x)
     assert torch.equal(plain.decode((g2 + 1.0, g3, g4, g5))["top"], plain.decode((g2, g3, g4, g5))["top"])
     with pytest.raises(InputError, match="fine_skip"):
         ModelConfig(fine_skip="yes")
+    with pytest.raises(InputError, match="temporal_residual"):
+        ModelConfig(temporal_residual=1)
 
 
-def test_streaming_equals_convlstm_over_the_prefix():
+@pytest.mark.parametrize("residual", [True, False])
+def test_streaming_equals_convlstm_over_the_prefix(residual):
     torch.manual_seed(1)
-    model = MVRackLay(tiny()).eval()
+    model = MVRackLay(replace(tiny(), temporal_residual=residual)).eval()
+    if residual:  # the correction starts at zero; make the ConvLSTM path count
+        torch.nn.init.normal_(model.temporal.out.weight, std=0.5)
     x = torch.rand(1, 6, 3, 64, 64)
     with torch.no_grad():
         full = model(x)

@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from layouts import InputError, LayoutSpec
-from network.checkpoint import export_weights, load_checkpoint, load_model, save_checkpoint
+from network.checkpoint import export_weights, init_weights_from, load_checkpoint, load_model, save_checkpoint
 from network.evaluate import evaluate_sequences
-from network.model import ModelConfig, MVRackLay
+from network.model import ModelConfig, MVRackLay, build_discriminators
 from network.toy import ToySequence
 from network.train import TrainConfig, Trainer
 
@@ -129,3 +129,36 @@ def test_corrupt_or_pickled_checkpoints_are_refused(tmp_path):
         load_model(other)
     with pytest.raises(InputError, match="not found"):
         load_model(tmp_path / "missing.pt")
+
+
+def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path):
+    data = seqs(1, 5)
+    tcfg = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=1, seed=3, threads=1)
+    Trainer(tiny("racklay"), tcfg, data, data, tmp_path / "single", progress=False).fit()
+    src = tmp_path / "single" / "last.pt"
+    single, _ = load_model(src)
+    # A fresh residual sequence model warm-started from it predicts what the single-frame model does.
+    model = MVRackLay(tiny())
+    discs = build_discriminators(tiny())
+    info = init_weights_from(model, src, discs)
+    assert info["variant"] == "racklay" and info["step"] == 2 and info["discriminators"]
+    assert info["fresh_prefixes"] == ["temporal.lstm", "temporal.out"]
+    x = torch.rand(1, 4, 3, 64, 64)
+    with torch.no_grad():
+        seq_out = model.eval()(x)
+        one = single(x.flatten(0, 1)[:, None])
+    for v in seq_out:
+        torch.testing.assert_close(seq_out[v][0], one[v][:, 0])
+    # Through the trainer: the source is in the record, and training moves the ConvLSTM's correction.
+    t2 = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=1, seed=3, threads=1, init_from=str(src))
+    Trainer(tiny(), t2, data, data, tmp_path / "seq", progress=False).fit()
+    record = json.loads((tmp_path / "seq" / "last.json").read_text())
+    assert record["init_from"]["path"] == str(src) and record["init_from"]["variant"] == "racklay"
+    trained, _ = load_model(tmp_path / "seq" / "last.pt")
+    assert trained.temporal.out.weight.abs().sum() > 0
+    # Different sizes are refused with the setting named.
+    other = MVRackLay(
+        ModelConfig(input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=32, decoder_width=8)
+    )
+    with pytest.raises(InputError, match="hidden"):
+        init_weights_from(other, src)

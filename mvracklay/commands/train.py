@@ -46,7 +46,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--no-fine-skip", action="store_true", help="decoders without the 1/4-scale skip (the older, coarser model)"
     )
+    g.add_argument(
+        "--no-temporal-residual",
+        action="store_true",
+        help="ConvLSTM in place of the single-frame block instead of a zero-initialised correction to it",
+    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
+    g.add_argument(
+        "--init-from",
+        type=Path,
+        metavar="CKPT",
+        help="warm start from a trained checkpoint (e.g. a racklay run's best.pt; same sizes and widths)",
+    )
     t = TrainConfig()
     g = p.add_argument_group("optimisation")
     g.add_argument("--epochs", type=int, default=t.epochs)
@@ -139,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         hidden=args.hidden,
         decoder_width=args.decoder_width,
         fine_skip=not args.no_fine_skip,
+        temporal_residual=not args.no_temporal_residual,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,
@@ -159,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
         val_sequences=args.val_sequences,
         val_mode=args.val_mode,
         imagenet_weights=str(args.imagenet_weights) if args.imagenet_weights else None,
+        init_from=str(args.init_from) if args.init_from else None,
         checkpoint_every=args.checkpoint_every,
         device=args.device,
     )
