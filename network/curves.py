@@ -1,6 +1,6 @@
 """Learning curves as a PNG (held-out mIoU against training minutes), drawn with Pillow alone.
 
-`plot_curves` reads runs' ``metrics.jsonl`` and draws one panel per view x class (top/front x
+`plot_curves` reads runs' ``metrics.jsonl`` (warm-started runs shifted by their source's minutes) and draws one panel per view x class (top/front x
 rack/box), one line per run. ``python -m network.curves OUT.png LABEL=RUN_DIR ...`` does it
 from the shell.
 """
@@ -33,9 +33,29 @@ def read_metrics(path: str | Path) -> list[dict]:
         raise InputError(f"{path}: not JSON lines ({e.msg})") from None
 
 
+def start_offset(run: str | Path, x_key: str = "train_cpu_minutes") -> float:
+    """Minutes a warm-started run had before its first step (its source's, from ``RUN/last.json``)."""
+    rec = Path(run) / "last.json"
+    if not rec.is_file():
+        return 0.0
+    try:
+        src = json.loads(rec.read_text()).get("init_from") or {}
+    except (json.JSONDecodeError, AttributeError):
+        return 0.0
+    v = src.get(x_key) if isinstance(src, dict) else None
+    return float(v) if isinstance(v, (int, float)) else 0.0
+
+
 def plot_curves(runs: dict[str, str | Path], out: str | Path, x_key: str = "train_cpu_minutes") -> None:
-    """Draw held-out (visible-column) mIoU per panel against ``x_key`` for each run; write ``out``."""
-    data = {label: [e for e in read_metrics(p) if "val_visible" in e] for label, p in runs.items()}
+    """Draw held-out (visible-column) mIoU per panel against ``x_key`` for each run; write ``out``.
+
+    A warm-started run's curve starts where its source's training ended (`start_offset`), so
+    every x is the total training the weights have had.
+    """
+    data = {}
+    for label, p in runs.items():
+        off = start_offset(p, x_key) if Path(p).is_dir() else 0.0
+        data[label] = [{**e, x_key: e[x_key] + off} for e in read_metrics(p) if "val_visible" in e]
     pw, ph, m = 420, 260, 50
     img = Image.new("RGB", (2 * pw, 2 * ph + 40), "white")
     d = ImageDraw.Draw(img)

@@ -1,0 +1,43 @@
+"""Learning-curve PNG: one line per run, warm-started runs shifted by their source's minutes."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from PIL import Image
+
+from layouts import InputError
+from network.curves import plot_curves, start_offset
+
+
+def _entry(minutes: float, iou: float) -> dict:
+    cell = {"miou": iou}
+    return {"train_cpu_minutes": minutes, "val_visible": {v: {"rack": cell, "box": cell} for v in ("top", "front")}}
+
+
+def _run(path, entries, init=None):
+    path.mkdir()
+    (path / "metrics.jsonl").write_text("".join(json.dumps(e) + "\n" for e in entries))
+    if init is not None:
+        (path / "last.json").write_text(json.dumps({"init_from": init}))
+    return path
+
+
+def test_curves_png_and_warm_start_offset(tmp_path):
+    a = _run(tmp_path / "a", [_entry(1, 0.2), _entry(2, 0.5)])
+    b = _run(tmp_path / "b", [_entry(1, 0.6), _entry(2, 0.7)], init={"train_cpu_minutes": 2.0, "variant": "racklay"})
+    assert start_offset(a) == 0.0 and start_offset(b) == 2.0
+    out = tmp_path / "c.png"
+    plot_curves({"a": a, "b": b}, out)
+    img = Image.open(out).convert("RGB")
+    assert img.size == (840, 560)
+    # Run b (second colour) is drawn out to x = 4 minutes, the right edge; run a stops half way.
+    red = (214, 39, 40)
+    xs = [x for x in range(img.width // 2) for y in range(img.height // 2) if img.getpixel((x, y)) == red]
+    assert xs and max(xs) > 400 - 5
+    blue = (31, 119, 180)
+    xs_a = [x for x in range(img.width // 2) for y in range(img.height // 2) if img.getpixel((x, y)) == blue]
+    assert xs_a and max(xs_a) < 260
+    with pytest.raises(InputError, match="metrics file not found"):
+        plot_curves({"x": tmp_path / "missing"}, tmp_path / "d.png")
