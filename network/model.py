@@ -74,6 +74,8 @@ class ModelConfig:
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if not isinstance(self.spec, LayoutSpec):
             raise InputError(f"spec must be a LayoutSpec, got {type(self.spec).__name__}")
+        if not self.use_lstm:  # no ConvLSTM, nothing to be residual: one spelling, so configs compare equal
+            object.__setattr__(self, "temporal_residual", False)
 
     @property
     def seq_len(self) -> int:

@@ -4,7 +4,9 @@
 #   1. data: three training sets (dataset seeds 101, 103, 104; 6,500 scenes) and a held-out set with
 #      another dataset seed (202), so no held-out sequence seed was ever used in training;
 #   2. train mvracklay-disc-4, mvracklay-4 and the racklay baseline on the same data with the same
-#      budget, side by side (one torch thread each, so the three share the 2 cores alike);
+#      budget, side by side (one torch thread each, so the three share the 2 cores alike); then, within
+#      120 minutes per model in all, a second stage side by side: racklay continued to 120 minutes, and
+#      mvracklay-disc-4 warm-started from the racklay run's best checkpoint for the remaining minutes;
 #   3. Table I of all three on the held-out set (windowed mode, as in the paper, and streaming for the
 #      default), and reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
@@ -19,6 +21,7 @@ PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs}
 MINUTES=${MINUTES:-85}  # minutes of training steps per run (data loading and validation not counted)
+TOTAL=${TOTAL:-120}     # stage 2: racklay continued to TOTAL; the warm start gets TOTAL minus its source's minutes
 WORKERS=${WORKERS:-2}
 TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
@@ -51,13 +54,31 @@ print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)}
 PYEOF
 
 # 2. Train the three variants side by side (same data, same frames per step, same budget).
-#    Validation every 250 steps on 20 val sequences x 12 frames (not counted in the budget).
+#    Validation every 250 steps on 20 val sequences x 12 frames (not counted in the budget). The
+#    sequence variants of this stage use the plain ConvLSTM (in place of the single-frame block), the
+#    model the README's from-scratch rows measured.
 for V in $VARIANTS; do
+    PLAIN=(); [ "$V" = racklay ] || PLAIN=(--no-temporal-residual)
     $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$V" --variant "$V" --resume --threads 1 --quiet \
         --minutes "$MINUTES" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 \
-        > "$RUNS/$V.log" 2>&1 &
+        "${PLAIN[@]}" > "$RUNS/$V.log" 2>&1 &
 done
 wait
+
+#    Stage 2: the single-frame model continues to TOTAL minutes; the sequence model starts from it
+#    (residual ConvLSTM: a zero-initialised correction, so it starts equal to racklay) with a lower
+#    learning rate, for the minutes the source leaves of TOTAL.
+[ -d "$RUNS/racklay-$TOTAL" ] || cp -r "$RUNS/racklay" "$RUNS/racklay-$TOTAL"
+WARM_MIN=$($PY -c "import json,sys; print(max(0.1, $TOTAL - json.load(open(sys.argv[1]))['train_wall_minutes']))" \
+    "$RUNS/racklay/best.json")
+$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay-$TOTAL" --variant racklay --resume --threads 1 --quiet \
+    --minutes "$TOTAL" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 \
+    > "$RUNS/racklay-$TOTAL.log" 2>&1 &
+$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/mvracklay-disc-4-warm" --variant mvracklay-disc-4 --resume \
+    --init-from "$RUNS/racklay/best.pt" --lr 3e-4 --threads 1 --quiet --minutes "$WARM_MIN" --epochs 1000 \
+    --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 > "$RUNS/mvracklay-disc-4-warm.log" 2>&1 &
+wait
+VARIANTS="$VARIANTS racklay-$TOTAL mvracklay-disc-4-warm"
 
 # 3. Table I on every held-out sequence (all 24 x 50 frames); reconstruction accuracy.
 for V in $VARIANTS; do

@@ -74,6 +74,9 @@ def test_fine_skip_feeds_the_quarter_map_and_old_records_load_without_it():
     coarse = ModelConfig.from_dict(old)
     assert not coarse.fine_skip and not coarse.temporal_residual
     assert isinstance(MVRackLay(coarse).temporal, StackedConvLSTM)  # shipped older weights keep their layout
+    single = tiny("racklay").to_dict()
+    del single["temporal_residual"]
+    assert ModelConfig.from_dict(single) == tiny("racklay")  # an older single-frame run still resumes
     plain = MVRackLay(coarse).eval()
     assert plain.decoders["top"].t2 is None
     g2, g3, g4, g5 = plain.encode(x)
