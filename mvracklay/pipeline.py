@@ -33,7 +33,8 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
-from network.infer import MODES, Predictor, frame_layouts, rescale_x
+from network.data import DEFAULT_DISTANCE
+from network.infer import MODES, Predictor, frame_layouts
 from stitching import rerun_log
 from stitching.detect import DetectConfig
 from stitching.export_gltf import export_glb, map_cuboids
@@ -44,8 +45,6 @@ from stitching.warehouse_map import WarehouseMap
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_CHECKPOINT = REPO_ROOT / "weights" / "mvracklay-disc-4.pt"
-DEFAULT_DISTANCE = 2.6
-"""Camera-to-rack-front distance (m) used for the visible columns when neither the input nor the model says."""
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
 RRD_MAX_WIDTH = 640
 
@@ -60,7 +59,6 @@ class RunConfig:
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
-    rescale: bool = True  #: resample layouts along X to the known camera-to-rack distance (see rescale_x)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -257,7 +255,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         stitcher = Stitcher(spec, stitch_config(cfg))
         if cfg.rrd:
             rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd")
-        pred = Predictor(model)
+        pred = Predictor(model, lambda i: (intr, cfg.distance or source.distance(i) or default_distance))
         current: dict[str, np.ndarray] = {}
 
         def feed():
@@ -281,11 +279,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             logits = next(outputs, None)
             if logits is None:
                 break
-            known = cfg.distance or source.distance(n)
-            if cfg.rescale and known and isinstance(nominal, (int, float)) and nominal > 0:
-                logits = rescale_x(logits, known / float(nominal))
             lay = frame_layouts(logits, spec.size)
-            dist = known or default_distance
+            dist = cfg.distance or source.distance(n) or default_distance
             fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
             folder.write(n, fl)
             tb = time.perf_counter()

@@ -113,7 +113,7 @@ def export_weights(
 
 
 #: settings a warm start must share with its source (the rest of the weights' shapes follow from them)
-_INIT_SHARED = ("input_width", "input_height", "spec", "encoder_width", "hidden", "decoder_width", "fine_skip")
+_INIT_SHARED = ("input_width", "input_height", "spec", "encoder_width", "hidden", "decoder_width")
 
 
 def init_weights_from(

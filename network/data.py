@@ -1,12 +1,15 @@
 """Training and evaluation inputs: windows of consecutive frames with their layouts.
 
 Reads any sequence object with the `waresynth.dataset.Sequence` interface (``num_frames``,
-``spec``, ``rgb(i)``, ``layouts(i)``, ``camera_positions()``), resizes images to the model's
-input size and resamples ground truth to the model's layout size (class-area mode). A window
-ending at frame t holds frames ``t-T+1 .. t``; before the sequence start the first frame is
-repeated, as the reference implementation does. Augmentation is consistent over a window:
-one colour jitter for all its frames and one horizontal flip of images, layouts, visible
-columns and camera X together.
+``spec``, ``intrinsics``, ``rgb(i)``, ``frame(i)``, ``layouts(i)``, ``camera_positions()``),
+warps images into the model's canonical view (`layouts.canonical.CanonicalView`, with the
+sequence's intrinsics and each frame's camera-to-rack distance) and resamples ground truth to the
+model's layout size (class-area mode). Each frame also gets its slot anchors (the canonical rows
+of its slots' board edges) and the row head's target (a Gaussian bump at every visible board).
+A window ending at frame t holds frames ``t-T+1 .. t``; before the sequence start the first
+frame is repeated, as the reference implementation does. Augmentation is consistent over a
+window: one colour jitter for all its frames and one horizontal flip of images, layouts,
+visible columns and camera X together; anchors get a small jitter of their own.
 """
 
 from __future__ import annotations
@@ -21,21 +24,109 @@ import torch
 import torch.nn.functional as F
 from PIL import Image
 
-from layouts import NUM_CLASSES, LayoutSpec
+from layouts import NUM_CLASSES, Intrinsics, LayoutSpec
+from layouts.canonical import CanonicalView
 from layouts.codecs import FrameLayouts
-from layouts.errors import InputError
+from layouts.errors import InputError, LayoutError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+
+
+#: width (standard deviation, canonical rows) of the row head's target bump at each board
+ROW_SIGMA = 1.0
+#: anchors used in training move uniformly by up to this many canonical rows (robustness to the row head)
+ANCHOR_JITTER = 1.0
+#: camera-to-rack distance assumed when neither the data nor the user give one (the default generator's middle)
+DEFAULT_DISTANCE = 2.6
 
 
 class SequenceLike(Protocol):
     name: str
     num_frames: int
     spec: LayoutSpec
+    intrinsics: Intrinsics
 
     def rgb(self, i: int) -> np.ndarray: ...
+    def frame(self, i: int) -> dict[str, Any]: ...
     def layouts(self, i: int) -> FrameLayouts: ...
     def camera_positions(self) -> np.ndarray: ...
+
+
+def frame_camera(seq: Any, i: int, default_distance: float = DEFAULT_DISTANCE) -> tuple[Intrinsics | None, float]:
+    """The intrinsics (None if the sequence has none) and camera-to-rack distance of frame ``i``."""
+    intr = getattr(seq, "intrinsics", None)
+    dist = default_distance
+    frame = getattr(seq, "frame", None)
+    if callable(frame):
+        try:
+            d = float(frame(i).get("distance"))
+            if np.isfinite(d) and d > 0:
+                dist = d
+        except (TypeError, ValueError, AttributeError):
+            pass
+    return intr, dist
+
+
+def canonical_image(rgb: np.ndarray, view: CanonicalView, intr: Intrinsics | None, distance: float) -> np.ndarray:
+    """uint8 RGB of any size -> the model's canonical ``(H, W, 3)`` view (60 deg camera if ``intr`` is None)."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim == 2:
+        rgb = np.repeat(rgb[..., None], 3, axis=2)
+    if rgb.ndim != 3 or rgb.shape[2] not in (3, 4) or rgb.dtype != np.uint8:
+        raise InputError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    rgb = np.ascontiguousarray(rgb[..., :3])
+    h, w = rgb.shape[:2]
+    intr = (
+        Intrinsics.from_fov(w, h, 60.0)
+        if intr is None
+        else intr.scaled(w, h)
+        if (intr.width, intr.height) != (w, h)
+        else intr
+    )
+    try:
+        return view.warp(rgb, intr, distance)
+    except LayoutError as e:
+        raise InputError(str(e)) from None
+
+
+def board_rows(seq: Any, i: int, view: CanonicalView, slots: int) -> tuple[np.ndarray, list[float]]:
+    """Slot anchors ``(R,)`` (canonical rows of the slots' board edges, NaN = no slot) and every visible board's row."""
+    rec = seq.frame(i)
+    cam_y = float(rec["camera_position"][1])
+    anchors = np.full(slots, np.nan, np.float32)
+    for r, s in enumerate(rec.get("slots", [])[:slots]):
+        anchors[r] = float(view.row_of(float(s["board_top_y"]) - cam_y))
+    rows = [float(view.row_of(y - cam_y)) for y in _visible_board_ys(seq)]
+    rows = rows or [float(a) for a in anchors if np.isfinite(a)]
+    return anchors, rows
+
+
+def _visible_board_ys(seq: Any) -> list[float]:
+    """Board-top Y of every visible level of a generated sequence (all frames share them); [] if unknown."""
+    cached = getattr(seq, "_mvracklay_board_ys", None)
+    if cached is not None:
+        return cached
+    ys: list[float] = []
+    try:
+        levels = seq.meta["visible_levels"]
+        shelves = seq.scene()["racks"][0]["shelves"]
+        ys = [float(shelves[k]["board_top_y"]) for k in levels]
+    except (AttributeError, KeyError, IndexError, TypeError, ValueError):
+        ys = []
+    try:
+        seq._mvracklay_board_ys = ys
+    except AttributeError:
+        pass
+    return ys
+
+
+def row_target(rows: list[float], height: int, sigma: float = ROW_SIGMA) -> np.ndarray:
+    """float32 ``(height,)``: a Gaussian bump (peak 1) at each continuous canonical row in ``rows``."""
+    centres = np.arange(height, dtype=np.float32) + 0.5
+    t = np.zeros(height, np.float32)
+    for r in rows:
+        t = np.maximum(t, np.exp(-0.5 * ((centres - r) / sigma) ** 2))
+    return t
 
 
 def resize_image(rgb: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -64,6 +155,11 @@ def resample_layout(stack: np.ndarray, size: int) -> np.ndarray:
     r, d, _ = stack.shape
     if d == size:
         return stack
+    if d > size and d % size == 0:  # integer factor: count classes per block in numpy (fast)
+        f = d // size
+        blocks = stack.reshape(r, size, f, size, f)
+        counts = np.stack([(blocks == c).sum((2, 4)) for c in range(NUM_CLASSES)], -1).astype(np.int32)
+        return (counts * NUM_CLASSES + np.arange(NUM_CLASSES)).argmax(-1).astype(np.uint8)
     onehot = F.one_hot(torch.from_numpy(stack.astype(np.int64)), NUM_CLASSES).permute(0, 3, 1, 2).float()
     mode = "area" if size < d else "nearest"
     cover = F.interpolate(onehot, size=(size, size), mode=mode)
@@ -118,6 +214,7 @@ class WindowDataset(torch.utils.data.Dataset):
         self.seq_len = seq_len
         self.width, self.height = input_size
         self.spec = spec
+        self.view = CanonicalView(self.width, self.height, spec.x_extent)
         self.augment = augment
         self.seed = seed
         self.epoch = 0
@@ -141,24 +238,29 @@ class WindowDataset(torch.utils.data.Dataset):
     def frame_ids(self, t: int) -> list[int]:
         return [max(0, t - self.seq_len + 1 + k) for k in range(self.seq_len)]
 
-    def _frame(self, seq: SequenceLike, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        img = resize_image(seq.rgb(i), self.width, self.height)
+    def _frame(self, seq: SequenceLike, i: int) -> dict[str, np.ndarray]:
+        intr, dist = frame_camera(seq, i)
+        img = canonical_image(seq.rgb(i), self.view, intr, dist)
         lay = seq.layouts(i)
         d = self.spec.size
-        top = resample_layout(lay.top, d)
-        front = resample_layout(lay.front, d)
-        vis = np.ones(d, bool) if lay.visible is None else resample_columns(lay.visible, d)
-        return img, top, front, vis
+        anchors, rows = board_rows(seq, i, self.view, self.spec.num_slots)
+        return {
+            "images": img,
+            "top": resample_layout(lay.top, d),
+            "front": resample_layout(lay.front, d),
+            "visible": np.ones(d, bool) if lay.visible is None else resample_columns(lay.visible, d),
+            "anchors": anchors,
+            "rows": row_target(rows, self.height),
+        }
 
     def __getitem__(self, idx: int) -> dict[str, Any]:
         si, t = self.index[idx]
         seq = self.sequences[si]
         ids = self.frame_ids(t)
         frames = [self._frame(seq, i) for i in ids]
-        imgs = np.stack([f[0] for f in frames]).astype(np.float32)
-        top = np.stack([f[1] for f in frames])
-        front = np.stack([f[2] for f in frames])
-        vis = np.stack([f[3] for f in frames])
+        st = {k: np.stack([f[k] for f in frames]) for k in frames[0]}
+        imgs = st["images"].astype(np.float32)
+        top, front, vis, anchors = st["top"], st["front"], st["visible"], st["anchors"]
         cam_x = self._cam_x[si][ids].astype(np.float32)
         flipped = False
         if self.augment:
@@ -169,6 +271,7 @@ class WindowDataset(torch.utils.data.Dataset):
                 imgs = imgs[:, :, ::-1]
                 top, front, vis = top[..., ::-1], front[..., ::-1], vis[:, ::-1]
                 cam_x = -cam_x
+            anchors = anchors + rng.uniform(-ANCHOR_JITTER, ANCHOR_JITTER, size=anchors.shape).astype(np.float32)
         images = torch.from_numpy(np.ascontiguousarray(imgs)).div_(255.0).permute(0, 3, 1, 2).contiguous()
         return {
             "images": images,
@@ -176,6 +279,8 @@ class WindowDataset(torch.utils.data.Dataset):
             "front": torch.from_numpy(np.ascontiguousarray(front).astype(np.int64)),
             "visible": torch.from_numpy(np.ascontiguousarray(vis)),
             "cam_x": torch.from_numpy(np.ascontiguousarray(cam_x)),
+            "anchors": torch.from_numpy(np.ascontiguousarray(anchors, dtype=np.float32)),
+            "rows": torch.from_numpy(np.ascontiguousarray(st["rows"])),
             "flipped": flipped,
         }
 

@@ -11,12 +11,13 @@ import math
 from typing import Any
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, check_spec_compatible
-from network.infer import Predictor, frame_layouts
+from network.infer import Predictor, frame_layouts, sequence_camera
 from network.model import MVRackLay
 
 
@@ -29,8 +30,8 @@ def evaluate_sequences(
     progress: bool = True,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode}`` over the given sequences."""
-    pred = Predictor(model)
     scorer = FrameScorer()
+    slots_right = 0
     total = sum(s.num_frames if max_frames is None else min(s.num_frames, max_frames) for s in sequences)
     bar = tqdm(total=total, desc=f"evaluate ({mode})", unit="frame", disable=not progress, leave=False)
     frames = 0
@@ -38,12 +39,16 @@ def evaluate_sequences(
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
         d = seq.spec.size
+        pred = Predictor(model, sequence_camera(seq))
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
-            scorer.update(frame_layouts(out, d), seq.layouts(i))
+            gt = seq.layouts(i)
+            scorer.update(frame_layouts(out, d), gt)
+            found = int(torch.isfinite(out["anchors"]).sum())
+            slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
             frames += 1
             bar.update(1)
     bar.close()
-    return {**scorer.result(), "frames": frames, "mode": mode}
+    return {**scorer.result(), "frames": frames, "mode": mode, "slot_count_accuracy": slots_right / max(frames, 1)}
 
 
 def score(result: dict[str, Any], part: str = "visible") -> float:

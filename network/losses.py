@@ -12,16 +12,26 @@ from layouts import BOX, LayoutSpec
 
 
 def supervised_loss(
-    logits: torch.Tensor, target: torch.Tensor, class_weights: torch.Tensor | None = None, dice_weight: float = 0.0
+    logits: torch.Tensor,
+    target: torch.Tensor,
+    class_weights: torch.Tensor | None = None,
+    dice_weight: float = 0.0,
+    valid: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Per-pixel cross entropy over every shelf slot (optionally class-weighted) + soft Dice on boxes.
 
-    The Dice term (weight ``dice_weight``) is computed per slot over the window's frames, so
-    a slot with few box pixels still pulls as hard as a crowded one.
+    ``valid`` ``(B, T, R)`` keeps only the slots that exist (a slot without a shelf is background
+    by construction and teaches nothing). The Dice term (weight ``dice_weight``) is computed per
+    slot, so a slot with few box pixels still pulls as hard as a crowded one.
     """
     c = logits.shape[-3]
     flat = logits.reshape(-1, c, *logits.shape[-2:])
     tgt = target.reshape(-1, *target.shape[-2:])
+    if valid is not None:
+        keep = valid.reshape(-1)
+        if not bool(keep.any()):
+            return logits.sum() * 0.0
+        flat, tgt = flat[keep], tgt[keep]
     loss = F.cross_entropy(flat, tgt, weight=class_weights)
     if dice_weight > 0:
         p = flat.softmax(1)[:, BOX]
@@ -33,6 +43,16 @@ def supervised_loss(
             dice = 1 - (2 * inter[has] + 1) / (denom[has] + 1)
             loss = loss + dice_weight * dice.mean()
     return loss
+
+
+def row_loss(logits: torch.Tensor, target: torch.Tensor, peak_weight: float = 9.0) -> torch.Tensor:
+    """Binary cross entropy of the row head against its Gaussian board bumps, rows near a board weighted up.
+
+    Boards are a few rows in a hundred; weighting by ``1 + peak_weight * target`` keeps the head
+    from settling on "no board anywhere".
+    """
+    w = 1.0 + peak_weight * target
+    return F.binary_cross_entropy_with_logits(logits, target, weight=w, reduction="sum") / w.sum()
 
 
 def column_shifts(cam_x: torch.Tensor, spec: LayoutSpec, j: int, k: int) -> torch.Tensor:

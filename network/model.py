@@ -1,23 +1,34 @@
-"""The MVRackLay network: ResNet-18 encoder, stacked ConvLSTM, top/front decoders, discriminators.
+"""The MVRackLay network: ResNet-18 encoder, stacked ConvLSTM, shelf-anchored top/front decoders, discriminators.
 
-Data flow per frame: image -> ResNet-18 (1/8, 1/16, 1/32 feature maps) -> the 1/32 map goes
-through the stacked ConvLSTM (carrying context across the window) -> per view, a *column
-transform* collapses each feature column's vertical axis into a new vertical axis (a learned
-1x1 convolution over channels x rows, shared by all columns) -> an upsampling decoder with skip
-connections from the 1/16 and 1/8 maps -> ``R x 3`` class logits at ``D x D``. Image columns
-stay aligned with layout X throughout (nothing mixes columns except local convolutions), which
-is what lets it train quickly; the vertical mapping (image rows -> depth or height above a
-shelf board) is learned per view. With ``fine_skip`` (the default for new models) a fourth
-column transform brings in the 1/4 map, which sharpens box edges along X. With
-``temporal_residual`` (also the default) the ConvLSTM adds a zero-initialised correction to the
-single-frame block, so a sequence model can start from trained ``racklay`` weights.
+Input is a *canonical* image (`layouts.canonical.CanonicalView`): whatever the camera, pixels are
+squares of ``x_extent / width`` metres on the rack front plane, centred on the optical axis, so
+image column j covers the X interval of layout column j and a board at height Y sits on a row
+fixed by Y alone. Data flow per frame:
+
+    image -> ResNet-18 (1/2 ... 1/32 maps) -> the 1/32 map through the temporal block (a stacked
+    ConvLSTM over the window, or one convolution for ``racklay``) -> a feature pyramid down to
+    1/2 -> a *row head* scores every canonical row for "the top edge of a visible shelf board's
+    front" -> the lowest R boards anchor the R shelf slots -> per slot, features are sampled along
+    the slot's own rows (bilinear): the front view's rows are heights above the board, so its
+    window is a resampled strip of the image; the top view's rows are depths, mapped from a band
+    of image rows around the board by a learned per-column transform -> small convolutional heads
+    -> ``R x 3`` class logits at D x D per view.
+
+Anchoring every slot on its board makes the decoders' job the same wherever the shelf appears in
+the image (camera height, shelf spacing and distance all vary): the part a plain decoder spends
+most of its training on. Nothing mixes image columns except local convolutions, so X stays
+aligned. During training the anchors come from the ground truth (with jitter); at inference from
+the row head. A slot without an anchor is background.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
-(no discriminators) and ``racklay`` (single frame, a plain convolution in place of the ConvLSTM).
+(no discriminators) and ``racklay`` (single frame). With ``temporal_residual`` (the default) the
+ConvLSTM adds a zero-initialised correction to the single-frame block, so a sequence model can
+start from trained ``racklay`` weights.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -26,6 +37,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
+from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.convlstm import ResidualConvLSTM, StackedConvLSTM, State
 from network.resnet import ResNet18Encoder
@@ -38,14 +50,23 @@ VARIANTS: dict[str, tuple[int, bool, bool]] = {
     "racklay": (1, False, True),
 }
 DEFAULT_VARIANT = "mvracklay-disc-4"
+#: the decoder design; records of other designs are refused with a line saying so
+ARCH = "anchored"
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
+#: the top view's band of image rows around a board: this far above the front window, and below the board (metres)
+BAND_ABOVE = 0.15
+BAND_BELOW = 0.30
+#: row head decoding: probability threshold and the least distance between two boards (metres)
+ROW_THRESHOLD = 0.5
+MIN_BOARD_GAP = 0.35
+
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Everything needed to rebuild a model: variant, input size, layout spec and widths."""
+    """Everything needed to rebuild a model: variant, canonical input size, layout spec and widths."""
 
     variant: str = DEFAULT_VARIANT
     input_width: int = 128
@@ -55,25 +76,30 @@ class ModelConfig:
     hidden: int = 128  #: ConvLSTM channels
     lstm_layers: int = 2
     decoder_width: int = 32
-    fine_skip: bool = True  #: also feed the 1/4 encoder map to the decoders (sharper box edges)
     temporal_residual: bool = True  #: ConvLSTM as a zero-initialised correction to the single-frame block
+    arch: str = ARCH
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise InputError(f"unknown variant {self.variant!r}; choose from {sorted(VARIANTS)}")
+        if self.arch != ARCH:
+            raise InputError(f"decoder design {self.arch!r} is not supported by this version (it builds {ARCH!r})")
         for name in ("input_width", "input_height"):
             v = getattr(self, name)
-            if not isinstance(v, int) or v < 32 or v % 32:
+            if not isinstance(v, int) or isinstance(v, bool) or v < 32 or v % 32:
                 raise InputError(f"{name} must be a positive multiple of 32, got {v!r}")
         for name in ("encoder_width", "hidden", "lstm_layers", "decoder_width"):
             v = getattr(self, name)
-            if not isinstance(v, int) or v < 1:
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
-        for name in ("fine_skip", "temporal_residual"):
-            if not isinstance(getattr(self, name), bool):
-                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if self.decoder_width < 4:
+            raise InputError(f"decoder_width must be >= 4, got {self.decoder_width}")
+        if not isinstance(self.temporal_residual, bool):
+            raise InputError(f"temporal_residual must be true or false, got {self.temporal_residual!r}")
         if not isinstance(self.spec, LayoutSpec):
             raise InputError(f"spec must be a LayoutSpec, got {type(self.spec).__name__}")
+        if self.spec.size < 8 or self.spec.size % 2:
+            raise InputError(f"layout size D must be an even number >= 8 for the model, got {self.spec.size}")
         if not self.use_lstm:  # no ConvLSTM, nothing to be residual: one spelling, so configs compare equal
             object.__setattr__(self, "temporal_residual", False)
 
@@ -89,6 +115,11 @@ class ModelConfig:
     def use_disc(self) -> bool:
         return VARIANTS[self.variant][2]
 
+    @property
+    def view(self) -> CanonicalView:
+        """The canonical image geometry the model reads: input size over the layouts' X extent."""
+        return CanonicalView(self.input_width, self.input_height, self.spec.x_extent)
+
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["spec"] = self.spec.to_dict()
@@ -99,14 +130,17 @@ class ModelConfig:
         if not isinstance(d, dict):
             raise InputError(f"{source}: model config must be a JSON object")
         d = dict(d)
+        if d.get("arch") != ARCH:
+            raise InputError(
+                f"{source}: written for an earlier decoder design ({d.get('arch', 'column transform')!r}); "
+                f"this version builds {ARCH!r}: retrain, or use the weights shipped with this version"
+            )
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
             raise InputError(f"{source}: unknown model config keys {unknown}")
         if "spec" in d:
             d["spec"] = LayoutSpec.from_dict(d["spec"], f"{source} (spec)")
-        d.setdefault("fine_skip", False)  # records written before the 1/4 skip existed
-        d.setdefault("temporal_residual", False)  # ... and before the residual ConvLSTM
         try:
             return cls(**d)
         except (TypeError, InputError) as e:
@@ -120,11 +154,17 @@ def _conv_bn_relu(cin: int, cout: int, k: int = 3) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(cin, cout, k, padding=k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(True))
 
 
+def _up(x: torch.Tensor, like: torch.Tensor | None = None) -> torch.Tensor:
+    if like is not None:
+        return F.interpolate(x, size=like.shape[-2:], mode="nearest")
+    return F.interpolate(x, scale_factor=2.0, mode="nearest")
+
+
 class ColumnTransform(nn.Module):
     """``(N, C, h, w) -> (N, cout, rows, w)``: per image column, channels x rows -> cout x rows'.
 
     A 1x1 convolution on the column-stacked features: every column gets the same learned
-    mapping from image rows to layout rows, and columns never mix (X stays aligned).
+    mapping from (slot-anchored) image rows to layout rows, and columns never mix (X stays aligned).
     """
 
     def __init__(self, cin: int, hin: int, cout: int, rows: int) -> None:
@@ -140,46 +180,173 @@ class ColumnTransform(nn.Module):
         return y.reshape(n, self.cout, self.rows, w)
 
 
-#: Encoder features of a batch of frames: the 1/4, 1/8 and 1/16 maps and the reduced 1/32 map.
-Features = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+#: Encoder features of a batch of frames: the 1/2 (stem), 1/4, 1/8, 1/16 maps and the reduced 1/32 map.
+Features = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
 
 
-class ViewDecoder(nn.Module):
-    """One view's decoder: column transforms of three (four with ``fine_skip``) scales, upsampling,
-    ``R x 3`` logits at D x D."""
+class Pyramid(nn.Module):
+    """Top-down feature pyramid from the temporal 1/32 map to a 1/4 map (``2 dw`` channels) and a 1/2 map."""
 
-    def __init__(self, cfg: ModelConfig, c2: int, c3: int, c4: int) -> None:
+    def __init__(self, cfg: ModelConfig, c1: int, c2: int, c3: int, c4: int) -> None:
         super().__init__()
-        h, w = cfg.input_height, cfg.input_width
-        w5 = w // 32
-        dw = cfg.decoder_width
-        self.t5 = ColumnTransform(cfg.hidden, h // 32, 4 * dw, w5)
-        self.t4 = ColumnTransform(c4, h // 16, 2 * dw, 2 * w5)
-        self.t3 = ColumnTransform(c3, h // 8, dw, 4 * w5)
-        fine = max(dw // 2, 1)
-        self.t2 = ColumnTransform(c2, h // 4, fine, 8 * w5) if cfg.fine_skip else None
-        self.b4 = _conv_bn_relu(6 * dw, 2 * dw)
-        self.b3 = _conv_bn_relu(3 * dw, dw)
-        self.b2 = _conv_bn_relu(dw + (fine if cfg.fine_skip else 0), dw)
-        self.b1 = _conv_bn_relu(dw, dw)
-        self.out = nn.Conv2d(dw, cfg.spec.num_slots * NUM_CLASSES, 1)
-        self.size = cfg.spec.size
-        self.slots = cfg.spec.num_slots
+        f = 2 * cfg.decoder_width
+        self.lat5 = _conv_bn_relu(cfg.hidden, f, 1)
+        self.lat4 = _conv_bn_relu(c4, f, 1)
+        self.lat3 = _conv_bn_relu(c3, f, 1)
+        self.lat2 = _conv_bn_relu(c2, f, 1)
+        self.m4 = _conv_bn_relu(f, f)
+        self.m3 = _conv_bn_relu(f, f)
+        self.m2 = _conv_bn_relu(f, f)
+        self.fine_in = _conv_bn_relu(f, self.fine_channels(cfg), 1)
+        self.m1 = _conv_bn_relu(self.fine_channels(cfg) + c1, self.fine_channels(cfg))
+        self.channels = (self.fine_channels(cfg), f)
 
-    def forward(self, feats: Features) -> torch.Tensor:
-        f2, f3, f4, f5 = feats
-        up = lambda t: F.interpolate(t, scale_factor=2.0, mode="nearest")  # noqa: E731
-        x = self.t5(f5)
-        x = self.b4(torch.cat([up(x), self.t4(f4)], 1))
-        x = self.b3(torch.cat([up(x), self.t3(f3)], 1))
-        x = up(x)
-        if self.t2 is not None:
-            x = torch.cat([x, self.t2(f2)], 1)
-        x = self.b1(up(self.b2(x)))
-        x = self.out(x)
-        if x.shape[-1] != self.size or x.shape[-2] != self.size:
-            x = F.interpolate(x, size=(self.size, self.size), mode="bilinear", align_corners=False)
-        return x.reshape(x.shape[0], self.slots, NUM_CLASSES, self.size, self.size)
+    @staticmethod
+    def fine_channels(cfg: ModelConfig) -> int:
+        return max(cfg.decoder_width // 2, 4)
+
+    def forward(self, feats: Features, t5: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        s1, f2, f3, f4, _ = feats
+        p = self.lat5(t5)
+        p = self.m4(_up(p, f4) + self.lat4(f4))
+        p = self.m3(_up(p, f3) + self.lat3(f3))
+        p2 = self.m2(_up(p, f2) + self.lat2(f2))
+        p1 = self.m1(torch.cat([_up(self.fine_in(p2), s1), s1], 1))
+        return p1, p2
+
+
+class RowHead(nn.Module):
+    """Logits ``(N, H)`` over canonical rows: does the top edge of a visible shelf board's front lie here?
+
+    Boards are horizontal in the canonical image (the camera does not roll), so the evidence is
+    pooled across columns (mean and max) and reasoned about along the rows.
+    """
+
+    def __init__(self, c1: int, c2: int, height: int) -> None:
+        super().__init__()
+        self.height = height
+        cin = 2 * (c1 + c2)
+        w = 64
+        self.net = nn.Sequential(
+            nn.Conv1d(cin, w, 5, padding=2, bias=False),
+            nn.BatchNorm1d(w),
+            nn.ReLU(True),
+            nn.Conv1d(w, w, 5, padding=4, dilation=2, bias=False),
+            nn.BatchNorm1d(w),
+            nn.ReLU(True),
+            nn.Conv1d(w, w, 5, padding=8, dilation=4, bias=False),
+            nn.BatchNorm1d(w),
+            nn.ReLU(True),
+            nn.Conv1d(w, 2, 1),
+        )
+        with torch.no_grad():  # start at a low board probability everywhere (boards are rare rows)
+            self.net[-1].bias.fill_(-3.0)
+
+    def forward(self, p1: torch.Tensor, p2: torch.Tensor) -> torch.Tensor:
+        a = torch.cat([p1.mean(-1), p1.amax(-1)], 1)  # (N, 2 c1, H/2)
+        b = torch.cat([p2.mean(-1), p2.amax(-1)], 1)  # (N, 2 c2, H/4)
+        b = F.interpolate(b, size=a.shape[-1], mode="linear", align_corners=False)
+        y = self.net(torch.cat([a, b], 1))  # (N, 2, H/2): two canonical rows per 1/2-map row
+        return y.transpose(1, 2).reshape(y.shape[0], -1)[:, : self.height]
+
+
+def anchors_from_rows(
+    logits: torch.Tensor, view: CanonicalView, slots: int, threshold: float = ROW_THRESHOLD
+) -> torch.Tensor:
+    """Decode row-head logits ``(N, H)`` into slot anchors ``(N, R)``: continuous canonical rows, NaN = no slot.
+
+    Peaks above ``threshold`` at least `MIN_BOARD_GAP` apart (strongest first), each refined to
+    the probability-weighted centre of its +-2 rows; the lowest R (largest rows) become slots 0..R-1.
+    """
+    p = torch.sigmoid(logits.detach().float()).cpu()
+    n, h = p.shape
+    gap = MIN_BOARD_GAP / view.metres_per_pixel
+    out = torch.full((n, slots), float("nan"))
+    left = F.pad(p, (1, 0), value=-1.0)[:, :-1]
+    right = F.pad(p, (0, 1), value=-1.0)[:, 1:]
+    peak = (p >= left) & (p > right) & (p > threshold)
+    idx = torch.arange(h, dtype=torch.float32)
+    for i in range(n):
+        cand = torch.nonzero(peak[i]).flatten().tolist()
+        cand.sort(key=lambda r: -float(p[i, r]))
+        kept: list[float] = []
+        for r in cand:
+            lo, hi = max(0, r - 2), min(h, r + 3)
+            w = p[i, lo:hi]
+            c = float((w * idx[lo:hi]).sum() / w.sum()) + 0.5
+            if all(abs(c - k) >= gap for k in kept):
+                kept.append(c)
+        kept.sort(reverse=True)
+        for s, c in enumerate(kept[:slots]):
+            out[i, s] = c
+    return out.to(logits.device)
+
+
+class SlotHeads(nn.Module):
+    """Both views of every shelf slot from pyramid features sampled along the slot's anchor row."""
+
+    def __init__(self, cfg: ModelConfig, c1: int, c2: int) -> None:
+        super().__init__()
+        spec, view = cfg.spec, cfg.view
+        self.view, self.spec = view, spec
+        d, dw = spec.size, cfg.decoder_width
+        self.dc = d // 2
+        m = view.metres_per_pixel
+        band = spec.h_extent + BAND_ABOVE + BAND_BELOW
+        self.band_rows = max(4, math.ceil(1.3 * band / (4 * m)))  # ~1.3 samples per 1/4-map row
+        cs = dw
+        self.reduce = _conv_bn_relu(c2, cs, 1)
+        self.col = ColumnTransform(cs, self.band_rows, dw, self.dc)
+        self.front_c = nn.Sequential(_conv_bn_relu(cs + 1, dw), _conv_bn_relu(dw, dw))
+        self.top_c = nn.Sequential(_conv_bn_relu(dw + 1, dw), _conv_bn_relu(dw, dw))
+        half = max(dw // 2, 4)
+        self.front_f = nn.Sequential(_conv_bn_relu(dw + c1, half), nn.Conv2d(half, NUM_CLASSES, 1))
+        self.top_f = nn.Sequential(_conv_bn_relu(dw + c1, half), nn.Conv2d(half, NUM_CLASSES, 1))
+        # front-window heights (row 0 = top) and the top view's band, as offsets in canonical rows
+        self.register_buffer("front_coarse", self._heights(self.dc), persistent=False)
+        self.register_buffer("front_fine", self._heights(d), persistent=False)
+        k = torch.arange(self.band_rows, dtype=torch.float32)
+        band_off = (-(spec.h_extent + BAND_ABOVE) + (k + 0.5) / self.band_rows * band) / m
+        self.register_buffer("band", band_off, persistent=False)
+
+    def _heights(self, n: int) -> torch.Tensor:
+        h = (n - torch.arange(n, dtype=torch.float32) - 0.5) / n * self.spec.h_extent
+        return -h / self.view.metres_per_pixel
+
+    def _sample(self, fmap: torch.Tensor, anchors: torch.Tensor, offsets: torch.Tensor, cols: int) -> torch.Tensor:
+        """``(N, C, h, w)`` sampled at rows ``anchor + offset`` x ``cols`` even columns -> ``(N*R, C, rows, cols)``."""
+        n, r = anchors.shape
+        rows = offsets.numel()
+        y = (anchors[:, :, None] + offsets[None, None, :]) * (2.0 / self.view.height) - 1.0  # (N, R, rows)
+        x = (torch.arange(cols, device=fmap.device, dtype=fmap.dtype) + 0.5) * (2.0 / cols) - 1.0
+        grid = torch.stack(
+            [x.view(1, 1, 1, cols).expand(n, r, rows, cols), y[..., None].expand(n, r, rows, cols)], -1
+        ).reshape(n, r * rows, cols, 2)
+        s = F.grid_sample(fmap, grid.to(fmap.dtype), mode="bilinear", padding_mode="zeros", align_corners=False)
+        c = fmap.shape[1]
+        return s.view(n, c, r, rows, cols).transpose(1, 2).reshape(n * r, c, rows, cols)
+
+    def forward(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> dict[str, torch.Tensor]:
+        n, r = anchors.shape
+        d, dc = self.spec.size, self.dc
+        valid = torch.isfinite(anchors)
+        a = torch.where(valid, anchors, torch.full_like(anchors, self.view.height / 2)).to(p2.dtype)
+        elev = (a.reshape(n * r, 1, 1, 1) - self.view.height / 2) * (self.view.metres_per_pixel / 1.5)
+        q = self.reduce(p2)
+        fc = self._sample(q, a, self.front_coarse, dc)
+        fc = self.front_c(torch.cat([fc, elev.expand(-1, 1, dc, dc)], 1))
+        tb = self.col(self._sample(q, a, self.band, dc))
+        tc = self.top_c(torch.cat([tb, elev.expand(-1, 1, dc, dc)], 1))
+        ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
+        front = self.front_f(torch.cat([_up(fc), ff], 1))
+        edges = ff.amax(2, keepdim=True).expand(-1, -1, d, -1)  # the front face's X evidence, along depth
+        top = self.top_f(torch.cat([_up(tc), edges], 1))
+        out = {}
+        bg = torch.tensor([8.0] + [-8.0] * (NUM_CLASSES - 1), device=p2.device, dtype=front.dtype)
+        for name, o in (("top", top), ("front", front)):
+            o = o.view(n, r, NUM_CLASSES, d, d)
+            out[name] = torch.where(valid[:, :, None, None, None], o, bg.view(1, 1, -1, 1, 1))
+        return out
 
 
 class PatchDiscriminator(nn.Module):
@@ -205,11 +372,12 @@ class PatchDiscriminator(nn.Module):
 
 
 class MVRackLay(nn.Module):
-    """Encoder + (Conv)LSTM temporal block + one decoder per view.
+    """Encoder + (Conv)LSTM temporal block + pyramid + row head + shelf-anchored decoders.
 
-    `forward` takes a window ``(B, T, 3, H, W)`` of float images in [0, 1] and returns
-    ``{"top": (B, T, R, 3, D, D), "front": ...}`` logits for every frame of the window.
-    `step` is the streaming form: one frame in, its logits and the carried state out.
+    `forward` takes a window ``(B, T, 3, H, W)`` of canonical float images in [0, 1] (and, in
+    training, the ground-truth anchors ``(B, T, R)``) and returns ``{"top", "front": (B, T, R, 3, D,
+    D) logits, "rows": (B, T, H) row-head logits, "anchors": (B, T, R)}``. `step` is the
+    streaming form: one frame in, its outputs and the carried state out.
     """
 
     def __init__(self, cfg: ModelConfig) -> None:
@@ -225,7 +393,10 @@ class MVRackLay(nn.Module):
             self.temporal = StackedConvLSTM(cfg.hidden, cfg.hidden, cfg.lstm_layers)
         else:
             self.temporal = _conv_bn_relu(cfg.hidden, cfg.hidden)
-        self.decoders = nn.ModuleDict({v: ViewDecoder(cfg, c2, c3, c4) for v in VIEWS})
+        self.pyramid = Pyramid(cfg, c2, c2, c3, c4)  # the stem has the width of layer1
+        fine, coarse = self.pyramid.channels
+        self.rows = RowHead(fine, coarse, cfg.input_height)
+        self.slots = SlotHeads(cfg, fine, coarse)
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -235,14 +406,10 @@ class MVRackLay(nn.Module):
             raise InputError(f"model expects images of {self.cfg.input_width}x{self.cfg.input_height}, got {w}x{h}")
 
     def encode(self, x: torch.Tensor) -> Features:
-        """Encoder features of frames ``(N, 3, H, W)``: (1/4, 1/8, 1/16, reduced 1/32)."""
+        """Encoder features of frames ``(N, 3, H, W)``: (1/2, 1/4, 1/8, 1/16, reduced 1/32)."""
         self._check(x)
-        f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
-        return f2, f3, f4, self.reduce(f5)
-
-    def decode(self, feats: Features) -> dict[str, torch.Tensor]:
-        """Per-view logits from encoder features whose 1/32 map has passed the temporal block."""
-        return {v: self.decoders[v](feats) for v in VIEWS}
+        s1, f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
+        return s1, f2, f3, f4, self.reduce(f5)
 
     def temporal_window(self, f5: torch.Tensor) -> torch.Tensor:
         """The temporal block over a window ``(B, T, C, h, w)`` of reduced 1/32 maps, same shape out."""
@@ -250,23 +417,38 @@ class MVRackLay(nn.Module):
             return self.temporal(f5)[0]
         return self.temporal(f5.flatten(0, 1)).unflatten(0, f5.shape[:2])
 
-    def forward(self, images: torch.Tensor) -> dict[str, torch.Tensor]:
+    def decode(self, feats: Features, t5: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Outputs from encoder features and the temporal 1/32 map; anchors ``(N, R)`` or None (row head's)."""
+        p1, p2 = self.pyramid(feats, t5)
+        rows = self.rows(p1, p2)
+        if anchors is None:
+            anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
+        out = self.slots(p1, p2, anchors)
+        out["rows"] = rows
+        out["anchors"] = anchors
+        return out
+
+    def forward(self, images: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
         b, t = images.shape[:2]
-        f2, f3, f4, f5 = self.encode(images.flatten(0, 1))
-        f5 = self.temporal_window(f5.unflatten(0, (b, t))).flatten(0, 1)
-        out = self.decode((f2, f3, f4, f5))
-        return {v: o.unflatten(0, (b, t)) for v, o in out.items()}
+        if anchors is not None and tuple(anchors.shape) != (b, t, self.cfg.spec.num_slots):
+            raise InputError(f"anchors must have shape {(b, t, self.cfg.spec.num_slots)}, got {tuple(anchors.shape)}")
+        feats = self.encode(images.flatten(0, 1))
+        t5 = self.temporal_window(feats[4].unflatten(0, (b, t))).flatten(0, 1)
+        out = self.decode(feats, t5, None if anchors is None else anchors.flatten(0, 1))
+        return {k: o.unflatten(0, (b, t)) for k, o in out.items()}
 
-    def step(self, image: torch.Tensor, state: State | None = None) -> tuple[dict[str, torch.Tensor], State | None]:
-        """Streaming: one frame ``(B, 3, H, W)``; returns ``{view: (B, R, 3, D, D)}`` and the new state."""
-        f2, f3, f4, f5 = self.encode(image)
+    def step(
+        self, image: torch.Tensor, state: State | None = None, anchors: torch.Tensor | None = None
+    ) -> tuple[dict[str, torch.Tensor], State | None]:
+        """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state."""
+        feats = self.encode(image)
         if self.cfg.use_lstm:
-            f5, state = self.temporal.step(f5, state)
+            t5, state = self.temporal.step(feats[4], state)
         else:
-            f5 = self.temporal(f5)
-        return self.decode((f2, f3, f4, f5)), state
+            t5 = self.temporal(feats[4])
+        return self.decode(feats, t5, anchors), state
 
 
 def build_discriminators(cfg: ModelConfig) -> nn.ModuleDict | None:

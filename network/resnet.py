@@ -39,7 +39,7 @@ class BasicBlock(nn.Module):
 
 
 class ResNet18Encoder(nn.Module):
-    """ResNet-18 without the classifier: returns the 1/4, 1/8, 1/16 and 1/32 feature maps."""
+    """ResNet-18 without the classifier: returns the 1/2 (stem), 1/4, 1/8, 1/16 and 1/32 feature maps."""
 
     def __init__(self, width: int = 64) -> None:
         super().__init__()
@@ -63,14 +63,14 @@ class ResNet18Encoder(nn.Module):
                 nn.init.ones_(m.weight)
                 nn.init.zeros_(m.bias)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Feature maps at 1/4, 1/8, 1/16 and 1/32 of the input."""
-        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
-        c2 = self.layer1(x)
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Feature maps at 1/2 (the stem, ``width`` channels), 1/4, 1/8, 1/16 and 1/32 of the input."""
+        c1 = self.relu(self.bn1(self.conv1(x)))
+        c2 = self.layer1(self.maxpool(c1))
         c3 = self.layer2(c2)
         c4 = self.layer3(c3)
         c5 = self.layer4(c4)
-        return c2, c3, c4, c5
+        return c1, c2, c3, c4, c5
 
 
 def load_imagenet_weights(encoder: ResNet18Encoder, path: str | os.PathLike) -> None:

@@ -1,9 +1,10 @@
 """A tiny in-memory sequence with exact ground truth, for tests and smoke checks without data.
 
 A 1D "world" of racks (shelf), gaps (background) and boxes along X is seen by a camera moving
-along X; each frame's layouts are the world's columns around the camera, and its image paints
-each layout column's class as a colour band per shelf slot (plus noise). It has the
-`waresynth.dataset.Sequence` members the network reads.
+along X; each frame's layouts are the world's columns around the camera, and its image paints,
+above a grey board line per shelf slot, each layout column's class as a colour band (plus
+noise). The board lines sit where the frame records (``frame(i)["slots"]``) put them for its
+60 degree camera at 2.6 m. It has the `waresynth.dataset.Sequence` members the network reads.
 """
 
 from __future__ import annotations
@@ -17,6 +18,9 @@ from layouts import BOX, SHELF, Intrinsics, LayoutSpec
 from layouts.codecs import FrameLayouts
 
 _COLOURS = np.array([[40, 40, 40], [70, 130, 220], [240, 160, 40]], np.float32)
+_BOARD = np.array([160, 160, 160], np.float32)
+_DISTANCE = 2.6
+_CAM_Y = -1.0
 
 
 class ToySequence:
@@ -72,19 +76,37 @@ class ToySequence:
         front[:, d // 2 :, :][np.broadcast_to(box[:, None, :], (self.spec.num_slots, d - d // 2, d))] = BOX
         return FrameLayouts(top, front, np.ones(d, bool))
 
+    def board_rows(self) -> list[int]:
+        """Source image row of each slot's board line (slot 0 lowest)."""
+        r, h = self.spec.num_slots, self.height
+        return [int(round(h * (0.9 - k * 0.8 / r))) for k in range(r)]
+
     def rgb(self, i: int) -> np.ndarray:
         d, r = self.spec.size, self.spec.num_slots
         cols = self._cols(i)
         u = np.minimum((np.arange(self.width) * d) // self.width, d - 1)
-        band = np.minimum((np.arange(self.height) * r) // self.height, r - 1)[::-1]  # lowest slot at the bottom
-        img = _COLOURS[cols[band][:, u]]
+        img = np.tile(_COLOURS[0], (self.height, self.width, 1))
+        band = int(round(self.height * 0.8 / r))
+        for k, v in enumerate(self.board_rows()):
+            img[max(0, v - band + 2) : v] = _COLOURS[cols[k][u]][None]
+            img[v : v + 2] = _BOARD
         noise = np.random.default_rng([self.noise_seed, i]).normal(0, 8, img.shape)
         return np.clip(img + noise, 0, 255).astype(np.uint8)
 
     def camera_positions(self) -> np.ndarray:
         px = self.spec.x_extent / self.spec.size
         x = (np.arange(self.num_frames) * self.step_cols) * px
-        return np.stack([x, np.full_like(x, -1.0), np.zeros_like(x)], 1)
+        return np.stack([x, np.full_like(x, _CAM_Y), np.full_like(x, -_DISTANCE)], 1)
 
     def frame(self, i: int) -> dict[str, Any]:
-        return {"index": i, "camera_position": self.camera_positions()[i].tolist(), "distance": 2.6}
+        intr = self.intrinsics
+        slots = [
+            {"level": k, "board_top_y": _CAM_Y + (v - intr.cy) * _DISTANCE / intr.fy, "clear_height": 1.0}
+            for k, v in enumerate(self.board_rows())
+        ]
+        return {
+            "index": i,
+            "camera_position": self.camera_positions()[i].tolist(),
+            "distance": _DISTANCE,
+            "slots": slots,
+        }

@@ -50,6 +50,7 @@ from network.losses import (
     lsgan_discriminator_loss,
     lsgan_generator_loss,
     one_hot_layouts,
+    row_loss,
     supervised_loss,
 )
 from network.model import ModelConfig, MVRackLay, build_discriminators
@@ -72,6 +73,7 @@ class TrainConfig:
     disc_lr: float = 1e-4
     class_weights: tuple[float, float, float] = (1.0, 1.0, 2.0)
     dice_weight: float = 0.5
+    row_weight: float = 1.0  #: the row head's board-finding loss
     adv_weight: float = 0.01
     short_weight: float = 0.1
     long_weight: float = 0.05
@@ -96,7 +98,16 @@ class TrainConfig:
             raise InputError(f"--checkpoint-every must be >= 0, got {self.checkpoint_every}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
-        for name in ("minutes", "lr", "dice_weight", "adv_weight", "short_weight", "long_weight", "workers"):
+        for name in (
+            "minutes",
+            "lr",
+            "dice_weight",
+            "row_weight",
+            "adv_weight",
+            "short_weight",
+            "long_weight",
+            "workers",
+        ):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
                 raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
@@ -342,9 +353,11 @@ class Trainer:
         t = self.tcfg
         batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
         self.net.train()
-        out = self.net(batch["images"])
+        out = self.net(batch["images"], batch["anchors"])
+        valid = torch.isfinite(batch["anchors"])
         losses: dict[str, torch.Tensor] = {}
-        losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight) for v in VIEWS)
+        losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight, valid) for v in VIEWS)
+        losses["rows"] = row_loss(out["rows"], batch["rows"])
         if self.mcfg.seq_len > 1 and (t.short_weight > 0 or t.long_weight > 0):
             spec = self.mcfg.spec
             losses["short"] = sum(
@@ -356,7 +369,7 @@ class Trainer:
         fakes = {v: out[v].flatten(0, 1).softmax(2) for v in VIEWS}
         if self.discs is not None:
             losses["adv"] = sum(lsgan_generator_loss(self.discs[v](fakes[v])) for v in VIEWS)
-        total = losses["sup"]
+        total = losses["sup"] + t.row_weight * losses["rows"]
         total = total + t.short_weight * losses.get("short", 0) + t.long_weight * losses.get("long", 0)
         total = total + t.adv_weight * losses.get("adv", 0)
         self.opt.zero_grad(set_to_none=True)

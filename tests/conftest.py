@@ -24,3 +24,17 @@ def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return generate_dataset(
         out, num_sequences=3, frames=8, image_size=(128, 128), spec=LayoutSpec(size=64), seed=7, progress=False
     )
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny network trained 40 steps on the tiny dataset with `mvracklay train` (seconds): it finds
+    shelf boards and predicts shelves and boxes, so the stages after the network get real content."""
+    from tiny_net import TINY_NET
+
+    from mvracklay.cli import main
+
+    out = tmp_path_factory.mktemp("tiny_net") / "run"
+    args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "40"]
+    assert main([*args, "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]) == 0
+    return out / "last.pt"

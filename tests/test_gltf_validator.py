@@ -12,13 +12,9 @@ import subprocess
 from pathlib import Path
 
 import pytest
-import torch
 
-from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from mvracklay.pipeline import write_glb
-from network.checkpoint import save_checkpoint
-from network.model import ModelConfig, MVRackLay
 from stitching.warehouse_map import WarehouseMap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,17 +43,6 @@ def _errors(report: dict) -> list[str]:
     ]
 
 
-@pytest.fixture(scope="module")
-def untrained_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    torch.manual_seed(0)
-    cfg = ModelConfig(
-        spec=LayoutSpec(size=32), input_width=64, input_height=64, encoder_width=8, hidden=16, decoder_width=8
-    )
-    path = tmp_path_factory.mktemp("gltf_ckpt") / "tiny.pt"
-    save_checkpoint(path, {"model": MVRackLay(cfg).state_dict()}, {"model_config": cfg.to_dict()})
-    return path
-
-
 def test_ground_truth_reconstruction_glb_is_valid(tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "gt"
     assert main(["reconstruct", str(tiny_dataset / "seq_00000"), "--out", str(out), "--no-rrd", "--quiet"]) == 0
@@ -68,9 +53,9 @@ def test_ground_truth_reconstruction_glb_is_valid(tiny_dataset: Path, tmp_path: 
     assert report["info"]["drawCallCount"] == len(wmap.boxes()) + len(wmap.shelves())
 
 
-def test_pipeline_glb_is_valid(tiny_dataset: Path, untrained_checkpoint: Path, tmp_path: Path):
+def test_pipeline_glb_is_valid(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):
     out = tmp_path / "run"
-    argv = ["run", str(tiny_dataset / "seq_00001"), "--out", str(out), "--checkpoint", str(untrained_checkpoint)]
+    argv = ["run", str(tiny_dataset / "seq_00000"), "--out", str(out), "--checkpoint", str(tiny_checkpoint)]
     assert main([*argv, "--no-rrd", "--quiet", "--max-frames", "4"]) == 0
     report = validate(out / "warehouse.glb")
     assert report["issues"]["numErrors"] == 0, _errors(report)

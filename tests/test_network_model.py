@@ -9,9 +9,8 @@ import pytest
 import torch
 
 from layouts import VIEWS, InputError, LayoutSpec
-from network.convlstm import StackedConvLSTM
 from network.infer import Predictor, predict_layouts
-from network.model import VARIANTS, ModelConfig, MVRackLay, build_discriminators
+from network.model import VARIANTS, ModelConfig, MVRackLay, anchors_from_rows, build_discriminators
 from network.resnet import ResNet18Encoder, load_imagenet_weights
 from network.toy import ToySequence
 
@@ -24,18 +23,22 @@ def tiny(variant: str = "mvracklay-disc-4") -> ModelConfig:
     )
 
 
+ANCHORS = torch.tensor([52.0, 30.0])  # canonical rows of the two slots' boards (64-row input)
+
+
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
 def test_shapes_for_every_variant(variant):
     torch.manual_seed(0)
     cfg = tiny(variant)
     model = MVRackLay(cfg)
     t = cfg.seq_len
-    out = model(torch.rand(2, t, 3, 64, 64))
-    assert set(out) == {"top", "front"}
-    for v in out.values():
-        assert v.shape == (2, t, 2, 3, 16, 16)
+    out = model(torch.rand(2, t, 3, 64, 64), ANCHORS.expand(2, t, 2))
+    assert set(out) == {"top", "front", "rows", "anchors"}
+    for v in VIEWS:
+        assert out[v].shape == (2, t, 2, 3, 16, 16)
+    assert out["rows"].shape == (2, t, 64)
     step, state = model.step(torch.rand(2, 3, 64, 64))
-    assert step["top"].shape == (2, 2, 3, 16, 16)
+    assert step["top"].shape == (2, 2, 3, 16, 16) and step["anchors"].shape == (2, 2)
     assert (state is None) == (not cfg.use_lstm)
     discs = build_discriminators(cfg)
     assert (discs is None) == (not VARIANTS[variant][2])
@@ -52,39 +55,61 @@ def test_variant_sequence_lengths_and_bad_config():
         ModelConfig(variant="bogus")
     with pytest.raises(InputError, match="multiple of 32"):
         ModelConfig(input_width=100)
-    cfg = tiny()
-    assert ModelConfig.from_dict(cfg.to_dict()) == cfg
-    with pytest.raises(InputError, match="expects images of 64x64"):
-        MVRackLay(cfg).step(torch.rand(1, 3, 32, 64))
-
-
-def test_fine_skip_feeds_the_quarter_map_and_old_records_load_without_it():
-    torch.manual_seed(0)
-    cfg = tiny()
-    assert cfg.fine_skip
-    model = MVRackLay(cfg).eval()
-    x = torch.rand(1, 3, 64, 64)
-    f2, f3, f4, f5 = model.encode(x)
-    assert f2.shape[-2:] == (16, 16) and f5.shape[-2:] == (2, 2)
-    base = model.decode((f2, f3, f4, f5))["front"]
-    bumped = model.decode((f2 + 1.0, f3, f4, f5))["front"]
-    assert not torch.allclose(base, bumped)  # the 1/4 map reaches the logits
-    old = cfg.to_dict()
-    del old["fine_skip"], old["temporal_residual"]
-    coarse = ModelConfig.from_dict(old)
-    assert not coarse.fine_skip and not coarse.temporal_residual
-    assert isinstance(MVRackLay(coarse).temporal, StackedConvLSTM)  # shipped older weights keep their layout
-    single = tiny("racklay").to_dict()
-    del single["temporal_residual"]
-    assert ModelConfig.from_dict(single) == tiny("racklay")  # an older single-frame run still resumes
-    plain = MVRackLay(coarse).eval()
-    assert plain.decoders["top"].t2 is None
-    g2, g3, g4, g5 = plain.encode(x)
-    assert torch.equal(plain.decode((g2 + 1.0, g3, g4, g5))["top"], plain.decode((g2, g3, g4, g5))["top"])
-    with pytest.raises(InputError, match="fine_skip"):
-        ModelConfig(fine_skip="yes")
     with pytest.raises(InputError, match="temporal_residual"):
         ModelConfig(temporal_residual=1)
+    with pytest.raises(InputError, match="even number"):
+        ModelConfig(spec=LayoutSpec(size=15))
+    cfg = tiny()
+    assert ModelConfig.from_dict(cfg.to_dict()) == cfg
+    old = cfg.to_dict()
+    del old["arch"]  # a record of the earlier column-transform decoder
+    with pytest.raises(InputError, match="earlier decoder design"):
+        ModelConfig.from_dict(old, "old.json")
+    with pytest.raises(InputError, match="expects images of 64x64"):
+        MVRackLay(cfg).step(torch.rand(1, 3, 32, 64))
+    with pytest.raises(InputError, match="anchors must have shape"):
+        MVRackLay(cfg)(torch.rand(1, 4, 3, 64, 64), torch.zeros(1, 4, 3))
+
+
+def test_slot_heads_sample_the_rows_above_each_board():
+    """Front-window rows are heights above the anchor: row k samples canonical row anchor - h_k / px."""
+    cfg = tiny()
+    heads = MVRackLay(cfg).slots
+    view, spec = cfg.view, cfg.spec
+    ramp = torch.arange(64, dtype=torch.float32).add(0.5).view(1, 1, 64, 1).expand(1, 1, 64, 64)  # value = row centre
+    got = heads._sample(ramp, ANCHORS[None], heads.front_fine, 16)  # (R, 1, D, D)
+    for r, a in enumerate(ANCHORS.tolist()):
+        h = (16 - np.arange(16) - 0.5) / 16 * spec.h_extent  # height of each front row, top row first
+        want = a - h / view.metres_per_pixel
+        torch.testing.assert_close(got[r, 0, :, 5], torch.tensor(want, dtype=torch.float32), atol=1e-4, rtol=0)
+    band = heads._sample(ramp, ANCHORS[None], heads.band, 8)[0, 0, :, 0]
+    assert band[0] < ANCHORS[0] - spec.h_extent / view.metres_per_pixel < ANCHORS[0] < band[-1]
+
+
+def test_slots_without_an_anchor_are_background_and_anchors_move_the_front_view():
+    torch.manual_seed(4)
+    model = MVRackLay(tiny("racklay")).eval()
+    x = torch.rand(1, 1, 3, 64, 64)
+    with torch.no_grad():
+        out = model(x, torch.tensor([[[52.0, float("nan")]]]))
+        assert (out["front"][0, 0, 1].argmax(0) == 0).all() and (out["top"][0, 0, 1].argmax(0) == 0).all()
+        assert not torch.equal(out["front"][0, 0, 0], out["front"][0, 0, 1])
+        moved = model(x, torch.tensor([[[40.0, float("nan")]]]))
+        assert not torch.allclose(out["front"][0, 0, 0], moved["front"][0, 0, 0])
+
+
+def test_anchors_from_rows_decodes_the_lowest_boards_first():
+    view = tiny().view  # 64 rows of 3/64 m: boards closer than 0.35 m (7.5 rows) are one board
+    logits = torch.full((3, 64), -6.0)
+    logits[0, [20, 45, 58]] = 4.0
+    logits[0, 59] = 4.0  # the same board spread over two rows -> one anchor between them
+    logits[1, [20, 24]] = torch.tensor([5.0, 3.0])  # too close: the stronger wins
+    logits[2, 30] = -0.5  # below the threshold: no board
+    a = anchors_from_rows(logits, view, 2)
+    assert a.shape == (3, 2)
+    assert abs(float(a[0, 0]) - 59.0) < 0.01 and abs(float(a[0, 1]) - 45.5) < 0.2  # lowest first; R = 2 kept
+    assert abs(float(a[1, 0]) - 20.5) < 0.3 and torch.isnan(a[1, 1])
+    assert torch.isnan(a[2]).all()
 
 
 @pytest.mark.parametrize("residual", [True, False])
@@ -95,32 +120,35 @@ def test_streaming_equals_convlstm_over_the_prefix(residual):
         torch.nn.init.normal_(model.temporal.out.weight, std=0.5)
     x = torch.rand(1, 6, 3, 64, 64)
     with torch.no_grad():
-        full = model(x)
+        full = model(x, ANCHORS.expand(1, 6, 2))
         state = None
         for t in range(6):
-            out, state = model.step(x[:, t], state)
-            for v in out:
+            out, state = model.step(x[:, t], state, ANCHORS[None])
+            for v in ("top", "front", "rows"):
                 torch.testing.assert_close(out[v], full[v][:, t], rtol=1e-4, atol=1e-5)
+        assert not torch.allclose(full["rows"][:, 0], full["rows"][:, 5])  # the state carries something
 
 
 def test_windowed_predictor_matches_the_window_forward():
     torch.manual_seed(2)
     model = MVRackLay(tiny()).eval()
+    torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)  # an untrained row head finds boards, so slots decode
     seq = ToySequence(SPEC, num_frames=6, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(6)]
     pred = Predictor(model)
     cached = list(pred.window(frames))
     naive = list(pred.window(frames, recompute=True))
     streamed = list(pred.stream(frames))
-    x = torch.stack([pred.preprocess(f)[0] for f in frames])  # (6, 3, H, W)
+    x = torch.stack([pred.preprocess(f, i)[0] for i, f in enumerate(frames)])  # (6, 3, H, W)
     with torch.no_grad():
         for t in (0, 2, 5):
             ids = [max(0, t - 3 + k) for k in range(4)]
             ref = model(x[ids][None])
-            for v in ("top", "front"):
+            for v in ("top", "front", "rows"):
                 torch.testing.assert_close(cached[t][v], ref[v][0, -1], rtol=1e-4, atol=1e-5)
                 torch.testing.assert_close(naive[t][v], ref[v][0, -1], rtol=1e-4, atol=1e-5)
         assert streamed[0]["top"].shape == cached[0]["top"].shape
+        assert torch.isfinite(cached[5]["anchors"]).any()
     lay = list(predict_layouts(model, [f[:40] for f in frames], "window", size=32))
     assert len(lay) == 6 and lay[0]["front"].shape == (2, 32, 32) and lay[0]["top"].dtype == np.uint8
     assert lay[5]["top"].max() <= 2
@@ -161,28 +189,3 @@ def test_resnet_has_torchvision_names_and_loads_a_state_dict(tmp_path):
         load_imagenet_weights(ResNet18Encoder(32), path)
     with pytest.raises(InputError, match="not found"):
         load_imagenet_weights(enc, tmp_path / "nope.pth")
-
-
-def test_rescale_x_moves_content_to_its_metric_place():
-    from network.infer import frame_layouts, rescale_x
-
-    spec = LayoutSpec(num_slots=1, size=64)
-    lay = np.zeros((1, 64, 64), np.uint8)
-    c0, c1 = (int(round(float(spec.x_to_col(x)))) for x in (0.3, 0.6))
-    lay[0, :, c0:c1] = 2  # a box from x = 0.3 to 0.6 m
-    lay[0, :, :8] = 1  # shelf from x = -1.5 to -1.125 m
-    logits = {
-        v: torch.nn.functional.one_hot(torch.from_numpy(lay).long(), 3).permute(0, 3, 1, 2).float() for v in VIEWS
-    }
-    assert rescale_x(logits, 1.0) is logits
-    for s in (0.9, 1.1):
-        out = frame_layouts(rescale_x(logits, s))["front"][0]
-        cols = np.flatnonzero(out[10] == 2)
-        lo, hi = spec.col_to_x(cols[0]), spec.col_to_x(cols[-1] + 1)
-        assert abs(lo - 0.3 * s) <= spec.x_extent / 64 and abs(hi - 0.6 * s) <= spec.x_extent / 64
-        if s < 1:  # x < -1.5 * 0.9 lies beyond the predicted extent: background
-            assert (out[:, :3] == 0).all() and (out[:, 4:6] == 1).all()
-        else:  # the shelf spreads out to -1.24 m
-            assert (out[:, :5] == 1).all() and (out[:, 7] == 0).all()
-    with pytest.raises(ValueError):
-        rescale_x(logits, 0.0)

@@ -144,10 +144,11 @@ def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path
     assert info["variant"] == "racklay" and info["step"] == 2 and info["discriminators"]
     assert info["fresh_prefixes"] == ["temporal.lstm", "temporal.out"]
     x = torch.rand(1, 4, 3, 64, 64)
+    anchors = torch.tensor([52.0, 30.0]).expand(1, 4, 2)
     with torch.no_grad():
-        seq_out = model.eval()(x)
-        one = single(x.flatten(0, 1)[:, None])
-    for v in seq_out:
+        seq_out = model.eval()(x, anchors)
+        one = single(x.flatten(0, 1)[:, None], anchors.reshape(4, 1, 2))
+    for v in ("top", "front", "rows"):
         torch.testing.assert_close(seq_out[v][0], one[v][:, 0])
     # Through the trainer: the source is in the record, and training moves the ConvLSTM's correction.
     t2 = TrainConfig(frames_per_step=4, steps_per_epoch=2, epochs=1, seed=3, threads=1, init_from=str(src))

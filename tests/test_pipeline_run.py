@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from tiny_net import TINY_NET
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
@@ -18,12 +17,8 @@ from stitching.warehouse_map import WarehouseMap
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A checkpoint trained for two steps with `mvracklay train` (a few seconds)."""
-    out = tmp_path_factory.mktemp("pipeline_net") / "run"
-    args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "2"]
-    assert main([*args, "--frames-per-step", "4", *TINY_NET]) == 0
-    return out / "best.pt"
+def checkpoint(tiny_checkpoint: Path) -> Path:
+    return tiny_checkpoint
 
 
 @pytest.fixture(scope="module")

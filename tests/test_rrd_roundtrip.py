@@ -6,12 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
-from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.checkpoint import save_checkpoint
-from network.model import ModelConfig, MVRackLay
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
 
@@ -19,16 +15,10 @@ FRAMES = 5
 
 
 @pytest.fixture(scope="module")
-def run_out(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """`mvracklay run` with an untrained tiny checkpoint (its noisy layouts still give boxes)."""
-    torch.manual_seed(1)
-    tmp = tmp_path_factory.mktemp("rrd")
-    cfg = ModelConfig(
-        spec=LayoutSpec(size=32), input_width=64, input_height=64, encoder_width=8, hidden=16, decoder_width=8
-    )
-    save_checkpoint(tmp / "tiny.pt", {"model": MVRackLay(cfg).state_dict()}, {"model_config": cfg.to_dict()})
-    out = tmp / "out"
-    argv = ["run", str(tiny_dataset / "seq_00002"), "--out", str(out), "--checkpoint", str(tmp / "tiny.pt")]
+def run_out(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """`mvracklay run` with the tiny trained checkpoint (its noisy layouts give shelves and boxes)."""
+    out = tmp_path_factory.mktemp("rrd") / "out"
+    argv = ["run", str(tiny_dataset / "seq_00000"), "--out", str(out), "--checkpoint", str(tiny_checkpoint)]
     assert main([*argv, "--max-frames", str(FRAMES), "--no-opening", "--quiet"]) == 0
     return out
 
@@ -65,7 +55,7 @@ def test_every_frame_is_on_the_frame_timeline(run_out: Path):
 
 def test_last_map_batch_matches_the_saved_map(run_out: Path):
     wmap = WarehouseMap.load(run_out / "warehouse.json")
-    assert wmap.boxes(), "the untrained model's layouts should give some boxes"
+    assert wmap.boxes(), "the tiny model's layouts should give some boxes"
     for r in range(3):
         cols = _columns(run_out / "warehouse.rrd", f"/world/map/slot_{r}")
         assert cols["frame"][-1] == FRAMES - 1

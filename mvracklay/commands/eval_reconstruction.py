@@ -43,11 +43,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
     p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")
-    p.add_argument(
-        "--no-rescale",
-        action="store_true",
-        help="with --checkpoint: keep layouts at the model's nominal distance (no resampling to the recorded one)",
-    )
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -195,7 +190,6 @@ def run(args: argparse.Namespace) -> int:
                     mode=args.mode,
                     progress=False,
                     source=str(args.checkpoint),
-                    rescale=not args.no_rescale,
                 )
                 folder = LayoutFolder(out)
             elif args.layouts == "gt":

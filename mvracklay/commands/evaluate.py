@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(res["visible"], title + " -- columns in view"))
     print()
     print(format_table(res["all"], title + " -- all cells"))
+    print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
     if args.json:
         out = {
             "checkpoint": str(args.checkpoint),

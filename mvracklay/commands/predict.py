@@ -18,9 +18,9 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from network.checkpoint import load_model
-from network.data import ImageFolderSequence
+from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
-from network.infer import Predictor, frame_layouts, rescale_x
+from network.infer import Predictor, frame_layouts
 from network.model import MVRackLay
 
 NAME = "predict"
@@ -30,11 +30,11 @@ DESCRIPTION = (
     "images in name order) and write a layout folder (spec.json + NNNNNN.npz with top, front, visible) that "
     "'mvracklay reconstruct' reads. Streaming mode carries the ConvLSTM state frame to frame (one encoder "
     "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
-    "Visible columns come from the camera intrinsics and the camera-to-rack distance: from meta.json when "
-    "present, else --intrinsics / --distance, else the camera and mean distance the model was trained with. "
-    "One image cannot tell how far the racks are, so the network lays frames out as seen from its training "
-    "data's mean distance; when the distance is known (meta.json or --distance) the layouts are resampled "
-    "along X to it (--no-rescale keeps them as predicted)."
+    "Every frame is warped into the model's canonical view with the camera intrinsics and the "
+    "camera-to-rack distance, which also give the visible columns: from meta.json when present, else "
+    "--intrinsics / --distance, else the camera and mean distance the model was trained with. One image "
+    "cannot tell how far the racks are, so a wrong distance scales the layouts (and the map) by "
+    "true / assumed distance: pass --distance when you know it."
 )
 ORDER = 32
 
@@ -46,11 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["stream", "window"], default="stream")
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
     p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
-    p.add_argument("--distance", type=float, help="camera to rack front in metres (for the visible columns)")
     p.add_argument(
-        "--no-rescale",
-        action="store_true",
-        help="keep the layouts at the model's nominal distance even when the camera-to-rack distance is known",
+        "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
     )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
@@ -93,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
         distance=args.distance,
         progress=not args.quiet,
         source=str(args.checkpoint),
-        rescale=not args.no_rescale,
     )
     print(f"wrote {n} frames of layouts to {args.out}")
     return 0
@@ -111,14 +107,12 @@ def predict_folder(
     distance: float | None = None,
     progress: bool = True,
     source: str = "checkpoint",
-    rescale: bool = True,
 ) -> int:
     """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
 
-    Visible columns use the sequence's intrinsics and per-frame distance when ``meta.json`` has them,
-    else ``intrinsics`` / ``distance``, else the camera and mean distance in ``record``. When the
-    distance is known (``distance`` or meta.json) and ``rescale`` is on, each frame's layouts are
-    resampled along X from the model's nominal distance to it (`network.infer.rescale_x`).
+    The canonical warp and the visible columns use ``intrinsics`` / ``distance`` when given, else the
+    sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
+    distance in ``record``.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -146,21 +140,22 @@ def predict_folder(
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None
     nominal = record.get("nominal_distance")
     nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
-    default_distance = distance or nominal or 2.6
+    default_distance = distance or nominal or DEFAULT_DISTANCE
+
+    def dist_of(i: int) -> float:
+        if distance is None and frames_meta and i < len(frames_meta):
+            d = frames_meta[i].get("distance") if isinstance(frames_meta[i], dict) else None
+            if isinstance(d, (int, float)) and math.isfinite(d) and d > 0:
+                return float(d)
+        return default_distance
 
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     folder = LayoutFolder.create(out, spec)
-    pred = Predictor(model)
+    pred = Predictor(model, lambda i: (intr, dist_of(i)))
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
     for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
-        known = distance
-        if known is None and frames_meta and i < len(frames_meta) and "distance" in frames_meta[i]:
-            known = float(frames_meta[i]["distance"])
-        if rescale and known and nominal:
-            logits = rescale_x(logits, known / nominal)
         lay = frame_layouts(logits, spec.size)
-        dist = known or default_distance
-        visible = np.asarray(intr.visible_columns(spec, dist), bool)
+        visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
         bar.update(1)
     bar.close()

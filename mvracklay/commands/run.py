@@ -41,11 +41,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
     )
-    p.add_argument(
-        "--no-rescale",
-        action="store_true",
-        help="keep layouts at the model's nominal distance even when the distance is known (input records or --distance)",
-    )
     p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
@@ -71,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         layout_size=args.layout_size,
         distance=args.distance,
-        rescale=not args.no_rescale,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,

@@ -44,9 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--hidden", type=int, default=m.hidden, help="ConvLSTM channels")
     g.add_argument("--decoder-width", type=int, default=m.decoder_width)
     g.add_argument(
-        "--no-fine-skip", action="store_true", help="decoders without the 1/4-scale skip (the older, coarser model)"
-    )
-    g.add_argument(
         "--no-temporal-residual",
         action="store_true",
         help="ConvLSTM in place of the single-frame block instead of a zero-initialised correction to it",
@@ -74,6 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--class-weights", type=float, nargs=3, default=list(t.class_weights), metavar=("BG", "SHELF", "BOX")
     )
     g.add_argument("--dice-weight", type=float, default=t.dice_weight, help="soft Dice on the box class")
+    g.add_argument("--row-weight", type=float, default=t.row_weight, help="the row head's board-finding loss")
     g.add_argument("--adv-weight", type=float, default=t.adv_weight, help="LSGAN weight (0 drops the discriminators)")
     g.add_argument("--short-weight", type=float, default=t.short_weight, help="consistency j vs j+1")
     g.add_argument("--long-weight", type=float, default=t.long_weight, help="consistency j vs k >= j+2")
@@ -149,7 +147,6 @@ def run(args: argparse.Namespace) -> int:
         encoder_width=args.encoder_width,
         hidden=args.hidden,
         decoder_width=args.decoder_width,
-        fine_skip=not args.no_fine_skip,
         temporal_residual=not args.no_temporal_residual,
     )
     tcfg = TrainConfig(
@@ -160,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
         lr=args.lr,
         class_weights=tuple(args.class_weights),
         dice_weight=args.dice_weight,
+        row_weight=args.row_weight,
         adv_weight=adv,
         short_weight=args.short_weight,
         long_weight=args.long_weight,

@@ -1,0 +1,126 @@
+"""The canonical view: any camera's image re-sampled as if seen from a fixed camera at a fixed scale.
+
+The network reads images in one canonical geometry, whatever camera took them: a ``width x
+height`` image whose pixels are squares of ``x_extent / width`` metres *on the rack front plane*,
+centred on the camera's optical axis. Column j then covers the same metric X interval as layout
+column j (when the layout has ``width`` columns; otherwise a fixed ratio), and a shelf board at
+height Y lands on a row that depends only on Y relative to the camera. Given the intrinsics
+``(fx, fy, cx, cy)`` and the camera-to-rack-front distance d, canonical pixel (j, i) samples the
+source image at ``u = cx + fx * X / d``, ``v = cy + fy * Y / d`` with ``(X, Y)`` its metric
+offset from the optical axis on the front plane: a separable, per-axis affine map, exact on the
+front plane (points behind it are scaled as perspective scales them).
+
+Coordinates are continuous pixel coordinates (pixel k spans ``[k, k+1)``, centre ``k + 0.5``),
+as in `layouts.camera.Intrinsics`. Canonical pixels outside the source image take ``fill``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from PIL import Image
+
+from layouts.camera import Intrinsics
+from layouts.errors import LayoutError
+
+#: fill colour for canonical pixels the camera does not see: the ImageNet mean (0 after normalising)
+FILL_RGB = (124, 116, 104)
+
+
+@dataclass(frozen=True)
+class CanonicalView:
+    """``width x height`` canonical pixels of ``x_extent / width`` metres each on the rack front plane."""
+
+    width: int
+    height: int
+    x_extent: float
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise LayoutError(f"CanonicalView.{name} must be a positive integer, got {v!r}")
+        if not (isinstance(self.x_extent, (int, float)) and math.isfinite(self.x_extent) and self.x_extent > 0):
+            raise LayoutError(f"CanonicalView.x_extent must be a positive number of metres, got {self.x_extent!r}")
+
+    @property
+    def metres_per_pixel(self) -> float:
+        return self.x_extent / self.width
+
+    def row_of(self, y_rel: float | np.ndarray) -> float | np.ndarray:
+        """Continuous canonical row of a front-plane point ``y_rel`` metres below the optical axis."""
+        return np.asarray(y_rel) / self.metres_per_pixel + self.height / 2
+
+    def y_of(self, row: float | np.ndarray) -> float | np.ndarray:
+        """Metres below the optical axis (front plane) of a continuous canonical row."""
+        return (np.asarray(row) - self.height / 2) * self.metres_per_pixel
+
+    def source_coords(self, intr: Intrinsics, distance: float) -> tuple[np.ndarray, np.ndarray]:
+        """Continuous source coordinates ``u (width,)`` and ``v (height,)`` of the canonical pixel centres."""
+        _check_distance(distance)
+        m = self.metres_per_pixel
+        x = (np.arange(self.width) + 0.5 - self.width / 2) * m
+        y = (np.arange(self.height) + 0.5 - self.height / 2) * m
+        return intr.cx + intr.fx * x / distance, intr.cy + intr.fy * y / distance
+
+    def source_scale(self, intr: Intrinsics, distance: float) -> float:
+        """Source pixels per canonical pixel (the larger axis): > 1 means the source is finer."""
+        _check_distance(distance)
+        return max(intr.fx, intr.fy) * self.metres_per_pixel / distance
+
+    def warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float) -> np.ndarray:
+        """uint8 ``(H0, W0, 3)`` image of camera ``intr`` -> uint8 canonical ``(height, width, 3)``.
+
+        Bilinear; a source much finer than the canonical grid is first downsized with an
+        antialiasing filter, so no aliasing whatever the input resolution.
+        """
+        rgb = np.asarray(rgb)
+        if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+            raise LayoutError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+        if rgb.shape[:2] != (intr.height, intr.width):
+            intr = intr.scaled(rgb.shape[1], rgb.shape[0])
+        s = self.source_scale(intr, distance)
+        if s > 1.5:  # prefilter: bring the source near the canonical scale first
+            w = max(1, round(intr.width / s))
+            h = max(1, round(intr.height / s))
+            rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.BILINEAR, reducing_gap=None))
+            intr = intr.scaled(w, h)
+        u, v = self.source_coords(intr, distance)
+        return _bilinear_separable(rgb, u, v)
+
+    def valid_mask(self, intr: Intrinsics, distance: float) -> np.ndarray:
+        """bool ``(height, width)``: canonical pixels whose centre falls inside the source image."""
+        u, v = self.source_coords(intr, distance)
+        return ((v >= 0) & (v < intr.height))[:, None] & ((u >= 0) & (u < intr.width))[None, :]
+
+
+def _check_distance(distance: float) -> None:
+    if (
+        isinstance(distance, bool)
+        or not isinstance(distance, (int, float, np.floating))
+        or not (math.isfinite(distance) and distance > 0)
+    ):
+        raise LayoutError(f"distance must be a positive finite number of metres, got {distance!r}")
+
+
+def _axis_weights(coords: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear taps along one axis: indices (i0, i1), weight of i1, and inside-the-image mask."""
+    p = coords - 0.5
+    i0 = np.floor(p).astype(np.int64)
+    w1 = (p - i0).astype(np.float32)
+    inside = (coords >= 0) & (coords < size)
+    return np.clip(i0, 0, size - 1), np.clip(i0 + 1, 0, size - 1), w1, inside
+
+
+def _bilinear_separable(rgb: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    h0, w0 = rgb.shape[:2]
+    r0, r1, wr, rin = _axis_weights(v, h0)
+    c0, c1, wc, cin = _axis_weights(u, w0)
+    src = rgb.astype(np.float32)
+    rows = src[r0] * (1 - wr)[:, None, None] + src[r1] * wr[:, None, None]
+    out = rows[:, c0] * (1 - wc)[None, :, None] + rows[:, c1] * wc[None, :, None]
+    out[~rin] = FILL_RGB
+    out[:, ~cin] = FILL_RGB
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
