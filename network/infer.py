@@ -44,11 +44,19 @@ class Predictor:
     camera-to-rack distance), so layouts come out at their metric place for that camera.
     """
 
-    def __init__(self, model: MVRackLay, camera: CameraFn | None = None) -> None:
+    def __init__(
+        self, model: MVRackLay, camera: CameraFn | None = None, anchors: Callable[[int], np.ndarray] | None = None
+    ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
         self.camera = camera or fixed_camera()
+        self.anchors = anchors  #: frame index -> (R,) canonical board rows (NaN = no slot); None = the row head's
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
+
+    def _anchors(self, i: int) -> torch.Tensor | None:
+        if self.anchors is None:
+            return None
+        return torch.as_tensor(np.asarray(self.anchors(i), np.float32), device=self.device)[None]
 
     def preprocess(self, rgb: np.ndarray, i: int = 0) -> torch.Tensor:
         intr, dist = self.camera(i)
@@ -60,7 +68,7 @@ class Predictor:
         """Outputs per frame (``{view: (R, 3, D, D)}`` logits, ``rows``, ``anchors``), carrying the ConvLSTM state."""
         state = None
         for i, rgb in enumerate(frames):
-            out, state = self.model.step(self.preprocess(rgb, i), state)
+            out, state = self.model.step(self.preprocess(rgb, i), state, self._anchors(i))
             yield {k: o[0] for k, o in out.items()}
 
     @torch.no_grad()
@@ -75,7 +83,8 @@ class Predictor:
                 if not images:
                     images.extend([x] * t_len)
                 images.append(x)
-                out = m(torch.stack(list(images), 1))
+                a = self._anchors(i)
+                out = m(torch.stack(list(images), 1), None if a is None else a[:, None].expand(1, t_len, -1))
                 yield {k: o[0, -1] for k, o in out.items()}
                 continue
             f = m.encode(x)
@@ -86,7 +95,7 @@ class Predictor:
                 t5 = m.temporal_window(torch.stack(list(feats), 1))[:, -1]
             else:
                 t5 = m.temporal(f[4])
-            out = m.decode(f, t5)
+            out = m.decode(f, t5, self._anchors(i))
             yield {k: o[0] for k, o in out.items()}
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:

@@ -67,6 +67,7 @@ class TrainConfig:
     minutes: float = (
         0.0  #: budget in wall-clock minutes of optimiser steps (0 = none; loading and validation not counted)
     )
+    stop_minutes: float = 0.0  #: pause once this many step-minutes are done (0 = none); the schedule still spans `minutes`
     lr: float = 1e-3
     lr_floor: float = 0.05
     weight_decay: float = 1e-5
@@ -100,6 +101,7 @@ class TrainConfig:
             raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
         for name in (
             "minutes",
+            "stop_minutes",
             "lr",
             "dice_weight",
             "row_weight",
@@ -110,7 +112,8 @@ class TrainConfig:
         ):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
-                raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
+                flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
+                raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
         if self.val_mode not in ("window", "stream"):
@@ -343,10 +346,14 @@ class Trainer:
             g["lr"] = lr
         return lr
 
+    def _out_of_time(self) -> bool:
+        t = self.tcfg
+        return (t.minutes > 0 and self.wall_s >= 60 * t.minutes) or (
+            t.stop_minutes > 0 and self.wall_s >= 60 * t.stop_minutes
+        )
+
     def _done(self) -> bool:
-        if self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes:
-            return True
-        return self.epoch >= self.tcfg.epochs
+        return self._out_of_time() or self.epoch >= self.tcfg.epochs
 
     # ------------------------------------------------------------------ one step
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
@@ -475,7 +482,7 @@ class Trainer:
                         self.epoch_sums[k] = self.epoch_sums.get(k, 0.0) + v
                     self._timed(w0, c0)
                     bar.set_postfix(loss=f"{res['total']:.3f}", lr=f"{lr:.1e}")
-                    if self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes:
+                    if self._out_of_time():
                         break
                     if every and self.step % every == 0 and self.epoch_step < self.tcfg.steps_per_epoch:
                         self._sync_fingerprints()

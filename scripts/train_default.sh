@@ -3,36 +3,37 @@
 #
 #   1. data: three training sets (dataset seeds 101, 103, 104; 6,500 scenes) and a held-out set with
 #      another dataset seed (202), so no held-out sequence seed was ever used in training;
-#   2. train mvracklay-disc-4, mvracklay-4 and the racklay baseline on the same data with the same
-#      budget, side by side (one torch thread each, so the three share the 2 cores alike); then, within
-#      120 minutes per model in all, a second stage side by side: racklay continued to 120 minutes, and
-#      mvracklay-disc-4 warm-started from the racklay run's best checkpoint for the remaining minutes;
-#   3. Table I of all three on the held-out set (windowed mode, as in the paper, and streaming for the
-#      default), and reconstruction accuracy from predicted vs ground-truth layouts;
+#   2. stage 1: racklay (single frame) alone on the machine (2 threads) for STAGE1 of its TOTAL minutes;
+#      stage 2, side by side with one thread each: racklay continues its schedule to TOTAL minutes, and
+#      mvracklay-disc-4 and mvracklay-4 start from racklay's stage-1 weights (the ConvLSTM enters as a
+#      zero-initialised correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL in all;
+#   3. Table I of every model on the held-out set (windowed, as in the paper; streaming too for the
+#      default), the depth-projection baseline, reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
 #
+# "Minutes" are wall-clock minutes spent in optimiser steps (data loading and validation not counted).
 # Every step resumes: re-running skips finished sequences and continues runs from RUN/last.pt.
 # Override the folders with DATA=... RUNS=...; for a smoke check of the whole recipe, shrink it, e.g.
-#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 MINUTES=0.5 \
+#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 TOTAL=1 STAGE1=0.6 \
 #   WEIGHTS=/tmp/r/w.pt CURVES=/tmp/r/curves.png scripts/train_default.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs}
-MINUTES=${MINUTES:-85}  # minutes of training steps per run (data loading and validation not counted)
-TOTAL=${TOTAL:-120}     # stage 2: racklay continued to TOTAL; the warm start gets TOTAL minus its source's minutes
+TOTAL=${TOTAL:-120}   # training minutes per model in all
+STAGE1=${STAGE1:-80}  # racklay's minutes before the sequence models branch off it
 WORKERS=${WORKERS:-2}
 TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
 HELDOUT_FRAMES=${HELDOUT_FRAMES:-50}
 WEIGHTS=${WEIGHTS:-weights/mvracklay-disc-4.pt}
 CURVES=${CURVES:-docs/network_curves.png}
-VARIANTS="mvracklay-disc-4 mvracklay-4 racklay"
+COMMON=(--epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 --quiet)
 
 # 1. Data: 6,500 scenes x 12 frames (90/5/5 train/val/test split by the generator), 128x128 images,
-#    layouts R=3, D=128; the model reads 128x128 and predicts D=64. (At 128x128 the generator writes
-#    ~200 frames/s on the 2 cores, so the three sets take ~7 minutes.)
+#    layouts R=3, D=128; the model reads 128x128 canonical images and predicts D=64. (At 128x128 the
+#    generator writes ~200 frames/s on the 2 cores, so the three sets take ~7 minutes.)
 read -r N1 N2 N3 <<< "$TRAIN_SEQUENCES"
 TRAIN=()
 for PAIR in "train128:$N1:101" "train128b:$N2:103" "train128c:$N3:104"; do
@@ -53,40 +54,36 @@ assert not held & used, "held-out sequence seeds overlap a training set"
 print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)})")
 PYEOF
 
-# 2. Train the three variants side by side (same data, same frames per step, same budget).
-#    Validation every 250 steps on 20 val sequences x 12 frames (not counted in the budget). The
-#    sequence variants of this stage use the plain ConvLSTM (in place of the single-frame block), the
-#    model the README's from-scratch rows measured.
-for V in $VARIANTS; do
-    PLAIN=(); [ "$V" = racklay ] || PLAIN=(--no-temporal-residual)
-    $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$V" --variant "$V" --resume --threads 1 --quiet \
-        --minutes "$MINUTES" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 \
-        "${PLAIN[@]}" > "$RUNS/$V.log" 2>&1 &
+# 2. Stage 1: racklay alone, both cores, its cosine schedule spanning TOTAL minutes, paused at STAGE1.
+mkdir -p "$RUNS"
+$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay" --variant racklay --resume --threads 2 \
+    --minutes "$TOTAL" --stop-at "$STAGE1" "${COMMON[@]}" >> "$RUNS/racklay.log" 2>&1
+[ -f "$RUNS/racklay-stage1.pt" ] || cp "$RUNS/racklay/last.pt" "$RUNS/racklay-stage1.pt"
+#    Stage 2, side by side (one thread each, so the three share the 2 cores alike): racklay resumes its
+#    schedule to TOTAL; the sequence variants start from its stage-1 weights at the learning rate its
+#    schedule had there (3e-4) for the minutes left.
+WARM=$($PY -c "print(max(0.1, $TOTAL - $STAGE1))")
+$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay" --variant racklay --resume --threads 1 \
+    --minutes "$TOTAL" "${COMMON[@]}" >> "$RUNS/racklay.log" 2>&1 &
+for V in mvracklay-disc-4 mvracklay-4; do
+    $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$V" --variant "$V" --resume --threads 1 \
+        --init-from "$RUNS/racklay-stage1.pt" --lr 3e-4 --minutes "$WARM" "${COMMON[@]}" >> "$RUNS/$V.log" 2>&1 &
 done
 wait
 
-#    Stage 2: the single-frame model continues to TOTAL minutes; the sequence model starts from it
-#    (residual ConvLSTM: a zero-initialised correction, so it starts equal to racklay) with a lower
-#    learning rate, for the minutes the source leaves of TOTAL.
-[ -d "$RUNS/racklay-$TOTAL" ] || cp -r "$RUNS/racklay" "$RUNS/racklay-$TOTAL"
-WARM_MIN=$($PY -c "import json,sys; print(max(0.1, $TOTAL - json.load(open(sys.argv[1]))['train_wall_minutes']))" \
-    "$RUNS/racklay/best.json")
-$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay-$TOTAL" --variant racklay --resume --threads 1 --quiet \
-    --minutes "$TOTAL" --epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 \
-    > "$RUNS/racklay-$TOTAL.log" 2>&1 &
-$PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/mvracklay-disc-4-warm" --variant mvracklay-disc-4 --resume \
-    --init-from "$RUNS/racklay/best.pt" --lr 3e-4 --threads 1 --quiet --minutes "$WARM_MIN" --epochs 1000 \
-    --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 > "$RUNS/mvracklay-disc-4-warm.log" 2>&1 &
-wait
-VARIANTS="$VARIANTS racklay-$TOTAL mvracklay-disc-4-warm"
-
 # 3. Table I on every held-out sequence (all 24 x 50 frames); reconstruction accuracy.
+VARIANTS="mvracklay-disc-4 mvracklay-4 racklay"
 for V in $VARIANTS; do
     $PY -m mvracklay evaluate --checkpoint "$RUNS/$V/best.pt" --data "$HELDOUT" --split all \
         --json "$RUNS/$V/table1_window.json" | tee "$RUNS/$V/table1_window.txt"
 done
 $PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$HELDOUT" --split all \
     --mode stream --json "$RUNS/mvracklay-disc-4/table1_stream.json" | tee "$RUNS/mvracklay-disc-4/table1_stream.txt"
+$PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$HELDOUT" --split all \
+    --true-anchors --json "$RUNS/mvracklay-disc-4/table1_true_anchors.json" \
+    | tee "$RUNS/mvracklay-disc-4/table1_true_anchors.txt"
+$PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --json "$RUNS/baseline_depth.json" \
+    | tee "$RUNS/baseline_depth.txt"
 $PY -m mvracklay eval-reconstruction "$HELDOUT" | tee "$RUNS/reconstruction_gt.txt"
 $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --noisy \
     | tee "$RUNS/reconstruction_pred.txt"
@@ -96,4 +93,4 @@ $PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvrac
     "racklay=$RUNS/racklay"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS" \
-    --note "scripts/train_default.sh (MINUTES=$MINUTES): mvracklay-disc-4 beside mvracklay-4 and racklay, one thread each on 2 cores"
+    --note "scripts/train_default.sh (TOTAL=$TOTAL, STAGE1=$STAGE1): racklay $STAGE1 min on 2 threads, then mvracklay-disc-4 from it for $WARM min beside racklay and mvracklay-4, one thread each"

@@ -35,6 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
     )
+    p.add_argument(
+        "--true-anchors",
+        action="store_true",
+        help="analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
+    )
     p.add_argument("--json", type=Path, help="also write the full result as JSON here")
     p.add_argument("--quiet", action="store_true")
 
@@ -49,8 +54,17 @@ def run(args: argparse.Namespace) -> int:
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")
-    res = evaluate_sequences(model, seqs, mode=args.mode, max_frames=args.max_frames or None, progress=not args.quiet)
+    res = evaluate_sequences(
+        model,
+        seqs,
+        mode=args.mode,
+        max_frames=args.max_frames or None,
+        progress=not args.quiet,
+        true_anchors=args.true_anchors,
+    )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
+    if args.true_anchors:
+        title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))
     print()
     print(format_table(res["all"], title + " -- all cells"))

@@ -65,6 +65,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=t.minutes,
         help="budget: wall-clock minutes spent in optimiser steps (data loading and validation not counted; 0 = none)",
     )
+    g.add_argument(
+        "--stop-at",
+        type=float,
+        default=t.stop_minutes,
+        metavar="MIN",
+        help="pause (saving last.pt) after MIN step-minutes while the learning-rate schedule still spans --minutes; "
+        "--resume continues it (0 = no pause)",
+    )
     g.add_argument("--frames-per-step", type=int, default=t.frames_per_step, help="frames per batch (all variants)")
     g.add_argument("--lr", type=float, default=t.lr)
     g.add_argument(
@@ -122,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--data is required for training")
     if args.layout_size < 8 or args.layout_size > 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
-    for name in ("lr", "minutes"):
+    for name in ("lr", "minutes", "stop_at"):
         if not math.isfinite(getattr(args, name)):
             raise InputError(f"--{name} must be finite")
     if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
@@ -154,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         steps_per_epoch=args.steps_per_epoch,
         epochs=args.epochs,
         minutes=args.minutes,
+        stop_minutes=args.stop_at,
         lr=args.lr,
         class_weights=tuple(args.class_weights),
         dice_weight=args.dice_weight,
