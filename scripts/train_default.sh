@@ -84,9 +84,14 @@ $PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "
     | tee "$RUNS/mvracklay-disc-4/table1_true_anchors.txt"
 $PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --json "$RUNS/baseline_depth.json" \
     | tee "$RUNS/baseline_depth.txt"
-$PY -m mvracklay eval-reconstruction "$HELDOUT" | tee "$RUNS/reconstruction_gt.txt"
-$PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --noisy \
-    | tee "$RUNS/reconstruction_pred.txt"
+$PY -m mvracklay eval-reconstruction "$HELDOUT" --json > "$RUNS/reconstruction_gt.json"
+for V in mvracklay-disc-4 racklay; do
+    $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/$V/best.pt" --noisy --json \
+        > "$RUNS/reconstruction_$V.json"
+done
+
+#    The README's two tables, from the JSON files above.
+$PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 
 # 4. Curves, speed, shipped weights.
 $PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-4=$RUNS/mvracklay-4" \

@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""What the layouts allow: Table I of two oracles built from the ground truth itself.
+
+    .venv/bin/python benchmarks/layout_ceilings.py data/heldout128 [--size 64] [--every 5]
+
+* **resampled to D**: the ground truth resampled to the model's layout size (class area) and back
+  (nearest): the ceiling a model predicting at that D can reach.
+* **mean box depth**: the ground truth with every box's depth (its extent along Z in the top view)
+  replaced by the training distribution's mean, measured from the rack's front edge, X extents and
+  the rack footprint kept exact. One frame cannot see how deep a box is unless its top or a side
+  shows; this is what a perfect model that never sees it would score.
+
+Scores are `layouts.metrics.FrameScorer` tables (per-(frame, slot) averaged mIoU and "mAP", pooled
+beside), over the columns in view, in percent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts import BOX, SHELF  # noqa: E402
+from layouts.metrics import FrameScorer, format_table  # noqa: E402
+from network.data import resample_layout  # noqa: E402
+from waresynth.dataset import open_dataset  # noqa: E402
+
+SETBACK = 0.04  #: metres: the middle of the generator's default box setback range (0-0.08)
+MEAN_DEPTH = 0.475  #: metres: the middle of the generator's default box depth range (0.25-0.7)
+
+
+def resampled(stack: np.ndarray, size: int) -> np.ndarray:
+    d = stack.shape[-1]
+    small = resample_layout(stack, size)
+    return np.repeat(np.repeat(small, d // size, axis=1), d // size, axis=2) if d % size == 0 else small
+
+
+def mean_depth(top: np.ndarray, z_extent: float) -> np.ndarray:
+    """Each slot's boxes redrawn with the mean depth from the rack's front edge (columns kept)."""
+    out = top.copy()
+    d = top.shape[-1]
+    row_m = z_extent / d
+    for r in range(top.shape[0]):
+        foot = top[r] > 0
+        if not foot.any():
+            continue
+        near = int(np.max(np.nonzero(foot.any(1))[0]))  # nearest rack row (row 0 = far side)
+        cols = (top[r] == BOX).any(0)
+        out[r][top[r] == BOX] = SHELF
+        lo = near - int(round((SETBACK + MEAN_DEPTH) / row_m)) + 1
+        hi = near - int(round(SETBACK / row_m)) + 1
+        block = out[r, max(lo, 0) : hi]
+        block[:, cols & foot[max(lo, 0) : hi].any(0)] = BOX
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("data", type=Path, help="a WareSynth dataset (e.g. the held-out set)")
+    ap.add_argument("--size", type=int, default=64, help="the model's layout size D")
+    ap.add_argument("--every", type=int, default=5, help="score every N-th frame")
+    args = ap.parse_args()
+    seqs = open_dataset(args.data).sequences()
+    res, depth = FrameScorer(), FrameScorer()
+    frames = 0
+    for seq in seqs:
+        for i in range(0, seq.num_frames, args.every):
+            gt = seq.layouts(i)
+            res.update({"top": resampled(gt.top, args.size), "front": resampled(gt.front, args.size)}, gt)
+            depth.update({"top": mean_depth(gt.top, seq.spec.z_extent), "front": gt.front}, gt)
+            frames += 1
+    name = f"{args.data}: {frames} frames of {len(seqs)} sequences, columns in view"
+    print(format_table(res.result()["visible"], f"ground truth resampled to D={args.size} and back -- {name}"))
+    print()
+    print(format_table(depth.result()["visible"], f"ground truth with mean box depth (top view) -- {name}"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
