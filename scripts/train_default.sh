@@ -4,9 +4,10 @@
 #   1. data: three training sets (dataset seeds 101, 103, 104; 6,500 scenes) and a held-out set with
 #      another dataset seed (202), so no held-out sequence seed was ever used in training;
 #   2. stage 1: racklay (single frame) alone on the machine (2 threads) for STAGE1 of its TOTAL minutes;
-#      stage 2, side by side with one thread each: racklay continues its schedule to TOTAL minutes, and
-#      mvracklay-disc-4 and mvracklay-4 start from racklay's stage-1 weights (the ConvLSTM enters as a
-#      zero-initialised correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL in all;
+#      stage 2a, side by side with one thread each: racklay continues its schedule to TOTAL minutes, and
+#      mvracklay-disc-4 starts from racklay's stage-1 weights (the ConvLSTM enters as a zero-initialised
+#      correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL minutes in all;
+#      stage 2b: mvracklay-4 likewise, on one core while the others are evaluated;
 #   3. Table I of every model on the held-out set (windowed, as in the paper; streaming too for the
 #      default), the depth-projection baseline, reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
@@ -59,43 +60,47 @@ mkdir -p "$RUNS"
 $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay" --variant racklay --resume --threads 2 \
     --minutes "$TOTAL" --stop-at "$STAGE1" "${COMMON[@]}" >> "$RUNS/racklay.log" 2>&1
 [ -f "$RUNS/racklay-stage1.pt" ] || cp "$RUNS/racklay/last.pt" "$RUNS/racklay-stage1.pt"
-#    Stage 2, side by side (one thread each, so the three share the 2 cores alike): racklay resumes its
-#    schedule to TOTAL; the sequence variants start from its stage-1 weights at the learning rate its
-#    schedule had there (3e-4) for the minutes left.
+#    Stage 2a, side by side with one thread each: racklay resumes its schedule to TOTAL; mvracklay-disc-4
+#    starts from racklay's stage-1 weights at the learning rate racklay's schedule had there (3e-4) for
+#    the minutes left. Stage 2b: mvracklay-4 the same way, on one core while the others are evaluated.
 WARM=$($PY -c "print(max(0.1, $TOTAL - $STAGE1))")
+warm_start() {  # variant
+    $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$1" --variant "$1" --resume --threads 1 \
+        --init-from "$RUNS/racklay-stage1.pt" --lr 3e-4 --minutes "$WARM" "${COMMON[@]}" >> "$RUNS/$1.log" 2>&1
+}
 $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay" --variant racklay --resume --threads 1 \
     --minutes "$TOTAL" "${COMMON[@]}" >> "$RUNS/racklay.log" 2>&1 &
-for V in mvracklay-disc-4 mvracklay-4; do
-    $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/$V" --variant "$V" --resume --threads 1 \
-        --init-from "$RUNS/racklay-stage1.pt" --lr 3e-4 --minutes "$WARM" "${COMMON[@]}" >> "$RUNS/$V.log" 2>&1 &
-done
+warm_start mvracklay-disc-4 &
 wait
+warm_start mvracklay-4 &
+MV4=$!
 
-# 3. Table I on every held-out sequence (all 24 x 50 frames); reconstruction accuracy.
-VARIANTS="mvracklay-disc-4 mvracklay-4 racklay"
-for V in $VARIANTS; do
-    $PY -m mvracklay evaluate --checkpoint "$RUNS/$V/best.pt" --data "$HELDOUT" --split all \
-        --json "$RUNS/$V/table1_window.json" | tee "$RUNS/$V/table1_window.txt"
-done
-$PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$HELDOUT" --split all \
-    --mode stream --json "$RUNS/mvracklay-disc-4/table1_stream.json" | tee "$RUNS/mvracklay-disc-4/table1_stream.txt"
-$PY -m mvracklay evaluate --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --data "$HELDOUT" --split all \
-    --true-anchors --json "$RUNS/mvracklay-disc-4/table1_true_anchors.json" \
-    | tee "$RUNS/mvracklay-disc-4/table1_true_anchors.txt"
-$PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --json "$RUNS/baseline_depth.json" \
-    | tee "$RUNS/baseline_depth.txt"
-$PY -m mvracklay eval-reconstruction "$HELDOUT" --json > "$RUNS/reconstruction_gt.json"
+# 3. Table I on every held-out sequence (all 24 x 50 frames), one thread; reconstruction accuracy.
+EVAL=(--data "$HELDOUT" --split all --threads 1 --quiet)
+table1() {  # variant, name, extra flags
+    $PY -m mvracklay evaluate --checkpoint "$RUNS/$1/best.pt" "${EVAL[@]}" --json "$RUNS/$1/$2.json" "${@:3}" \
+        > "$RUNS/$1/$2.txt"
+}
+table1 mvracklay-disc-4 table1_window
+table1 mvracklay-disc-4 table1_stream --mode stream
+table1 mvracklay-disc-4 table1_true_anchors --true-anchors
+table1 racklay table1_window
+$PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --quiet --json "$RUNS/baseline_depth.json" \
+    > "$RUNS/baseline_depth.txt"
+$PY -m mvracklay eval-reconstruction "$HELDOUT" --quiet --json > "$RUNS/reconstruction_gt.json"
 for V in mvracklay-disc-4 racklay; do
-    $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/$V/best.pt" --noisy --json \
-        > "$RUNS/reconstruction_$V.json"
+    $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/$V/best.pt" --noisy --threads 1 --quiet \
+        --json > "$RUNS/reconstruction_$V.json"
 done
-
+wait $MV4
+table1 mvracklay-4 table1_window
 #    The README's two tables, from the JSON files above.
 $PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 
 # 4. Curves, speed, shipped weights.
 $PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-4=$RUNS/mvracklay-4" \
     "racklay=$RUNS/racklay"
-$PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256
+$PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256 \
+    | tee "$RUNS/bench_infer.txt"
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS" \
-    --note "scripts/train_default.sh (TOTAL=$TOTAL, STAGE1=$STAGE1): racklay $STAGE1 min on 2 threads, then mvracklay-disc-4 from it for $WARM min beside racklay and mvracklay-4, one thread each"
+    --note "scripts/train_default.sh (TOTAL=$TOTAL, STAGE1=$STAGE1): racklay $STAGE1 min on 2 threads, then mvracklay-disc-4 from its weights for $WARM min beside racklay's last $WARM min, one thread each"
