@@ -121,11 +121,10 @@ def init_weights_from(
 ) -> dict[str, Any]:
     """Warm start: copy a trained checkpoint's weights (any variant) into a fresh ``model``.
 
-    A single-frame ``racklay`` checkpoint fills everything of a sequence model with
-    ``temporal_residual`` except the ConvLSTM (its plain temporal block becomes the residual
-    block's ``pre``; the zero-initialised correction keeps the start equal to the source).
-    Discriminators are copied too when both have them. Returns a summary for the run's record:
-    the source, its training minutes, and the tensors left at their fresh values.
+    Every variant shares the single-frame network, so a ``racklay`` checkpoint fills all of a
+    sequence model but its slot memory, whose zero-initialised output keeps the start equal to
+    the source. Discriminators are copied too when both have them. Returns a summary for the
+    run's record: the source, its training minutes, and the tensors left at their fresh values.
     """
     payload, record = load_checkpoint(path)
     src_cfg = ModelConfig.from_dict(record.get("model_config"), f"{path} (model_config)")
@@ -137,14 +136,6 @@ def init_weights_from(
             )
     state = dict(payload["model"])
     own = model.state_dict()
-    if not src_cfg.use_lstm and model.cfg.use_lstm:
-        if not model.cfg.temporal_residual:
-            raise InputError(f"{path}: a single-frame checkpoint only warm-starts a model with temporal_residual")
-        state = {
-            ("temporal.pre." + k[len("temporal.") :] if k.startswith("temporal.") else k): v for k, v in state.items()
-        }
-    elif src_cfg.use_lstm != model.cfg.use_lstm or src_cfg.temporal_residual != model.cfg.temporal_residual:
-        state = {k: v for k, v in state.items() if not k.startswith("temporal.")}
     take = {k: v.to(own[k].dtype) for k, v in state.items() if k in own and tuple(v.shape) == tuple(own[k].shape)}
     model.load_state_dict(take, strict=False)
     fresh = sorted(set(own) - set(take))

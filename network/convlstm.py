@@ -2,7 +2,8 @@
 
 `StackedConvLSTM.forward` runs a whole window ``(B, T, C, H, W)``; `step` advances one frame
 carrying the state, so streaming inference (one encoder pass per frame) gives exactly the
-outputs of `forward` over the same prefix.
+outputs of `forward` over the same prefix. The model runs it over each shelf slot's layout-space
+features (`network.model.SlotMemory`).
 """
 
 from __future__ import annotations
@@ -61,32 +62,3 @@ class StackedConvLSTM(nn.Module):
             outs.append(y)
         assert state is not None
         return torch.stack(outs, 1), state
-
-
-class ResidualConvLSTM(nn.Module):
-    """``y = p + out(ConvLSTM(p))`` with ``p = pre(x)``: the single-frame block plus a temporal correction.
-
-    ``out`` is a zero-initialised 1x1 convolution, so a fresh block computes exactly ``pre(x)``:
-    the single-frame network (``racklay``, whose temporal block is ``pre``) is a valid starting
-    point, and a trained one can be loaded into it (`network.checkpoint.init_weights_from`)
-    so the sequence model only has to learn what the context adds.
-    """
-
-    def __init__(self, pre: nn.Module, hidden: int, num_layers: int = 2, kernel: int = 3) -> None:
-        super().__init__()
-        self.pre = pre
-        self.lstm = StackedConvLSTM(hidden, hidden, num_layers, kernel)
-        self.out = nn.Conv2d(hidden, hidden, 1)
-        nn.init.zeros_(self.out.weight)
-        nn.init.zeros_(self.out.bias)
-
-    def step(self, x: torch.Tensor, state: State | None = None) -> tuple[torch.Tensor, State]:
-        p = self.pre(x)
-        h, state = self.lstm.step(p, state)
-        return p + self.out(h), state
-
-    def forward(self, seq: torch.Tensor, state: State | None = None) -> tuple[torch.Tensor, State]:
-        b, t = seq.shape[:2]
-        p = self.pre(seq.flatten(0, 1)).unflatten(0, (b, t))
-        h, state = self.lstm(p, state)
-        return p + self.out(h.flatten(0, 1)).unflatten(0, (b, t)), state

@@ -44,7 +44,9 @@ def evaluate_sequences(
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
         d = seq.spec.size
-        anchors = (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
+        anchors = (
+            (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
+        )
         pred = Predictor(model, sequence_camera(seq), anchors)
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)

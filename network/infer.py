@@ -73,29 +73,30 @@ class Predictor:
 
     @torch.no_grad()
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
-        """Outputs per frame from the window of ``seq_len`` frames ending there (fresh state each)."""
+        """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
         m, t_len = self.model, self.cfg.seq_len
         images: deque[torch.Tensor] = deque(maxlen=t_len)
-        feats: deque[torch.Tensor] = deque(maxlen=t_len)
+        anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
+        cached: deque = deque(maxlen=t_len)
         for i, rgb in enumerate(frames):
             x = self.preprocess(rgb, i)
-            if recompute:
+            a = self._anchors(i)
+            if recompute:  # the naive form: the whole window through the model again
                 if not images:
                     images.extend([x] * t_len)
+                    anchors.extend([a] * t_len)
                 images.append(x)
-                a = self._anchors(i)
-                out = m(torch.stack(list(images), 1), None if a is None else a[:, None].expand(1, t_len, -1))
+                anchors.append(a)
+                given = None if a is None else torch.stack(list(anchors), 1)
+                out = m(torch.stack(list(images), 1), given)
                 yield {k: o[0, -1] for k, o in out.items()}
                 continue
-            f = m.encode(x)
-            if not feats:
-                feats.extend([f[4]] * t_len)
-            feats.append(f[4])
-            if self.cfg.use_lstm:
-                t5 = m.temporal_window(torch.stack(list(feats), 1))[:, -1]
-            else:
-                t5 = m.temporal(f[4])
-            out = m.decode(f, t5, self._anchors(i))
+            feats, rows, anc = m.frame_features(x, a)  # per-frame work, shared by the windows it is in
+            if not cached:
+                cached.extend([feats] * t_len)
+            cached.append(feats)
+            out = m.decode_window(list(cached))[-1]
+            out["rows"], out["anchors"] = rows, anc
             yield {k: o[0] for k, o in out.items()}
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:

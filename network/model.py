@@ -5,14 +5,15 @@ squares of ``x_extent / width`` metres on the rack front plane, centred on the o
 image column j covers the X interval of layout column j and a board at height Y sits on a row
 fixed by Y alone. Data flow per frame:
 
-    image -> ResNet-18 (1/2 ... 1/32 maps) -> the 1/32 map through the temporal block (a stacked
-    ConvLSTM over the window, or one convolution for ``racklay``) -> a feature pyramid down to
-    1/2 -> a *row head* scores every canonical row for "the top edge of a visible shelf board's
-    front" -> the lowest R boards anchor the R shelf slots -> per slot, features are sampled along
-    the slot's own rows (bilinear): the front view's rows are heights above the board, so its
-    window is a resampled strip of the image; the top view's rows are depths, mapped from a band
-    of image rows around the board by a learned per-column transform -> small convolutional heads
-    -> ``R x 3`` class logits at D x D per view.
+    image -> ResNet-18 (1/2 ... 1/32 maps) -> a feature pyramid down to 1/2 -> a *row head*
+    scores every canonical row for "the top edge of a visible shelf board's front" -> the lowest
+    R boards anchor the R shelf slots -> per slot, features are sampled along the slot's own rows
+    (bilinear): the front view's rows are heights above the board, so its window is a resampled
+    strip of the image; the top view's rows are depths, mapped from a band of image rows around
+    the board by a learned per-column transform -> per-slot coarse feature maps in *layout space*
+    -> (sequence variants) a stacked ConvLSTM over the window's per-slot maps, its output added
+    back through a zero-initialised convolution -> small convolutional heads -> ``R x 3`` class
+    logits at D x D per view.
 
 Anchoring every slot on its board makes the decoders' job the same wherever the shelf appears in
 the image (camera height, shelf spacing and distance all vary): the part a plain decoder spends
@@ -20,10 +21,13 @@ most of its training on. Nothing mixes image columns except local convolutions, 
 aligned. During training the anchors come from the ground truth (with jitter); at inference from
 the row head. A slot without an anchor is background.
 
+The temporal block works in layout space: a slot's coarse top- and front-view maps of consecutive
+frames differ by the camera's motion, a shift of a fraction of a (pooled) cell per frame, so a
+3x3 ConvLSTM can align and fuse them (how deep a box is shows on its side faces only from some
+angles). It starts as an exact no-op, so a sequence model starts from trained ``racklay`` weights.
+
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
-(no discriminators) and ``racklay`` (single frame). With ``temporal_residual`` (the default) the
-ConvLSTM adds a zero-initialised correction to the single-frame block, so a sequence model can
-start from trained ``racklay`` weights.
+(no discriminators) and ``racklay`` (single frame, no ConvLSTM).
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ from torch import nn
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network.convlstm import ResidualConvLSTM, StackedConvLSTM, State
+from network.convlstm import StackedConvLSTM, State
 from network.resnet import ResNet18Encoder
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
@@ -73,10 +77,10 @@ class ModelConfig:
     input_height: int = 128
     spec: LayoutSpec = field(default_factory=lambda: LayoutSpec(size=64))
     encoder_width: int = 32  #: ResNet-18 base width (64 = standard, needed for ImageNet weights)
-    hidden: int = 128  #: ConvLSTM channels
-    lstm_layers: int = 2
+    hidden: int = 128  #: channels of the reduced 1/32 map
+    lstm_layers: int = 2  #: ConvLSTM layers of the slot memory (sequence variants)
+    memory_hidden: int = 32  #: ConvLSTM channels of the slot memory
     decoder_width: int = 32
-    temporal_residual: bool = True  #: ConvLSTM as a zero-initialised correction to the single-frame block
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -88,20 +92,16 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 32 or v % 32:
                 raise InputError(f"{name} must be a positive multiple of 32, got {v!r}")
-        for name in ("encoder_width", "hidden", "lstm_layers", "decoder_width"):
+        for name in ("encoder_width", "hidden", "lstm_layers", "memory_hidden", "decoder_width"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if self.decoder_width < 4:
             raise InputError(f"decoder_width must be >= 4, got {self.decoder_width}")
-        if not isinstance(self.temporal_residual, bool):
-            raise InputError(f"temporal_residual must be true or false, got {self.temporal_residual!r}")
         if not isinstance(self.spec, LayoutSpec):
             raise InputError(f"spec must be a LayoutSpec, got {type(self.spec).__name__}")
-        if self.spec.size < 8 or self.spec.size % 2:
-            raise InputError(f"layout size D must be an even number >= 8 for the model, got {self.spec.size}")
-        if not self.use_lstm:  # no ConvLSTM, nothing to be residual: one spelling, so configs compare equal
-            object.__setattr__(self, "temporal_residual", False)
+        if self.spec.size < 8 or self.spec.size % 4:
+            raise InputError(f"layout size D must be a multiple of 4 (>= 8) for the model, got {self.spec.size}")
 
     @property
     def seq_len(self) -> int:
@@ -135,6 +135,13 @@ class ModelConfig:
                 f"{source}: written for an earlier decoder design ({d.get('arch', 'column transform')!r}); "
                 f"this version builds {ARCH!r}: retrain, or use the weights shipped with this version"
             )
+        if "temporal_residual" in d:  # written when the ConvLSTM sat on the 1/32 encoder map
+            if VARIANTS.get(d.get("variant"), (1, False, False))[1]:
+                raise InputError(
+                    f"{source}: written for the earlier ConvLSTM on the 1/32 encoder map; this version fuses "
+                    "frames in layout space (the slot memory): retrain, or warm-start from a racklay checkpoint"
+                )
+            del d["temporal_residual"]  # single-frame models are unchanged
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
@@ -182,6 +189,24 @@ class ColumnTransform(nn.Module):
 
 #: Encoder features of a batch of frames: the 1/2 (stem), 1/4, 1/8, 1/16 maps and the reduced 1/32 map.
 Features = tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]
+
+
+@dataclass
+class SlotFeatures:
+    """Per-slot features of N frames (slots flattened into the batch: ``N*R``) before the output heads."""
+
+    top: torch.Tensor  #: (N*R, dw, D/2, D/2) coarse top-view map
+    front: torch.Tensor  #: (N*R, dw, D/2, D/2) coarse front-view map
+    fine: torch.Tensor  #: (N*R, c1, D, D) fine front-window samples of the 1/2 map
+    valid: torch.Tensor  #: (N, R) bool: the slot has an anchor
+
+    def select(self, n: int, i: int) -> SlotFeatures:
+        """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
+
+        def pick(t: torch.Tensor) -> torch.Tensor:
+            return t.unflatten(0, (n, -1))[i]
+
+        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid))
 
 
 class Pyramid(nn.Module):
@@ -326,7 +351,8 @@ class SlotHeads(nn.Module):
         c = fmap.shape[1]
         return s.view(n, c, r, rows, cols).transpose(1, 2).reshape(n * r, c, rows, cols)
 
-    def forward(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> dict[str, torch.Tensor]:
+    def coarse(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> SlotFeatures:
+        """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames."""
         n, r = anchors.shape
         d, dc = self.spec.size, self.dc
         valid = torch.isfinite(anchors)
@@ -338,15 +364,61 @@ class SlotHeads(nn.Module):
         tb = self.col(self._sample(q, a, self.band, dc))
         tc = self.top_c(torch.cat([tb, elev.expand(-1, 1, dc, dc)], 1))
         ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
-        front = self.front_f(torch.cat([_up(fc), ff], 1))
-        edges = ff.amax(2, keepdim=True).expand(-1, -1, d, -1)  # the front face's X evidence, along depth
-        top = self.top_f(torch.cat([_up(tc), edges], 1))
+        return SlotFeatures(tc, fc, ff, valid)
+
+    def finish(self, f: SlotFeatures) -> dict[str, torch.Tensor]:
+        """``R x 3`` logits of both views from (possibly memory-refined) slot features."""
+        n, r = f.valid.shape
+        d = self.spec.size
+        front = self.front_f(torch.cat([_up(f.front), f.fine], 1))
+        edges = f.fine.amax(2, keepdim=True).expand(-1, -1, d, -1)  # the front face's X evidence, along depth
+        top = self.top_f(torch.cat([_up(f.top), edges], 1))
         out = {}
-        bg = torch.tensor([8.0] + [-8.0] * (NUM_CLASSES - 1), device=p2.device, dtype=front.dtype)
+        bg = torch.tensor([8.0] + [-8.0] * (NUM_CLASSES - 1), device=front.device, dtype=front.dtype)
         for name, o in (("top", top), ("front", front)):
             o = o.view(n, r, NUM_CLASSES, d, d)
-            out[name] = torch.where(valid[:, :, None, None, None], o, bg.view(1, 1, -1, 1, 1))
+            out[name] = torch.where(f.valid[:, :, None, None, None], o, bg.view(1, 1, -1, 1, 1))
         return out
+
+    def forward(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> dict[str, torch.Tensor]:
+        return self.finish(self.coarse(p1, p2, anchors))
+
+
+class SlotMemory(nn.Module):
+    """The temporal block: a stacked ConvLSTM over each slot's coarse maps (both views), in layout space.
+
+    Per slot and frame, the top- and front-view coarse maps ``(2 dw, D/2, D/2)`` are pooled 2x (a cell
+    of ~9 cm: the camera moves a fraction of a cell per frame, within reach of the 3x3 gates) and fed
+    to the ConvLSTM in frame order; its output, upsampled, is added back through a zero-initialised
+    1x1 convolution, so a fresh memory leaves the single-frame network's outputs unchanged.
+    """
+
+    def __init__(self, channels: int, hidden: int, layers: int) -> None:
+        super().__init__()
+        self.channels = channels
+        self.lstm = StackedConvLSTM(2 * channels, hidden, layers)
+        self.out = nn.Conv2d(hidden, 2 * channels, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def _refine(self, f: SlotFeatures, h: torch.Tensor) -> SlotFeatures:
+        corr = _up(self.out(h))
+        return SlotFeatures(f.top + corr[:, : self.channels], f.front + corr[:, self.channels :], f.fine, f.valid)
+
+    @staticmethod
+    def _pooled(f: SlotFeatures) -> torch.Tensor:
+        return F.avg_pool2d(torch.cat([f.top, f.front], 1), 2)
+
+    def step(self, f: SlotFeatures, state: State | None) -> tuple[SlotFeatures, State]:
+        """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot)."""
+        h, state = self.lstm.step(self._pooled(f), state)
+        return self._refine(f, h), state
+
+    def window(self, feats: list[SlotFeatures], state: State | None = None) -> tuple[list[SlotFeatures], State]:
+        """A window's frames in order (each ``(B*R, ...)``); returns them refined and the final state."""
+        seq = torch.stack([self._pooled(f) for f in feats], 1)
+        hs, state = self.lstm(seq, state)
+        return [self._refine(f, hs[:, t]) for t, f in enumerate(feats)], state
 
 
 class PatchDiscriminator(nn.Module):
@@ -372,12 +444,13 @@ class PatchDiscriminator(nn.Module):
 
 
 class MVRackLay(nn.Module):
-    """Encoder + (Conv)LSTM temporal block + pyramid + row head + shelf-anchored decoders.
+    """Encoder + pyramid + row head + shelf-anchored decoders + (sequence variants) the slot memory.
 
     `forward` takes a window ``(B, T, 3, H, W)`` of canonical float images in [0, 1] (and, in
     training, the ground-truth anchors ``(B, T, R)``) and returns ``{"top", "front": (B, T, R, 3, D,
     D) logits, "rows": (B, T, H) row-head logits, "anchors": (B, T, R)}``. `step` is the
-    streaming form: one frame in, its outputs and the carried state out.
+    streaming form: one frame in, its outputs and the carried memory state out; `frame_features`
+    and `decode_window` let a caller cache per-frame work across overlapping windows.
     """
 
     def __init__(self, cfg: ModelConfig) -> None:
@@ -386,17 +459,12 @@ class MVRackLay(nn.Module):
         self.encoder = ResNet18Encoder(cfg.encoder_width)
         c2, c3, c4, c5 = self.encoder.channels
         self.reduce = _conv_bn_relu(c5, cfg.hidden, 1)
-        if cfg.use_lstm and cfg.temporal_residual:
-            pre = _conv_bn_relu(cfg.hidden, cfg.hidden)
-            self.temporal: nn.Module = ResidualConvLSTM(pre, cfg.hidden, cfg.lstm_layers)
-        elif cfg.use_lstm:
-            self.temporal = StackedConvLSTM(cfg.hidden, cfg.hidden, cfg.lstm_layers)
-        else:
-            self.temporal = _conv_bn_relu(cfg.hidden, cfg.hidden)
+        self.temporal = _conv_bn_relu(cfg.hidden, cfg.hidden)  # the single-frame 1/32 block
         self.pyramid = Pyramid(cfg, c2, c2, c3, c4)  # the stem has the width of layer1
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.slots = SlotHeads(cfg, fine, coarse)
+        self.memory = SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers) if cfg.use_lstm else None
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -411,22 +479,25 @@ class MVRackLay(nn.Module):
         s1, f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
         return s1, f2, f3, f4, self.reduce(f5)
 
-    def temporal_window(self, f5: torch.Tensor) -> torch.Tensor:
-        """The temporal block over a window ``(B, T, C, h, w)`` of reduced 1/32 maps, same shape out."""
-        if self.cfg.use_lstm:
-            return self.temporal(f5)[0]
-        return self.temporal(f5.flatten(0, 1)).unflatten(0, f5.shape[:2])
+    def frame_features(
+        self, images: torch.Tensor, anchors: torch.Tensor | None = None
+    ) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
+        """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``.
 
-    def decode(self, feats: Features, t5: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
-        """Outputs from encoder features and the temporal 1/32 map; anchors ``(N, R)`` or None (row head's)."""
-        p1, p2 = self.pyramid(feats, t5)
+        Anchors are the given ones, else the row head's.
+        """
+        feats = self.encode(images)
+        p1, p2 = self.pyramid(feats, self.temporal(feats[4]))
         rows = self.rows(p1, p2)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
-        out = self.slots(p1, p2, anchors)
-        out["rows"] = rows
-        out["anchors"] = anchors
-        return out
+        return self.slots.coarse(p1, p2, anchors), rows, anchors
+
+    def decode_window(self, window: list[SlotFeatures]) -> list[dict[str, torch.Tensor]]:
+        """Logits of each frame of a window (slot features in frame order), fused by the slot memory."""
+        if self.memory is not None:
+            window, _ = self.memory.window(window)
+        return [self.slots.finish(f) for f in window]
 
     def forward(self, images: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         if images.ndim != 5:
@@ -434,21 +505,27 @@ class MVRackLay(nn.Module):
         b, t = images.shape[:2]
         if anchors is not None and tuple(anchors.shape) != (b, t, self.cfg.spec.num_slots):
             raise InputError(f"anchors must have shape {(b, t, self.cfg.spec.num_slots)}, got {tuple(anchors.shape)}")
-        feats = self.encode(images.flatten(0, 1))
-        t5 = self.temporal_window(feats[4].unflatten(0, (b, t))).flatten(0, 1)
-        out = self.decode(feats, t5, None if anchors is None else anchors.flatten(0, 1))
-        return {k: o.unflatten(0, (b, t)) for k, o in out.items()}
+        # frames ordered (time, batch) so each time step is one contiguous block
+        x = images.transpose(0, 1).flatten(0, 1)
+        a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
+        feats, rows, a = self.frame_features(x, a)
+        outs = self.decode_window([feats.select(t, i) for i in range(t)])
+        res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
+        res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)
+        res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)
+        return res
 
     def step(
         self, image: torch.Tensor, state: State | None = None, anchors: torch.Tensor | None = None
     ) -> tuple[dict[str, torch.Tensor], State | None]:
         """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state."""
-        feats = self.encode(image)
-        if self.cfg.use_lstm:
-            t5, state = self.temporal.step(feats[4], state)
-        else:
-            t5 = self.temporal(feats[4])
-        return self.decode(feats, t5, anchors), state
+        feats, rows, anchors = self.frame_features(image, anchors)
+        if self.memory is not None:
+            feats, state = self.memory.step(feats, state)
+        out = self.slots.finish(feats)
+        out["rows"] = rows
+        out["anchors"] = anchors
+        return out, state
 
 
 def build_discriminators(cfg: ModelConfig) -> nn.ModuleDict | None:

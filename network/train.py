@@ -67,7 +67,9 @@ class TrainConfig:
     minutes: float = (
         0.0  #: budget in wall-clock minutes of optimiser steps (0 = none; loading and validation not counted)
     )
-    stop_minutes: float = 0.0  #: pause once this many step-minutes are done (0 = none); the schedule still spans `minutes`
+    stop_minutes: float = (
+        0.0  #: pause once this many step-minutes are done (0 = none); the schedule still spans `minutes`
+    )
     lr: float = 1e-3
     lr_floor: float = 0.05
     weight_decay: float = 1e-5

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 import torch
@@ -55,16 +53,21 @@ def test_variant_sequence_lengths_and_bad_config():
         ModelConfig(variant="bogus")
     with pytest.raises(InputError, match="multiple of 32"):
         ModelConfig(input_width=100)
-    with pytest.raises(InputError, match="temporal_residual"):
-        ModelConfig(temporal_residual=1)
-    with pytest.raises(InputError, match="even number"):
-        ModelConfig(spec=LayoutSpec(size=15))
+    with pytest.raises(InputError, match="memory_hidden"):
+        ModelConfig(memory_hidden=0)
+    with pytest.raises(InputError, match="multiple of 4"):
+        ModelConfig(spec=LayoutSpec(size=18))
     cfg = tiny()
     assert ModelConfig.from_dict(cfg.to_dict()) == cfg
     old = cfg.to_dict()
     del old["arch"]  # a record of the earlier column-transform decoder
     with pytest.raises(InputError, match="earlier decoder design"):
         ModelConfig.from_dict(old, "old.json")
+    encoder_lstm = {**cfg.to_dict(), "temporal_residual": True}  # the ConvLSTM on the 1/32 map: refused
+    with pytest.raises(InputError, match="earlier ConvLSTM on the 1/32 encoder map"):
+        ModelConfig.from_dict(encoder_lstm, "old.json")
+    single = {**tiny("racklay").to_dict(), "temporal_residual": False}  # single-frame records still load
+    assert ModelConfig.from_dict(single) == tiny("racklay")
     with pytest.raises(InputError, match="expects images of 64x64"):
         MVRackLay(cfg).step(torch.rand(1, 3, 32, 64))
     with pytest.raises(InputError, match="anchors must have shape"):
@@ -112,12 +115,10 @@ def test_anchors_from_rows_decodes_the_lowest_boards_first():
     assert torch.isnan(a[2]).all()
 
 
-@pytest.mark.parametrize("residual", [True, False])
-def test_streaming_equals_convlstm_over_the_prefix(residual):
+def test_streaming_equals_the_slot_memory_over_the_prefix():
     torch.manual_seed(1)
-    model = MVRackLay(replace(tiny(), temporal_residual=residual)).eval()
-    if residual:  # the correction starts at zero; make the ConvLSTM path count
-        torch.nn.init.normal_(model.temporal.out.weight, std=0.5)
+    model = MVRackLay(tiny()).eval()
+    torch.nn.init.normal_(model.memory.out.weight, std=0.5)  # the correction starts at zero; make it count
     x = torch.rand(1, 6, 3, 64, 64)
     with torch.no_grad():
         full = model(x, ANCHORS.expand(1, 6, 2))
@@ -126,7 +127,23 @@ def test_streaming_equals_convlstm_over_the_prefix(residual):
             out, state = model.step(x[:, t], state, ANCHORS[None])
             for v in ("top", "front", "rows"):
                 torch.testing.assert_close(out[v], full[v][:, t], rtol=1e-4, atol=1e-5)
-        assert not torch.allclose(full["rows"][:, 0], full["rows"][:, 5])  # the state carries something
+        # the memory carries something: frame 5 alone differs from frame 5 after the prefix
+        alone, _ = model.step(x[:, 5], None, ANCHORS[None])
+        assert not torch.allclose(alone["top"], full["top"][:, 5], atol=1e-3)
+
+
+def test_a_fresh_memory_leaves_the_single_frame_outputs_unchanged():
+    torch.manual_seed(5)
+    seq = MVRackLay(tiny()).eval()
+    single = MVRackLay(tiny("racklay")).eval()
+    missing, unexpected = seq.load_state_dict(single.state_dict(), strict=False)
+    assert all(k.startswith("memory.") for k in missing) and not unexpected
+    x = torch.rand(1, 4, 3, 64, 64)
+    with torch.no_grad():
+        a = seq(x, ANCHORS.expand(1, 4, 2))
+        b = single(x.transpose(0, 1), ANCHORS.expand(4, 1, 2))
+    for v in ("top", "front"):
+        torch.testing.assert_close(a[v][0], b[v][:, 0])
 
 
 def test_windowed_predictor_matches_the_window_forward():

@@ -142,7 +142,7 @@ def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path
     discs = build_discriminators(tiny())
     info = init_weights_from(model, src, discs)
     assert info["variant"] == "racklay" and info["step"] == 2 and info["discriminators"]
-    assert info["fresh_prefixes"] == ["temporal.lstm", "temporal.out"]
+    assert info["fresh_prefixes"] == ["memory.lstm", "memory.out"]
     x = torch.rand(1, 4, 3, 64, 64)
     anchors = torch.tensor([52.0, 30.0]).expand(1, 4, 2)
     with torch.no_grad():
@@ -156,7 +156,7 @@ def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path
     record = json.loads((tmp_path / "seq" / "last.json").read_text())
     assert record["init_from"]["path"] == str(src) and record["init_from"]["variant"] == "racklay"
     trained, _ = load_model(tmp_path / "seq" / "last.pt")
-    assert trained.temporal.out.weight.abs().sum() > 0
+    assert trained.memory.out.weight.abs().sum() > 0
     # Different sizes are refused with the setting named.
     other = MVRackLay(
         ModelConfig(input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=32, decoder_width=8)

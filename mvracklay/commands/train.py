@@ -41,13 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--input-size", type=int, nargs=2, default=[m.input_width, m.input_height], metavar=("W", "H"))
     g.add_argument("--layout-size", type=int, default=m.spec.size, help="D of the predicted layouts")
     g.add_argument("--encoder-width", type=int, default=m.encoder_width, help="ResNet-18 base width (64 = standard)")
-    g.add_argument("--hidden", type=int, default=m.hidden, help="ConvLSTM channels")
+    g.add_argument("--hidden", type=int, default=m.hidden, help="channels of the reduced 1/32 map")
+    g.add_argument("--memory-hidden", type=int, default=m.memory_hidden, help="ConvLSTM channels of the slot memory")
     g.add_argument("--decoder-width", type=int, default=m.decoder_width)
-    g.add_argument(
-        "--no-temporal-residual",
-        action="store_true",
-        help="ConvLSTM in place of the single-frame block instead of a zero-initialised correction to it",
-    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     g.add_argument(
         "--init-from",
@@ -155,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         encoder_width=args.encoder_width,
         hidden=args.hidden,
         decoder_width=args.decoder_width,
-        temporal_residual=not args.no_temporal_residual,
+        memory_hidden=args.memory_hidden,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,
