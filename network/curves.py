@@ -1,4 +1,4 @@
-"""Learning curves as a PNG (held-out mIoU against training minutes), drawn with Pillow alone.
+"""Learning curves as a PNG (validation mIoU against training minutes), drawn with Pillow alone.
 
 `plot_curves` reads runs' ``metrics.jsonl`` (warm-started runs shifted by their source's minutes) and draws one panel per view x class (top/front x
 rack/box), one line per run. ``python -m network.curves OUT.png LABEL=RUN_DIR ...`` does it
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -46,8 +47,17 @@ def start_offset(run: str | Path, x_key: str = "train_cpu_minutes") -> float:
     return float(v) if isinstance(v, (int, float)) else 0.0
 
 
+def _round_up(x: float) -> float:
+    """The smallest of 5 x (1, 2, 4, 5, 8) x 10^k that covers ``x``: five round x ticks."""
+    step = 10 ** math.floor(math.log10(x / 5))
+    for m in (1, 2, 4, 5, 8, 10):
+        if 5 * m * step >= x - 1e-9:
+            return 5 * m * step
+    return 50 * step
+
+
 def plot_curves(runs: dict[str, str | Path], out: str | Path, x_key: str = "train_cpu_minutes") -> None:
-    """Draw held-out (visible-column) mIoU per panel against ``x_key`` for each run; write ``out``.
+    """Draw validation (visible-column) mIoU per panel against ``x_key`` for each run; write ``out``.
 
     A warm-started run's curve starts where its source's training ended (`start_offset`), so
     every x is the total training the weights have had.
@@ -59,14 +69,18 @@ def plot_curves(runs: dict[str, str | Path], out: str | Path, x_key: str = "trai
     pw, ph, m = 420, 260, 50
     img = Image.new("RGB", (2 * pw, 2 * ph + 40), "white")
     d = ImageDraw.Draw(img)
-    xmax = max([e[x_key] for es in data.values() for e in es] + [1e-6])
+    xmax = _round_up(max([e[x_key] for es in data.values() for e in es] + [1e-6]))
+    vals = [e["val_visible"][v][c]["miou"] for es in data.values() for e in es for v, c in PANELS]
+    vals = [x for x in vals if x is not None]
+    # Zoom the y axis to the data (whole tenths), so a few points' difference shows.
+    ylo = max(0.0, math.floor(min(vals, default=0.0) * 10 - 1e-9) / 10)
     for k, (view, cls) in enumerate(PANELS):
         ox, oy = (k % 2) * pw, (k // 2) * ph
         x0, y0, x1, y1 = ox + m, oy + 20, ox + pw - 15, oy + ph - 35
         d.rectangle([x0, y0, x1, y1], outline="black")
-        d.text((x0, oy + 4), f"{view} {cls} mIoU (held-out, columns in view)", fill="black")
-        for t in range(0, 11, 2):
-            y = y1 - (y1 - y0) * t / 10
+        d.text((x0, oy + 4), f"{view} {cls} mIoU (validation scenes, columns in view)", fill="black")
+        for t in range(round(ylo * 10), 11):
+            y = y1 - (y1 - y0) * (t / 10 - ylo) / (1.0 - ylo)
             d.line([x0 - 4, y, x0, y], fill="black")
             d.text((x0 - 30, y - 6), f"{t / 10:.1f}", fill="black")
             d.line([x0, y, x1, y], fill=(230, 230, 230))
@@ -81,7 +95,7 @@ def plot_curves(runs: dict[str, str | Path], out: str | Path, x_key: str = "trai
                 v = e["val_visible"][view][cls]["miou"]
                 if v is None:
                     continue
-                pts.append((x0 + (x1 - x0) * e[x_key] / xmax, y1 - (y1 - y0) * v))
+                pts.append((x0 + (x1 - x0) * e[x_key] / xmax, y1 - (y1 - y0) * (v - ylo) / (1.0 - ylo)))
             col = COLOURS[i % len(COLOURS)]
             if len(pts) > 1:
                 d.line(pts, fill=col, width=2)

@@ -41,3 +41,12 @@ def test_curves_png_and_warm_start_offset(tmp_path):
     assert xs_a and max(xs_a) < 260
     with pytest.raises(InputError, match="metrics file not found"):
         plot_curves({"x": tmp_path / "missing"}, tmp_path / "d.png")
+
+
+def test_x_axis_rounds_up_to_round_ticks():
+    from network.curves import _round_up
+
+    assert _round_up(196.0) == 200.0
+    assert _round_up(4.0) == 4.0
+    assert _round_up(41.0) == 50.0
+    assert _round_up(0.3) == 0.4
