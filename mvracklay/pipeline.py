@@ -36,7 +36,6 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.infer import MODES, Predictor, frame_layouts
 from stitching import rerun_log
-from stitching.detect import DetectConfig
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
@@ -124,8 +123,9 @@ def trained_intrinsics(record: dict[str, Any], source: str) -> Intrinsics | None
 
 
 def stitch_config(cfg: RunConfig) -> StitchConfig:
-    det = DetectConfig(opening=1) if cfg.opening else DetectConfig()
-    return StitchConfig(detect=det, lift=LiftConfig(board_thickness=cfg.board_thickness))
+    if cfg.opening:
+        return StitchConfig.noisy(board_thickness=cfg.board_thickness)
+    return StitchConfig(lift=LiftConfig(board_thickness=cfg.board_thickness))
 
 
 def staging_dir(out: Path) -> Path:

@@ -12,7 +12,13 @@ _ROOT = str(Path(__file__).resolve().parents[1])
 if _ROOT not in sys.path:
     sys.path.insert(0, _ROOT)
 
+from hypothesis import settings  # noqa: E402
+
 from layouts.spec import LayoutSpec  # noqa: E402
+
+# Property tests assert behaviour, not speed: a loaded CI machine must not fail them on timing.
+settings.register_profile("project", deadline=None)
+settings.load_profile("project")
 
 
 @pytest.fixture(scope="session")

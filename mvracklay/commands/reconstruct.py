@@ -11,7 +11,6 @@ from pathlib import Path
 from layouts.codecs import LayoutFolder, read_layout_spec
 from layouts.errors import InputError
 from mvracklay.pipeline import publish, staging_dir, write_glb
-from stitching.detect import DetectConfig
 from stitching.lift import LiftConfig
 from stitching.merge import MergeConfig
 from stitching.pipeline import StitchConfig, Stitcher
@@ -41,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--board-thickness", type=float, default=0.06, help="metres between a clear height and the next board top"
     )
-    p.add_argument("--noisy", action="store_true", help="clean-up for network output (opening of the box masks)")
+    p.add_argument("--noisy", action="store_true", help="clean-up for network output (StitchConfig.noisy: box-mask openings, small boxes and rarely seen boxes dropped)")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer instead of writing the .rrd")
     p.add_argument("--no-rgb", action="store_true", help="do not log RGB frames to Rerun")
@@ -92,15 +91,12 @@ def origin_of(seq, first_index: int) -> tuple[float, float, float] | None:
 def stitch_config(args: argparse.Namespace) -> StitchConfig:
     if not (args.board_thickness >= 0 and args.board_thickness < 1):
         raise InputError(f"--board-thickness must be in [0, 1) metres, got {args.board_thickness}")
-    det = DetectConfig(opening=1) if getattr(args, "noisy", False) else DetectConfig()
     keep = getattr(args, "keep_steps", 0)
     if keep < 0:
         raise InputError(f"--keep-steps must be >= 0, got {keep}")
-    return StitchConfig(
-        detect=det,
-        lift=LiftConfig(board_thickness=args.board_thickness),
-        merge=MergeConfig(keep_steps=keep or None),
-    )
+    if getattr(args, "noisy", False):
+        return StitchConfig.noisy(board_thickness=args.board_thickness, keep_steps=keep or None)
+    return StitchConfig(lift=LiftConfig(board_thickness=args.board_thickness), merge=MergeConfig(keep_steps=keep or None))
 
 
 def run(args: argparse.Namespace) -> int:
