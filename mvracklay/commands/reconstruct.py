@@ -40,7 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--board-thickness", type=float, default=0.06, help="metres between a clear height and the next board top"
     )
-    p.add_argument("--noisy", action="store_true", help="clean-up for network output (StitchConfig.noisy: box-mask openings, small boxes and rarely seen boxes dropped)")
+    p.add_argument(
+        "--noisy",
+        action="store_true",
+        help="clean-up for network output (StitchConfig.noisy: box-mask openings, small boxes and rarely seen boxes dropped)",
+    )
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer instead of writing the .rrd")
     p.add_argument("--no-rgb", action="store_true", help="do not log RGB frames to Rerun")
@@ -96,7 +100,9 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
         raise InputError(f"--keep-steps must be >= 0, got {keep}")
     if getattr(args, "noisy", False):
         return StitchConfig.noisy(board_thickness=args.board_thickness, keep_steps=keep or None)
-    return StitchConfig(lift=LiftConfig(board_thickness=args.board_thickness), merge=MergeConfig(keep_steps=keep or None))
+    return StitchConfig(
+        lift=LiftConfig(board_thickness=args.board_thickness), merge=MergeConfig(keep_steps=keep or None)
+    )
 
 
 def run(args: argparse.Namespace) -> int:

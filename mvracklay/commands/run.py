@@ -46,7 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
     p.add_argument("--no-rgb", action="store_true", help="do not log the RGB frames to Rerun")
     p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
-    p.add_argument("--no-opening", action="store_true", help="stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)")
+    p.add_argument(
+        "--no-opening",
+        action="store_true",
+        help="stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)",
+    )
     p.add_argument("--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for the network")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
