@@ -33,9 +33,11 @@ class ShiftConfig:
     size_tol: float = 0.06  #: metres; like edges must agree this well in depth/height/width
     min_support: int = 2  #: distinct agreeing frame edges needed to trust the box vote
     min_corr_conf: float = 0.5  #: profile correlation below this is not used
+    max_speed_change: float = 0.3  #: metres; largest |step - previous step| (a camera does not jump back
+    #: at once: a reversal takes several frames); keeps a wrong consensus of a few edges out
 
     def __post_init__(self) -> None:
-        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf"):
+        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf", "max_speed_change"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise LayoutError(f"ShiftConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -72,8 +74,9 @@ def vote_offset(
     """Consensus offset ``map_x - frame_x``: (offset, distinct supporting frame edges, confidence).
 
     ``dx`` is the layout's metres per column (the quantisation step of the edges). Hypotheses lie
-    within ``max_step`` of ``predicted`` (the previous offset: the camera may reverse); ties go to
-    the one nearest ``expected`` (constant velocity; default ``predicted``).
+    within ``max_step`` of ``predicted`` (the previous offset: the camera may reverse) and, when
+    ``expected`` (constant velocity) is given, within ``max_speed_change`` of it; ties go to the one
+    nearest ``expected`` (default ``predicted``).
     """
     tol = cfg.tol_px * dx
     if len(frame) == 0 or len(mapped) == 0:
@@ -81,6 +84,8 @@ def vote_offset(
     off = mapped.x[None, :] - frame.x[:, None]
     ok = (frame.slot[:, None] == mapped.slot[None, :]) & (frame.side[:, None] == mapped.side[None, :])
     ok &= np.abs(off - predicted) <= cfg.max_step
+    if expected is not None:
+        ok &= np.abs(off - expected) <= cfg.max_speed_change
     ok &= np.abs(frame.d[:, None] - mapped.d[None, :]) <= cfg.size_tol
     ok &= np.abs(frame.h[:, None] - mapped.h[None, :]) <= cfg.size_tol
     ok &= np.abs(frame.z[:, None] - mapped.z[None, :]) <= cfg.size_tol

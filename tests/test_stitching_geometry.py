@@ -71,3 +71,25 @@ def test_min_area_rect_recovers_a_turned_rectangle():
     assert (cx, cz) == pytest.approx((1.0, 0.5), abs=1e-6)
     assert (w, d) == pytest.approx((0.6, 0.3), abs=1e-6)
     assert ryaw == pytest.approx(yaw, abs=1e-6)
+
+
+def test_vote_offset_keeps_a_sudden_reversal_out():
+    """Four frame edges agree on a jump 0.38 m back, two on the constant-velocity step: with the
+    motion prior the step wins; without it (a huge max_speed_change) the larger consensus would."""
+    from stitching.shift import Edges, ShiftConfig, vote_offset
+
+    def edges(xs, ws):
+        n = len(xs)
+        z = np.zeros(n)
+        return Edges(
+            np.zeros(n, int), np.array([0, 1] * (n // 2)), np.array(xs), np.array(ws), z + 0.4, z + 1.0, z + 0.3, z + 1
+        )
+
+    frame = edges([0.0, 0.5, 1.0, 1.5], [0.5, 0.5, 0.5, 0.5])
+    # Map edges: the true offset is +0.15 (two frame edges match), a repeated pattern at -0.38 matches four.
+    mapped = edges([0.15, 0.65, -0.38, 0.12, 0.62, 1.12], [0.5, 0.5, 0.5, 0.5, 0.5, 0.5])
+    dx = 3.0 / 128
+    off, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(), dx, expected=0.15)
+    assert abs(off - 0.15) < 0.02
+    off_free, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(max_speed_change=10.0), dx, expected=0.15)
+    assert abs(off_free + 0.38) < 0.02
