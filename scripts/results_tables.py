@@ -39,6 +39,7 @@ def table1(runs: Path) -> list[str]:
         ("mvracklay-disc-4 (windowed)", runs / "mvracklay-disc-4" / "table1_window.json"),
         ("mvracklay-disc-4 (streaming)", runs / "mvracklay-disc-4" / "table1_stream.json"),
         ("mvracklay-4 (windowed)", runs / "mvracklay-4" / "table1_window.json"),
+        ("mvracklay-disc-8 (windowed)", runs / "mvracklay-disc-8" / "table1_window.json"),
         ("racklay", runs / "racklay" / "table1_window.json"),
         ("depth projection (ground-truth depth + masks)", runs / "baseline_depth.json"),
         ("mvracklay-disc-4, true shelf boards (analysis)", runs / "mvracklay-disc-4" / "table1_true_anchors.json"),

@@ -7,7 +7,7 @@
 #      stage 2a, side by side with one thread each: racklay continues its schedule to TOTAL minutes, and
 #      mvracklay-disc-4 starts from racklay's stage-1 weights (the ConvLSTM enters as a zero-initialised
 #      correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL minutes in all;
-#      stage 2b: mvracklay-4 likewise, on one core while the others are evaluated;
+#      stage 2b: mvracklay-4 likewise, on one core while the others are evaluated; 2c: mvracklay-disc-8;
 #   3. Table I of every model on the held-out set (windowed, as in the paper; streaming too for the
 #      default), the depth-projection baseline, reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
@@ -94,12 +94,15 @@ for V in mvracklay-disc-4 racklay; do
 done
 wait $MV4
 table1 mvracklay-4 table1_window
+#    Stage 2c: mvracklay-disc-8 the same way (one thread; its window of 8 frames), then its Table I.
+warm_start mvracklay-disc-8
+table1 mvracklay-disc-8 table1_window
 #    The README's two tables, from the JSON files above.
 $PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 
 # 4. Curves, speed, shipped weights.
-$PY -m network.curves "$CURVES" "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-4=$RUNS/mvracklay-4" \
-    "racklay=$RUNS/racklay"
+$PY -m network.curves "$CURVES" "racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvracklay-4" \
+    "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-disc-8=$RUNS/mvracklay-disc-8"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256 \
     | tee "$RUNS/bench_infer.txt"
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS" \
