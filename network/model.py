@@ -210,7 +210,7 @@ class SlotFeatures:
 
 
 class Pyramid(nn.Module):
-    """Top-down feature pyramid from the temporal 1/32 map to a 1/4 map (``2 dw`` channels) and a 1/2 map."""
+    """Top-down feature pyramid from the 1/32 map (after its single-frame block) to a 1/4 map (``2 dw`` channels) and a 1/2 map."""
 
     def __init__(self, cfg: ModelConfig, c1: int, c2: int, c3: int, c4: int) -> None:
         super().__init__()

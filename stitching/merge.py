@@ -354,11 +354,7 @@ class MapBuilder:
             method, conf, off = "prediction", 0.0, self._offset + self._velocity
             if top is not None and self._prev_top is not None:
                 s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
-                if (
-                    c >= cfg.min_corr_conf
-                    and abs(s) <= cfg.max_step
-                    and abs(s - self._velocity) <= cfg.max_speed_change
-                ):
+                if c >= cfg.min_corr_conf and cfg.allows(s, self._velocity):
                     off, conf, method = self._offset + s, c * 0.5, "correlation"
         shift = off - self._offset
         direction = 0 if abs(shift) < 0.25 * self.dx else int(math.copysign(1, shift))

@@ -45,6 +45,15 @@ class ShiftConfig:
         if isinstance(m, bool) or not isinstance(m, int) or m < 0:
             raise LayoutError(f"ShiftConfig.min_support must be an integer >= 0, got {m!r}")
 
+    def allows(self, step: float | np.ndarray, velocity: float | None = None) -> bool | np.ndarray:
+        """Whether a camera step (metres; a float or an array) is plausible: within ``max_step`` and,
+        given the previous step ``velocity``, within ``max_speed_change`` of it. The one motion prior
+        the box vote and the correlation fallback share."""
+        ok = np.abs(step) <= self.max_step
+        if velocity is not None:
+            ok = ok & (np.abs(step - velocity) <= self.max_speed_change)
+        return ok
+
 
 @dataclass
 class Edges:
@@ -83,9 +92,7 @@ def vote_offset(
         return predicted, 0, 0.0
     off = mapped.x[None, :] - frame.x[:, None]
     ok = (frame.slot[:, None] == mapped.slot[None, :]) & (frame.side[:, None] == mapped.side[None, :])
-    ok &= np.abs(off - predicted) <= cfg.max_step
-    if expected is not None:
-        ok &= np.abs(off - expected) <= cfg.max_speed_change
+    ok &= cfg.allows(off - predicted, None if expected is None else expected - predicted)
     ok &= np.abs(frame.d[:, None] - mapped.d[None, :]) <= cfg.size_tol
     ok &= np.abs(frame.h[:, None] - mapped.h[None, :]) <= cfg.size_tol
     ok &= np.abs(frame.z[:, None] - mapped.z[None, :]) <= cfg.size_tol
