@@ -102,22 +102,9 @@ def board_rows(seq: Any, i: int, view: CanonicalView, slots: int) -> tuple[np.nd
 
 
 def _visible_board_ys(seq: Any) -> list[float]:
-    """Board-top Y of every visible level of a generated sequence (all frames share them); [] if unknown."""
-    cached = getattr(seq, "_mvracklay_board_ys", None)
-    if cached is not None:
-        return cached
-    ys: list[float] = []
-    try:
-        levels = seq.meta["visible_levels"]
-        shelves = seq.scene()["racks"][0]["shelves"]
-        ys = [float(shelves[k]["board_top_y"]) for k in levels]
-    except (AttributeError, KeyError, IndexError, TypeError, ValueError):
-        ys = []
-    try:
-        seq._mvracklay_board_ys = ys
-    except AttributeError:
-        pass
-    return ys
+    """Board-top Y of every visible level (the sequence's ``visible_board_ys()``); [] if it has none."""
+    fn = getattr(seq, "visible_board_ys", None)
+    return [float(y) for y in fn()] if callable(fn) else []
 
 
 def row_target(rows: list[float], height: int, sigma: float = ROW_SIGMA) -> np.ndarray:

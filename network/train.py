@@ -122,13 +122,24 @@ class TrainConfig:
             raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
 
 
-def open_generated(root: str | Path):
-    """Open a WareSynth dataset folder (the generator's reader), with a one-line error if it is not one."""
-    from waresynth.dataset import open_dataset  # the dataset reader is the one allowed waresynth import
+def open_data(root: str | Path):
+    """Open a training/evaluation data folder: a WareSynth dataset, or a RackLay/MVRackLay export
+    written by `mvracklay export --format racklay` (recognised by its manifest). Both give
+    ``spec``, ``image_size`` and ``sequences(split)``; one-line error if it is neither."""
+    # the dataset readers are the one allowed waresynth import
+    from waresynth.dataset import open_dataset
+    from waresynth.exporters import RACKLAY_MANIFEST, load_racklay_export
 
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"{root}: dataset folder not found")
+    if (root / RACKLAY_MANIFEST).is_file():
+        return load_racklay_export(root)
+    if (root / "topLayouts").is_dir() and not (root / "manifest.json").is_file():
+        raise InputError(
+            f"{root}: a RackLay folder without {RACKLAY_MANIFEST}: training needs each frame's intrinsics, "
+            "camera distance and board heights, which only 'mvracklay export --format racklay' writes"
+        )
     return open_dataset(root)
 
 

@@ -141,7 +141,7 @@ def test_racklay_round_trip(tiny_dataset: Path, exports: dict[str, Path]) -> Non
     assert len(ex) == sum(s.num_frames for s in ds.sequences())
     top = np.load(exports["racklay"] / "topLayouts" / "top000000.npy", allow_pickle=False)
     assert top.dtype == np.uint8 and top.shape == ds.spec.shape and set(np.unique(top)) <= {0, 115, 255}
-    for rec, seq in zip(ex.sequences, ds.sequences()):
+    for rec, seq in zip(ex.records, ds.sequences()):
         assert (rec.name, rec.split, rec.frames) == (seq.name, seq.split, seq.num_frames)
         for k, i in zip(rec.indices, range(seq.num_frames)):
             a, b = ex.layouts(k), seq.layouts(i)
@@ -151,7 +151,7 @@ def test_racklay_round_trip(tiny_dataset: Path, exports: dict[str, Path]) -> Non
                 assert np.array_equal(a.visible, b.visible)
             assert np.array_equal(ex.rgb(k), seq.rgb(i))
     for split in ex.splits:
-        seqs = [r for r in ex.sequences if r.split == split]
+        seqs = [r for r in ex.records if r.split == split]
         assert ex.split_indices(split) == [k for r in seqs for k in r.indices]
         assert ex.temporal_sequences(split) == [r.indices for r in seqs]
         wins = ex.windows(split, 4)
@@ -161,7 +161,7 @@ def test_racklay_round_trip(tiny_dataset: Path, exports: dict[str, Path]) -> Non
         assert all(len(w) == 4 for w in wins)
     # The temporal file has MVRackLay's shape: image paths a line, each sequence closed by ",".
     text = (exports["racklay"] / "splits" / f"{ex.splits[0]}_temporal_files.txt").read_text()
-    assert text.endswith("\n,") and text.count(",") == sum(r.split == ex.splits[0] for r in ex.sequences)
+    assert text.endswith("\n,") and text.count(",") == sum(r.split == ex.splits[0] for r in ex.records)
 
 
 def test_exports_are_deterministic(tiny_dataset: Path, exports: dict[str, Path], tmp_path: Path) -> None:

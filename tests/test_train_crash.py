@@ -16,7 +16,7 @@ from layouts import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
 from network.model import ModelConfig
-from network.train import TrainConfig, Trainer, open_generated
+from network.train import TrainConfig, Trainer, open_data
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["best.json", "best.pt", "last.json", "last.pt", "metrics.jsonl"]
@@ -75,7 +75,7 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(tiny_dataset, tmp
     assert "pass --resume" in capsys.readouterr().err
 
     # A resuming trainer holds the checkpoint's step count, epoch position and optimiser states.
-    ds = open_generated(tiny_dataset)
+    ds = open_data(tiny_dataset)
     tcfg = TrainConfig(**{**record["train_config"], "class_weights": tuple(record["train_config"]["class_weights"])})
     mcfg = ModelConfig.from_dict(record["model_config"])
     t = Trainer(mcfg, tcfg, ds.sequences("train"), [], run, resume=True, progress=False)

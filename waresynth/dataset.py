@@ -128,6 +128,18 @@ class Sequence:
         """(N, 3) float64 world camera positions, one per frame."""
         return np.array([f["camera_position"] for f in self.meta["frames"]], np.float64).reshape(-1, 3)
 
+    @cached_property
+    def _board_ys(self) -> list[float]:
+        try:
+            shelves = self.scene()["racks"][0]["shelves"]
+            return [float(shelves[k]["board_top_y"]) for k in self.meta["visible_levels"]]
+        except (KeyError, IndexError, TypeError, ValueError):
+            return []
+
+    def visible_board_ys(self) -> list[float]:
+        """World Y of the board top of every shelf level the camera path sees (all frames share them; [] if unknown)."""
+        return list(self._board_ys)
+
 
 def read_manifest(folder: Path, kind: str = "dataset") -> tuple[Path, dict[str, Any]]:
     """``(path, manifest)`` of a dataset (or shard) folder, checking its format and version."""

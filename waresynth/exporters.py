@@ -38,6 +38,7 @@ import numpy as np
 from scipy import ndimage
 from tqdm import tqdm
 
+from layouts.camera import Intrinsics
 from layouts.codecs import RACKLAY_CODES, FrameLayouts, from_racklay, to_racklay, validate_stack
 from layouts.errors import InputError
 from layouts.fileio import (
@@ -63,6 +64,11 @@ MIN_COMPONENT_PIXELS = 4
 
 _SPLIT_ORDER = ("train", "val", "test")
 RACKLAY_MANIFEST = "racklay_export.json"
+#: what RackLay's format lacks and training needs: per sequence its intrinsics, the board heights it
+#: sees and every frame's camera record (position, distance to the rack, slot boards)
+RACKLAY_CAMERAS = "cameras.json"
+#: the RackLay export's own version: 2 added `RACKLAY_CAMERAS`; version 1 exports still read (layouts only)
+RACKLAY_VERSION = 2
 
 
 # ----------------------------------------------------------------------------- objects per frame
@@ -331,6 +337,7 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
     temporal: dict[str, list[str]] = {s: [] for s in splits}
     visible = np.zeros((total, spec.size), bool)
     have_visible = True
+    cameras: dict[str, Any] = {}
     index = 0
 
     def frames() -> Iterator[tuple[Any, int]]:
@@ -342,6 +349,11 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
         if i == 0:
             _check_split_name(seq.split, dataset.root)
             records.append({"name": seq.name, "split": seq.split, "first": index, "frames": seq.num_frames})
+            cameras[seq.name] = {
+                "intrinsics": seq.intrinsics.to_dict(),
+                "board_ys": seq.visible_board_ys(),
+                "frames": [seq.frame(k) for k in range(seq.num_frames)],
+            }
         lay: FrameLayouts = seq.layouts(i)
         lay.validate(spec, str(seq.root / "layouts" / f"{i:06d}.npz"))
         _copy_file(seq.rgb_path(i), tmp / "images" / f"{index:06d}.png")
@@ -362,9 +374,11 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
         atomic_write_text(tmp / "splits" / f"{s}_temporal_files.txt", "".join(temporal[s]))
     if have_visible:
         atomic_save_npy(tmp / "visible.npy", visible)
+    atomic_write_json(tmp / RACKLAY_CAMERAS, {"sequences": cameras})
     manifest = {
         "format": "racklay",
-        "version": EXPORT_VERSION,
+        "version": RACKLAY_VERSION,
+        "cameras": RACKLAY_CAMERAS,
         "source": _source_record(dataset),
         "spec": spec.to_dict(),
         "num_frames": total,
@@ -409,19 +423,59 @@ class RackLayExport:
         try:
             self.num_frames = int(manifest["num_frames"])
             self.splits: list[str] = [str(s) for s in manifest["splits"]]
-            self.sequences = [
+            self.records = [
                 RackLaySequence(str(r["name"]), str(r["split"]), int(r["first"]), int(r["frames"]))
                 for r in manifest["sequences"]
             ]
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{src}: malformed RackLay export manifest ({e!r})") from None
-        covered = sorted(k for s in self.sequences for k in s.indices)
+        covered = sorted(k for s in self.records for k in s.indices)
         if covered != list(range(self.num_frames)):
             raise InputError(f"{src}: sequences do not cover frames 0..{self.num_frames - 1} exactly once")
         self._visible: np.ndarray | None = None
+        self._cameras: dict[str, Any] | None = None
+        src_size = manifest.get("source", {}).get("image_size") if isinstance(manifest.get("source"), dict) else None
+        self.image_size: tuple[int, ...] = tuple(int(v) for v in src_size) if isinstance(src_size, list) else ()
 
     def __len__(self) -> int:
         return self.num_frames
+
+    def sequences(self, split: str | None = None) -> list[ExportSequence]:
+        """Readers of the export's sequences (of one split, or all), with the interface of
+        `waresynth.dataset.Sequence` that training and evaluation read: images, layouts and the
+        camera records of `RACKLAY_CAMERAS` (an export without them cannot train the network)."""
+        if split is not None and split not in _SPLIT_ORDER:
+            raise InputError(f"split must be one of {_SPLIT_ORDER} or None, got {split!r}")
+        cams = self.camera_records()
+        return [ExportSequence(self, r, cams.get(r.name)) for r in self.records if split is None or r.split == split]
+
+    def camera_records(self) -> dict[str, Any]:
+        """``{sequence name: {"intrinsics", "board_ys", "frames"}}`` from `RACKLAY_CAMERAS` (checked once)."""
+        if self._cameras is None:
+            name = self.manifest.get("cameras")
+            p = self.root / RACKLAY_CAMERAS
+            if name is None:
+                raise InputError(
+                    f"{self.root}: this RackLay export has no camera records ({RACKLAY_CAMERAS}; written from "
+                    f"export version {RACKLAY_VERSION}): training needs the intrinsics, camera distance and board "
+                    "heights, re-export the dataset with this version"
+                )
+            d = load_json(p)
+            seqs = d.get("sequences") if isinstance(d, dict) else None
+            if not isinstance(seqs, dict):
+                raise InputError(f"{p}: expected an object with a 'sequences' object")
+            for r in self.records:
+                e = seqs.get(r.name)
+                if not isinstance(e, dict) or not isinstance(e.get("frames"), list) or len(e["frames"]) != r.frames:
+                    raise InputError(f"{p}: sequence {r.name} needs a record of each of its {r.frames} frames")
+                for k, f in enumerate(e["frames"]):
+                    pos = f.get("camera_position") if isinstance(f, dict) else None
+                    if not (isinstance(pos, list) and len(pos) == 3 and all(isinstance(v, (int, float)) for v in pos)):
+                        raise InputError(f"{p}: sequence {r.name} frame {k}: camera_position must be 3 numbers")
+                if not isinstance(e.get("board_ys", []), list):
+                    raise InputError(f"{p}: sequence {r.name}: board_ys must be a list of numbers")
+            self._cameras = seqs
+        return self._cameras
 
     def _check(self, index: int) -> int:
         if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_frames:
@@ -511,6 +565,49 @@ class RackLayExport:
         return out
 
 
+class ExportSequence:
+    """One sequence of a RackLay export, read like `waresynth.dataset.Sequence` (what the network needs)."""
+
+    def __init__(self, export: RackLayExport, record: RackLaySequence, cameras: dict[str, Any] | None) -> None:
+        self.export = export
+        self.root = export.root
+        self.name = record.name
+        self.split = record.split
+        self.spec = export.spec
+        self.num_frames = record.frames
+        self._first = record.first
+        self._cam = cameras or {}
+        src = f"{export.root / RACKLAY_CAMERAS} ({record.name})"
+        self.intrinsics = Intrinsics.from_dict(self._cam.get("intrinsics"), src)
+
+    def __repr__(self) -> str:
+        return f"ExportSequence({self.name!r}, split={self.split!r}, frames={self.num_frames})"
+
+    def __len__(self) -> int:
+        return self.num_frames
+
+    def _index(self, i: int) -> int:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.num_frames:
+            raise InputError(f"{self.name}: frame index must be an integer in [0, {self.num_frames}), got {i!r}")
+        return self._first + int(i)
+
+    def rgb(self, i: int) -> np.ndarray:
+        return self.export.rgb(self._index(i))
+
+    def layouts(self, i: int) -> FrameLayouts:
+        return self.export.layouts(self._index(i))
+
+    def frame(self, i: int) -> dict[str, Any]:
+        """Per-frame camera record: camera_position, distance, slots (board_top_y per slot), ..."""
+        return self._cam["frames"][self._index(i) - self._first]
+
+    def camera_positions(self) -> np.ndarray:
+        return np.array([f["camera_position"] for f in self._cam["frames"]], np.float64).reshape(-1, 3)
+
+    def visible_board_ys(self) -> list[float]:
+        return [float(y) for y in self._cam.get("board_ys", [])]
+
+
 def _read_text(path: Path) -> str:
     try:
         return path.read_text(encoding="utf-8")
@@ -528,9 +625,10 @@ def load_racklay_export(root: str | os.PathLike) -> RackLayExport:
     manifest = load_json(root / RACKLAY_MANIFEST)
     if not isinstance(manifest, dict) or manifest.get("format") != "racklay":
         raise InputError(f"{root / RACKLAY_MANIFEST}: not a RackLay export manifest")
-    if manifest.get("version") != EXPORT_VERSION:
+    if manifest.get("version") not in (1, RACKLAY_VERSION):
         raise InputError(
-            f"{root / RACKLAY_MANIFEST}: export version {manifest.get('version')!r} not supported (want {EXPORT_VERSION})"
+            f"{root / RACKLAY_MANIFEST}: export version {manifest.get('version')!r} not supported "
+            f"(this version reads 1 and {RACKLAY_VERSION})"
         )
     return RackLayExport(root, manifest)
 

@@ -13,7 +13,7 @@ from layouts.metrics import format_table
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
-from network.train import open_generated
+from network.train import open_data
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -27,7 +27,7 @@ ORDER = 31
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
-    p.add_argument("--data", type=Path, required=True, help="dataset folder")
+    p.add_argument("--data", type=Path, required=True, help="dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')")
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
-    ds = open_generated(args.data)
+    ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")

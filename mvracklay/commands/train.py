@@ -9,7 +9,7 @@ from pathlib import Path
 from layouts.errors import InputError
 from network.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
 from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
-from network.train import TrainConfig, Trainer, default_model_config, open_generated
+from network.train import TrainConfig, Trainer, default_model_config, open_data
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
@@ -30,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--data",
         type=Path,
         nargs="+",
-        help="dataset folder(s) written by 'mvracklay generate' (several are joined; same layout spec)",
+        help="dataset folder(s) written by 'mvracklay generate', or RackLay/MVRackLay exports written by "
+        "'mvracklay export --format racklay' (several are joined; same layout spec)",
     )
     p.add_argument("--out", type=Path, required=True, help="run folder (or the weights file with --export)")
     p.add_argument("--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT)
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--{name} must be finite")
     if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
         raise InputError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
-    datasets = [open_generated(d) for d in args.data]
+    datasets = [open_data(d) for d in args.data]
     ds = datasets[0]
     for d, other in zip(args.data[1:], datasets[1:]):
         if other.spec != ds.spec:
