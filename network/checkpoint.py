@@ -21,6 +21,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes, atomic_write_json
+from network.calibrate import check_offsets
 from network.model import ModelConfig, MVRackLay
 
 FORMAT = "mvracklay-checkpoint"
@@ -88,6 +89,7 @@ def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
             f"{path}: tensor {bad[0]} has shape {tuple(state[bad[0]].shape)}, want {tuple(own[bad[0]].shape)}"
         )
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()})
+    model.box_logit_offset = check_offsets(record.get("box_logit_offset"), f"{path} (record)")
     model.eval()
     return model, record
 

@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from layouts import VIEWS, Intrinsics
+from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
 from network.model import MVRackLay
 
@@ -53,6 +54,13 @@ class Predictor:
         self.anchors = anchors  #: frame index -> (R,) canonical board rows (NaN = no slot); None = the row head's
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
+    def _decide(self, out: dict[str, torch.Tensor], index: Any) -> dict[str, torch.Tensor]:
+        """One frame's outputs (``index`` picks it from the batch) with the model's box-logit offsets applied."""
+        res = {k: o[index] for k, o in out.items()}
+        for v in VIEWS:
+            res[v] = apply_box_offset(res[v], self.model.box_logit_offset.get(v, 0.0))
+        return res
+
     def _anchors(self, i: int) -> torch.Tensor | None:
         if self.anchors is None:
             return None
@@ -65,11 +73,11 @@ class Predictor:
 
     @torch.no_grad()
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
-        """Outputs per frame (``{view: (R, 3, D, D)}`` logits, ``rows``, ``anchors``), carrying the ConvLSTM state."""
+        """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
         state = None
         for i, rgb in enumerate(frames):
             out, state = self.model.step(self.preprocess(rgb, i), state, self._anchors(i))
-            yield {k: o[0] for k, o in out.items()}
+            yield self._decide(out, 0)
 
     @torch.no_grad()
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
@@ -89,7 +97,7 @@ class Predictor:
                 anchors.append(a)
                 given = None if a is None else torch.stack(list(anchors), 1)
                 out = m(torch.stack(list(images), 1), given)
-                yield {k: o[0, -1] for k, o in out.items()}
+                yield self._decide(out, (0, -1))
                 continue
             feats, rows, anc = m.frame_features(x, a)  # per-frame work, shared by the windows it is in
             if not cached:
@@ -97,7 +105,7 @@ class Predictor:
             cached.append(feats)
             out = m.decode_window(list(cached))[-1]
             out["rows"], out["anchors"] = rows, anc
-            yield {k: o[0] for k, o in out.items()}
+            yield self._decide(out, 0)
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
         if mode == "stream":

@@ -465,6 +465,9 @@ class MVRackLay(nn.Module):
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.slots = SlotHeads(cfg, fine, coarse)
         self.memory = SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers) if cfg.use_lstm else None
+        #: per view, subtracted from the box logit by `network.infer.Predictor` (`network.calibrate`;
+        #: not part of the weights: a checkpoint's record carries it)
+        self.box_logit_offset: dict[str, float] = {v: 0.0 for v in VIEWS}
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 

@@ -36,11 +36,16 @@ def table1(runs: Path) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for name, path in [
-        ("mvracklay-disc-4 (windowed)", runs / "mvracklay-disc-4" / "table1_window.json"),
-        ("mvracklay-disc-4 (streaming)", runs / "mvracklay-disc-4" / "table1_stream.json"),
-        ("mvracklay-4 (windowed)", runs / "mvracklay-4" / "table1_window.json"),
-        ("mvracklay-disc-8 (windowed)", runs / "mvracklay-disc-8" / "table1_window.json"),
-        ("racklay", runs / "racklay" / "table1_window.json"),
+        ("mvracklay-disc-4, calibrated (windowed)", runs / "mvracklay-disc-4" / "table1_calibrated.json"),
+        ("mvracklay-disc-4, calibrated (streaming)", runs / "mvracklay-disc-4" / "table1_calibrated_stream.json"),
+        ("mvracklay-4, calibrated", runs / "mvracklay-4" / "table1_calibrated.json"),
+        ("mvracklay-disc-8, calibrated", runs / "mvracklay-disc-8" / "table1_calibrated.json"),
+        ("racklay, calibrated", runs / "racklay" / "table1_calibrated.json"),
+        ("mvracklay-disc-4, raw argmax (windowed)", runs / "mvracklay-disc-4" / "table1_window.json"),
+        ("mvracklay-disc-4, raw argmax (streaming)", runs / "mvracklay-disc-4" / "table1_stream.json"),
+        ("mvracklay-4, raw argmax", runs / "mvracklay-4" / "table1_window.json"),
+        ("mvracklay-disc-8, raw argmax", runs / "mvracklay-disc-8" / "table1_window.json"),
+        ("racklay, raw argmax", runs / "racklay" / "table1_window.json"),
         ("depth projection (ground-truth depth + masks)", runs / "baseline_depth.json"),
         ("mvracklay-disc-4, true shelf boards (analysis)", runs / "mvracklay-disc-4" / "table1_true_anchors.json"),
     ]:
@@ -60,8 +65,10 @@ def reconstruction(runs: Path) -> list[str]:
     ]
     for name, path in [
         ("ground truth", runs / "reconstruction_gt.json"),
-        ("mvracklay-disc-4 (streaming)", runs / "reconstruction_mvracklay-disc-4.json"),
-        ("racklay", runs / "reconstruction_racklay.json"),
+        ("mvracklay-disc-4, calibrated (streaming)", runs / "reconstruction_mvracklay-disc-4.json"),
+        ("racklay, calibrated", runs / "reconstruction_racklay.json"),
+        ("mvracklay-disc-4, raw argmax (streaming)", runs / "reconstruction_mvracklay-disc-4_raw.json"),
+        ("racklay, raw argmax", runs / "reconstruction_racklay_raw.json"),
     ]:
         if path.is_file():
             s = json.loads(path.read_text())["summary"]

@@ -8,14 +8,15 @@
 #      mvracklay-disc-4 starts from racklay's stage-1 weights (the ConvLSTM enters as a zero-initialised
 #      correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL minutes in all;
 #      stage 2b: mvracklay-4 likewise, on one core while the others are evaluated; 2c: mvracklay-disc-8;
-#   3. Table I of every model on the held-out set (windowed, as in the paper; streaming too for the
+#   3. Table I of every model on the held-out set, raw and with box decision offsets chosen on a
+#      tuning set (seed 303; `mvracklay calibrate`) (windowed, as in the paper; streaming too for the
 #      default), the depth-projection baseline, reconstruction accuracy from predicted vs ground-truth layouts;
 #   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
 #
 # "Minutes" are wall-clock minutes spent in optimiser steps (data loading and validation not counted).
 # Every step resumes: re-running skips finished sequences and continues runs from RUN/last.pt.
 # Override the folders with DATA=... RUNS=...; for a smoke check of the whole recipe, shrink it, e.g.
-#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2 HELDOUT_FRAMES=12 TOTAL=1 STAGE1=0.6 \
+#   DATA=/tmp/d RUNS=/tmp/r TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2 TUNE_SEQUENCES=2 HELDOUT_FRAMES=12 TOTAL=1 STAGE1=0.6 \
 #   WEIGHTS=/tmp/r/w.pt CURVES=/tmp/r/curves.png scripts/train_default.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,6 +29,7 @@ WORKERS=${WORKERS:-2}
 TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
 HELDOUT_FRAMES=${HELDOUT_FRAMES:-50}
+TUNE_SEQUENCES=${TUNE_SEQUENCES:-8}
 WEIGHTS=${WEIGHTS:-weights/mvracklay-disc-4.pt}
 CURVES=${CURVES:-docs/network_curves.png}
 COMMON=(--epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 --quiet)
@@ -45,14 +47,18 @@ done
 #    Held-out: 24 sequences x 50 frames (>= 20 sequences), dataset seed 202.
 HELDOUT="$DATA/heldout128"
 $PY -m mvracklay generate "$HELDOUT" --sequences "$HELDOUT_SEQUENCES" --frames "$HELDOUT_FRAMES" --size 128 --seed 202 --workers "$WORKERS"
+#    Tuning: 8 sequences x 50 frames, dataset seed 303: the box decision offsets (and the stitching's
+#    clean-up for predicted layouts) are chosen here, never on the held-out set.
+TUNE="$DATA/tune128"
+$PY -m mvracklay generate "$TUNE" --sequences "$TUNE_SEQUENCES" --frames "$HELDOUT_FRAMES" --size 128 --seed 303 --workers "$WORKERS"
 
 #    No held-out sequence seed may appear in a training set.
-$PY - "$HELDOUT/manifest.json" "${TRAIN[@]/%//manifest.json}" <<'PYEOF'
+$PY - "$HELDOUT/manifest.json" "$TUNE/manifest.json" "${TRAIN[@]/%//manifest.json}" <<'PYEOF'
 import json, sys
-held, *train = [{e["seed"] for e in json.load(open(p))["sequences"]} for p in sys.argv[1:]]
+held, tune, *train = [{e["seed"] for e in json.load(open(p))["sequences"]} for p in sys.argv[1:]]
 used = set().union(*train)
-assert not held & used, "held-out sequence seeds overlap a training set"
-print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)})")
+assert not held & (used | tune), "held-out sequence seeds overlap a training or the tuning set"
+print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)}) or tuning ({len(tune)})")
 PYEOF
 
 # 2. Stage 1: racklay alone, both cores, its cosine schedule spanning TOTAL minutes, paused at STAGE1.
@@ -77,26 +83,38 @@ MV4=$!
 
 # 3. Table I on every held-out sequence (all 24 x 50 frames), one thread; reconstruction accuracy.
 EVAL=(--data "$HELDOUT" --split all --threads 1 --quiet)
-table1() {  # variant, name, extra flags
-    $PY -m mvracklay evaluate --checkpoint "$RUNS/$1/best.pt" "${EVAL[@]}" --json "$RUNS/$1/$2.json" "${@:3}" \
+table1() {  # variant, name, extra flags (CKPT=calibrated scores the calibrated copy)
+    $PY -m mvracklay evaluate --checkpoint "$RUNS/$1/${CKPT:-best}.pt" "${EVAL[@]}" --json "$RUNS/$1/$2.json" "${@:3}" \
         > "$RUNS/$1/$2.txt"
+}
+calibrate() {  # variant: box decision offsets chosen on the tuning set -> RUN/calibrated.pt, then its Table I
+    $PY -m mvracklay calibrate --checkpoint "$RUNS/$1/best.pt" --data "$TUNE" --out "$RUNS/$1/calibrated.pt" \
+        --threads 1 --quiet --json "$RUNS/$1/calibration.json" > "$RUNS/$1/calibration.txt"
+    CKPT=calibrated table1 "$1" table1_calibrated
 }
 table1 mvracklay-disc-4 table1_window
 table1 mvracklay-disc-4 table1_stream --mode stream
 table1 mvracklay-disc-4 table1_true_anchors --true-anchors
 table1 racklay table1_window
+calibrate mvracklay-disc-4
+CKPT=calibrated table1 mvracklay-disc-4 table1_calibrated_stream --mode stream
+calibrate racklay
 $PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --quiet --json "$RUNS/baseline_depth.json" \
     > "$RUNS/baseline_depth.txt"
 $PY -m mvracklay eval-reconstruction "$HELDOUT" --quiet --json > "$RUNS/reconstruction_gt.json"
 for V in mvracklay-disc-4 racklay; do
-    $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/$V/best.pt" --noisy --threads 1 --quiet \
-        --json > "$RUNS/reconstruction_$V.json"
+    for C in best:_raw calibrated:; do  # checkpoint:file suffix
+        $PY -m mvracklay eval-reconstruction "$HELDOUT" --checkpoint "$RUNS/$V/${C%%:*}.pt" --noisy --threads 1 \
+            --quiet --json > "$RUNS/reconstruction_$V${C#*:}.json"
+    done
 done
 wait $MV4
 table1 mvracklay-4 table1_window
+calibrate mvracklay-4
 #    Stage 2c: mvracklay-disc-8 the same way (one thread; its window of 8 frames), then its Table I.
 warm_start mvracklay-disc-8
 table1 mvracklay-disc-8 table1_window
+calibrate mvracklay-disc-8
 #    The README's two tables, from the JSON files above.
 $PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 
@@ -105,5 +123,5 @@ $PY -m network.curves "$CURVES" "racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvrac
     "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-disc-8=$RUNS/mvracklay-disc-8"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256 \
     | tee "$RUNS/bench_infer.txt"
-$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/best.pt" --out "$WEIGHTS" \
-    --note "scripts/train_default.sh (TOTAL=$TOTAL, STAGE1=$STAGE1): racklay $STAGE1 min on 2 threads, then mvracklay-disc-4 from its weights for $WARM min beside racklay's last $WARM min, one thread each"
+$PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/calibrated.pt" --out "$WEIGHTS" \
+    --note "scripts/train_default.sh (TOTAL=$TOTAL, STAGE1=$STAGE1): racklay $STAGE1 min on 2 threads, then mvracklay-disc-4 from its weights for $WARM min beside racklay's last $WARM min, one thread each; box decision offsets calibrated on $TUNE"

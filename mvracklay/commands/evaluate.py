@@ -27,7 +27,12 @@ ORDER = 31
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
-    p.add_argument("--data", type=Path, required=True, help="dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')")
+    p.add_argument(
+        "--data",
+        type=Path,
+        required=True,
+        help="dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')",
+    )
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")

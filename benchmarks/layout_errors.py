@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""Where a checkpoint's layout errors come from: its predictions with one part replaced by the truth.
+
+    .venv/bin/python benchmarks/layout_errors.py runs/mvracklay-disc-4/best.pt data/heldout128 [--every 2]
+
+Runs the model (streaming, row-head anchors) over every sequence and scores Table I
+(`layouts.metrics.FrameScorer`, columns in view, mIoU in percent) of:
+
+* **prediction** as it is;
+* **true footprint**: inside the shelf's true footprint (shelf or box), predicted background
+  becomes shelf; outside it, everything becomes background. What the shelf's extent costs.
+* **true footprint depth**: in columns where both have a shelf, the footprint's rows are the
+  truth's (boxes kept where predicted inside it). For the top view: what misjudging the rack's
+  depth costs; for the front view: what misjudging the clear height costs.
+* **true box depth**: in columns where both have a box, the box cells are the truth's (predicted
+  box cells elsewhere in the column become shelf). What the boxes' extent along the rows (their
+  depth in the top view, their height in the front view) costs once X is right.
+* **both**: true footprint depth and true box depth together.
+
+Then two numbers per frame and slot: the rack depth read off the predicted top view (median over
+columns of the footprint's row extent) against the truth, and the same pooled per sequence
+(median over its frames), which shows whether the errors average out over a sequence or are a
+per-scene bias; and the depth of predicted boxes against the truth's in shared columns.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts import BOX, SHELF  # noqa: E402
+from layouts.metrics import FrameScorer  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.train import open_data  # noqa: E402
+
+CASES = ("prediction", "true footprint", "true footprint depth", "true box depth", "both")
+
+
+def true_footprint(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    out[(g > 0) & (out == 0)] = SHELF
+    out[g == 0] = 0
+    return out
+
+
+def true_footprint_depth(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    both = ((p > 0).any(1) & (g > 0).any(1))[:, None, :]  # (R, 1, D) columns where both have a shelf
+    out[both & (g > 0) & (out == 0)] = SHELF
+    out[both & (g == 0)] = 0
+    return out
+
+
+def true_box_depth(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    both = ((p == BOX).any(1) & (g == BOX).any(1))[:, None, :]
+    out[both & (p == BOX)] = SHELF
+    out[both & (g == BOX)] = BOX
+    return out
+
+
+def both_depths(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    return true_box_depth(true_footprint_depth(p, g), g)
+
+
+def extent_rows(mask: np.ndarray) -> np.ndarray:
+    """Per column with any cell set: last row - first row + 1 (``(cols,)``)."""
+    cols = np.nonzero(mask.any(0))[0]
+    rows = np.arange(mask.shape[0])[:, None]
+    m = mask[:, cols]
+    hi = np.where(m, rows, -1).max(0)
+    lo = np.where(m, rows, mask.shape[0]).min(0)
+    return hi - lo + 1
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path)
+    ap.add_argument("data", type=Path, help="a dataset with ground truth (e.g. the held-out set)")
+    ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, record = load_model(args.checkpoint)
+    model.eval()
+    seqs = open_data(args.data).sequences()
+    scorers = {c: FrameScorer() for c in CASES}
+    rack = []  # (sequence, predicted depth m, true depth m) per frame and slot
+    boxes = []  # (predicted, true) box depth in metres per shared box column
+    frames = 0
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
+    for q, seq in enumerate(seqs):
+        row_m = seq.spec.z_extent / seq.spec.size
+        pred = Predictor(model, sequence_camera(seq))
+        for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
+            bar.update(1)
+            if i % args.every:
+                continue
+            gt = seq.layouts(i)
+            p = frame_layouts(out, seq.spec.size)
+            vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
+            for case, fn in zip(CASES, (None, true_footprint, true_footprint_depth, true_box_depth, both_depths)):
+                scorers[case].update(p if fn is None else {v: fn(p[v], getattr(gt, v)) for v in ("top", "front")}, gt)
+            for r in range(gt.top.shape[0]):
+                pt, g = p["top"][r][:, vis], gt.top[r][:, vis]
+                if (pt > 0).any() and (g > 0).any():
+                    rack.append((q, np.median(extent_rows(pt > 0)) * row_m, np.median(extent_rows(g > 0)) * row_m))
+                shared = (pt == BOX).any(0) & (g == BOX).any(0)
+                if shared.any():
+                    pe = extent_rows((pt == BOX) & shared[None, :])
+                    ge = extent_rows((g == BOX) & shared[None, :])
+                    boxes.extend(zip(pe * row_m, ge * row_m))
+            frames += 1
+    bar.close()
+    print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {frames} frames of {len(seqs)} sequences")
+    print(f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    for case in CASES:
+        v = scorers[case].result()["visible"]
+        cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
+        print(f"{case:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
+    if rack:
+        q, pd, td = (np.array(x) for x in zip(*rack))
+        pooled = np.array([np.median(pd[q == k]) for k in q])  # each frame's sequence median
+        print(
+            f"rack depth (top view footprint): true {td.mean():.2f} +- {td.std():.2f} m; per frame: error "
+            f"{np.abs(pd - td).mean() * 100:.1f} cm mean abs, bias {(pd - td).mean() * 100:+.1f} cm, "
+            f"corr {np.corrcoef(pd, td)[0, 1]:.2f}; sequence median: error {np.abs(pooled - td).mean() * 100:.1f} cm"
+        )
+    if boxes:
+        pb, tb = (np.array(x) for x in zip(*boxes))
+        print(
+            f"box depth (shared box columns): true {tb.mean():.2f} +- {tb.std():.2f} m, predicted "
+            f"{pb.mean():.2f} +- {pb.std():.2f} m; error {np.abs(pb - tb).mean() * 100:.1f} cm mean abs, "
+            f"corr {np.corrcoef(pb, tb)[0, 1]:.2f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

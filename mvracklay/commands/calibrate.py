@@ -1,0 +1,71 @@
+"""``mvracklay calibrate``: choose a checkpoint's per-view box-logit offsets on a tuning set."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, nan_to_null
+from network.calibrate import GRID, fit_box_offsets
+from network.checkpoint import load_checkpoint, load_model, save_checkpoint
+
+NAME = "calibrate"
+HELP = "choose the per-view box decision offset of a checkpoint on a tuning set (writes it into the record)"
+DESCRIPTION = (
+    "Training weights the rare box class, which makes predicted boxes too large. This runs CKPT over a "
+    "tuning set (with ground truth; never the set you report on), scores a grid of offsets subtracted "
+    "from the box logit, and stores the best per view in the checkpoint's record as box_logit_offset: "
+    "evaluate, predict and run apply it from then on. The weights are not changed."
+)
+ORDER = 33
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
+    p.add_argument("--data", type=Path, required=True, help="tuning data with ground truth (dataset or RackLay export)")
+    p.add_argument("--split", default="all", help="which split of --data to use (train, val, test, or all)")
+    p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (default: update CKPT in place)")
+    p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
+    p.add_argument("--mode", choices=["window", "stream"], default="stream")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", type=Path, help="also write every offset's scores as JSON here")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from network.train import open_data
+
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    if args.every < 1:
+        raise InputError(f"--every must be >= 1, got {args.every}")
+    torch.set_num_threads(args.threads)
+    payload, record = load_checkpoint(args.checkpoint)
+    model, _ = load_model(args.checkpoint)
+    seqs = open_data(args.data).sequences(None if args.split == "all" else args.split)
+    if not seqs:
+        raise InputError(f"{args.data}: has no '{args.split}' sequences")
+    res = fit_box_offsets(model, seqs, grid=GRID, every=args.every, mode=args.mode, progress=not args.quiet)
+    best = res["box_logit_offset"]
+    for v in ("top", "front"):
+        s0, sb = res["scores"][v]["0"], res["scores"][v][f"{best[v]:g}"]
+        print(
+            f"{v:5s}: box offset {best[v]:.2f}  rack {s0['rack'] * 100:.1f} -> {sb['rack'] * 100:.1f}  "
+            f"box {s0['box'] * 100:.1f} -> {sb['box'] * 100:.1f} mIoU ({res['frames']} frames, columns in view)"
+        )
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record["box_logit_offset"] = best
+    record["calibration"] = {
+        "data": str(args.data),
+        "split": args.split,
+        **{k: res[k] for k in ("frames", "mode", "every")},
+    }
+    out = args.out or args.checkpoint
+    save_checkpoint(out, {k: v for k, v in payload.items() if k != "record_json"}, record)
+    print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
+    if args.json:
+        atomic_write_json(args.json, nan_to_null(res))
+    return 0
