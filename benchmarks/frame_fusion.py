@@ -1,0 +1,107 @@
+#!/usr/bin/env python3
+"""Would averaging views help? Table I of per-frame predictions fused over the last K frames.
+
+    .venv/bin/python benchmarks/frame_fusion.py runs/mvracklay-disc-4/calibrated.pt data/tune128 [--k 1 2 4 8]
+
+Each frame's class probabilities (streaming, box offsets of the checkpoint applied) are shifted
+by the *true* camera motion into the current frame's layout columns (a column is
+``x_extent / D`` metres) and averaged with the current frame's over the columns each frame saw;
+the argmax of the average is scored (`layouts.metrics.FrameScorer`, columns in view, mIoU, every
+2nd frame). K = 1 is the model alone. If the per-frame errors were independent noise, the
+fused scores would climb with K; if they are a bias shared by neighbouring views of a scene,
+they stay close to K = 1. An analysis with ground-truth motion, not an inference mode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts import VIEWS  # noqa: E402
+from layouts.metrics import FrameScorer  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor, sequence_camera  # noqa: E402
+from network.train import open_data  # noqa: E402
+
+
+def shift_columns(p: torch.Tensor, seen: np.ndarray, s: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(..., D)`` moved ``s`` columns to the right (column c -> c + s) and its seen-mask, zeros where nothing lands."""
+    d = p.shape[-1]
+    out, m = torch.zeros_like(p), torch.zeros(d)
+    v = torch.from_numpy(seen.astype(np.float32))
+    if abs(s) >= d:
+        return out, m
+    if s >= 0:
+        out[..., s:], m[s:] = p[..., : d - s], v[: d - s]
+    else:
+        out[..., : d + s], m[: d + s] = p[..., -s:], v[-s:]
+    return out, m
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path)
+    ap.add_argument("data", type=Path, help="a dataset with ground truth and camera positions")
+    ap.add_argument("--k", type=int, nargs="+", default=[1, 2, 4, 8], help="window lengths to fuse")
+    ap.add_argument("--every", type=int, default=2, help="score every N-th frame")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, _ = load_model(args.checkpoint)
+    seqs = open_data(args.data).sequences()
+    scorers = {k: FrameScorer() for k in args.k}
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="fuse", unit="frame", leave=False)
+    for seq in seqs:
+        d = seq.spec.size
+        col = seq.spec.x_extent / d
+        xs = seq.camera_positions()[:, 0]
+        hist: list[tuple[float, dict[str, torch.Tensor], np.ndarray]] = []
+        frames = (seq.rgb(i) for i in range(seq.num_frames))
+        for i, out in enumerate(Predictor(model, sequence_camera(seq)).run(frames, "stream")):
+            bar.update(1)
+            gt = seq.layouts(i)
+            probs = {
+                v: F.interpolate(out[v].float(), size=(d, d), mode="bilinear", align_corners=False).softmax(1)
+                for v in VIEWS
+            }
+            seen = gt.visible if gt.visible is not None else np.ones(d, bool)
+            hist = [*hist[-max(args.k) + 1 :], (float(xs[i]), probs, seen)]
+            if i % args.every:
+                continue
+            for k in args.k:
+                acc = {v: torch.zeros_like(probs[v]) for v in VIEWS}
+                weight = torch.zeros(d)
+                for x, p, vis in hist[-k:]:
+                    s = int(round((x - xs[i]) / col))
+                    for v in VIEWS:
+                        moved, m = shift_columns(p[v], vis, s)
+                        acc[v] += moved * m
+                    weight += m
+                pred = {
+                    v: torch.where(weight > 0, acc[v] / weight.clamp(min=1e-6), probs[v])
+                    .argmax(1)
+                    .to(torch.uint8)
+                    .numpy()
+                    for v in VIEWS
+                }
+                scorers[k].update(pred, gt)
+    bar.close()
+    print(f"{args.checkpoint} on {args.data}: mIoU, columns in view, probabilities fused over the last K frames")
+    print(f"{'K':>3s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    for k in args.k:
+        r = scorers[k].result()["visible"]
+        cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
+        print(f"{k:3d} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
