@@ -27,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
     p.add_argument("--data", type=Path, required=True, help="tuning data with ground truth (dataset or RackLay export)")
     p.add_argument("--split", default="all", help="which split of --data to use (train, val, test, or all)")
-    p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (default: update CKPT in place)")
+    p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
     p.add_argument("--mode", choices=["window", "stream"], default="stream")
     p.add_argument("--threads", type=int, default=2)
