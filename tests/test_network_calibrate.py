@@ -105,3 +105,16 @@ def test_calibrate_bad_input_is_one_line(tiny_checkpoint: Path, tmp_path: Path, 
     assert main(["calibrate", "--checkpoint", str(tmp_path / "c.pt"), "--data", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0]
+
+
+def test_calibrate_in_place_updates_the_record_and_its_json(
+    tiny_checkpoint: Path, tiny_dataset: Path, tmp_path: Path
+) -> None:
+    ckpt = tmp_path / "c.pt"
+    shutil.copy(tiny_checkpoint, ckpt)
+    shutil.copy(tiny_checkpoint.with_suffix(".json"), ckpt.with_suffix(".json"))
+    assert main(["calibrate", "--checkpoint", str(ckpt), "--data", str(tiny_dataset), "--every", "4", "--quiet"]) == 0
+    record = load_checkpoint(ckpt)[1]
+    beside = json.loads(ckpt.with_suffix(".json").read_text())
+    assert record["box_logit_offset"] == beside["box_logit_offset"] and set(record["box_logit_offset"]) == set(VIEWS)
+    assert beside["calibration"]["every"] == 4 and beside["step"] == load_checkpoint(tiny_checkpoint)[1]["step"]
