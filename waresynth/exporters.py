@@ -12,8 +12,9 @@ Formats (see docs/export.md for the folder trees):
     (``(R, D, D)`` uint8 with RackLay's codes 0 / 115 / 255), numbered by one running index over
     all sequences; ``splits/<split>_files.txt`` (RackLay: one index a line) and
     ``splits/<split>_temporal_files.txt`` (MVRackLay: image paths in frame order, each sequence
-    closed by a ``,``); ``visible.npy`` ``(N, D)`` bool, the layout columns in view per frame.
-    `load_racklay_export` reads it back.
+    closed by a ``,``); ``visible.npy`` ``(N, D)`` bool, the layout columns in view per frame;
+    ``cameras.json``, what RackLay's format lacks and training needs (intrinsics, board heights,
+    per-frame camera records). `load_racklay_export` reads it back, as frames or as sequences.
 ``coco``
     ``images/<split>/<seq>_<frame>.png`` and ``annotations/instances_<split>.json`` with
     compressed-RLE masks for the categories box, shelf and rack.
