@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -28,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts import VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, sequence_camera  # noqa: E402
+from network.infer import Predictor, resize_logits, sequence_camera  # noqa: E402
 from network.train import open_data  # noqa: E402
 
 
@@ -68,10 +67,7 @@ def main() -> int:
         for i, out in enumerate(Predictor(model, sequence_camera(seq)).run(frames, "stream")):
             bar.update(1)
             gt = seq.layouts(i)
-            probs = {
-                v: F.interpolate(out[v].float(), size=(d, d), mode="bilinear", align_corners=False).softmax(1)
-                for v in VIEWS
-            }
+            probs = {v: resize_logits(out[v].float(), d).softmax(1) for v in VIEWS}
             seen = gt.visible if gt.visible is not None else np.ones(d, bool)
             hist = [*hist[-max(args.k) + 1 :], (float(xs[i]), probs, seen)]
             if i % args.every:

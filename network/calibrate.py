@@ -18,12 +18,11 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from layouts import BOX, VIEWS
 from layouts.errors import InputError
-from layouts.metrics import METRIC_CLASSES, FrameScorer
+from layouts.metrics import METRIC_CLASSES, LayoutMetrics
 from network.model import MVRackLay
 
 #: offsets tried by `fit_box_offsets` (logit units)
@@ -70,7 +69,7 @@ def fit_box_offsets(
     Returns ``{"box_logit_offset": {view: best}, "scores": {view: {offset: {"rack", "box"}}}, "frames"}``;
     best = the largest mean of the view's rack and box mIoU (ties: the smaller offset).
     """
-    from network.infer import Predictor, sequence_camera  # infer imports this module
+    from network.infer import Predictor, logits_to_layout, resize_logits, sequence_camera  # infer imports this module
 
     if not sequences:
         raise InputError("calibration needs at least one sequence with ground truth")
@@ -78,7 +77,7 @@ def fit_box_offsets(
         raise InputError(f"offset grid must hold numbers in [-{LIMIT}, {LIMIT}], got {grid}")
     saved = dict(model.box_logit_offset)
     model.box_logit_offset = {v: 0.0 for v in VIEWS}  # score the raw logits
-    scorers = {(v, g): FrameScorer() for v in VIEWS for g in grid}
+    scorers = {g: LayoutMetrics() for g in grid}  # each view scored on its own, columns in view
     total = sum(s.num_frames for s in sequences)
     frames = 0
     try:
@@ -92,20 +91,12 @@ def fit_box_offsets(
                 if i % every:
                     continue
                 gt = seq.layouts(i)
-                logits = {}
+                vis = gt.visible if gt.visible is not None else np.ones(d, bool)
                 for v in VIEWS:
-                    lg = out[v].float()
-                    logits[v] = (
-                        F.interpolate(lg, size=(d, d), mode="bilinear", align_corners=False)
-                        if lg.shape[-1] != d
-                        else lg
-                    )
-                raw = {v: logits[v].argmax(1).to(torch.uint8).numpy() for v in VIEWS}
-                for v in VIEWS:
+                    logits = resize_logits(out[v].float(), d)  # offsets commute with the bilinear resize
                     for g in grid:
-                        pred = dict(raw)
-                        pred[v] = apply_box_offset(logits[v], g).argmax(1).to(torch.uint8).numpy()
-                        scorers[(v, g)].update(pred, gt)
+                        pred = logits_to_layout(apply_box_offset(logits, g))
+                        scorers[g].update(pred, getattr(gt, v), v, valid=vis)
                 frames += 1
         bar.close()
     finally:
@@ -115,7 +106,7 @@ def fit_box_offsets(
     for v in VIEWS:
         top_score = -1.0
         for g in grid:
-            res = scorers[(v, g)].result()["visible"][v]
+            res = scorers[g].result()[v]
             cell = {c: res[c]["miou"] for c in METRIC_CLASSES}
             scores[v][f"{g:g}"] = cell
             s = float(np.nanmean([cell[c] for c in METRIC_CLASSES]))

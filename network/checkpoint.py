@@ -73,6 +73,11 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, 
 def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
     """Rebuild the model from a checkpoint (float32, eval mode) and return it with its record."""
     payload, record = load_checkpoint(path)
+    return model_from(payload, record, path), record
+
+
+def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.PathLike) -> MVRackLay:
+    """The model (float32, eval mode, the record's box offsets) of a loaded checkpoint (`load_checkpoint`)."""
     cfg = ModelConfig.from_dict(record.get("model_config"), f"{path} (model_config)")
     model = MVRackLay(cfg)
     state = payload["model"]
@@ -90,8 +95,7 @@ def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
         )
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()})
     model.box_logit_offset = check_offsets(record.get("box_logit_offset"), f"{path} (record)")
-    model.eval()
-    return model, record
+    return model.eval()
 
 
 def export_weights(

@@ -115,11 +115,16 @@ class Predictor:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
 
+def resize_logits(logits: torch.Tensor, size: int | None = None) -> torch.Tensor:
+    """``(R, 3, D, D)`` logits at ``size x size`` (bilinear; unchanged when ``size`` is None or D)."""
+    if size is not None and size != logits.shape[-1]:
+        return F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
+    return logits
+
+
 def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarray:
     """``(R, 3, D, D)`` logits -> ``(R, size, size)`` uint8 class ids (bilinear on logits when resizing)."""
-    if size is not None and size != logits.shape[-1]:
-        logits = F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
-    return logits.argmax(1).to(torch.uint8).cpu().numpy()
+    return resize_logits(logits, size).argmax(1).to(torch.uint8).cpu().numpy()
 
 
 def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:

@@ -453,9 +453,8 @@ class RackLayExport:
     def camera_records(self) -> dict[str, Any]:
         """``{sequence name: {"intrinsics", "board_ys", "frames"}}`` from `RACKLAY_CAMERAS` (checked once)."""
         if self._cameras is None:
-            name = self.manifest.get("cameras")
             p = self.root / RACKLAY_CAMERAS
-            if name is None:
+            if not self.manifest.get("cameras"):
                 raise InputError(
                     f"{self.root}: this RackLay export has no camera records ({RACKLAY_CAMERAS}; written from "
                     f"export version {RACKLAY_VERSION}): training needs the intrinsics, camera distance and board "
@@ -588,19 +587,20 @@ class ExportSequence:
         return self.num_frames
 
     def _index(self, i: int) -> int:
+        """Frame ``i`` of this sequence, checked (the export's index is ``first + i``)."""
         if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.num_frames:
             raise InputError(f"{self.name}: frame index must be an integer in [0, {self.num_frames}), got {i!r}")
-        return self._first + int(i)
+        return int(i)
 
     def rgb(self, i: int) -> np.ndarray:
-        return self.export.rgb(self._index(i))
+        return self.export.rgb(self._first + self._index(i))
 
     def layouts(self, i: int) -> FrameLayouts:
-        return self.export.layouts(self._index(i))
+        return self.export.layouts(self._first + self._index(i))
 
     def frame(self, i: int) -> dict[str, Any]:
         """Per-frame camera record: camera_position, distance, slots (board_top_y per slot), ..."""
-        return self._cam["frames"][self._index(i) - self._first]
+        return self._cam["frames"][self._index(i)]
 
     def camera_positions(self) -> np.ndarray:
         return np.array([f["camera_position"] for f in self._cam["frames"]], np.float64).reshape(-1, 3)

@@ -10,7 +10,7 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from network.calibrate import GRID, fit_box_offsets
-from network.checkpoint import load_checkpoint, load_model, save_checkpoint
+from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 
 NAME = "calibrate"
 HELP = "choose the per-view box decision offset of a checkpoint on a tuning set (writes it into the record)"
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--every must be >= 1, got {args.every}")
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
-    model, _ = load_model(args.checkpoint)
+    model = model_from(payload, record, args.checkpoint)
     seqs = open_data(args.data).sequences(None if args.split == "all" else args.split)
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")
