@@ -20,7 +20,10 @@ Runs the model (streaming, row-head anchors) over every sequence and scores Tabl
 Then two numbers per frame and slot: the rack depth read off the predicted top view (median over
 columns of the footprint's row extent) against the truth, and the same pooled per sequence
 (median over its frames), which shows whether the errors average out over a sequence or are a
-per-scene bias; and the depth of predicted boxes against the truth's in shared columns.
+per-scene bias; and the depth of predicted boxes against the truth's in shared columns. Both are
+broken down by where the shelf is seen from: the board's height relative to the camera (its top
+face is visible only from above, the underside only from below) and, for boxes, how far the
+column is from the optical axis (a box's side face shows only off-axis).
 """
 
 from __future__ import annotations
@@ -93,8 +96,8 @@ def main() -> int:
     model.eval()
     seqs = open_data(args.data).sequences()
     scorers = {c: FrameScorer() for c in CASES}
-    rack = []  # (sequence, predicted depth m, true depth m) per frame and slot
-    boxes = []  # (predicted, true) box depth in metres per shared box column
+    rack = []  # (sequence, predicted depth m, true depth m, board metres below the camera) per frame and slot
+    boxes = []  # (predicted, true, board metres below the camera, |X| m) box depth per shared box column
     frames = 0
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
@@ -107,17 +110,24 @@ def main() -> int:
             gt = seq.layouts(i)
             p = frame_layouts(out, seq.spec.size)
             vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
+            rec = seq.frame(i)
+            cam_y = float(rec["camera_position"][1])
+            below = [float(sl["board_top_y"]) - cam_y for sl in rec.get("slots", [])]
+            col_x = np.abs(seq.spec.col_to_x(np.arange(seq.spec.size) + 0.5))[vis]
             for case, fn in zip(CASES, (None, true_footprint, true_footprint_depth, true_box_depth, both_depths)):
                 scorers[case].update(p if fn is None else {v: fn(p[v], getattr(gt, v)) for v in ("top", "front")}, gt)
             for r in range(gt.top.shape[0]):
                 pt, g = p["top"][r][:, vis], gt.top[r][:, vis]
+                elev = below[r] if r < len(below) else np.nan
                 if (pt > 0).any() and (g > 0).any():
-                    rack.append((q, np.median(extent_rows(pt > 0)) * row_m, np.median(extent_rows(g > 0)) * row_m))
+                    rack.append(
+                        (q, np.median(extent_rows(pt > 0)) * row_m, np.median(extent_rows(g > 0)) * row_m, elev)
+                    )
                 shared = (pt == BOX).any(0) & (g == BOX).any(0)
                 if shared.any():
                     pe = extent_rows((pt == BOX) & shared[None, :])
                     ge = extent_rows((g == BOX) & shared[None, :])
-                    boxes.extend(zip(pe * row_m, ge * row_m))
+                    boxes.extend(zip(pe * row_m, ge * row_m, np.full(pe.size, elev), col_x[shared]))
             frames += 1
     bar.close()
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {frames} frames of {len(seqs)} sequences")
@@ -127,21 +137,54 @@ def main() -> int:
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
         print(f"{case:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
     if rack:
-        q, pd, td = (np.array(x) for x in zip(*rack))
+        q, pd, td, el = (np.array(x) for x in zip(*rack))
         pooled = np.array([np.median(pd[q == k]) for k in q])  # each frame's sequence median
         print(
             f"rack depth (top view footprint): true {td.mean():.2f} +- {td.std():.2f} m; per frame: error "
             f"{np.abs(pd - td).mean() * 100:.1f} cm mean abs, bias {(pd - td).mean() * 100:+.1f} cm, "
             f"corr {np.corrcoef(pd, td)[0, 1]:.2f}; sequence median: error {np.abs(pooled - td).mean() * 100:.1f} cm"
         )
+        for name, sel in elevation_bins(el):
+            if sel.sum() > 1:
+                print(
+                    f"  board {name:26s} {sel.sum():6d} slots: error {np.abs(pd - td)[sel].mean() * 100:5.1f} cm, "
+                    f"corr {_corr(pd[sel], td[sel]):.2f}"
+                )
     if boxes:
-        pb, tb = (np.array(x) for x in zip(*boxes))
+        pb, tb, el, ax = (np.array(x) for x in zip(*boxes))
         print(
             f"box depth (shared box columns): true {tb.mean():.2f} +- {tb.std():.2f} m, predicted "
             f"{pb.mean():.2f} +- {pb.std():.2f} m; error {np.abs(pb - tb).mean() * 100:.1f} cm mean abs, "
             f"corr {np.corrcoef(pb, tb)[0, 1]:.2f}"
         )
+        lateral = [(f"|X| < {LATERAL[0]} m", ax < LATERAL[0])]
+        lateral += [(f"|X| {a}-{b} m", (ax >= a) & (ax < b)) for a, b in zip(LATERAL, LATERAL[1:])]
+        lateral += [(f"|X| >= {LATERAL[-1]} m", ax >= LATERAL[-1])]
+        for name, sel in elevation_bins(el) + lateral:
+            if sel.sum() > 1:
+                print(
+                    f"  {name:32s} {sel.sum():6d} columns: error {np.abs(pb - tb)[sel].mean() * 100:5.1f} cm, "
+                    f"corr {_corr(pb[sel], tb[sel]):.2f}"
+                )
     return 0
+
+
+#: board height below the camera (metres; negative = above it) and lateral offset bins of the breakdowns
+ELEVATION = (-0.4, 0.4)
+LATERAL = (0.5, 1.0)
+
+
+def elevation_bins(el: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    lo, hi = ELEVATION
+    return [
+        (f"> {-lo} m above the camera", el < lo),
+        (f"within {hi} m of eye level", (el >= lo) & (el <= hi)),
+        (f"> {hi} m below the camera", el > hi),
+    ]
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.corrcoef(a, b)[0, 1]) if a.std() > 0 and b.std() > 0 else float("nan")
 
 
 if __name__ == "__main__":
