@@ -9,6 +9,11 @@
   replaced by the training distribution's mean, measured from the rack's front edge, X extents and
   the rack footprint kept exact. One frame cannot see how deep a box is unless its top or a side
   shows; this is what a perfect model that never sees it would score.
+* **seen box depth (this frame / so far)**: the same, except that stacks whose depth the camera
+  sees keep their true footprint: a stack counts as seen when its visible pixels (instance image)
+  reach, by the depth image, at least `SEEN` of the way from its front face to its back (a top
+  face, a side face or the back edge in view). "This frame" is what a perfect single-frame reader
+  could know; "so far" (seen in any frame up to this one) what a perfect sequence reader could.
 
 Scores are `layouts.metrics.FrameScorer` tables (per-(frame, slot) averaged mIoU and "mAP", pooled
 beside), over the columns in view, in percent.
@@ -21,11 +26,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import BOX, SHELF  # noqa: E402
 from layouts.metrics import FrameScorer, format_table  # noqa: E402
+from layouts.raster import fill_rect  # noqa: E402
 from network.data import resample_layout  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
@@ -58,6 +65,57 @@ def mean_depth(top: np.ndarray, z_extent: float) -> np.ndarray:
     return out
 
 
+SEEN = 0.9  #: fraction of a stack's depth its visible pixels must reach for its depth to count as seen
+
+
+def stacks_of(scene: dict) -> list[dict]:
+    """Every stack of the mapped row: level, footprint (x, z, yaw, w, d) and its boxes' instance ids."""
+    out: dict[str, dict] = {}
+    for rack in scene["racks"]:
+        for level, shelf in enumerate(rack["shelves"]):
+            for b in shelf["boxes"]:
+                st = out.setdefault(
+                    b["stack_id"],
+                    {"level": level, "x": b["center"][0], "z": b["center"][2], "yaw": b["yaw"],
+                     "w": b["size"][0], "d": b["size"][2], "ids": []},
+                )  # fmt: skip
+                st["ids"].append(int(b["instance_id"]))
+    for st in out.values():
+        c, s = abs(np.cos(st["yaw"])), abs(np.sin(st["yaw"]))
+        st["hz"] = 0.5 * (s * st["w"] + c * st["d"])  # half the footprint's extent along Z
+    return list(out.values())
+
+
+def seen_stacks(stacks: list[dict], depth: np.ndarray, instance: np.ndarray, cam_z: float) -> set[int]:
+    """Indices of the stacks whose visible pixels reach `SEEN` of their depth."""
+    seen = set()
+    for k, st in enumerate(stacks):
+        m = np.isin(instance, st["ids"]) & (depth > 0)
+        if m.any():
+            reach = cam_z + float(depth[m].max()) - (st["z"] - st["hz"])
+            if reach >= SEEN * 2 * st["hz"]:
+                seen.add(k)
+    return seen
+
+
+def seen_depth(
+    top: np.ndarray, spec, stacks: list[dict], keep: set[int], levels: list[int], cam_x: float, mid_z: float
+) -> np.ndarray:
+    """The `mean_depth` oracle, except that the stacks in ``keep`` keep their true footprints."""
+    out = mean_depth(top, spec.z_extent)
+    for k in keep:
+        st = stacks[k]
+        if st["level"] not in levels:
+            continue
+        r = levels.index(st["level"])
+        mask = np.zeros(top.shape[1:], np.uint8)
+        fill_rect(mask, spec, "top", (st["x"] - cam_x, st["z"] - mid_z), (st["w"], st["d"]), 1, yaw=st["yaw"])
+        cols = (mask > 0).any(0)
+        out[r][:, cols] = np.where(out[r][:, cols] == BOX, SHELF, out[r][:, cols])
+        out[r][mask > 0] = BOX
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("data", type=Path, help="a WareSynth dataset (e.g. the held-out set)")
@@ -65,18 +123,44 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=5, help="score every N-th frame")
     args = ap.parse_args()
     seqs = open_dataset(args.data).sequences()
-    res, depth = FrameScorer(), FrameScorer()
-    frames = 0
-    for seq in seqs:
-        for i in range(0, seq.num_frames, args.every):
+    res, depth, single, multi = FrameScorer(), FrameScorer(), FrameScorer(), FrameScorer()
+    frames = seen_now = seen_sofar = in_view = 0
+    for seq in tqdm(seqs, desc="sequences", leave=False):
+        stacks = stacks_of(seq.scene())
+        sofar: set[int] = set()
+        for i in range(seq.num_frames):
+            rec = seq.frame(i)
+            cam_x, cam_z = float(rec["camera_position"][0]), float(rec["camera_position"][2])
+            now = seen_stacks(stacks, seq.depth(i), seq.instance(i), cam_z)
+            sofar |= now
+            if i % args.every:
+                continue
             gt = seq.layouts(i)
             res.update({"top": resampled(gt.top, args.size), "front": resampled(gt.front, args.size)}, gt)
             depth.update({"top": mean_depth(gt.top, seq.spec.z_extent), "front": gt.front}, gt)
+            levels = [int(sl["level"]) for sl in rec["slots"]]
+            mid_z = float(rec["rack_mid_z"])
+            for scorer, keep in ((single, now), (multi, sofar)):
+                top = seen_depth(gt.top, seq.spec, stacks, keep, levels, cam_x, mid_z)
+                scorer.update({"top": top, "front": gt.front}, gt)
+            half = seq.spec.x_extent / 2
+            view = [k for k, st in enumerate(stacks) if st["level"] in levels and abs(st["x"] - cam_x) < half]
+            in_view += len(view)
+            seen_now += sum(k in now for k in view)
+            seen_sofar += sum(k in sofar for k in view)
             frames += 1
     name = f"{args.data}: {frames} frames of {len(seqs)} sequences, columns in view"
     print(format_table(res.result()["visible"], f"ground truth resampled to D={args.size} and back -- {name}"))
     print()
     print(format_table(depth.result()["visible"], f"ground truth with mean box depth (top view) -- {name}"))
+    print()
+    print(
+        f"stacks in the layouts' X extent whose depth is seen: {seen_now / max(in_view, 1):.1%} in the frame, "
+        f"{seen_sofar / max(in_view, 1):.1%} in this or an earlier frame ({in_view} stack views)"
+    )
+    for scorer, what in ((single, "in this frame"), (multi, "in this or an earlier frame")):
+        print()
+        print(format_table(scorer.result()["visible"], f"true depth for stacks seen {what}, mean otherwise -- {name}"))
     return 0
 
 
