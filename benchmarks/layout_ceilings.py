@@ -99,16 +99,16 @@ def seen_stacks(stacks: list[dict], depth: np.ndarray, instance: np.ndarray, cam
 
 
 def seen_depth(
-    top: np.ndarray, spec, stacks: list[dict], keep: set[int], levels: list[int], cam_x: float, mid_z: float
+    mean: np.ndarray, spec, stacks: list[dict], keep: set[int], levels: list[int], cam_x: float, mid_z: float
 ) -> np.ndarray:
-    """The `mean_depth` oracle, except that the stacks in ``keep`` keep their true footprints."""
-    out = mean_depth(top, spec.z_extent)
+    """The `mean_depth` oracle ``mean``, except that the stacks in ``keep`` get their true footprints back."""
+    out = mean.copy()
     for k in keep:
         st = stacks[k]
         if st["level"] not in levels:
             continue
         r = levels.index(st["level"])
-        mask = np.zeros(top.shape[1:], np.uint8)
+        mask = np.zeros(mean.shape[1:], np.uint8)
         fill_rect(mask, spec, "top", (st["x"] - cam_x, st["z"] - mid_z), (st["w"], st["d"]), 1, yaw=st["yaw"])
         cols = (mask > 0).any(0)
         out[r][:, cols] = np.where(out[r][:, cols] == BOX, SHELF, out[r][:, cols])
@@ -137,11 +137,12 @@ def main() -> int:
                 continue
             gt = seq.layouts(i)
             res.update({"top": resampled(gt.top, args.size), "front": resampled(gt.front, args.size)}, gt)
-            depth.update({"top": mean_depth(gt.top, seq.spec.z_extent), "front": gt.front}, gt)
+            mean = mean_depth(gt.top, seq.spec.z_extent)
+            depth.update({"top": mean, "front": gt.front}, gt)
             levels = [int(sl["level"]) for sl in rec["slots"]]
             mid_z = float(rec["rack_mid_z"])
             for scorer, keep in ((single, now), (multi, sofar)):
-                top = seen_depth(gt.top, seq.spec, stacks, keep, levels, cam_x, mid_z)
+                top = seen_depth(mean, seq.spec, stacks, keep, levels, cam_x, mid_z)
                 scorer.update({"top": top, "front": gt.front}, gt)
             half = seq.spec.x_extent / 2
             view = [k for k, st in enumerate(stacks) if st["level"] in levels and abs(st["x"] - cam_x) < half]

@@ -72,9 +72,7 @@ class Sequence:
         return self.num_frames
 
     def _index(self, i: int) -> int:
-        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.num_frames:
-            raise InputError(f"{self.name}: frame index must be an integer in [0, {self.num_frames}), got {i!r}")
-        return int(i)
+        return check_frame_index(i, self.num_frames, self.name)
 
     def frame(self, i: int) -> dict[str, Any]:
         """Per-frame record: index, camera_position, distance, rack_mid_z, slots, visible_fraction."""
@@ -139,6 +137,13 @@ class Sequence:
     def visible_board_ys(self) -> list[float]:
         """World Y of the board top of every shelf level the camera path sees (all frames share them; [] if unknown)."""
         return list(self._board_ys)
+
+
+def check_frame_index(i: Any, num_frames: int, owner: str | os.PathLike) -> int:
+    """``i`` as an int if it indexes one of ``num_frames`` frames, else one line naming ``owner``."""
+    if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < num_frames:
+        raise InputError(f"{owner}: frame index must be an integer in [0, {num_frames}), got {i!r}")
+    return int(i)
 
 
 def read_manifest(folder: Path, kind: str = "dataset") -> tuple[Path, dict[str, Any]]:

@@ -51,6 +51,7 @@ from layouts.fileio import (
     load_npy,
 )
 from layouts.spec import LayoutSpec
+from waresynth.dataset import check_frame_index
 
 EXPORT_FORMATS: tuple[str, ...] = ("coco", "yolo", "racklay")
 EXPORT_VERSION = 1
@@ -478,9 +479,7 @@ class RackLayExport:
         return self._cameras
 
     def _check(self, index: int) -> int:
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < self.num_frames:
-            raise InputError(f"{self.root}: frame index must be in [0, {self.num_frames}), got {index!r}")
-        return int(index)
+        return check_frame_index(index, self.num_frames, self.root)
 
     def image_path(self, index: int) -> Path:
         return self.root / "images" / f"{self._check(index):06d}.png"
@@ -588,9 +587,7 @@ class ExportSequence:
 
     def _index(self, i: int) -> int:
         """Frame ``i`` of this sequence, checked (the export's index is ``first + i``)."""
-        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < self.num_frames:
-            raise InputError(f"{self.name}: frame index must be an integer in [0, {self.num_frames}), got {i!r}")
-        return int(i)
+        return check_frame_index(i, self.num_frames, self.name)
 
     def rgb(self, i: int) -> np.ndarray:
         return self.export.rgb(self._first + self._index(i))
