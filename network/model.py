@@ -44,6 +44,7 @@ from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.convlstm import StackedConvLSTM, State
+from network.motion import camera_shift, motion_signature
 from network.resnet import ResNet18Encoder
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
@@ -81,6 +82,7 @@ class ModelConfig:
     lstm_layers: int = 2  #: ConvLSTM layers of the slot memory (sequence variants)
     memory_hidden: int = 32  #: ConvLSTM channels of the slot memory
     decoder_width: int = 32
+    align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.motion`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -96,6 +98,8 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
+        if not isinstance(self.align_memory, bool):
+            raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
         if self.decoder_width < 4:
             raise InputError(f"decoder_width must be >= 4, got {self.decoder_width}")
         if not isinstance(self.spec, LayoutSpec):
@@ -142,6 +146,7 @@ class ModelConfig:
                     "frames in layout space (the slot memory): retrain, or warm-start from a racklay checkpoint"
                 )
             del d["temporal_residual"]  # single-frame models are unchanged
+        d.setdefault("align_memory", False)  # written before the memory was aligned: it never was
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
@@ -199,6 +204,7 @@ class SlotFeatures:
     front: torch.Tensor  #: (N*R, dw, D/2, D/2) coarse front-view map
     fine: torch.Tensor  #: (N*R, c1, D, D) fine front-window samples of the 1/2 map
     valid: torch.Tensor  #: (N, R) bool: the slot has an anchor
+    motion: torch.Tensor | None = None  #: (N, H, W/2+1) complex `network.motion.motion_signature` of the images
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
@@ -206,7 +212,8 @@ class SlotFeatures:
         def pick(t: torch.Tensor) -> torch.Tensor:
             return t.unflatten(0, (n, -1))[i]
 
-        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid))
+        motion = None if self.motion is None else pick(self.motion)
+        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion)
 
 
 class Pyramid(nn.Module):
@@ -384,18 +391,31 @@ class SlotHeads(nn.Module):
         return self.finish(self.coarse(p1, p2, anchors))
 
 
+@dataclass
+class MemoryState:
+    """What streaming carries from frame to frame: the ConvLSTM state and the last frame's motion signature."""
+
+    lstm: State
+    motion: torch.Tensor | None
+
+
 class SlotMemory(nn.Module):
     """The temporal block: a stacked ConvLSTM over each slot's coarse maps (both views), in layout space.
 
-    Per slot and frame, the top- and front-view coarse maps ``(2 dw, D/2, D/2)`` are pooled 2x (a cell
-    of ~9 cm: the camera moves a fraction of a cell per frame, within reach of the 3x3 gates) and fed
-    to the ConvLSTM in frame order; its output, upsampled, is added back through a zero-initialised
-    1x1 convolution, so a fresh memory leaves the single-frame network's outputs unchanged.
+    Per slot and frame, the top- and front-view coarse maps ``(2 dw, D/2, D/2)`` are pooled 2x (cells
+    of ``x_extent / (D/4)``, ~19 cm) and fed to the ConvLSTM in frame order; its output, upsampled, is
+    added back through a zero-initialised 1x1 convolution, so a fresh memory leaves the single-frame
+    network's outputs unchanged. The layout frame moves with the camera, so with ``align`` the state
+    is shifted by the camera motion read from the images (`network.motion`) before each frame: a
+    memory cell then stays on the same piece of shelf, and what an earlier viewpoint showed (a box's
+    side face, its top) is where the current frame needs it. Without ``align`` the 3x3 gates must
+    learn to follow the motion themselves.
     """
 
-    def __init__(self, channels: int, hidden: int, layers: int) -> None:
+    def __init__(self, channels: int, hidden: int, layers: int, view: CanonicalView | None = None) -> None:
         super().__init__()
         self.channels = channels
+        self.view = view  #: None: no alignment
         self.lstm = StackedConvLSTM(2 * channels, hidden, layers)
         self.out = nn.Conv2d(hidden, 2 * channels, 1)
         nn.init.zeros_(self.out.weight)
@@ -403,22 +423,54 @@ class SlotMemory(nn.Module):
 
     def _refine(self, f: SlotFeatures, h: torch.Tensor) -> SlotFeatures:
         corr = _up(self.out(h))
-        return SlotFeatures(f.top + corr[:, : self.channels], f.front + corr[:, self.channels :], f.fine, f.valid)
+        return replace(f, top=f.top + corr[:, : self.channels], front=f.front + corr[:, self.channels :])
 
     @staticmethod
     def _pooled(f: SlotFeatures) -> torch.Tensor:
         return F.avg_pool2d(torch.cat([f.top, f.front], 1), 2)
 
-    def step(self, f: SlotFeatures, state: State | None) -> tuple[SlotFeatures, State]:
-        """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot)."""
-        h, state = self.lstm.step(self._pooled(f), state)
-        return self._refine(f, h), state
+    def _align(self, state: State, prev: torch.Tensor | None, cur: SlotFeatures) -> State:
+        """The state moved with the camera from the frame of motion signature ``prev`` to ``cur``'s."""
+        if self.view is None:
+            return state
+        if prev is None or cur.motion is None:
+            raise InputError("the aligned slot memory needs each frame's motion signature")
+        dx = camera_shift(prev, cur.motion, self.view)  # (N,) metres
+        slots = cur.valid.shape[1]
+        return [
+            (shift_columns(h, dx, self.view.x_extent, slots), shift_columns(c, dx, self.view.x_extent, slots))
+            for h, c in state
+        ]
 
-    def window(self, feats: list[SlotFeatures], state: State | None = None) -> tuple[list[SlotFeatures], State]:
-        """A window's frames in order (each ``(B*R, ...)``); returns them refined and the final state."""
-        seq = torch.stack([self._pooled(f) for f in feats], 1)
-        hs, state = self.lstm(seq, state)
-        return [self._refine(f, hs[:, t]) for t, f in enumerate(feats)], state
+    def step(self, f: SlotFeatures, state: MemoryState | None) -> tuple[SlotFeatures, MemoryState]:
+        """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot)."""
+        lstm = None if state is None else self._align(state.lstm, state.motion, f)
+        h, lstm = self.lstm.step(self._pooled(f), lstm)
+        return self._refine(f, h), MemoryState(lstm, f.motion)
+
+    def window(self, feats: list[SlotFeatures]) -> list[SlotFeatures]:
+        """A window's frames in order (each ``(B*R, ...)``), refined by a fresh memory."""
+        out, state = [], None
+        for f in feats:
+            g, state = self.step(f, state)
+            out.append(g)
+        return out
+
+
+def shift_columns(x: torch.Tensor, dx: torch.Tensor, x_extent: float, slots: int) -> torch.Tensor:
+    """Layout-space maps ``(N*R, C, h, w)`` (``w`` columns over ``x_extent``) after the camera moved by ``dx`` ``(N,)``.
+
+    The layout frame moves with the camera, so a world point at column x moves to x - dx: the new
+    map at x is the old one at x + dx (bilinear; cells that come into view start at zero).
+    """
+    n = x.shape[0]
+    off = (2.0 * dx / x_extent).to(x.dtype).repeat_interleave(slots)  # normalised grid units
+    theta = x.new_zeros(n, 2, 3)
+    theta[:, 0, 0] = 1.0
+    theta[:, 1, 1] = 1.0
+    theta[:, 0, 2] = off
+    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
 
 
 class PatchDiscriminator(nn.Module):
@@ -464,7 +516,11 @@ class MVRackLay(nn.Module):
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.slots = SlotHeads(cfg, fine, coarse)
-        self.memory = SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers) if cfg.use_lstm else None
+        self.memory = (
+            SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers, cfg.view if cfg.align_memory else None)
+            if cfg.use_lstm
+            else None
+        )
         #: per view, subtracted from the box logit by `network.infer.Predictor` (`network.calibrate`;
         #: not part of the weights: a checkpoint's record carries it)
         self.box_logit_offset: dict[str, float] = {v: 0.0 for v in VIEWS}
@@ -494,12 +550,15 @@ class MVRackLay(nn.Module):
         rows = self.rows(p1, p2)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
-        return self.slots.coarse(p1, p2, anchors), rows, anchors
+        feats = self.slots.coarse(p1, p2, anchors)
+        if self.memory is not None and self.memory.view is not None:
+            feats.motion = motion_signature(images)
+        return feats, rows, anchors
 
     def decode_window(self, window: list[SlotFeatures]) -> list[dict[str, torch.Tensor]]:
         """Logits of each frame of a window (slot features in frame order), fused by the slot memory."""
         if self.memory is not None:
-            window, _ = self.memory.window(window)
+            window = self.memory.window(window)
         return [self.slots.finish(f) for f in window]
 
     def forward(self, images: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
@@ -519,8 +578,8 @@ class MVRackLay(nn.Module):
         return res
 
     def step(
-        self, image: torch.Tensor, state: State | None = None, anchors: torch.Tensor | None = None
-    ) -> tuple[dict[str, torch.Tensor], State | None]:
+        self, image: torch.Tensor, state: MemoryState | None = None, anchors: torch.Tensor | None = None
+    ) -> tuple[dict[str, torch.Tensor], MemoryState | None]:
         """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state."""
         feats, rows, anchors = self.frame_features(image, anchors)
         if self.memory is not None:

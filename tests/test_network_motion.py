@@ -1,0 +1,87 @@
+"""Camera motion read from canonical images, and the slot memory that follows it."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+
+from layouts import InputError
+from layouts.canonical import CanonicalView
+from network.model import ModelConfig, MVRackLay, shift_columns
+from network.motion import MAX_SHIFT, camera_shift, motion_signature
+from tests.test_network_model import ANCHORS, tiny
+
+VIEW = CanonicalView(128, 96, 3.0)
+
+
+def _texture(width: int, seed: int) -> torch.Tensor:
+    """A smooth random RGB texture ``(3, H, width)`` with features at several scales."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(1, 3, VIEW.height // 4, width // 4, generator=g)
+    x = torch.nn.functional.interpolate(x, size=(VIEW.height, width), mode="bilinear", align_corners=False)
+    return (x + 0.3 * torch.rand(1, 3, VIEW.height, width, generator=g))[0]
+
+
+@pytest.mark.parametrize("pixels", [-11.0, -3.0, 0.0, 4.0, 17.0])
+def test_camera_shift_recovers_a_known_motion(pixels):
+    wide = _texture(VIEW.width + 40, seed=3)
+    k = int(pixels)
+    prev = wide[:, :, 20 : 20 + VIEW.width]
+    cur = wide[:, :, 20 + k : 20 + k + VIEW.width]  # the camera moved k pixels right: content moved left
+    sig = motion_signature(torch.stack([prev, cur]))
+    dx = camera_shift(sig[:1], sig[1:], VIEW)
+    assert dx.shape == (1,)
+    assert abs(float(dx[0]) - k * VIEW.metres_per_pixel) < 0.3 * VIEW.metres_per_pixel
+
+
+def test_camera_shift_is_antisymmetric_and_bounded():
+    wide = _texture(VIEW.width + 40, seed=4)
+    a, b = wide[:, :, 10 : 10 + VIEW.width], wide[:, :, 17 : 17 + VIEW.width]
+    sig = motion_signature(torch.stack([a, b]))
+    fwd, back = camera_shift(sig[:1], sig[1:], VIEW), camera_shift(sig[1:], sig[:1], VIEW)
+    torch.testing.assert_close(fwd, -back, atol=1e-3, rtol=0)
+    noise = motion_signature(torch.rand(6, 3, VIEW.height, VIEW.width, generator=torch.Generator().manual_seed(0)))
+    assert camera_shift(noise[:3], noise[3:], VIEW).abs().max() <= MAX_SHIFT + 1e-6
+
+
+def test_shift_columns_moves_content_against_the_camera():
+    x = torch.zeros(2 * 3, 1, 2, 8)  # 2 frames x 3 slots, 8 columns over 4 m: 0.5 m per column
+    x[..., 5] = 1.0
+    out = shift_columns(x, torch.tensor([0.5, -1.0]), 4.0, slots=3)
+    assert torch.equal(out[:3, ..., 4], torch.ones(3, 1, 2))  # camera +0.5 m: one column left
+    assert torch.equal(out[3:, ..., 7], torch.ones(3, 1, 2))  # camera -1 m: two columns right
+    assert float(out.sum()) == 2 * 3 * 2
+    entering = shift_columns(torch.ones(1, 1, 1, 8), torch.tensor([1.0]), 4.0, slots=1)
+    assert torch.equal(entering[0, 0, 0], torch.tensor([1.0] * 6 + [0.0] * 2))  # newly seen cells start empty
+
+
+def test_aligned_memory_streams_like_the_window_and_differs_from_unaligned():
+    torch.manual_seed(2)
+    wide = _texture(64 + 60, seed=5)
+    frames = torch.stack(
+        [torch.nn.functional.interpolate(wide[None, :, :, 5 * t : 5 * t + 64], size=(64, 64))[0] for t in range(5)]
+    )[None].clamp(0, 1)
+    aligned = MVRackLay(tiny()).eval()
+    torch.nn.init.normal_(aligned.memory.out.weight, std=0.5)
+    plain = MVRackLay(replace(tiny(), align_memory=False)).eval()
+    plain.load_state_dict(aligned.state_dict())
+    with torch.no_grad():
+        a = aligned(frames, ANCHORS.expand(1, 5, 2))
+        p = plain(frames, ANCHORS.expand(1, 5, 2))
+        state = None
+        for t in range(5):
+            out, state = aligned.step(frames[:, t], state, ANCHORS[None])
+            torch.testing.assert_close(out["top"], a["top"][:, t], rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(a["top"][:, 0], p["top"][:, 0])  # first frame: nothing to align yet
+    assert not torch.allclose(a["top"][:, 4], p["top"][:, 4], atol=1e-4)
+
+
+def test_records_written_before_alignment_load_unaligned():
+    d = tiny().to_dict()
+    del d["align_memory"]
+    assert ModelConfig.from_dict(d).align_memory is False
+    assert tiny().align_memory is True
+    with pytest.raises(InputError, match="align_memory"):
+        replace(tiny(), align_memory="yes")
