@@ -194,6 +194,7 @@ class WindowDataset(torch.utils.data.Dataset):
         spec: LayoutSpec,
         augment: bool = False,
         seed: int = 0,
+        max_stride: int = 1,
     ) -> None:
         if not sequences:
             raise InputError("no sequences to read (is the split empty?)")
@@ -204,6 +205,9 @@ class WindowDataset(torch.utils.data.Dataset):
         self.view = CanonicalView(self.width, self.height, spec.x_extent)
         self.augment = augment
         self.seed = seed
+        if not isinstance(max_stride, int) or max_stride < 1:
+            raise InputError(f"max_stride must be a positive integer, got {max_stride!r}")
+        self.max_stride = max_stride  #: with augment, windows skip up to max_stride - 1 frames between theirs
         self.epoch = 0
         self.index: list[tuple[int, int]] = []
         self._cam_x: list[np.ndarray] = []
@@ -222,8 +226,9 @@ class WindowDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.index)
 
-    def frame_ids(self, t: int) -> list[int]:
-        return [max(0, t - self.seq_len + 1 + k) for k in range(self.seq_len)]
+    def frame_ids(self, t: int, stride: int = 1) -> list[int]:
+        """The window ending at frame ``t``, frames ``stride`` apart (the first repeated at a sequence start)."""
+        return [max(0, t - (self.seq_len - 1 - k) * stride) for k in range(self.seq_len)]
 
     def _frame(self, seq: SequenceLike, i: int) -> dict[str, np.ndarray]:
         intr, dist = frame_camera(seq, i)
@@ -243,15 +248,16 @@ class WindowDataset(torch.utils.data.Dataset):
     def __getitem__(self, idx: int) -> dict[str, Any]:
         si, t = self.index[idx]
         seq = self.sequences[si]
-        ids = self.frame_ids(t)
+        rng = np.random.default_rng([self.seed, self.epoch, idx]) if self.augment else None
+        stride = 1 if rng is None or self.max_stride == 1 else int(rng.integers(1, self.max_stride + 1))
+        ids = self.frame_ids(t, stride)
         frames = [self._frame(seq, i) for i in ids]
         st = {k: np.stack([f[k] for f in frames]) for k in frames[0]}
         imgs = st["images"].astype(np.float32)
         top, front, vis, anchors = st["top"], st["front"], st["visible"], st["anchors"]
         cam_x = self._cam_x[si][ids].astype(np.float32)
         flipped = False
-        if self.augment:
-            rng = np.random.default_rng([self.seed, self.epoch, idx])
+        if rng is not None:
             imgs = colour_jitter(imgs, rng)
             if rng.random() < 0.5:
                 flipped = True

@@ -81,6 +81,7 @@ class TrainConfig:
     short_weight: float = 0.1
     long_weight: float = 0.05
     augment: bool = True
+    max_stride: int = 1  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
     seed: int = 0
     threads: int = 2
     workers: int = 0
@@ -94,7 +95,7 @@ class TrainConfig:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def validate(self) -> None:
-        for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads"):
+        for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads", "max_stride"):
             if getattr(self, name) < 1:
                 raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if self.checkpoint_every < 0:
@@ -225,6 +226,7 @@ class Trainer:
             spec=model_cfg.spec,
             augment=train_cfg.augment,
             seed=train_cfg.seed,
+            max_stride=train_cfg.max_stride,
         )
         self.val_seqs = val_seqs[: train_cfg.val_sequences or None]
         self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
-from layouts import BOX, SHELF, LayoutSpec
+from layouts import BOX, SHELF, InputError, LayoutSpec
 from network.data import WindowDataset, resample_columns, resample_layout
 from network.losses import column_shifts, consistency_loss, lsgan_discriminator_loss, supervised_loss
 from network.toy import ToySequence
@@ -59,6 +60,24 @@ def test_window_repeats_the_first_frame_at_the_start():
     assert ds.frame_ids(0) == [0, 0, 0, 0]
     assert ds.frame_ids(2) == [0, 0, 1, 2]
     assert ds.frame_ids(7) == [4, 5, 6, 7]
+    assert ds.frame_ids(7, stride=2) == [1, 3, 5, 7]
+    assert ds.frame_ids(3, stride=3) == [0, 0, 0, 3]
+
+
+def test_strided_training_windows_draw_strides_up_to_the_maximum():
+    seq = ToySequence(SPEC, num_frames=30, step_cols=1)
+    ds = WindowDataset([seq], seq_len=3, input_size=(64, 64), spec=SPEC, augment=True, max_stride=3)
+    px = SPEC.x_extent / SPEC.size
+    strides = set()
+    for idx in range(12, 30):
+        steps = np.abs(np.diff(ds[idx]["cam_x"].numpy())) / px  # the toy camera moves one column per frame
+        assert np.allclose(steps, steps[0], atol=1e-3)
+        strides.add(round(float(steps[0])))
+    assert strides == {1, 2, 3}
+    plain = WindowDataset([seq], seq_len=3, input_size=(64, 64), spec=SPEC, augment=False, max_stride=3)
+    assert np.allclose(np.abs(np.diff(plain[20]["cam_x"].numpy())) / px, 1.0)  # evaluation keeps consecutive frames
+    with pytest.raises(InputError, match="max_stride"):
+        WindowDataset([seq], seq_len=3, input_size=(64, 64), spec=SPEC, max_stride=0)
 
 
 def test_resample_layout_takes_the_majority_class_and_prefers_boxes_on_ties():

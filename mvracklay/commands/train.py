@@ -81,6 +81,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--short-weight", type=float, default=t.short_weight, help="consistency j vs j+1")
     g.add_argument("--long-weight", type=float, default=t.long_weight, help="consistency j vs k >= j+2")
     g.add_argument("--no-augment", action="store_true")
+    g.add_argument(
+        "--max-stride",
+        type=int,
+        default=t.max_stride,
+        help="training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
+        "learns from viewpoints further apart (default %(default)s: consecutive frames)",
+    )
     g.add_argument("--seed", type=int, default=t.seed)
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
     g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
@@ -168,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         short_weight=args.short_weight,
         long_weight=args.long_weight,
         augment=not args.no_augment,
+        max_stride=args.max_stride,
         seed=args.seed,
         threads=args.threads,
         workers=args.workers,
