@@ -22,11 +22,9 @@ aligned. During training the anchors come from the ground truth (with jitter); a
 the row head. A slot without an anchor is background.
 
 The temporal block works in layout space: a slot's coarse top- and front-view maps of consecutive
-frames differ by the camera's motion along the row. The motion is read from the canonical images
-themselves (`network.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
-frame, so a memory cell stays on one piece of shelf (how deep a box is shows on its side faces or
-top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
-trained ``racklay`` weights.
+frames differ by the camera's motion, a shift of a fraction of a (pooled) cell per frame, so a
+3x3 ConvLSTM can align and fuse them (how deep a box is shows on its side faces only from some
+angles). It starts as an exact no-op, so a sequence model starts from trained ``racklay`` weights.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).
@@ -418,9 +416,6 @@ class SlotMemory(nn.Module):
         super().__init__()
         self.channels = channels
         self.view = view  #: None: no alignment
-        #: training only: the chance that a frame after the first is hidden (its slot features zeroed), so
-        #: its layouts must come from what the memory carried; set by the trainer, 0 at inference
-        self.frame_dropout = 0.0
         self.lstm = StackedConvLSTM(2 * channels, hidden, layers)
         self.out = nn.Conv2d(hidden, 2 * channels, 1)
         nn.init.zeros_(self.out.weight)
@@ -450,11 +445,6 @@ class SlotMemory(nn.Module):
     def step(self, f: SlotFeatures, state: MemoryState | None) -> tuple[SlotFeatures, MemoryState]:
         """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot)."""
         lstm = None if state is None else self._align(state.lstm, state.motion, f)
-        if self.training and self.frame_dropout > 0 and state is not None:
-            n, r = f.valid.shape
-            keep = (torch.rand(n, device=f.top.device) >= self.frame_dropout).to(f.top.dtype)
-            k = keep.repeat_interleave(r).view(-1, 1, 1, 1)
-            f = replace(f, top=f.top * k, front=f.front * k, fine=f.fine * k)
         h, lstm = self.lstm.step(self._pooled(f), lstm)
         return self._refine(f, h), MemoryState(lstm, f.motion)
 

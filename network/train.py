@@ -82,7 +82,6 @@ class TrainConfig:
     long_weight: float = 0.05
     augment: bool = True
     max_stride: int = 1  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
-    memory_dropout: float = 0.0  #: chance a frame after a window's first is hidden from the decoders (memory only)
     seed: int = 0
     threads: int = 2
     workers: int = 0
@@ -113,14 +112,11 @@ class TrainConfig:
             "short_weight",
             "long_weight",
             "workers",
-            "memory_dropout",
         ):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
                 flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
                 raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
-        if self.memory_dropout >= 1:
-            raise InputError(f"--memory-dropout must be below 1, got {self.memory_dropout}")
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
         if self.val_mode not in ("window", "stream"):
@@ -215,8 +211,6 @@ class Trainer:
         init_info = None
         if train_cfg.init_from and not resume:
             init_info = init_weights_from(self.model, train_cfg.init_from, self.discs)
-        if self.model.memory is not None:
-            self.model.memory.frame_dropout = train_cfg.memory_dropout
         self.model.to(self.device)
         if self.discs is not None:
             self.discs.to(self.device)

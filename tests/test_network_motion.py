@@ -85,24 +85,3 @@ def test_records_written_before_alignment_load_unaligned():
     assert tiny().align_memory is True
     with pytest.raises(InputError, match="align_memory"):
         replace(tiny(), align_memory="yes")
-
-
-def test_memory_dropout_hides_frames_in_training_only():
-    torch.manual_seed(3)
-    model = MVRackLay(replace(tiny(), align_memory=False))
-    torch.nn.init.normal_(model.memory.out.weight, std=0.5)
-    model.memory.frame_dropout = 0.999999
-    x = torch.rand(1, 3, 3, 64, 64)
-    y = x.clone()
-    y[:, 2] = torch.rand(1, 3, 64, 64)  # a different last frame
-    anchors = ANCHORS.expand(1, 3, 2)
-    model.eval()
-    model.memory.train()  # dropout acts in training mode (batch norm kept in eval mode: no mixing across frames)
-    with torch.no_grad():
-        a, b = model(x, anchors), model(y, anchors)
-    torch.testing.assert_close(a["top"][:, 2], b["top"][:, 2])  # hidden: the memory alone speaks
-    assert not torch.allclose(a["top"][:, 1], model(x[:, 1:2], anchors[:, :1])["top"][:, 0], atol=1e-4)
-    model.eval()
-    with torch.no_grad():
-        a, b = model(x, anchors), model(y, anchors)
-    assert not torch.allclose(a["top"][:, 2], b["top"][:, 2], atol=1e-4)

@@ -88,13 +88,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
         "learns from viewpoints further apart (default %(default)s: consecutive frames)",
     )
-    g.add_argument(
-        "--memory-dropout",
-        type=float,
-        default=t.memory_dropout,
-        help="chance that a frame after a window's first is hidden from the decoders, so its layouts must "
-        "come from the slot memory (sequence variants; default %(default)s)",
-    )
     g.add_argument("--seed", type=int, default=t.seed)
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
     g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
@@ -183,7 +176,6 @@ def run(args: argparse.Namespace) -> int:
         long_weight=args.long_weight,
         augment=not args.no_augment,
         max_stride=args.max_stride,
-        memory_dropout=args.memory_dropout,
         seed=args.seed,
         threads=args.threads,
         workers=args.workers,
