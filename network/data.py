@@ -249,7 +249,8 @@ class WindowDataset(torch.utils.data.Dataset):
         si, t = self.index[idx]
         seq = self.sequences[si]
         rng = np.random.default_rng([self.seed, self.epoch, idx]) if self.augment else None
-        stride = 1 if rng is None or self.max_stride == 1 else int(rng.integers(1, self.max_stride + 1))
+        multi = rng is not None and self.max_stride > 1 and self.seq_len > 1
+        stride = int(rng.integers(1, self.max_stride + 1)) if multi else 1
         ids = self.frame_ids(t, stride)
         frames = [self._frame(seq, i) for i in ids]
         st = {k: np.stack([f[k] for f in frames]) for k in frames[0]}

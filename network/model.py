@@ -22,9 +22,11 @@ aligned. During training the anchors come from the ground truth (with jitter); a
 the row head. A slot without an anchor is background.
 
 The temporal block works in layout space: a slot's coarse top- and front-view maps of consecutive
-frames differ by the camera's motion, a shift of a fraction of a (pooled) cell per frame, so a
-3x3 ConvLSTM can align and fuse them (how deep a box is shows on its side faces only from some
-angles). It starts as an exact no-op, so a sequence model starts from trained ``racklay`` weights.
+frames differ by the camera's motion along the row. The motion is read from the canonical images
+themselves (`network.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
+frame, so a memory cell stays on one piece of shelf (how deep a box is shows on its side faces or
+top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
+trained ``racklay`` weights.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).

@@ -81,7 +81,7 @@ class TrainConfig:
     short_weight: float = 0.1
     long_weight: float = 0.05
     augment: bool = True
-    max_stride: int = 1  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
+    max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
     seed: int = 0
     threads: int = 2
     workers: int = 0
