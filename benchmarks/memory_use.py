@@ -25,6 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import BOX, VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
+from network.calibrate import apply_box_offset  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -55,9 +56,13 @@ def main() -> None:
                 out, state = model.step(x, state)
                 fresh, _ = model.step(x, None)
                 truth = seq.layouts(i)
+                size = truth.top.shape[-1]
                 lays = {}
                 for name, o in (("memory", out), ("fresh", fresh)):
-                    lays[name] = {v: logits_to_layout(pred._decide(o, 0)[v], truth.top.shape[-1]) for v in VIEWS}
+                    lays[name] = {
+                        v: logits_to_layout(apply_box_offset(o[v][0], model.box_logit_offset.get(v, 0.0)), size)
+                        for v in VIEWS
+                    }
                     scorers[name].update(lays[name], truth)
                 for v in VIEWS:
                     a, b = lays["memory"][v], lays["fresh"][v]

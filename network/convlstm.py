@@ -1,8 +1,8 @@
 """Stacked convolutional LSTM over per-frame feature maps, usable over a window or frame by frame.
 
-`StackedConvLSTM.forward` runs a whole window ``(B, T, C, H, W)``; `step` advances one frame
-carrying the state, so streaming inference (one encoder pass per frame) gives exactly the
-outputs of `forward` over the same prefix. The model runs it over each shelf slot's layout-space
+`StackedConvLSTM.step` advances one frame carrying the state; windows and streaming both run
+through it, so streaming inference (one encoder pass per frame) gives exactly the outputs of a
+window over the same prefix. The model runs it over each shelf slot's layout-space
 features (`network.model.SlotMemory`).
 """
 
@@ -53,12 +53,3 @@ class StackedConvLSTM(nn.Module):
             new.append((h, c))
             x = h
         return x, new
-
-    def forward(self, seq: torch.Tensor, state: State | None = None) -> tuple[torch.Tensor, State]:
-        """Run a window ``(B, T, C, H, W)``; returns outputs ``(B, T, hidden, H, W)`` and the final state."""
-        outs = []
-        for t in range(seq.shape[1]):
-            y, state = self.step(seq[:, t], state)
-            outs.append(y)
-        assert state is not None
-        return torch.stack(outs, 1), state
