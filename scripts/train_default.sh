@@ -6,7 +6,9 @@
 #   2. stage 1: racklay (single frame) alone on the machine (2 threads) for STAGE1 of its TOTAL minutes;
 #      stage 2a, side by side with one thread each: racklay continues its schedule to TOTAL minutes, and
 #      mvracklay-disc-4 starts from racklay's stage-1 weights (the ConvLSTM enters as a zero-initialised
-#      correction) for the remaining TOTAL - STAGE1 minutes: every model <= TOTAL minutes in all;
+#      correction; its memory follows the camera motion read from the images, and its training windows
+#      take every s-th frame, s in 1..3, both by default) for the remaining TOTAL - STAGE1 minutes:
+#      every model <= TOTAL minutes in all;
 #      stage 2b: mvracklay-4 likewise, on one core while the others are evaluated; 2c: mvracklay-disc-8;
 #   3. Table I of every model on the held-out set, raw and with box decision offsets chosen on a
 #      tuning set (seed 303; `mvracklay calibrate`) (windowed, as in the paper; streaming too for the
@@ -119,8 +121,13 @@ calibrate mvracklay-disc-8
 $PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 
 # 4. Curves, speed, shipped weights.
-$PY -m network.curves "$CURVES" "racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvracklay-4" \
-    "mvracklay-disc-4=$RUNS/mvracklay-disc-4" "mvracklay-disc-8=$RUNS/mvracklay-disc-8"
+CURVE_RUNS=("racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvracklay-4" "mvracklay-disc-4=$RUNS/mvracklay-disc-4"
+    "mvracklay-disc-8=$RUNS/mvracklay-disc-8")
+[ -d "$RUNS/_unaligned-disc-4" ] && CURVE_RUNS+=("mvracklay-disc-4(unaligned)=$RUNS/_unaligned-disc-4")
+$PY -m network.curves "$CURVES" "${CURVE_RUNS[@]}"
+#    the second stage zoomed: stage 1 ran on 2 threads, so it ends near 2 x STAGE1 CPU-minutes
+FROM=$($PY -c "print(max(0.0, 2 * $STAGE1 - 10))")
+$PY -m network.curves --from "$FROM" "${CURVES%.png}_stage2.png" "${CURVE_RUNS[@]}"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256 \
     | tee "$RUNS/bench_infer.txt"
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/calibrated.pt" --out "$WEIGHTS" \

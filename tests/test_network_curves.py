@@ -50,3 +50,32 @@ def test_x_axis_rounds_up_to_round_ticks():
     assert _round_up(4.0) == 4.0
     assert _round_up(41.0) == 50.0
     assert _round_up(0.3) == 0.4
+
+
+def test_from_minutes_drops_earlier_points_and_starts_the_axis_there(tmp_path):
+    a = _run(tmp_path / "a", [_entry(1, 0.2), _entry(2, 0.5), _entry(3, 0.52), _entry(4, 0.55)])
+    full, late = tmp_path / "full.png", tmp_path / "late.png"
+    plot_curves({"a": a}, full)
+    plot_curves({"a": a}, late, x_from=2.0)
+    blue = (31, 119, 180)
+
+    def blue_xs(path):
+        img = Image.open(path).convert("RGB")
+        return [x for x in range(img.width // 2) for y in range(img.height // 2) if img.getpixel((x, y)) == blue]
+
+    # Full axis 0..4: the line starts a quarter of the way in. From 2: the line starts at the left edge.
+    assert min(blue_xs(full)) > 50 + 80
+    assert min(blue_xs(late)) < 50 + 5
+    with pytest.raises(InputError, match="x_from"):
+        plot_curves({"a": a}, late, x_from=-1.0)
+
+
+def test_legend_wraps_so_every_label_is_drawn(tmp_path):
+    runs = {f"run{i}": _run(tmp_path / f"r{i}", [_entry(1, 0.5), _entry(2, 0.6)]) for i in range(6)}
+    out = tmp_path / "c.png"
+    plot_curves(runs, out)
+    img = Image.open(out).convert("RGB")
+    assert img.height == 560 + 20  # a second legend row
+    # The fifth and sixth colours' swatches lie inside the image.
+    for colour in [(255, 127, 14), (23, 190, 207)]:
+        assert any(img.getpixel((x, y)) == colour for x in range(img.width) for y in range(540, img.height))
