@@ -8,7 +8,9 @@ memory from frame to frame (as `mvracklay predict` does), once with a fresh memo
 (the single-frame network inside the sequence model). Prints, per view, the share of cells whose
 class differs, the share of the fresh run's box cells that change, and the mIoU of both runs
 against the truth on those frames (columns in view), so a memory that learned to do nothing
-shows as ~0 % and equal scores.
+shows as ~0 % and equal scores. ``--true-motion`` adds a third run whose aligned memory is moved
+by the ground-truth camera steps instead of the image estimate (what a perfect motion estimate
+would be worth).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def main() -> None:
     ap.add_argument("data", type=Path, help="a generated dataset folder")
     ap.add_argument("--sequences", type=int, default=6, help="how many sequences (manifest order)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--true-motion", action="store_true", help="also run with the ground-truth camera steps")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model = model_from(*load_checkpoint(args.checkpoint), args.checkpoint)
@@ -45,20 +48,26 @@ def main() -> None:
     ds = open_dataset(args.data)
     changed = {v: [] for v in VIEWS}
     box_changed = {v: [0, 0] for v in VIEWS}
-    scorers = {k: FrameScorer() for k in ("memory", "fresh")}
+    runs = ("memory", "fresh", "true motion") if args.true_motion else ("memory", "fresh")
+    scorers = {k: FrameScorer() for k in runs}
     seqs = ds.sequences()[: args.sequences]
     with torch.no_grad():
         for seq in tqdm(seqs, desc="sequences", leave=False):
             pred = Predictor(model, sequence_camera(seq))
-            state = None
+            state = true_state = None
+            cam_x = np.asarray(seq.camera_positions(), dtype=np.float64)[:, 0]
             for i in range(seq.num_frames):
                 x = pred.preprocess(seq.rgb(i), i)
-                out, state = model.step(x, state)
-                fresh, _ = model.step(x, None)
+                outs = {}
+                outs["memory"], state = model.step(x, state)
+                outs["fresh"], _ = model.step(x, None)
+                if args.true_motion:
+                    step = torch.tensor([cam_x[i] - cam_x[i - 1] if i else 0.0])
+                    outs["true motion"], true_state = model.step(x, true_state, motion=step)
                 truth = seq.layouts(i)
                 size = truth.top.shape[-1]
                 lays = {}
-                for name, o in (("memory", out), ("fresh", fresh)):
+                for name, o in outs.items():
                     lays[name] = {
                         v: logits_to_layout(apply_box_offset(o[v][0], model.box_logit_offset.get(v, 0.0)), size)
                         for v in VIEWS
@@ -80,6 +89,12 @@ def main() -> None:
             f"  {v:5s} cells changed by the memory {100 * np.mean(changed[v]):.2f} %, box cells {bc:.2f} %; "
             f"mIoU rack / box with memory {100 * m['rack']['miou']:.1f} / {100 * m['box']['miou']:.1f}, "
             f"fresh each frame {100 * f['rack']['miou']:.1f} / {100 * f['box']['miou']:.1f}"
+            + (
+                f", true motion {100 * res['true motion'][v]['rack']['miou']:.1f} / "
+                f"{100 * res['true motion'][v]['box']['miou']:.1f}"
+                if args.true_motion
+                else ""
+            )
         )
 
 

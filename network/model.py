@@ -431,22 +431,29 @@ class SlotMemory(nn.Module):
     def _pooled(f: SlotFeatures) -> torch.Tensor:
         return F.avg_pool2d(torch.cat([f.top, f.front], 1), 2)
 
-    def _align(self, state: State, prev: torch.Tensor | None, cur: SlotFeatures) -> State:
-        """The state moved with the camera from the frame of motion signature ``prev`` to ``cur``'s."""
+    def _align(
+        self, state: State, prev: torch.Tensor | None, cur: SlotFeatures, dx: torch.Tensor | None = None
+    ) -> State:
+        """The state moved with the camera from the frame of motion signature ``prev`` to ``cur``'s
+        (or by the given camera steps ``dx``, ``(N,)`` metres)."""
         if self.view is None:
             return state
-        if prev is None or cur.motion is None:
-            raise InputError("the aligned slot memory needs each frame's motion signature")
-        dx = camera_shift(prev, cur.motion, self.view)  # (N,) metres
+        if dx is None:
+            if prev is None or cur.motion is None:
+                raise InputError("the aligned slot memory needs each frame's motion signature")
+            dx = camera_shift(prev, cur.motion, self.view)  # (N,) metres
         slots = cur.valid.shape[1]
         return [
             (shift_columns(h, dx, self.view.x_extent, slots), shift_columns(c, dx, self.view.x_extent, slots))
             for h, c in state
         ]
 
-    def step(self, f: SlotFeatures, state: MemoryState | None) -> tuple[SlotFeatures, MemoryState]:
-        """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot)."""
-        lstm = None if state is None else self._align(state.lstm, state.motion, f)
+    def step(
+        self, f: SlotFeatures, state: MemoryState | None, motion: torch.Tensor | None = None
+    ) -> tuple[SlotFeatures, MemoryState]:
+        """One frame's slot features ``(B*R, ...)``; the state is per (batch, slot). ``motion``:
+        the camera's step since the state's frame, ``(B,)`` metres, instead of the image estimate."""
+        lstm = None if state is None else self._align(state.lstm, state.motion, f, motion)
         h, lstm = self.lstm.step(self._pooled(f), lstm)
         return self._refine(f, h), MemoryState(lstm, f.motion)
 
@@ -580,12 +587,25 @@ class MVRackLay(nn.Module):
         return res
 
     def step(
-        self, image: torch.Tensor, state: MemoryState | None = None, anchors: torch.Tensor | None = None
+        self,
+        image: torch.Tensor,
+        state: MemoryState | None = None,
+        anchors: torch.Tensor | None = None,
+        motion: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], MemoryState | None]:
-        """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state."""
+        """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state.
+
+        ``motion`` ``(B,)``: the camera's step along the row since the previous frame, metres (+ =
+        toward +X), from another source (odometry, ground truth); by default the aligned memory
+        reads it from the images.
+        """
+        if motion is not None:
+            motion = torch.as_tensor(motion, dtype=torch.float32).reshape(-1)
+            if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
+                raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
         feats, rows, anchors = self.frame_features(image, anchors)
         if self.memory is not None:
-            feats, state = self.memory.step(feats, state)
+            feats, state = self.memory.step(feats, state, motion)
         out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors

@@ -337,8 +337,15 @@ class MapBuilder:
                         self._end_index.add(len(self.ends), x)
                         self.ends.append([sh.slot, side, x, 1])
 
-    def register(self, rec: FrameReconstruction, top: np.ndarray | None) -> StepRecord:
-        """Estimate this frame's camera offset in the map (does not change the map)."""
+    def register(self, rec: FrameReconstruction, top: np.ndarray | None, motion: float | None = None) -> StepRecord:
+        """Estimate this frame's camera offset in the map (does not change the map).
+
+        ``motion`` (metres, + = the camera moved to +X) is an independent estimate of the camera's
+        step since the previous frame (wheel odometry, or the images via `network.motion`). It is
+        used only where the layouts give no consensus, instead of the constant-velocity guess: the
+        layouts' edges are the better measurement wherever they agree (centring the edge vote on
+        image-estimated steps instead made the held-out drift worse, see docs/stitching.md).
+        """
         idx = self.frames
         if idx == 0:
             return StepRecord(0, 0.0, 0.0, 0, 1.0, "first", 0)
@@ -350,7 +357,9 @@ class MapBuilder:
         me = _concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
         off, support, conf = vote_offset(fe, me, pred, cfg, self.dx, pred + self._velocity)
         method = "edges"
-        if support < cfg.min_support:
+        if support < cfg.min_support and motion is not None:
+            method, conf, off = "motion", 0.5, self._offset + motion
+        elif support < cfg.min_support:
             method, conf, off = "prediction", 0.0, self._offset + self._velocity
             if top is not None and self._prev_top is not None:
                 s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
@@ -361,9 +370,19 @@ class MapBuilder:
         return StepRecord(idx, off, shift, direction, conf, method, int(support))
 
     # ------------------------------------------------------------------ merging
-    def add(self, rec: FrameReconstruction, top: np.ndarray | None = None, frame: int | None = None) -> StepRecord:
-        """Register one frame and fuse it into the map; returns its step record."""
-        step = self.register(rec, top)
+    def add(
+        self,
+        rec: FrameReconstruction,
+        top: np.ndarray | None = None,
+        frame: int | None = None,
+        motion: float | None = None,
+    ) -> StepRecord:
+        """Register one frame and fuse it into the map; returns its step record (``motion``: see `register`)."""
+        if motion is not None and (
+            isinstance(motion, bool) or not isinstance(motion, (int, float)) or not math.isfinite(motion)
+        ):
+            raise LayoutError(f"motion must be a finite number of metres or None, got {motion!r}")
+        step = self.register(rec, top, None if motion is None else float(motion))
         if frame is not None:
             step.frame = frame
         off = step.offset

@@ -103,8 +103,15 @@ class Stitcher:
         self.builder = MapBuilder(spec, self.config.merge, self.config.shift, self.config.lift.board_thickness)
         self.count = 0
 
-    def push(self, frame: FrameInput, index: int | None = None) -> tuple[FrameReconstruction, StepRecord]:
-        """Detect, lift, register and merge one frame."""
+    def push(
+        self, frame: FrameInput, index: int | None = None, motion: float | None = None
+    ) -> tuple[FrameReconstruction, StepRecord]:
+        """Detect, lift, register and merge one frame.
+
+        ``motion``: optional camera step along the row since the previous pushed frame (metres,
+        + = toward +X) from another source, e.g. the images (`network.motion`); the layouts still
+        decide where they agree, the step fills in where they do not.
+        """
         idx = self.count if index is None else _frame_index(index)
         fl = _as_frame(frame, idx)
         det = detect_frame(fl.top, fl.front, self.spec, fl.visible, self.config.detect, name=f"frame {idx}")
@@ -112,7 +119,7 @@ class Stitcher:
         top = fl.top
         if fl.visible is not None and not fl.visible.all():
             top = top * fl.visible[None, None, :].astype(np.uint8)  # unseen columns are guesses
-        step = self.builder.add(rec, top, frame=idx)
+        step = self.builder.add(rec, top, frame=idx, motion=motion)
         self.count += 1
         return rec, step
 

@@ -9,8 +9,9 @@ Two estimators, the second a fallback:
   outliers that cannot pull it), ties go to the hypothesis nearest the prediction, and the
   answer is the mean of the supporters (pixel-quantised edges average out). Matching against the
   fused map rather than only the previous frame keeps the error from accumulating frame by frame.
-* `correlate_shift`: phase correlation (``skimage.registration.phase_cross_correlation``,
-  sub-pixel) of the previous and current top-view layouts, used when too few edges agree.
+* `correlate_shift`: correlation of the previous and current top-view layouts' per-column
+  profiles (box and shelf fraction per slot; parabolic sub-pixel peak), used when too few edges
+  agree.
 """
 
 from __future__ import annotations

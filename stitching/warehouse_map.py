@@ -75,7 +75,7 @@ class StepRecord:
     shift: float  #: offset change since the previous merged frame
     direction: int  #: +1 moving to +X, -1 to -X, 0 still / unknown
     confidence: float
-    method: str  #: 'first', 'edges' (box edges and rack ends), 'correlation', 'prediction'
+    method: str  #: 'first', 'edges' (box edges and rack ends), 'motion' (the given camera step), 'correlation', 'prediction'
     matches: int
 
 

@@ -85,3 +85,33 @@ def test_records_written_before_alignment_load_unaligned():
     assert tiny().align_memory is True
     with pytest.raises(InputError, match="align_memory"):
         replace(tiny(), align_memory="yes")
+
+
+def test_a_given_camera_step_replaces_the_image_estimate():
+    torch.manual_seed(3)
+    wide = _texture(64 + 60, seed=6)
+    frames = torch.stack(
+        [torch.nn.functional.interpolate(wide[None, :, :, 5 * t : 5 * t + 64], size=(64, 64))[0] for t in range(3)]
+    ).clamp(0, 1)
+    model = MVRackLay(tiny()).eval()
+    torch.nn.init.normal_(model.memory.out.weight, std=0.5)
+    view = model.memory.view
+    with torch.no_grad():
+        sig = motion_signature(frames)
+        estimate = camera_shift(sig[:-1], sig[1:], view)
+
+        def stream(motions):
+            state = None
+            for t in range(3):
+                out, state = model.step(frames[t : t + 1], state, ANCHORS[None], motion=motions[t])
+            return out["top"]
+
+        by_image = stream([None, None, None])
+        given_estimate = stream([None, estimate[:1], estimate[1:]])
+        given_zero = stream([None, torch.zeros(1), torch.zeros(1)])
+        torch.testing.assert_close(given_estimate, by_image, rtol=1e-4, atol=1e-5)
+        assert not torch.allclose(given_zero, by_image, atol=1e-4)
+        with pytest.raises(InputError, match="motion"):
+            model.step(frames[:1], None, ANCHORS[None], motion=torch.tensor([float("nan")]))
+        with pytest.raises(InputError, match="motion"):
+            model.step(frames[:1], None, ANCHORS[None], motion=torch.zeros(2))

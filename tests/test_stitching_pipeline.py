@@ -153,3 +153,47 @@ def test_wrong_inputs_give_one_line_errors():
         frame_arrays(np.zeros((2, 3, 8, 8), np.uint8), np.zeros((2, 3, 8, 4), np.uint8))
     with pytest.raises(InputError, match="spec must be a LayoutSpec"):
         Stitcher("not a spec")
+
+
+def _featureless(fl):
+    """The same frame with one box-free shelf across the view: nothing for the edge vote."""
+    top = np.full(SPEC.shape, SHELF, np.uint8)
+    return FrameLayouts(top, np.zeros(SPEC.shape, np.uint8), fl.visible)
+
+
+def _stitch_offsets(layouts, motions, config=None):
+    st = Stitcher(SPEC, config)
+    steps = [st.push(fl, i, motion=m)[1] for i, (fl, m) in enumerate(zip(layouts, motions))]
+    return st, steps
+
+
+def test_a_motion_estimate_carries_the_path_where_the_layouts_cannot():
+    # The camera turns back at frame 15 while frames 13-17 show nothing to register on. Without a
+    # motion estimate the stitcher keeps the old velocity through the turn; with the true steps
+    # (as `network.motion` reads them from the images) it follows the camera.
+    seq = make_sequence(seed=7, frames=30, spec=SPEC, step=0.1, reverse_at=15)
+    lays = [(_featureless(fl) if 13 <= i <= 17 else fl) for i, fl in enumerate(seq.layouts)]
+    xs = np.array([r["camera_position"][0] for r in seq.frames])
+    truth = xs - xs[0]
+    steps_true = [None] + np.diff(xs).tolist()
+    _, blind = _stitch_offsets(lays, [None] * len(lays))
+    _, guided = _stitch_offsets(lays, steps_true)
+    assert [s.method for s in guided[13:18]] == ["motion"] * 5
+    assert all(s.method != "motion" for s in blind)
+    err_blind = max(abs(s.offset - t) for s, t in zip(blind[13:18], truth[13:18]))
+    err_guided = max(abs(s.offset - t) for s, t in zip(guided, truth))
+    assert err_guided < 0.02 < err_blind
+    # Where the layouts agree, they decide: a hint 4 cm off does not move the registered path.
+    noisy = [None] + [d + 0.04 for d in steps_true[1:]]
+    _, edges = _stitch_offsets(seq.layouts, noisy)
+    assert all(s.method == "edges" for s in edges[1:])
+    assert max(abs(s.offset - t) for s, t in zip(edges, truth)) < 0.02
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), "0.1", True])
+def test_a_bad_motion_estimate_is_refused(bad):
+    seq = make_sequence(seed=7, frames=2, spec=SPEC)
+    st = Stitcher(SPEC)
+    st.push(seq.layouts[0], 0)
+    with pytest.raises(LayoutError, match="motion"):
+        st.push(seq.layouts[1], 1, motion=bad)
