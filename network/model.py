@@ -600,7 +600,7 @@ class MVRackLay(nn.Module):
         reads it from the images.
         """
         if motion is not None:
-            motion = torch.as_tensor(motion, dtype=torch.float32).reshape(-1)
+            motion = torch.as_tensor(motion, dtype=torch.float32, device=image.device).reshape(-1)
             if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
                 raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
         feats, rows, anchors = self.frame_features(image, anchors)

@@ -32,39 +32,42 @@ def _row(name: str, cells: list[tuple[float, float]], extra: str = "") -> str:
     return f"| {name} | " + " | ".join(f"{m:.1f} / {p:.1f}" for m, p in cells) + f" |{extra}"
 
 
-def _memory_note(run: Path) -> str:
-    """' (unaligned memory)' for a sequence run trained before the slot memory followed the camera."""
+def _label(run: Path) -> str:
+    """The run's variant (from its record; the folder name without one), with " (unaligned memory)"
+    for a sequence run trained before the slot memory followed the camera."""
     record = run / "best.json"
     if not record.is_file():
-        return ""
+        return run.name
     model = json.loads(record.read_text()).get("model_config", {})
-    if model.get("variant", "racklay") != "racklay" and not model.get("align_memory", False):
-        return " (unaligned memory)"
-    return ""
+    variant = model.get("variant", run.name)
+    unaligned = variant != "racklay" and not model.get("align_memory", False)
+    return variant + (" (unaligned memory)" if unaligned else "")
 
 
 def table1(runs: Path) -> list[str]:
-    mv4, disc8 = (_memory_note(runs / v) for v in ("mvracklay-4", "mvracklay-disc-8"))
-    old = runs / "_unaligned-disc-4"
+    dirs = {
+        v: runs / v for v in ("mvracklay-disc-4", "mvracklay-4", "mvracklay-disc-8", "_unaligned-disc-4", "racklay")
+    }
+    d4, mv4, d8, old, rl = ((_label(p), p) for p in dirs.values())
     out = [
         "| model | top rack | top box | front rack | front box | slot count right |",
         "|---|---|---|---|---|---|",
     ]
     for name, path in [
-        ("mvracklay-disc-4, calibrated (windowed)", runs / "mvracklay-disc-4" / "table1_calibrated.json"),
-        ("mvracklay-disc-4, calibrated (streaming)", runs / "mvracklay-disc-4" / "table1_calibrated_stream.json"),
-        (f"mvracklay-4{mv4}, calibrated", runs / "mvracklay-4" / "table1_calibrated.json"),
-        (f"mvracklay-disc-8{disc8}, calibrated", runs / "mvracklay-disc-8" / "table1_calibrated.json"),
-        ("mvracklay-disc-4 (unaligned memory), calibrated", old / "table1_calibrated.json"),
-        ("racklay, calibrated", runs / "racklay" / "table1_calibrated.json"),
-        ("mvracklay-disc-4, raw argmax (windowed)", runs / "mvracklay-disc-4" / "table1_window.json"),
-        ("mvracklay-disc-4, raw argmax (streaming)", runs / "mvracklay-disc-4" / "table1_stream.json"),
-        (f"mvracklay-4{mv4}, raw argmax", runs / "mvracklay-4" / "table1_window.json"),
-        (f"mvracklay-disc-8{disc8}, raw argmax", runs / "mvracklay-disc-8" / "table1_window.json"),
-        ("mvracklay-disc-4 (unaligned memory), raw argmax", old / "table1_window.json"),
-        ("racklay, raw argmax", runs / "racklay" / "table1_window.json"),
+        (f"{d4[0]}, calibrated (windowed)", d4[1] / "table1_calibrated.json"),
+        (f"{d4[0]}, calibrated (streaming)", d4[1] / "table1_calibrated_stream.json"),
+        (f"{mv4[0]}, calibrated", mv4[1] / "table1_calibrated.json"),
+        (f"{d8[0]}, calibrated", d8[1] / "table1_calibrated.json"),
+        (f"{old[0]}, calibrated", old[1] / "table1_calibrated.json"),
+        (f"{rl[0]}, calibrated", rl[1] / "table1_calibrated.json"),
+        (f"{d4[0]}, raw argmax (windowed)", d4[1] / "table1_window.json"),
+        (f"{d4[0]}, raw argmax (streaming)", d4[1] / "table1_stream.json"),
+        (f"{mv4[0]}, raw argmax", mv4[1] / "table1_window.json"),
+        (f"{d8[0]}, raw argmax", d8[1] / "table1_window.json"),
+        (f"{old[0]}, raw argmax", old[1] / "table1_window.json"),
+        (f"{rl[0]}, raw argmax", rl[1] / "table1_window.json"),
         ("depth projection (ground-truth depth + masks)", runs / "baseline_depth.json"),
-        ("mvracklay-disc-4, true shelf boards (analysis)", runs / "mvracklay-disc-4" / "table1_true_anchors.json"),
+        (f"{d4[0]}, true shelf boards (analysis)", d4[1] / "table1_true_anchors.json"),
     ]:
         if path.is_file():
             d = json.loads(path.read_text())
