@@ -11,7 +11,7 @@
   shows; this is what a perfect model that never sees it would score.
 * **seen box depth (this frame / so far)**: the same, except that stacks whose depth the camera
   sees keep their true footprint: a stack counts as seen when its visible pixels (instance image)
-  reach, by the depth image, at least `SEEN` of the way from its front face to its back (a top
+  reach, by the depth image, at least `waresynth.visibility.SEEN` of the way from its front face to its back (a top
   face, a side face or the back edge in view). "This frame" is what a perfect single-frame reader
   could know; "so far" (seen in any frame up to this one) what a perfect sequence reader could.
 
@@ -35,6 +35,7 @@ from layouts.metrics import FrameScorer, format_table  # noqa: E402
 from layouts.raster import fill_rect  # noqa: E402
 from network.data import resample_layout  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
+from waresynth.visibility import scene_stacks, seen_stacks  # noqa: E402
 
 SETBACK = 0.04  #: metres: the middle of the generator's default box setback range (0-0.08)
 MEAN_DEPTH = 0.475  #: metres: the middle of the generator's default box depth range (0.25-0.7)
@@ -65,39 +66,6 @@ def mean_depth(top: np.ndarray, z_extent: float) -> np.ndarray:
     return out
 
 
-SEEN = 0.9  #: fraction of a stack's depth its visible pixels must reach for its depth to count as seen
-
-
-def stacks_of(scene: dict) -> list[dict]:
-    """Every stack of the mapped row: level, footprint (x, z, yaw, w, d) and its boxes' instance ids."""
-    out: dict[str, dict] = {}
-    for rack in scene["racks"]:
-        for level, shelf in enumerate(rack["shelves"]):
-            for b in shelf["boxes"]:
-                st = out.setdefault(
-                    b["stack_id"],
-                    {"level": level, "x": b["center"][0], "z": b["center"][2], "yaw": b["yaw"],
-                     "w": b["size"][0], "d": b["size"][2], "ids": []},
-                )  # fmt: skip
-                st["ids"].append(int(b["instance_id"]))
-    for st in out.values():
-        c, s = abs(np.cos(st["yaw"])), abs(np.sin(st["yaw"]))
-        st["hz"] = 0.5 * (s * st["w"] + c * st["d"])  # half the footprint's extent along Z
-    return list(out.values())
-
-
-def seen_stacks(stacks: list[dict], depth: np.ndarray, instance: np.ndarray, cam_z: float) -> set[int]:
-    """Indices of the stacks whose visible pixels reach `SEEN` of their depth."""
-    seen = set()
-    for k, st in enumerate(stacks):
-        m = np.isin(instance, st["ids"]) & (depth > 0)
-        if m.any():
-            reach = cam_z + float(depth[m].max()) - (st["z"] - st["hz"])
-            if reach >= SEEN * 2 * st["hz"]:
-                seen.add(k)
-    return seen
-
-
 def seen_depth(
     mean: np.ndarray, spec, stacks: list[dict], keep: set[int], levels: list[int], cam_x: float, mid_z: float
 ) -> np.ndarray:
@@ -126,7 +94,7 @@ def main() -> int:
     res, depth, single, multi = FrameScorer(), FrameScorer(), FrameScorer(), FrameScorer()
     frames = seen_now = seen_sofar = in_view = 0
     for seq in tqdm(seqs, desc="sequences", leave=False):
-        stacks = stacks_of(seq.scene())
+        stacks = scene_stacks(seq.scene())
         sofar: set[int] = set()
         for i in range(seq.num_frames):
             rec = seq.frame(i)

@@ -195,6 +195,7 @@ class WindowDataset(torch.utils.data.Dataset):
         augment: bool = False,
         seed: int = 0,
         max_stride: int = 1,
+        seen_weight: float = 0.0,
     ) -> None:
         if not sequences:
             raise InputError("no sequences to read (is the split empty?)")
@@ -208,6 +209,11 @@ class WindowDataset(torch.utils.data.Dataset):
         if not isinstance(max_stride, int) or max_stride < 1:
             raise InputError(f"max_stride must be a positive integer, got {max_stride!r}")
         self.max_stride = max_stride  #: with augment, windows skip up to max_stride - 1 frames between theirs
+        if not np.isfinite(seen_weight) or seen_weight < 0:
+            raise InputError(f"seen_weight must be a finite number >= 0, got {seen_weight!r}")
+        #: extra top-view loss weight on the columns of stacks whose depth the window has shown so far
+        self.seen_weight = float(seen_weight)
+        self._stacks: dict[int, list[dict[str, Any]]] = {}
         self.epoch = 0
         self.index: list[tuple[int, int]] = []
         self._cam_x: list[np.ndarray] = []
@@ -267,6 +273,10 @@ class WindowDataset(torch.utils.data.Dataset):
                 cam_x = -cam_x
             anchors = anchors + rng.uniform(-ANCHOR_JITTER, ANCHOR_JITTER, size=anchors.shape).astype(np.float32)
         images = torch.from_numpy(np.ascontiguousarray(imgs)).div_(255.0).permute(0, 3, 1, 2).contiguous()
+        extra = {}
+        if self.seen_weight > 0:
+            w = 1.0 + self.seen_weight * self._seen_columns(si, ids)
+            extra["top_weight"] = torch.from_numpy(np.ascontiguousarray(w[..., ::-1] if flipped else w))
         return {
             "images": images,
             "top": torch.from_numpy(np.ascontiguousarray(top).astype(np.int64)),
@@ -276,7 +286,44 @@ class WindowDataset(torch.utils.data.Dataset):
             "anchors": torch.from_numpy(np.ascontiguousarray(anchors, dtype=np.float32)),
             "rows": torch.from_numpy(np.ascontiguousarray(st["rows"])),
             "flipped": flipped,
+            **extra,
         }
+
+    def _seen_columns(self, si: int, ids: list[int]) -> np.ndarray:
+        """float32 ``(T, R, D)``: 1 on the columns of each slot's stacks whose depth frames ``ids[:t+1]`` showed.
+
+        Needs the generator's depth and instance images and scene (`waresynth.visibility`).
+        """
+        from waresynth.visibility import scene_stacks, seen_stacks, stack_columns
+
+        seq = self.sequences[si]
+        for name in ("depth", "instance", "scene"):
+            if not callable(getattr(seq, name, None)):
+                raise InputError(f"{seq.name}: --seen-weight needs the generator's depth, instance and scene files")
+        if si not in self._stacks:
+            self._stacks[si] = scene_stacks(seq.scene())
+        stacks = self._stacks[si]
+        spec = self.spec
+        out = np.zeros((len(ids), spec.num_slots, spec.size), np.float32)
+        seen: set[int] = set()
+        done: set[int] = set()
+        for t, i in enumerate(ids):
+            rec = seq.frame(i)
+            cam_x, cam_z = float(rec["camera_position"][0]), float(rec["camera_position"][2])
+            levels = [int(s["level"]) for s in rec.get("slots", [])[: spec.num_slots]]
+            if i not in done:
+                near = [
+                    k for k, st in enumerate(stacks)
+                    if st["level"] in levels and abs(st["x"] - cam_x) < spec.x_extent / 2 + st["hx"]
+                ]  # fmt: skip
+                seen |= seen_stacks(stacks, seq.depth(i), seq.instance(i), cam_z, near)
+                done.add(i)
+            for k in seen:
+                st = stacks[k]
+                if st["level"] in levels:
+                    c0, c1 = stack_columns(st, spec, cam_x)
+                    out[t, levels.index(st["level"]), c0:c1] = 1.0
+        return out
 
 
 def colour_jitter(imgs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -17,22 +17,31 @@ def supervised_loss(
     class_weights: torch.Tensor | None = None,
     dice_weight: float = 0.0,
     valid: torch.Tensor | None = None,
+    column_weights: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Per-pixel cross entropy over every shelf slot (optionally class-weighted) + soft Dice on boxes.
 
     ``valid`` ``(B, T, R)`` keeps only the slots that exist (a slot without a shelf is background
-    by construction and teaches nothing). The Dice term (weight ``dice_weight``) is computed per
-    slot, so a slot with few box pixels still pulls as hard as a crowded one.
+    by construction and teaches nothing). ``column_weights`` ``(B, T, R, D)`` weights each layout
+    column's cells (all ones gives the unweighted loss). The Dice term (weight ``dice_weight``) is
+    computed per slot, so a slot with few box pixels still pulls as hard as a crowded one.
     """
     c = logits.shape[-3]
     flat = logits.reshape(-1, c, *logits.shape[-2:])
     tgt = target.reshape(-1, *target.shape[-2:])
+    cols = None if column_weights is None else column_weights.reshape(-1, 1, column_weights.shape[-1])
     if valid is not None:
         keep = valid.reshape(-1)
         if not bool(keep.any()):
             return logits.sum() * 0.0
         flat, tgt = flat[keep], tgt[keep]
-    loss = F.cross_entropy(flat, tgt, weight=class_weights)
+        cols = None if cols is None else cols[keep]
+    if cols is None:
+        loss = F.cross_entropy(flat, tgt, weight=class_weights)
+    else:
+        per = F.cross_entropy(flat, tgt, weight=class_weights, reduction="none")
+        w = cols.expand_as(per) if class_weights is None else cols * class_weights[tgt]
+        loss = (per * cols).sum() / w.sum().clamp_min(1e-12)
     if dice_weight > 0:
         p = flat.softmax(1)[:, BOX]
         g = (tgt == BOX).float()

@@ -82,6 +82,7 @@ class TrainConfig:
     long_weight: float = 0.05
     augment: bool = True
     max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
+    seen_weight: float = 0.0  #: extra top-view loss weight on stacks whose depth the window has shown (0 = off)
     seed: int = 0
     threads: int = 2
     workers: int = 0
@@ -111,6 +112,7 @@ class TrainConfig:
             "adv_weight",
             "short_weight",
             "long_weight",
+            "seen_weight",
             "workers",
         ):
             v = getattr(self, name)
@@ -227,6 +229,7 @@ class Trainer:
             augment=train_cfg.augment,
             seed=train_cfg.seed,
             max_stride=train_cfg.max_stride,
+            seen_weight=train_cfg.seen_weight,
         )
         self.val_seqs = val_seqs[: train_cfg.val_sequences or None]
         self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)
@@ -378,7 +381,9 @@ class Trainer:
         out = self.net(batch["images"], batch["anchors"])
         valid = torch.isfinite(batch["anchors"])
         losses: dict[str, torch.Tensor] = {}
-        losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight, valid) for v in VIEWS)
+        losses["sup"] = sum(
+            supervised_loss(out[v], batch[v], self.cw, t.dice_weight, valid, batch.get(f"{v}_weight")) for v in VIEWS
+        )
         losses["rows"] = row_loss(out["rows"], batch["rows"])
         if self.mcfg.seq_len > 1 and (t.short_weight > 0 or t.long_weight > 0):
             spec = self.mcfg.spec

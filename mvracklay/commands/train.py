@@ -86,7 +86,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=t.max_stride,
         help="training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
-        "learns from viewpoints further apart (default %(default)s: consecutive frames)",
+        "learns from viewpoints further apart (default %(default)s; 1 = consecutive frames)",
+    )
+    g.add_argument(
+        "--seen-weight",
+        type=float,
+        default=t.seen_weight,
+        help="extra top-view loss weight on the columns of box stacks whose depth (a top face, a side face, "
+        "the back edge) the window has shown so far, read from the generator's depth and instance images; "
+        "0 = off (default %(default)s)",
     )
     g.add_argument("--seed", type=int, default=t.seed)
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
@@ -176,6 +184,7 @@ def run(args: argparse.Namespace) -> int:
         long_weight=args.long_weight,
         augment=not args.no_augment,
         max_stride=args.max_stride,
+        seen_weight=args.seen_weight,
         seed=args.seed,
         threads=args.threads,
         workers=args.workers,
