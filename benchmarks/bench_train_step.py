@@ -3,10 +3,12 @@
 
     .venv/bin/python benchmarks/bench_train_step.py --threads 2
     .venv/bin/python benchmarks/bench_train_step.py --threads 2 --widths 16 32 64 --sizes 128 256
+    .venv/bin/python benchmarks/bench_train_step.py --threads 1 --precisions fp32 bf16
 
 One step = ``--frames`` frames (4 windows of 4 for the sequence variants, 16 single frames for
 racklay), supervised + row-head losses, without data loading or discriminators. Prints the
 median of ``--repeats`` steps after two warm-up steps, the parameter count and the fp16 size.
+``bf16`` runs the forward passes under bf16 autocast, as ``mvracklay train --precision bf16`` does.
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts import VIEWS, LayoutSpec  # noqa: E402
 from network.losses import row_loss, supervised_loss  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+from network.train import PRECISIONS  # noqa: E402
 
 
-def step_seconds(cfg: ModelConfig, frames: int, repeats: int) -> float:
+def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "fp32") -> float:
     torch.manual_seed(0)
     model = MVRackLay(cfg).train()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
@@ -41,7 +44,9 @@ def step_seconds(cfg: ModelConfig, frames: int, repeats: int) -> float:
     times = []
     for i in range(repeats + 2):
         t0 = time.perf_counter()
-        out = model(x, anchors)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+            out = model(x, anchors)
+        out = {k: v.float() for k, v in out.items()}
         loss = sum(supervised_loss(out[v], target[v]) for v in VIEWS) + row_loss(out["rows"], row_t)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -57,6 +62,7 @@ def main() -> int:
     ap.add_argument("--variants", nargs="+", default=["racklay", "mvracklay-disc-4"], choices=sorted(VARIANTS))
     ap.add_argument("--widths", type=int, nargs="+", default=[32], help="encoder widths")
     ap.add_argument("--sizes", type=int, nargs="+", default=[128], help="square canonical input sizes")
+    ap.add_argument("--precisions", nargs="+", default=["fp32"], choices=list(PRECISIONS))
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
@@ -69,11 +75,13 @@ def main() -> int:
                     variant=variant, input_width=size, input_height=size, encoder_width=width, spec=LayoutSpec(size=64)
                 )
                 params = sum(p.numel() for p in MVRackLay(cfg).parameters())
-                s = step_seconds(cfg, args.frames, args.repeats)
-                print(
-                    f"{variant:<17} input {size}x{size}  width {width:>3}  {params / 1e6:5.2f} M params "
-                    f"({2 * params / 2**20:5.1f} MiB fp16)  {s:6.3f} s/step  {args.frames / s:6.1f} frames/s"
-                )
+                for precision in args.precisions:
+                    s = step_seconds(cfg, args.frames, args.repeats, precision)
+                    print(
+                        f"{variant:<17} input {size}x{size}  width {width:>3}  {params / 1e6:5.2f} M params "
+                        f"({2 * params / 2**20:5.1f} MiB fp16)  {precision}  {s:6.3f} s/step  "
+                        f"{args.frames / s:6.1f} frames/s"
+                    )
     return 0
 
 

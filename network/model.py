@@ -102,6 +102,8 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
+        if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
+            object.__setattr__(self, "align_memory", True)
         if self.decoder_width < 4:
             raise InputError(f"decoder_width must be >= 4, got {self.decoder_width}")
         if not isinstance(self.spec, LayoutSpec):

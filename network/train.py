@@ -56,6 +56,8 @@ from network.losses import (
 from network.model import ModelConfig, MVRackLay, build_discriminators
 from network.resnet import load_imagenet_weights
 
+PRECISIONS = ("fp32", "bf16")  #: training forward-pass precisions (`TrainConfig.precision`)
+
 
 @dataclass
 class TrainConfig:
@@ -83,6 +85,7 @@ class TrainConfig:
     augment: bool = True
     max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
     seen_weight: float = 0.0  #: extra top-view loss weight on stacks whose depth the window has shown (0 = off)
+    precision: str = "fp32"  #: fp32, or bf16: forward passes under bf16 autocast (weights and optimiser stay fp32)
     seed: int = 0
     threads: int = 2
     workers: int = 0
@@ -121,6 +124,8 @@ class TrainConfig:
                 raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
+        if self.precision not in PRECISIONS:
+            raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
         if self.val_mode not in ("window", "stream"):
             raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
 
@@ -374,11 +379,21 @@ class Trainer:
         return self._out_of_time() or self.epoch >= self.tcfg.epochs
 
     # ------------------------------------------------------------------ one step
+    def _autocast(self) -> torch.autocast:
+        """bf16 autocast for the forward passes when ``precision`` is bf16 (a no-op context for fp32).
+
+        On CPUs with native bf16 (AVX512-BF16, AMX) a step takes ~0.6x the time; validation, evaluation
+        and the written weights stay fp32.
+        """
+        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.tcfg.precision == "bf16")
+
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         t = self.tcfg
         batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
         self.net.train()
-        out = self.net(batch["images"], batch["anchors"])
+        with self._autocast():
+            out = self.net(batch["images"], batch["anchors"])
+        out = {k: v.float() for k, v in out.items()}  # losses in fp32 whatever the forward ran in
         valid = torch.isfinite(batch["anchors"])
         losses: dict[str, torch.Tensor] = {}
         losses["sup"] = sum(
@@ -395,7 +410,9 @@ class Trainer:
             )
         fakes = {v: out[v].flatten(0, 1).softmax(2) for v in VIEWS}
         if self.discs is not None:
-            losses["adv"] = sum(lsgan_generator_loss(self.discs[v](fakes[v])) for v in VIEWS)
+            with self._autocast():
+                scores = {v: self.discs[v](fakes[v]).float() for v in VIEWS}
+            losses["adv"] = sum(lsgan_generator_loss(scores[v]) for v in VIEWS)
         total = losses["sup"] + t.row_weight * losses["rows"]
         total = total + t.short_weight * losses.get("short", 0) + t.long_weight * losses.get("long", 0)
         total = total + t.adv_weight * losses.get("adv", 0)
@@ -404,7 +421,8 @@ class Trainer:
         self.opt.step()
         if self.disc_loss is not None and self.opt_d is not None:
             real = {v: one_hot_layouts(batch[v].flatten(0, 1), NUM_CLASSES) for v in VIEWS}
-            d_loss = self.disc_loss(real, {v: fakes[v].detach() for v in VIEWS})
+            with self._autocast():
+                d_loss = self.disc_loss(real, {v: fakes[v].detach() for v in VIEWS}).float()
             self.opt_d.zero_grad(set_to_none=True)
             d_loss.backward()
             self.opt_d.step()

@@ -9,7 +9,7 @@ from pathlib import Path
 from layouts.errors import InputError
 from network.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
 from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
-from network.train import TrainConfig, Trainer, default_model_config, open_data
+from network.train import PRECISIONS, TrainConfig, Trainer, default_model_config, open_data
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
@@ -95,6 +95,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="extra top-view loss weight on the columns of box stacks whose depth (a top face, a side face, "
         "the back edge) the window has shown so far, read from the generator's depth and instance images; "
         "0 = off (default %(default)s)",
+    )
+    g.add_argument(
+        "--precision",
+        choices=list(PRECISIONS),
+        default=t.precision,
+        help="bf16 runs the training forward passes under bf16 autocast (weights, optimiser, validation and "
+        "the saved checkpoints stay fp32): ~1.6x the steps per minute on CPUs with native bf16 (AVX512-BF16, "
+        "AMX) and on recent GPUs, slower elsewhere (default %(default)s)",
     )
     g.add_argument("--seed", type=int, default=t.seed)
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
@@ -185,6 +193,7 @@ def run(args: argparse.Namespace) -> int:
         augment=not args.no_augment,
         max_stride=args.max_stride,
         seen_weight=args.seen_weight,
+        precision=args.precision,
         seed=args.seed,
         threads=args.threads,
         workers=args.workers,
