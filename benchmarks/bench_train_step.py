@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts import VIEWS, LayoutSpec  # noqa: E402
 from network.losses import row_loss, supervised_loss  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
-from network.train import PRECISIONS  # noqa: E402
+from network.train import PRECISIONS, forward_autocast  # noqa: E402
 
 
 def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "fp32") -> float:
@@ -44,7 +44,7 @@ def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "
     times = []
     for i in range(repeats + 2):
         t0 = time.perf_counter()
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=precision == "bf16"):
+        with forward_autocast("cpu", precision):
             out = model(x, anchors)
         out = {k: v.float() for k, v in out.items()}
         loss = sum(supervised_loss(out[v], target[v]) for v in VIEWS) + row_loss(out["rows"], row_t)

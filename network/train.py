@@ -59,6 +59,15 @@ from network.resnet import load_imagenet_weights
 PRECISIONS = ("fp32", "bf16")  #: training forward-pass precisions (`TrainConfig.precision`)
 
 
+def forward_autocast(device_type: str, precision: str) -> torch.autocast:
+    """The context training's forward passes run in: bf16 autocast for ``precision`` bf16, else a no-op.
+
+    On CPUs with native bf16 (AVX512-BF16, AMX) a step takes ~0.6x the time; validation, evaluation
+    and the written weights stay fp32.
+    """
+    return torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bf16")
+
+
 @dataclass
 class TrainConfig:
     """Optimisation settings (the model's own settings live in `ModelConfig`)."""
@@ -380,12 +389,7 @@ class Trainer:
 
     # ------------------------------------------------------------------ one step
     def _autocast(self) -> torch.autocast:
-        """bf16 autocast for the forward passes when ``precision`` is bf16 (a no-op context for fp32).
-
-        On CPUs with native bf16 (AVX512-BF16, AMX) a step takes ~0.6x the time; validation, evaluation
-        and the written weights stay fp32.
-        """
-        return torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.tcfg.precision == "bf16")
+        return forward_autocast(self.device.type, self.tcfg.precision)
 
     def train_step(self, batch: dict[str, torch.Tensor]) -> dict[str, float]:
         t = self.tcfg
