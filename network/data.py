@@ -181,6 +181,10 @@ def check_spec_compatible(model_spec: LayoutSpec, data_spec: LayoutSpec, source:
 class WindowDataset(torch.utils.data.Dataset):
     """Windows of ``seq_len`` frames over sequences, as tensors ready for the model and losses.
 
+    With ``prefix`` P > 0 each item holds ``P + seq_len`` frames (T below), the P first being the
+    memory's warm-up (`MVRackLay.forward`'s ``grad_frames``); the window is moved later in its
+    sequence, and its stride shortened, as far as needed to repeat no frame.
+
     Item: ``images (T, 3, H, W)`` float, ``top``/``front`` ``(T, R, D, D)`` int64, ``visible``
     ``(T, D)`` bool, ``cam_x (T,)`` float metres, ``flipped`` bool.
     """
@@ -196,6 +200,7 @@ class WindowDataset(torch.utils.data.Dataset):
         seed: int = 0,
         max_stride: int = 1,
         seen_weight: float = 0.0,
+        prefix: int = 0,
     ) -> None:
         if not sequences:
             raise InputError("no sequences to read (is the split empty?)")
@@ -213,6 +218,10 @@ class WindowDataset(torch.utils.data.Dataset):
             raise InputError(f"seen_weight must be a finite number >= 0, got {seen_weight!r}")
         #: extra top-view loss weight on the columns of stacks whose depth the window has shown so far
         self.seen_weight = float(seen_weight)
+        if not isinstance(prefix, int) or prefix < 0:
+            raise InputError(f"prefix must be an integer >= 0, got {prefix!r}")
+        #: frames before each window's ``seq_len`` (same stride): the memory's warm-up in long-window training
+        self.prefix = prefix
         self._stacks: dict[int, list[dict[str, Any]]] = {}
         self.epoch = 0
         self.index: list[tuple[int, int]] = []
@@ -233,8 +242,19 @@ class WindowDataset(torch.utils.data.Dataset):
         return len(self.index)
 
     def frame_ids(self, t: int, stride: int = 1) -> list[int]:
-        """The window ending at frame ``t``, frames ``stride`` apart (the first repeated at a sequence start)."""
-        return [max(0, t - (self.seq_len - 1 - k) * stride) for k in range(self.seq_len)]
+        """The window ending at frame ``t``, frames ``stride`` apart (the first repeated at a sequence start).
+
+        ``prefix + seq_len`` frames: the prefix frames come first.
+        """
+        n = self.prefix + self.seq_len
+        return [max(0, t - (n - 1 - k) * stride) for k in range(n)]
+
+    def _long_window(self, n_frames: int, t: int, stride: int) -> tuple[int, int]:
+        """With a prefix: the stride shortened and the end moved later so the window repeats no frame
+        where the sequence is long enough (a long window of repeated first frames teaches the memory nothing)."""
+        span = self.prefix + self.seq_len - 1
+        stride = max(1, min(stride, (n_frames - 1) // span))
+        return min(n_frames - 1, max(t, span * stride)), stride
 
     def _frame(self, seq: SequenceLike, i: int) -> dict[str, np.ndarray]:
         intr, dist = frame_camera(seq, i)
@@ -257,6 +277,8 @@ class WindowDataset(torch.utils.data.Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, idx]) if self.augment else None
         multi = rng is not None and self.max_stride > 1 and self.seq_len > 1
         stride = int(rng.integers(1, self.max_stride + 1)) if multi else 1
+        if self.prefix:
+            t, stride = self._long_window(seq.num_frames, t, stride)
         ids = self.frame_ids(t, stride)
         frames = [self._frame(seq, i) for i in ids]
         st = {k: np.stack([f[k] for f in frames]) for k in frames[0]}

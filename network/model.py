@@ -219,6 +219,13 @@ class SlotFeatures:
         motion = None if self.motion is None else pick(self.motion)
         return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion)
 
+    def cat(self, other: SlotFeatures) -> SlotFeatures:
+        """These frames' features followed by ``other``'s (both flattened as (frame, batch))."""
+        motion = None if self.motion is None or other.motion is None else torch.cat([self.motion, other.motion])
+        return SlotFeatures(
+            *(torch.cat([getattr(self, k), getattr(other, k)]) for k in ("top", "front", "fine", "valid")), motion
+        )
+
 
 class Pyramid(nn.Module):
     """Top-down feature pyramid from the 1/32 map (after its single-frame block) to a 1/4 map (``2 dw`` channels) and a 1/2 map."""
@@ -566,26 +573,46 @@ class MVRackLay(nn.Module):
             feats.motion = motion_signature(images)
         return feats, rows, anchors
 
-    def decode_window(self, window: list[SlotFeatures]) -> list[dict[str, torch.Tensor]]:
-        """Logits of each frame of a window (slot features in frame order), fused by the slot memory."""
+    def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
+        """Logits of each frame of a window (slot features in frame order) but the ``skip`` first,
+        fused by the slot memory (which runs over all of them)."""
         if self.memory is not None:
             window = self.memory.window(window)
-        return [self.slots.finish(f) for f in window]
+        return [self.slots.finish(f) for f in window[skip:]]
 
-    def forward(self, images: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self, images: torch.Tensor, anchors: torch.Tensor | None = None, grad_frames: int | None = None
+    ) -> dict[str, torch.Tensor]:
+        """Logits of a window ``(B, T, 3, H, W)``, every frame's (slot memory over the window in order).
+
+        ``grad_frames`` k < T: the T - k first frames only warm the slot memory up: their per-frame
+        work (encoder to slot features) runs without gradients and the outputs (logits, rows,
+        anchors) are the k last frames'. The memory's gradients still reach back over all T frames,
+        so what an early frame shows can pay at a late one, at a fraction of a long window's cost.
+        """
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
         b, t = images.shape[:2]
         if anchors is not None and tuple(anchors.shape) != (b, t, self.cfg.spec.num_slots):
             raise InputError(f"anchors must have shape {(b, t, self.cfg.spec.num_slots)}, got {tuple(anchors.shape)}")
+        if grad_frames is not None and not 1 <= grad_frames <= t:
+            raise InputError(f"grad_frames must be in 1..{t} (the window's frames), got {grad_frames}")
         # frames ordered (time, batch) so each time step is one contiguous block
         x = images.transpose(0, 1).flatten(0, 1)
         a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
-        feats, rows, a = self.frame_features(x, a)
-        outs = self.decode_window([feats.select(t, i) for i in range(t)])
+        warm = b * (t - grad_frames) if grad_frames is not None else 0
+        if warm:
+            with torch.no_grad():
+                f0, r0, a0 = self.frame_features(x[:warm], None if a is None else a[:warm])
+            f1, r1, a1 = self.frame_features(x[warm:], None if a is None else a[warm:])
+            feats, rows, a = f0.cat(f1), torch.cat([r0, r1]), torch.cat([a0, a1])
+        else:
+            feats, rows, a = self.frame_features(x, a)
+        skip = t - grad_frames if grad_frames is not None else 0
+        outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
-        res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)
-        res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)
+        res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
+        res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
         return res
 
     def step(

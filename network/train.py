@@ -94,6 +94,7 @@ class TrainConfig:
     augment: bool = True
     max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
     seen_weight: float = 0.0  #: extra top-view loss weight on stacks whose depth the window has shown (0 = off)
+    prefix_frames: int = 0  #: sequence variants: frames before each window that warm the memory (no encoder gradients)
     precision: str = "fp32"  #: fp32, or bf16: forward passes under bf16 autocast (weights and optimiser stay fp32)
     seed: int = 0
     threads: int = 2
@@ -111,6 +112,8 @@ class TrainConfig:
         for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads", "max_stride"):
             if getattr(self, name) < 1:
                 raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.prefix_frames < 0:
+            raise InputError(f"--prefix-frames must be >= 0, got {self.prefix_frames}")
         if self.checkpoint_every < 0:
             raise InputError(f"--checkpoint-every must be >= 0, got {self.checkpoint_every}")
         if self.device not in ("auto", "cpu", "cuda"):
@@ -210,6 +213,8 @@ class Trainer:
         dist_env: DistEnv | None = None,
     ) -> None:
         train_cfg.validate()
+        if train_cfg.prefix_frames and model_cfg.seq_len == 1:
+            raise InputError(f"--prefix-frames needs a sequence variant (slot memory); {model_cfg.variant} has none")
         self.mcfg, self.tcfg = model_cfg, train_cfg
         self.env = dist_env or DistEnv()
         if self.env.enabled and not (torch.distributed.is_available() and torch.distributed.is_initialized()):
@@ -244,6 +249,7 @@ class Trainer:
             seed=train_cfg.seed,
             max_stride=train_cfg.max_stride,
             seen_weight=train_cfg.seen_weight,
+            prefix=train_cfg.prefix_frames,
         )
         self.val_seqs = val_seqs[: train_cfg.val_sequences or None]
         self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)
@@ -395,8 +401,12 @@ class Trainer:
         t = self.tcfg
         batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
         self.net.train()
+        images, anchors, grad_frames = batch["images"], batch["anchors"], None
+        if t.prefix_frames:  # the warm-up frames have no outputs: the losses are the window's last seq_len frames'
+            grad_frames = self.mcfg.seq_len
+            batch = {k: (v[:, -grad_frames:] if torch.is_tensor(v) and v.ndim > 1 else v) for k, v in batch.items()}
         with self._autocast():
-            out = self.net(batch["images"], batch["anchors"])
+            out = self.net(images, anchors, grad_frames)
         out = {k: v.float() for k, v in out.items()}  # losses in fp32 whatever the forward ran in
         valid = torch.isfinite(batch["anchors"])
         losses: dict[str, torch.Tensor] = {}

@@ -97,6 +97,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "0 = off (default %(default)s)",
     )
     g.add_argument(
+        "--prefix-frames",
+        type=int,
+        default=t.prefix_frames,
+        metavar="P",
+        help="sequence variants: each training window is preceded by P more frames that pass the encoder without "
+        "gradients; the slot memory and the output heads train over all of them, so what an early frame showed "
+        "pays at a later one (long windows at ~1/3 of their encoder cost; the stride shrinks to fit the "
+        "sequence; 0 = off, default %(default)s)",
+    )
+    g.add_argument(
         "--precision",
         choices=list(PRECISIONS),
         default=t.precision,
@@ -193,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
         augment=not args.no_augment,
         max_stride=args.max_stride,
         seen_weight=args.seen_weight,
+        prefix_frames=args.prefix_frames,
         precision=args.precision,
         seed=args.seed,
         threads=args.threads,
@@ -233,7 +244,9 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
                 f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, "
-                f"batch {trainer.batch} x {mcfg.seq_len} frames per process on {device}{procs}"
+                f"batch {trainer.batch} x {mcfg.seq_len} frames"
+                + (f" (+ {tcfg.prefix_frames} warm-up frames each)" if tcfg.prefix_frames else "")
+                + f" per process on {device}{procs}"
                 + (f", resuming at step {trainer.step}" if resume else ""),
                 flush=True,
             )
