@@ -23,7 +23,11 @@ columns of the footprint's row extent) against the truth, and the same pooled pe
 per-scene bias; and the depth of predicted boxes against the truth's in shared columns. Both are
 broken down by where the shelf is seen from: the board's height relative to the camera (its top
 face is visible only from above, the underside only from below) and, for boxes, how far the
-column is from the optical axis (a box's side face shows only off-axis).
+column is from the optical axis (a box's side face shows only off-axis). ``--seen`` (generated
+data only) also breaks box depth down by whether the stack's depth is seen (`waresynth.visibility`,
+the test of `layout_ceilings.py`): in this frame, only in an earlier one, or never so far. Depth
+read well where this frame sees it but not where only an earlier frame did points at the memory;
+read badly in both, at the per-frame reading.
 """
 
 from __future__ import annotations
@@ -90,6 +94,7 @@ def main() -> int:
     ap.add_argument("data", type=Path, help="a dataset with ground truth (e.g. the held-out set)")
     ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--seen", action="store_true", help="box depth by whether the stack's depth is seen (see above)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
@@ -97,14 +102,17 @@ def main() -> int:
     seqs = open_data(args.data).sequences()
     scorers = {c: FrameScorer() for c in CASES}
     rack = []  # (sequence, predicted depth m, true depth m, board metres below the camera) per frame and slot
-    boxes = []  # (predicted, true, board metres below the camera, |X| m) box depth per shared box column
+    boxes = []  # (predicted, true, board metres below the camera, |X| m, seen) box depth per shared box column
     frames = 0
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
         row_m = seq.spec.z_extent / seq.spec.size
         pred = Predictor(model, sequence_camera(seq))
+        seen = SeenTracker(seq) if args.seen else None
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
+            if seen is not None:
+                seen.add(i)
             if i % args.every:
                 continue
             gt = seq.layouts(i)
@@ -114,6 +122,7 @@ def main() -> int:
             cam_y = float(rec["camera_position"][1])
             below = [float(sl["board_top_y"]) - cam_y for sl in rec.get("slots", [])]
             col_x = np.abs(seq.spec.col_to_x(np.arange(seq.spec.size) + 0.5))[vis]
+            labels = seen.labels(i) if seen is not None else np.full((gt.top.shape[0], seq.spec.size), -1)
             for case, fn in zip(CASES, (None, true_footprint, true_footprint_depth, true_box_depth, both_depths)):
                 scorers[case].update(p if fn is None else {v: fn(p[v], getattr(gt, v)) for v in ("top", "front")}, gt)
             for r in range(gt.top.shape[0]):
@@ -127,7 +136,8 @@ def main() -> int:
                 if shared.any():
                     pe = extent_rows((pt == BOX) & shared[None, :])
                     ge = extent_rows((g == BOX) & shared[None, :])
-                    boxes.extend(zip(pe * row_m, ge * row_m, np.full(pe.size, elev), col_x[shared]))
+                    seen_cols = labels[r][vis][shared]
+                    boxes.extend(zip(pe * row_m, ge * row_m, np.full(pe.size, elev), col_x[shared], seen_cols))
             frames += 1
     bar.close()
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {frames} frames of {len(seqs)} sequences")
@@ -151,7 +161,7 @@ def main() -> int:
                     f"corr {_corr(pd[sel], td[sel]):.2f}"
                 )
     if boxes:
-        pb, tb, el, ax = (np.array(x) for x in zip(*boxes))
+        pb, tb, el, ax, sn = (np.array(x) for x in zip(*boxes))
         print(
             f"box depth (shared box columns): true {tb.mean():.2f} +- {tb.std():.2f} m, predicted "
             f"{pb.mean():.2f} +- {pb.std():.2f} m; error {np.abs(pb - tb).mean() * 100:.1f} cm mean abs, "
@@ -160,7 +170,8 @@ def main() -> int:
         lateral = [(f"|X| < {LATERAL[0]} m", ax < LATERAL[0])]
         lateral += [(f"|X| {a}-{b} m", (ax >= a) & (ax < b)) for a, b in zip(LATERAL, LATERAL[1:])]
         lateral += [(f"|X| >= {LATERAL[-1]} m", ax >= LATERAL[-1])]
-        for name, sel in elevation_bins(el) + lateral:
+        seen_bins = [(f"stack depth {n}", sn == k) for k, n in SEEN_LABELS.items()] if args.seen else []
+        for name, sel in elevation_bins(el) + lateral + seen_bins:
             if sel.sum() > 1:
                 print(
                     f"  {name:32s} {sel.sum():6d} columns: error {np.abs(pb - tb)[sel].mean() * 100:5.1f} cm, "
@@ -172,6 +183,46 @@ def main() -> int:
 #: board height below the camera (metres; negative = above it) and lateral offset bins of the breakdowns
 ELEVATION = (-0.4, 0.4)
 LATERAL = (0.5, 1.0)
+#: `SeenTracker.labels` values
+SEEN_LABELS = {2: "seen in this frame", 1: "seen only earlier", 0: "not seen yet"}
+
+
+class SeenTracker:
+    """Which stacks' depth a generated sequence has shown so far (`waresynth.visibility`), frame by frame."""
+
+    def __init__(self, seq) -> None:
+        from waresynth.visibility import scene_stacks
+
+        for name in ("depth", "instance", "scene"):
+            if not callable(getattr(seq, name, None)):
+                raise SystemExit(f"{seq.name}: --seen needs the generator's depth, instance and scene files")
+        self.seq = seq
+        self.stacks = scene_stacks(seq.scene())
+        self.sofar: set[int] = set()
+        self.now: set[int] = set()
+
+    def add(self, i: int) -> None:
+        """Frame ``i`` (frames in order)."""
+        from waresynth.visibility import seen_stacks
+
+        cam_z = float(self.seq.frame(i)["camera_position"][2])
+        self.now = seen_stacks(self.stacks, self.seq.depth(i), self.seq.instance(i), cam_z)
+        self.sofar |= self.now
+
+    def labels(self, i: int) -> np.ndarray:
+        """int ``(R, D)`` per slot and layout column: 2 = a stack whose depth frame ``i`` sees, 1 = seen
+        only earlier, 0 = not seen yet, -1 = no stack."""
+        from waresynth.visibility import stack_columns
+
+        rec, spec = self.seq.frame(i), self.seq.spec
+        cam_x = float(rec["camera_position"][0])
+        levels = [int(sl["level"]) for sl in rec.get("slots", [])[: spec.num_slots]]
+        out = np.full((spec.num_slots, spec.size), -1, np.int64)
+        for k, st in enumerate(self.stacks):
+            if st["level"] in levels:
+                c0, c1 = stack_columns(st, spec, cam_x)
+                out[levels.index(st["level"]), c0:c1] = 2 if k in self.now else 1 if k in self.sofar else 0
+        return out
 
 
 def elevation_bins(el: np.ndarray) -> list[tuple[str, np.ndarray]]:
