@@ -101,10 +101,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=t.prefix_frames,
         metavar="P",
-        help="sequence variants: each training window is preceded by P more frames that pass the encoder without "
-        "gradients; the slot memory and the output heads train over all of them, so what an early frame showed "
-        "pays at a later one (long windows at ~1/3 of their encoder cost; the stride shrinks to fit the "
-        "sequence; 0 = off, default %(default)s)",
+        help="sequence variants: each training window is preceded by P more frames that only warm the slot memory "
+        "up (encoder without gradients, no outputs or losses); the memory's gradients reach back over all of "
+        "them, so what an early frame showed pays at a later one (a warm-up frame costs ~1/3 of a trained one; "
+        "the stride shrinks to fit the sequence; 0 = off, default %(default)s)",
     )
     g.add_argument(
         "--precision",
