@@ -47,6 +47,7 @@ from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from network.train import open_data  # noqa: E402
+from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map  # noqa: E402
 
 CASES = ("prediction", "true footprint", "true footprint depth", "true box depth", "both")
 
@@ -191,8 +192,6 @@ class SeenTracker:
     """Which stacks' depth a generated sequence has shown so far (`waresynth.visibility`), frame by frame."""
 
     def __init__(self, seq) -> None:
-        from waresynth.visibility import scene_stacks
-
         for name in ("depth", "instance", "scene"):
             if not callable(getattr(seq, name, None)):
                 raise SystemExit(f"{seq.name}: --seen needs the generator's depth, instance and scene files")
@@ -203,8 +202,6 @@ class SeenTracker:
 
     def add(self, i: int) -> None:
         """Frame ``i`` (frames in order)."""
-        from waresynth.visibility import seen_stacks
-
         cam_z = float(self.seq.frame(i)["camera_position"][2])
         self.now = seen_stacks(self.stacks, self.seq.depth(i), self.seq.instance(i), cam_z)
         self.sofar |= self.now
@@ -212,17 +209,10 @@ class SeenTracker:
     def labels(self, i: int) -> np.ndarray:
         """int ``(R, D)`` per slot and layout column: 2 = a stack whose depth frame ``i`` sees, 1 = seen
         only earlier, 0 = not seen yet, -1 = no stack."""
-        from waresynth.visibility import stack_columns
-
         rec, spec = self.seq.frame(i), self.seq.spec
-        cam_x = float(rec["camera_position"][0])
         levels = [int(sl["level"]) for sl in rec.get("slots", [])[: spec.num_slots]]
-        out = np.full((spec.num_slots, spec.size), -1, np.int64)
-        for k, st in enumerate(self.stacks):
-            if st["level"] in levels:
-                c0, c1 = stack_columns(st, spec, cam_x)
-                out[levels.index(st["level"]), c0:c1] = 2 if k in self.now else 1 if k in self.sofar else 0
-        return out
+        values = {k: 2 if k in self.now else 1 if k in self.sofar else 0 for k in range(len(self.stacks))}
+        return stack_column_map(self.stacks, values, spec, levels, float(rec["camera_position"][0]), -1).astype(int)
 
 
 def elevation_bins(el: np.ndarray) -> list[tuple[str, np.ndarray]]:

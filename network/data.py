@@ -316,7 +316,7 @@ class WindowDataset(torch.utils.data.Dataset):
 
         Needs the generator's depth and instance images and scene (`waresynth.visibility`).
         """
-        from waresynth.visibility import scene_stacks, seen_stacks, stack_columns
+        from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map
 
         seq = self.sequences[si]
         for name in ("depth", "instance", "scene"):
@@ -340,11 +340,7 @@ class WindowDataset(torch.utils.data.Dataset):
                 ]  # fmt: skip
                 seen |= seen_stacks(stacks, seq.depth(i), seq.instance(i), cam_z, near)
                 done.add(i)
-            for k in seen:
-                st = stacks[k]
-                if st["level"] in levels:
-                    c0, c1 = stack_columns(st, spec, cam_x)
-                    out[t, levels.index(st["level"]), c0:c1] = 1.0
+            out[t] = stack_column_map(stacks, dict.fromkeys(seen, 1.0), spec, levels, cam_x)
         return out
 
 

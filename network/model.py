@@ -600,7 +600,8 @@ class MVRackLay(nn.Module):
         # frames ordered (time, batch) so each time step is one contiguous block
         x = images.transpose(0, 1).flatten(0, 1)
         a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
-        warm = b * (t - grad_frames) if grad_frames is not None else 0
+        skip = t - grad_frames if grad_frames is not None else 0  # warm-up frames: no gradients, no outputs
+        warm = b * skip
         if warm:
             with torch.no_grad():
                 f0, r0, a0 = self.frame_features(x[:warm], None if a is None else a[:warm])
@@ -608,7 +609,6 @@ class MVRackLay(nn.Module):
             feats, rows, a = f0.cat(f1), torch.cat([r0, r1]), torch.cat([a0, a1])
         else:
             feats, rows, a = self.frame_features(x, a)
-        skip = t - grad_frames if grad_frames is not None else 0
         outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
         res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]

@@ -67,3 +67,22 @@ def stack_columns(st: dict[str, Any], spec: LayoutSpec, cam_x: float) -> tuple[i
     c0 = max(int(math.ceil(float(u0) - 0.5)), 0)
     c1 = min(int(math.floor(float(u1) - 0.5)) + 1, spec.size)
     return c0, max(c0, c1)
+
+
+def stack_column_map(
+    stacks: list[dict[str, Any]],
+    values: dict[int, float],
+    spec: LayoutSpec,
+    levels: list[int],
+    cam_x: float,
+    fill: float = 0.0,
+) -> np.ndarray:
+    """float32 ``(R, D)`` per slot and layout column: ``values[k]`` on the columns of stack ``k`` (on the
+    slot showing its level, ``levels[r]``, camera at ``cam_x``), ``fill`` elsewhere."""
+    out = np.full((spec.num_slots, spec.size), fill, np.float32)
+    for k, v in values.items():
+        st = stacks[k]
+        if st["level"] in levels:
+            c0, c1 = stack_columns(st, spec, cam_x)
+            out[levels.index(st["level"]), c0:c1] = v
+    return out
