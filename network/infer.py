@@ -83,23 +83,26 @@ class Predictor:
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
         m, t_len = self.model, self.cfg.seq_len
-        images: deque[torch.Tensor] = deque(maxlen=t_len)
+        images: deque[torch.Tensor] = deque(maxlen=t_len + 1)  # the window and the frame before it
         anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
         cached: deque = deque(maxlen=t_len)
+        last: torch.Tensor | None = None  # the frame before (the parallax's partner)
         for i, rgb in enumerate(frames):
             x = self.preprocess(rgb, i)
             a = self._anchors(i)
             if recompute:  # the naive form: the whole window through the model again
                 if not images:
-                    images.extend([x] * t_len)
+                    images.extend([x] * (t_len + 1))
                     anchors.extend([a] * t_len)
                 images.append(x)
                 anchors.append(a)
                 given = None if a is None else torch.stack(list(anchors), 1)
-                out = m(torch.stack(list(images), 1), given)
+                win = list(images)
+                out = m(torch.stack(win[1:], 1), given, before=None if i == 0 else win[0])
                 yield self._decide(out, (0, -1))
                 continue
-            feats, rows, anc = m.frame_features(x, a)  # per-frame work, shared by the windows it is in
+            feats, rows, anc = m.frame_features(x, a, last)  # per-frame work, shared by the windows it is in
+            last = x
             if not cached:
                 cached.extend([feats] * t_len)
             cached.append(feats)

@@ -26,7 +26,9 @@ frames differ by the camera's motion along the row. The motion is read from the 
 themselves (`network.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
 frame, so a memory cell stays on one piece of shelf (how deep a box is shows on its side faces or
 top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
-trained ``racklay`` weights.
+trained ``racklay`` weights. As an option (``ModelConfig.parallax``), sequence variants also read
+depth from the motion parallax with the frame before (`network.parallax`), added to the top view
+the same zero-initialised way.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).
@@ -47,6 +49,7 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.convlstm import StackedConvLSTM, State
 from network.motion import camera_shift, motion_signature
+from network.parallax import RATIOS, ParallaxNet, plane_sweep
 from network.resnet import ResNet18Encoder
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
@@ -63,6 +66,8 @@ ARCH = "anchored"
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
+#: channels of the plane-sweep features (`network.parallax.ParallaxNet`)
+PARALLAX_CHANNELS = 16
 #: the top view's band of image rows around a board: this far above the front window, and below the board (metres)
 BAND_ABOVE = 0.15
 BAND_BELOW = 0.30
@@ -85,6 +90,7 @@ class ModelConfig:
     memory_hidden: int = 32  #: ConvLSTM channels of the slot memory
     decoder_width: int = 32
     align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.motion`)
+    parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.parallax`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -102,6 +108,10 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
+        if not isinstance(self.parallax, bool):
+            raise InputError(f"parallax must be true or false, got {self.parallax!r}")
+        if self.parallax and not self.use_lstm:
+            raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
             object.__setattr__(self, "align_memory", True)
         if self.decoder_width < 4:
@@ -351,6 +361,15 @@ class SlotHeads(nn.Module):
         k = torch.arange(self.band_rows, dtype=torch.float32)
         band_off = (-(spec.h_extent + BAND_ABOVE) + (k + 0.5) / self.band_rows * band) / m
         self.register_buffer("band", band_off, persistent=False)
+        if cfg.parallax:  # the plane-sweep features on the same band, sampled on the 1/2 map's finer rows
+            self.par_rows = max(4, math.ceil(1.3 * band / (2 * m)))
+            k = torch.arange(self.par_rows, dtype=torch.float32)
+            par_off = (-(spec.h_extent + BAND_ABOVE) + (k + 0.5) / self.par_rows * band) / m
+            self.register_buffer("par_band", par_off, persistent=False)
+            self.par_col = ColumnTransform(PARALLAX_CHANNELS, self.par_rows, dw, self.dc)
+            self.par_out = nn.Conv2d(dw, dw, 1)  # zero-initialised: a warm start computes what its source did
+            nn.init.zeros_(self.par_out.weight)
+            nn.init.zeros_(self.par_out.bias)
 
     def _heights(self, n: int) -> torch.Tensor:
         h = (n - torch.arange(n, dtype=torch.float32) - 0.5) / n * self.spec.h_extent
@@ -369,8 +388,11 @@ class SlotHeads(nn.Module):
         c = fmap.shape[1]
         return s.view(n, c, r, rows, cols).transpose(1, 2).reshape(n * r, c, rows, cols)
 
-    def coarse(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> SlotFeatures:
-        """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames."""
+    def coarse(
+        self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, par: torch.Tensor | None = None
+    ) -> SlotFeatures:
+        """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames
+        (``par``: `network.parallax.ParallaxNet` maps, added to the top view's depth rows)."""
         n, r = anchors.shape
         d, dc = self.spec.size, self.dc
         valid = torch.isfinite(anchors)
@@ -380,6 +402,8 @@ class SlotHeads(nn.Module):
         fc = self._sample(q, a, self.front_coarse, dc)
         fc = self.front_c(torch.cat([fc, elev.expand(-1, 1, dc, dc)], 1))
         tb = self.col(self._sample(q, a, self.band, dc))
+        if par is not None:
+            tb = tb + self.par_out(self.par_col(self._sample(par, a, self.par_band, dc)))
         tc = self.top_c(torch.cat([tb, elev.expand(-1, 1, dc, dc)], 1))
         ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
         return SlotFeatures(tc, fc, ff, valid)
@@ -404,10 +428,12 @@ class SlotHeads(nn.Module):
 
 @dataclass
 class MemoryState:
-    """What streaming carries from frame to frame: the ConvLSTM state and the last frame's motion signature."""
+    """What streaming carries from frame to frame: the ConvLSTM state and the last frame's motion
+    signature (and, for the parallax, its image)."""
 
     lstm: State
     motion: torch.Tensor | None
+    image: torch.Tensor | None = None
 
 
 class SlotMemory(nn.Module):
@@ -534,6 +560,7 @@ class MVRackLay(nn.Module):
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.slots = SlotHeads(cfg, fine, coarse)
+        self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (
             SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers, cfg.view if cfg.align_memory else None)
             if cfg.use_lstm
@@ -557,20 +584,39 @@ class MVRackLay(nn.Module):
         return s1, f2, f3, f4, self.reduce(f5)
 
     def frame_features(
-        self, images: torch.Tensor, anchors: torch.Tensor | None = None
+        self,
+        images: torch.Tensor,
+        anchors: torch.Tensor | None = None,
+        prev: torch.Tensor | None = None,
+        dx: torch.Tensor | None = None,
     ) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
         """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``.
 
-        Anchors are the given ones, else the row head's.
+        Anchors are the given ones, else the row head's. With the parallax, ``prev`` ``(N, 3, H, W)``
+        are the frames before (None: none, as at a sequence start) and ``dx`` ``(N,)`` the camera's
+        steps from them (metres; None: read from the images).
         """
         feats = self.encode(images)
         p1, p2 = self.pyramid(feats, self.temporal(feats[4]))
         rows = self.rows(p1, p2)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
-        feats = self.slots.coarse(p1, p2, anchors)
-        if self.memory is not None and self.memory.view is not None:
-            feats.motion = motion_signature(images)
+        sig = motion_signature(images) if self.memory is not None and self.memory.view is not None else None
+        par = None
+        if self.parallax is not None:
+            view = self.cfg.view
+            n, _, h, w = images.shape
+            if prev is None:  # no frame before: every plane matches, nothing to read
+                cost = images.new_zeros(n, len(RATIOS), h, w)
+            else:
+                if dx is None:
+                    dx = camera_shift(
+                        motion_signature(prev), sig if sig is not None else motion_signature(images), view
+                    )
+                cost = plane_sweep(images, prev, dx.to(images.device), view)
+            par = self.parallax(cost)
+        feats = self.slots.coarse(p1, p2, anchors, par)
+        feats.motion = sig
         return feats, rows, anchors
 
     def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
@@ -581,7 +627,11 @@ class MVRackLay(nn.Module):
         return [self.slots.finish(f) for f in window[skip:]]
 
     def forward(
-        self, images: torch.Tensor, anchors: torch.Tensor | None = None, grad_frames: int | None = None
+        self,
+        images: torch.Tensor,
+        anchors: torch.Tensor | None = None,
+        grad_frames: int | None = None,
+        before: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Logits of a window ``(B, T, 3, H, W)``, every frame's (slot memory over the window in order).
 
@@ -589,6 +639,8 @@ class MVRackLay(nn.Module):
         work (encoder to slot features) runs without gradients and the outputs (logits, rows,
         anchors) are the k last frames'. The memory's gradients still reach back over all T frames,
         so what an early frame shows can pay at a late one, at a fraction of a long window's cost.
+        ``before`` ``(B, 3, H, W)``: the frame before the window, for the first frame's parallax
+        (None: it has none).
         """
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
@@ -602,13 +654,25 @@ class MVRackLay(nn.Module):
         a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
         skip = t - grad_frames if grad_frames is not None else 0  # warm-up frames: no gradients, no outputs
         warm = b * skip
+        prev = dx = None
+        if self.parallax is not None:  # each frame's predecessor in the window (the first: ``before`` or none)
+            prev = torch.cat([x[:b] if before is None else before.to(x.dtype), x[:-b]])
+            dx = camera_shift(motion_signature(prev), motion_signature(x), self.cfg.view)
+            if before is None:
+                dx[:b] = 0.0
+
+        def part(sl: slice) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
+            return self.frame_features(
+                x[sl], None if a is None else a[sl], None if prev is None else prev[sl], None if dx is None else dx[sl]
+            )
+
         if warm:
             with torch.no_grad():
-                f0, r0, a0 = self.frame_features(x[:warm], None if a is None else a[:warm])
-            f1, r1, a1 = self.frame_features(x[warm:], None if a is None else a[warm:])
+                f0, r0, a0 = part(slice(0, warm))
+            f1, r1, a1 = part(slice(warm, None))
             feats, rows, a = f0.cat(f1), torch.cat([r0, r1]), torch.cat([a0, a1])
         else:
-            feats, rows, a = self.frame_features(x, a)
+            feats, rows, a = part(slice(None))
         outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
         res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
@@ -632,9 +696,12 @@ class MVRackLay(nn.Module):
             motion = torch.as_tensor(motion, dtype=torch.float32, device=image.device).reshape(-1)
             if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
                 raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
-        feats, rows, anchors = self.frame_features(image, anchors)
+        prev = None if state is None else state.image
+        feats, rows, anchors = self.frame_features(image, anchors, prev, None if prev is None else motion)
         if self.memory is not None:
             feats, state = self.memory.step(feats, state, motion)
+            if self.parallax is not None:
+                state.image = image
         out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors

@@ -45,6 +45,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--hidden", type=int, default=m.hidden, help="channels of the reduced 1/32 map")
     g.add_argument("--memory-hidden", type=int, default=m.memory_hidden, help="ConvLSTM channels of the slot memory")
     g.add_argument("--decoder-width", type=int, default=m.decoder_width)
+    g.add_argument(
+        "--parallax",
+        action="store_true",
+        help="sequence variants: the top view also reads depth from the parallax between each frame and the one "
+        "before (a plane sweep over the canonical images; network/parallax.py)",
+    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     g.add_argument(
         "--init-from",
@@ -186,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
         hidden=args.hidden,
         decoder_width=args.decoder_width,
         memory_hidden=args.memory_hidden,
+        parallax=args.parallax,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,

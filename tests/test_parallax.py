@@ -1,0 +1,115 @@
+"""The plane sweep (depth from the parallax between two frames) and the model's parallax branch."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from layouts import InputError, LayoutSpec
+from layouts.canonical import CanonicalView
+from network.infer import Predictor
+from network.model import ModelConfig, MVRackLay
+from network.parallax import RATIOS, ParallaxNet, plane_sweep
+from network.toy import ToySequence
+
+SPEC = LayoutSpec(num_slots=2, size=16)
+VIEW = CanonicalView(64, 32, 3.0)
+ANCHORS = torch.tensor([52.0, 30.0])
+
+
+def tiny(parallax: bool = True, variant: str = "mvracklay-disc-4") -> ModelConfig:
+    return ModelConfig(
+        variant=variant,
+        input_width=64,
+        input_height=64,
+        spec=SPEC,
+        encoder_width=8,
+        hidden=16,
+        decoder_width=8,
+        parallax=parallax,
+    )
+
+
+def _texture(w: int = 96, seed: int = 0) -> torch.Tensor:
+    """A random vertical-stripe texture ``(1, 3, 32, w)``: every column differs, rows repeat."""
+    g = torch.Generator().manual_seed(seed)
+    cols = torch.rand(1, 3, 1, w, generator=g)
+    return cols.expand(1, 3, 32, w).contiguous()
+
+
+def test_the_sweep_finds_each_region_at_its_depth():
+    """Left half on the front plane (rho 1), right half 0.5 m behind it at d = 2 m (rho 0.8): a camera
+    step of 5 pixels moves the first by 5 pixels and the second by 4, and the sweep says so."""
+    m = VIEW.metres_per_pixel
+    prev = _texture()
+    near = torch.roll(prev, -5, dims=-1)[..., 16:80]  # cur(x) = prev(x + 5)
+    far = torch.roll(prev, -4, dims=-1)[..., 16:80]  # cur(x) = prev(x + 4)
+    cur = torch.cat([near[..., :32], far[..., 32:]], -1)
+    cost = plane_sweep(cur, prev[..., 16:80], torch.tensor([5 * m]), VIEW)[0]  # (K, H, W)
+    best = torch.tensor(RATIOS)[cost.argmin(0)]  # (H, W)
+    assert cost.shape == (len(RATIOS), 32, 64)
+    assert (best[:, 4:28] == 1.0).float().mean() > 0.95
+    assert (best[:, 36:60] == 0.8).float().mean() > 0.95
+    # the opposite motion finds neither
+    rev = plane_sweep(cur, prev[..., 16:80], torch.tensor([-5 * m]), VIEW)[0]
+    assert (torch.tensor(RATIOS)[rev.argmin(0)][:, 4:28] == 1.0).float().mean() < 0.5
+
+
+def test_a_camera_that_does_not_move_gives_no_information():
+    cur = _texture()[..., :64]
+    cost = plane_sweep(cur, cur, torch.zeros(1), VIEW)
+    assert float(cost.abs().max()) < 1e-5  # bilinear resampling at the pixel centres, up to rounding
+    net = ParallaxNet(8).eval()
+    other = plane_sweep(cur.flip(-1), cur.flip(-1), torch.zeros(1), VIEW)
+    with torch.no_grad():
+        torch.testing.assert_close(net(cost), net(other))
+
+
+def test_parallax_needs_a_sequence_variant_and_round_trips():
+    with pytest.raises(InputError, match="parallax needs a sequence variant"):
+        tiny(variant="racklay")
+    cfg = tiny()
+    assert ModelConfig.from_dict(cfg.to_dict()) == cfg
+    d = cfg.to_dict()
+    del d["parallax"]  # written before the option: off
+    assert ModelConfig.from_dict(d).parallax is False
+
+
+def test_streaming_equals_the_window_and_a_fresh_branch_changes_nothing():
+    torch.manual_seed(3)
+    model = MVRackLay(tiny()).eval()
+    plain = MVRackLay(tiny(parallax=False)).eval()
+    missing, unexpected = model.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and all(k.startswith(("parallax.", "slots.par_")) for k in missing)
+    base = torch.rand(1, 3, 64, 96)
+    x = torch.stack([base[..., 4 * t : 4 * t + 64] for t in range(5)], 1)  # a camera moving along the row
+    a = ANCHORS.expand(1, 5, 2)
+    with torch.no_grad():
+        torch.testing.assert_close(model(x, a)["top"], plain(x, a)["top"])  # zero-initialised: the warm start
+        torch.nn.init.normal_(model.slots.par_out.weight, std=5.0)  # make the (untrained) branch count
+        full = model(x, a)
+        assert not torch.allclose(full["top"][:, 1:], plain(x, a)["top"][:, 1:], atol=1e-4)
+        torch.testing.assert_close(full["top"][:, 0], plain(x, a)["top"][:, 0])  # no frame before: nothing
+        state = None
+        for t in range(5):
+            out, state = model.step(x[:, t], state, ANCHORS[None])
+            torch.testing.assert_close(out["top"], full["top"][:, t], rtol=1e-4, atol=1e-5)
+        # the first frame of a window sees the one before it when given
+        later = model(x[:, 1:], a[:, 1:], before=x[:, 0])
+        torch.testing.assert_close(later["top"][:, 0], full["top"][:, 1], rtol=1e-4, atol=1e-5)
+
+
+def test_windowed_prediction_with_parallax_matches_the_naive_form():
+    torch.manual_seed(4)
+    model = MVRackLay(tiny()).eval()
+    torch.nn.init.normal_(model.slots.par_out.weight, std=0.5)
+    torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)  # an untrained row head finds boards, so slots decode
+    seq = ToySequence(SPEC, num_frames=6, image_size=(64, 64))
+    frames = [seq.rgb(i) for i in range(6)]
+    pred = Predictor(model)
+    cached = list(pred.window(frames))
+    naive = list(pred.window(frames, recompute=True))
+    for t in range(6):
+        torch.testing.assert_close(cached[t]["top"], naive[t]["top"], rtol=1e-4, atol=1e-5)
+    assert np.isfinite(cached[5]["top"].numpy()).all()
