@@ -111,8 +111,16 @@ def init_process_group(env: DistEnv, device: torch.device, timeout_min: float = 
     return backend
 
 
-def shutdown() -> None:
+def shutdown(wait: bool = False) -> None:
+    """Close the process group, if any. ``wait``: first a barrier, so no rank tears its connections
+    down while another is still in its last collective or checkpoint write (gloo can abort a rank
+    whose peer left early); only on the normal path, since after an error a peer may never arrive."""
     if dist.is_available() and dist.is_initialized():
+        if wait and dist.get_world_size() > 1:
+            try:
+                dist.barrier()
+            except RuntimeError:
+                pass  # a peer is gone: nothing left to wait for
         dist.destroy_process_group()
 
 

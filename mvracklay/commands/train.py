@@ -234,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
     resume = bool(args.resume and (args.out / "last.pt").is_file())
     device = device_for(env, args.device)
     backend = init_process_group(env, device, args.dist_timeout) if env.enabled else None
+    finished = False  # every rank through fit(): wait for the others before closing the process group
     try:
         trainer = Trainer(
             mcfg,
@@ -258,8 +259,9 @@ def run(args: argparse.Namespace) -> int:
                 flush=True,
             )
         record = trainer.fit()
+        finished = True
     finally:
-        shutdown()
+        shutdown(wait=finished)
     if env.is_main:
         print(
             f"done: step {record['step']}, {record['train_wall_minutes']:.1f} training minutes; "
