@@ -88,9 +88,8 @@ def main() -> None:
             if args.true_motion:
                 dx = torch.tensor([true_dx])
             cost = plane_sweep(ims[1], ims[0], dx, view)[0].numpy()  # (K, H, W)
-            intr, dist = frame_camera(seq, t)
-            depth = seq.depth(t)
-            u, v = view.source_coords(seq.intrinsics, dist)  # nearest source pixel of each canonical pixel
+            depth = seq.depth(t)  # (intr, dist): frame t's, from the loop above
+            u, v = view.source_coords(intr, dist)  # nearest source pixel of each canonical pixel
             ui = np.clip(np.floor(u).astype(int), 0, depth.shape[1] - 1)
             vi = np.clip(np.floor(v).astype(int), 0, depth.shape[0] - 1)
             z = depth[vi[:, None], ui[None, :]]

@@ -344,9 +344,7 @@ class SlotHeads(nn.Module):
         self.view, self.spec = view, spec
         d, dw = spec.size, cfg.decoder_width
         self.dc = d // 2
-        m = view.metres_per_pixel
-        band = spec.h_extent + BAND_ABOVE + BAND_BELOW
-        self.band_rows = max(4, math.ceil(1.3 * band / (4 * m)))  # ~1.3 samples per 1/4-map row
+        self.band_rows = self._band_rows(4)  # ~1.3 samples per 1/4-map row
         cs = dw
         self.reduce = _conv_bn_relu(c2, cs, 1)
         self.col = ColumnTransform(cs, self.band_rows, dw, self.dc)
@@ -358,18 +356,26 @@ class SlotHeads(nn.Module):
         # front-window heights (row 0 = top) and the top view's band, as offsets in canonical rows
         self.register_buffer("front_coarse", self._heights(self.dc), persistent=False)
         self.register_buffer("front_fine", self._heights(d), persistent=False)
-        k = torch.arange(self.band_rows, dtype=torch.float32)
-        band_off = (-(spec.h_extent + BAND_ABOVE) + (k + 0.5) / self.band_rows * band) / m
-        self.register_buffer("band", band_off, persistent=False)
+        self.register_buffer("band", self._band(self.band_rows), persistent=False)
         if cfg.parallax:  # the plane-sweep features on the same band, sampled on the 1/2 map's finer rows
-            self.par_rows = max(4, math.ceil(1.3 * band / (2 * m)))
-            k = torch.arange(self.par_rows, dtype=torch.float32)
-            par_off = (-(spec.h_extent + BAND_ABOVE) + (k + 0.5) / self.par_rows * band) / m
-            self.register_buffer("par_band", par_off, persistent=False)
+            self.par_rows = self._band_rows(2)
+            self.register_buffer("par_band", self._band(self.par_rows), persistent=False)
             self.par_col = ColumnTransform(PARALLAX_CHANNELS, self.par_rows, dw, self.dc)
             self.par_out = nn.Conv2d(dw, dw, 1)  # zero-initialised: a warm start computes what its source did
             nn.init.zeros_(self.par_out.weight)
             nn.init.zeros_(self.par_out.bias)
+
+    def _band_rows(self, stride: int) -> int:
+        """Rows sampled on the top view's band from a map of ``stride`` canonical pixels per row (~1.3 each)."""
+        band = self.spec.h_extent + BAND_ABOVE + BAND_BELOW
+        return max(4, math.ceil(1.3 * band / (stride * self.view.metres_per_pixel)))
+
+    def _band(self, rows: int) -> torch.Tensor:
+        """The top view's band (`BAND_ABOVE` over the front window to `BAND_BELOW` under the board) as
+        ``rows`` offsets in canonical rows from the anchor."""
+        band = self.spec.h_extent + BAND_ABOVE + BAND_BELOW
+        k = torch.arange(rows, dtype=torch.float32)
+        return (-(self.spec.h_extent + BAND_ABOVE) + (k + 0.5) / rows * band) / self.view.metres_per_pixel
 
     def _heights(self, n: int) -> torch.Tensor:
         h = (n - torch.arange(n, dtype=torch.float32) - 0.5) / n * self.spec.h_extent
@@ -657,7 +663,9 @@ class MVRackLay(nn.Module):
         prev = dx = None
         if self.parallax is not None:  # each frame's predecessor in the window (the first: ``before`` or none)
             prev = torch.cat([x[:b] if before is None else before.to(x.dtype), x[:-b]])
-            dx = camera_shift(motion_signature(prev), motion_signature(x), self.cfg.view)
+            sig = motion_signature(x)  # the predecessors' are the same frames', one step back
+            first = sig[:b] if before is None else motion_signature(before)
+            dx = camera_shift(torch.cat([first, sig[:-b]]), sig, self.cfg.view)
             if before is None:
                 dx[:b] = 0.0
 
