@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tiny_net import cached_and_naive_windows
 
 from layouts import VIEWS, InputError, LayoutSpec
-from network.infer import Predictor, predict_layouts
+from network.infer import predict_layouts
 from network.model import VARIANTS, ModelConfig, MVRackLay, anchors_from_rows, build_discriminators
 from network.resnet import ResNet18Encoder, load_imagenet_weights
-from network.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 
@@ -149,12 +149,7 @@ def test_a_fresh_memory_leaves_the_single_frame_outputs_unchanged():
 def test_windowed_predictor_matches_the_window_forward():
     torch.manual_seed(2)
     model = MVRackLay(tiny()).eval()
-    torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)  # an untrained row head finds boards, so slots decode
-    seq = ToySequence(SPEC, num_frames=6, image_size=(64, 64))
-    frames = [seq.rgb(i) for i in range(6)]
-    pred = Predictor(model)
-    cached = list(pred.window(frames))
-    naive = list(pred.window(frames, recompute=True))
+    pred, frames, cached, naive = cached_and_naive_windows(model, SPEC)
     streamed = list(pred.stream(frames))
     x = torch.stack([pred.preprocess(f, i)[0] for i, f in enumerate(frames)])  # (6, 3, H, W)
     with torch.no_grad():

@@ -5,13 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tiny_net import cached_and_naive_windows
 
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.infer import Predictor
 from network.model import ModelConfig, MVRackLay
 from network.parallax import RATIOS, ParallaxNet, plane_sweep
-from network.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 VIEW = CanonicalView(64, 32, 3.0)
@@ -104,12 +103,7 @@ def test_windowed_prediction_with_parallax_matches_the_naive_form():
     torch.manual_seed(4)
     model = MVRackLay(tiny()).eval()
     torch.nn.init.normal_(model.slots.par_out.weight, std=0.5)
-    torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)  # an untrained row head finds boards, so slots decode
-    seq = ToySequence(SPEC, num_frames=6, image_size=(64, 64))
-    frames = [seq.rgb(i) for i in range(6)]
-    pred = Predictor(model)
-    cached = list(pred.window(frames))
-    naive = list(pred.window(frames, recompute=True))
+    _, _, cached, naive = cached_and_naive_windows(model, SPEC)
     for t in range(6):
         torch.testing.assert_close(cached[t]["top"], naive[t]["top"], rtol=1e-4, atol=1e-5)
     assert np.isfinite(cached[5]["top"].numpy()).all()

@@ -25,3 +25,21 @@ def lift_row_head(path, bias: float = 2.0) -> None:
     payload.pop("record_json", None)
     record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
     save_checkpoint(path, payload, record)
+
+
+def cached_and_naive_windows(model, spec, num_frames: int = 6):
+    """A model's windowed predictions over a toy sequence, cached and re-encoded (``recompute=True``).
+
+    Lifts the row head's bias first (as `lift_row_head` does for a checkpoint) so slots decode.
+    Returns ``(predictor, frames, cached, naive)``.
+    """
+    import torch
+
+    from network.infer import Predictor
+    from network.toy import ToySequence
+
+    torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
+    seq = ToySequence(spec, num_frames=num_frames, image_size=(64, 64))
+    frames = [seq.rgb(i) for i in range(num_frames)]
+    pred = Predictor(model)
+    return pred, frames, list(pred.window(frames)), list(pred.window(frames, recompute=True))
