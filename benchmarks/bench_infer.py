@@ -8,6 +8,7 @@ unless --checkpoint is given. Images are fed at the model's input size (no resiz
 passes is the figure least disturbed by other processes; the median is printed beside it.
 
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
+    python benchmarks/bench_infer.py --device cuda --checkpoint weights/mvracklay-disc-4.pt   # on a GPU
 """
 
 from __future__ import annotations
@@ -29,6 +30,12 @@ from network.infer import Predictor  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
 
+def sync(device: torch.device) -> None:
+    """Wait for the device's queued work (GPU kernels run asynchronously; a pass ends when they finish)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
 def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, warmup: int = 4) -> list[float]:
     """frames/s of each of ``repeats`` passes over ``frames`` (after a warm-up)."""
     run = {
@@ -38,12 +45,20 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
     }[mode]
     for _ in run(frames[:warmup]):
         pass
+    sync(pred.device)
     out = []
     for _ in range(repeats):
         t = time.perf_counter()
         n = sum(1 for _ in run(frames))
+        sync(pred.device)
         out.append(n / (time.perf_counter() - t))
     return out
+
+
+def _where(device: torch.device, threads: int) -> str:
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} ({device})"
+    return f"{threads} CPU threads"
 
 
 def main() -> int:
@@ -55,8 +70,15 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--repeats", type=int, default=3, help="passes per case; the best and median are shown")
     ap.add_argument("--modes", nargs="+", default=["stream", "window", "window-recompute"])
+    ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
+    try:
+        device = torch.device(args.device)
+    except RuntimeError as e:
+        ap.error(f"--device: {e}")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        ap.error("--device: CUDA was asked for but torch sees no GPU")
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     if args.checkpoint:
@@ -67,18 +89,27 @@ def main() -> int:
     rng = np.random.default_rng(0)
     rows = []
     print(
-        f"torch {torch.__version__}, {args.threads} threads, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
+        f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
-        pred = Predictor(model)
+        pred = Predictor(model.to(device))
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)
             best, med = max(fps), float(np.median(fps))
-            rows.append({"size": size, "mode": mode, "fps_best": best, "fps_median": med, "threads": args.threads})
+            rows.append(
+                {
+                    "size": size,
+                    "mode": mode,
+                    "fps_best": best,
+                    "fps_median": med,
+                    "threads": args.threads,
+                    "device": str(device),
+                }
+            )
             print(f"{size}x{size}  {mode:<17} best {best:7.1f}  median {med:7.1f} frames/s")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2) + "\n")
