@@ -55,6 +55,7 @@ class RunConfig:
     checkpoint: Path | None = None
     camera: Path | None = None
     mode: str = "stream"
+    flip: bool = False  #: average each frame with its mirror image (`network.infer.Predictor`)
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
@@ -255,7 +256,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         stitcher = Stitcher(spec, stitch_config(cfg))
         if cfg.rrd:
             rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd")
-        pred = Predictor(model, lambda i: (intr, cfg.distance or source.distance(i) or default_distance))
+        pred = Predictor(model, lambda i: (intr, cfg.distance or source.distance(i) or default_distance), flip=cfg.flip)
         current: dict[str, np.ndarray] = {}
 
         def feed():
@@ -308,6 +309,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "frames": n,
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
+            "flip_average": cfg.flip,
             "intrinsics": intr.to_dict(),
             "spec": spec.to_dict(),
         }

@@ -62,12 +62,14 @@ def fit_box_offsets(
     grid: tuple[float, ...] = GRID,
     every: int = 2,
     mode: str = "stream",
+    flip: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Score every grid offset per view on ``sequences`` (every ``every``-th frame, columns in view).
 
     Returns ``{"box_logit_offset": {view: best}, "scores": {view: {offset: {"rack", "box"}}}, "frames"}``;
-    best = the largest mean of the view's rack and box mIoU (ties: the smaller offset).
+    best = the largest mean of the view's rack and box mIoU (ties: the smaller offset). ``flip``
+    scores flip-averaged logits (`network.infer.Predictor`).
     """
     from network.infer import Predictor, logits_to_layout, resize_logits, sequence_camera  # infer imports this module
 
@@ -85,7 +87,7 @@ def fit_box_offsets(
         for seq in sequences:
             d = seq.spec.size
             for i, out in enumerate(
-                Predictor(model, sequence_camera(seq)).run((seq.rgb(k) for k in range(seq.num_frames)), mode)
+                Predictor(model, sequence_camera(seq), flip=flip).run((seq.rgb(k) for k in range(seq.num_frames)), mode)
             ):
                 bar.update(1)
                 if i % every:
@@ -112,4 +114,11 @@ def fit_box_offsets(
             s = float(np.nanmean([cell[c] for c in METRIC_CLASSES]))
             if s > top_score + 1e-12:
                 top_score, best[v] = s, float(g)
-    return {"box_logit_offset": best, "scores": scores, "frames": frames, "mode": mode, "every": every}
+    return {
+        "box_logit_offset": best,
+        "scores": scores,
+        "frames": frames,
+        "mode": mode,
+        "flip_average": flip,
+        "every": every,
+    }

@@ -29,11 +29,13 @@ def evaluate_sequences(
     max_frames: int | None = None,
     progress: bool = True,
     true_anchors: bool = False,
+    flip: bool = False,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
     ``true_anchors`` places the shelf slots at the ground truth's boards instead of the row head's:
     what the decoders score when the boards are found perfectly (an analysis, not a result).
+    ``flip`` averages each frame with its mirror image (`network.infer.Predictor`).
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -47,7 +49,7 @@ def evaluate_sequences(
         anchors = (
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
-        pred = Predictor(model, sequence_camera(seq), anchors)
+        pred = Predictor(model, sequence_camera(seq), anchors, flip=flip)
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
             scorer.update(frame_layouts(out, d), gt)
@@ -60,6 +62,7 @@ def evaluate_sequences(
         **scorer.result(),
         "frames": frames,
         "mode": mode,
+        "flip_average": flip,
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

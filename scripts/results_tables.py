@@ -56,6 +56,8 @@ def table1(runs: Path) -> list[str]:
     for name, path in [
         (f"{d4[0]}, calibrated (windowed)", d4[1] / "table1_calibrated.json"),
         (f"{d4[0]}, calibrated (streaming)", d4[1] / "table1_calibrated_stream.json"),
+        (f"{d4[0]}, calibrated, flip-averaged (windowed)", d4[1] / "table1_calibrated_flip.json"),
+        (f"{d4[0]}, calibrated, flip-averaged (streaming)", d4[1] / "table1_calibrated_flip_stream.json"),
         (f"{mv4[0]}, calibrated", mv4[1] / "table1_calibrated.json"),
         (f"{d8[0]}, calibrated", d8[1] / "table1_calibrated.json"),
         (f"{old[0]}, calibrated", old[1] / "table1_calibrated.json"),

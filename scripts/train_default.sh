@@ -100,6 +100,8 @@ table1 mvracklay-disc-4 table1_true_anchors --true-anchors
 table1 racklay table1_window
 calibrate mvracklay-disc-4
 CKPT=calibrated table1 mvracklay-disc-4 table1_calibrated_stream --mode stream
+CKPT=calibrated table1 mvracklay-disc-4 table1_calibrated_flip --flip-average
+CKPT=calibrated table1 mvracklay-disc-4 table1_calibrated_flip_stream --flip-average --mode stream
 calibrate racklay
 $PY -m mvracklay evaluate-baseline --data "$HELDOUT" --split all --quiet --json "$RUNS/baseline_depth.json" \
     > "$RUNS/baseline_depth.txt"

@@ -73,6 +73,21 @@ def test_evaluate_prints_table_and_json(run_dir, tiny_dataset, tmp_path, capsys)
     assert res["frames"] == 9 and set(res["visible"]) == {"top", "front"}
 
 
+def test_evaluate_and_predict_take_flip_average(run_dir, tiny_dataset, tmp_path, capsys):
+    out = tmp_path / "eval.json"
+    ckpt = ["--checkpoint", str(run_dir / "best.pt"), "--threads", "1", "--quiet", "--flip-average"]
+    rc = main(
+        ["evaluate", *ckpt, "--data", str(tiny_dataset), "--split", "all", "--max-frames", "2", "--json", str(out)]
+    )
+    assert rc == 0
+    assert "flip-averaged" in capsys.readouterr().out
+    res = json.loads(out.read_text())
+    assert res["flip_average"] is True and res["frames"] == 6
+    seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
+    assert main(["predict", str(seq), *ckpt, "--out", str(tmp_path / "lay"), "--mode", "window"]) == 0
+    assert LayoutFolder(tmp_path / "lay").indices() == list(range(8))
+
+
 def test_predict_writes_a_layout_folder_reconstruct_can_read(run_dir, tiny_dataset, tmp_path):
     seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
     for mode, src in (("stream", seq), ("window", seq / "rgb")):

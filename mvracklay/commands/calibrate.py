@@ -11,6 +11,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from network.calibrate import GRID, fit_box_offsets
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
+from network.infer import FLIP_HELP
 
 NAME = "calibrate"
 HELP = "choose the per-view box decision offset of a checkpoint on a tuning set (writes it into the record)"
@@ -30,6 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
     p.add_argument("--mode", choices=["window", "stream"], default="stream")
+    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", type=Path, help="also write every offset's scores as JSON here")
     p.add_argument("--quiet", action="store_true")
@@ -48,7 +50,9 @@ def run(args: argparse.Namespace) -> int:
     seqs = open_data(args.data).sequences(None if args.split == "all" else args.split)
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")
-    res = fit_box_offsets(model, seqs, grid=GRID, every=args.every, mode=args.mode, progress=not args.quiet)
+    res = fit_box_offsets(
+        model, seqs, grid=GRID, every=args.every, mode=args.mode, flip=args.flip_average, progress=not args.quiet
+    )
     best = res["box_logit_offset"]
     for v in ("top", "front"):
         s0, sb = res["scores"][v]["0"], res["scores"][v][f"{best[v]:g}"]
@@ -61,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     record["calibration"] = {
         "data": str(args.data),
         "split": args.split,
-        **{k: res[k] for k in ("frames", "mode", "every")},
+        **{k: res[k] for k in ("frames", "mode", "flip_average", "every")},
     }
     out = args.out or args.checkpoint
     save_checkpoint(out, {k: v for k, v in payload.items() if k != "record_json"}, record)

@@ -13,6 +13,7 @@ from layouts.metrics import format_table
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
+from network.infer import FLIP_HELP
 from network.train import open_data
 
 NAME = "evaluate"
@@ -35,6 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
+    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
@@ -66,8 +68,11 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames or None,
         progress=not args.quiet,
         true_anchors=args.true_anchors,
+        flip=args.flip_average,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
+    if args.flip_average:
+        title += ", flip-averaged"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))

@@ -20,7 +20,7 @@ from layouts.fileio import load_json
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
-from network.infer import Predictor, frame_layouts
+from network.infer import FLIP_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
 
 NAME = "predict"
@@ -44,6 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint, e.g. weights/mvracklay-disc-4.pt")
     p.add_argument("--out", type=Path, required=True, help="layout folder to write")
     p.add_argument("--mode", choices=["stream", "window"], default="stream")
+    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
     p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
     p.add_argument(
@@ -85,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         args.seq_dir,
         args.out,
         mode=args.mode,
+        flip=args.flip_average,
         layout_size=args.layout_size,
         intrinsics=args.intrinsics,
         distance=args.distance,
@@ -102,6 +104,7 @@ def predict_folder(
     out: Path,
     *,
     mode: str = "stream",
+    flip: bool = False,
     layout_size: int = 0,
     intrinsics: str | None = None,
     distance: float | None = None,
@@ -151,7 +154,7 @@ def predict_folder(
 
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     folder = LayoutFolder.create(out, spec)
-    pred = Predictor(model, lambda i: (intr, dist_of(i)))
+    pred = Predictor(model, lambda i: (intr, dist_of(i)), flip=flip)
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
     for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
         lay = frame_layouts(logits, spec.size)

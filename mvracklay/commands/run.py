@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
+from network.infer import FLIP_HELP
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -37,6 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="JSON with the camera intrinsics: fx, fy, cx, cy in pixels and the width, height they refer to",
     )
     p.add_argument("--mode", choices=["stream", "window"], default="stream", help="network inference mode")
+    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--max-frames", type=int, default=0, help="process at most N frames (0 = all)")
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
@@ -67,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         checkpoint=args.checkpoint,
         camera=args.camera,
         mode=args.mode,
+        flip=args.flip_average,
         max_frames=args.max_frames,
         layout_size=args.layout_size,
         distance=args.distance,
