@@ -9,7 +9,9 @@ by the *true* camera motion into the current frame's layout columns (a column is
 the argmax of the average is scored (`layouts.metrics.FrameScorer`, columns in view, mIoU, every
 2nd frame). K = 1 is the model alone. If the per-frame errors were independent noise, the
 fused scores would climb with K; if they are a bias shared by neighbouring views of a scene,
-they stay close to K = 1. An analysis with ground-truth motion, not an inference mode.
+they stay close to K = 1. ``--motion images`` shifts by the camera motion read from the
+canonical images (`network.motion`, what the slot memory uses) instead of the truth: what such a
+fusion would give on footage without poses.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from layouts import VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, resize_logits, sequence_camera  # noqa: E402
+from network.motion import camera_shift, motion_signature  # noqa: E402
 from network.train import open_data  # noqa: E402
 
 
@@ -52,6 +55,9 @@ def main() -> int:
     ap.add_argument("--k", type=int, nargs="+", default=[1, 2, 4, 8], help="window lengths to fuse")
     ap.add_argument("--every", type=int, default=2, help="score every N-th frame")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--motion", choices=["truth", "images"], default="truth", help="camera motion: ground truth or read from images"
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model, _ = load_model(args.checkpoint)
@@ -64,7 +70,12 @@ def main() -> int:
         xs = seq.camera_positions()[:, 0]
         hist: list[tuple[float, dict[str, torch.Tensor], np.ndarray]] = []
         frames = (seq.rgb(i) for i in range(seq.num_frames))
-        for i, out in enumerate(Predictor(model, sequence_camera(seq)).run(frames, "stream")):
+        pred = Predictor(model, sequence_camera(seq))
+        if args.motion == "images":  # the camera's X from the frame-to-frame shifts, from the first frame's
+            sig = [motion_signature(pred.preprocess(seq.rgb(i), i)) for i in range(seq.num_frames)]
+            steps = [camera_shift(a, b, model.cfg.view).item() for a, b in zip(sig, sig[1:])]
+            xs = np.concatenate([[0.0], np.cumsum(steps)])
+        for i, out in enumerate(pred.run(frames, "stream")):
             bar.update(1)
             gt = seq.layouts(i)
             probs = {v: resize_logits(out[v].float(), d).softmax(1) for v in VIEWS}
@@ -90,7 +101,10 @@ def main() -> int:
                 }
                 scorers[k].update(pred, gt)
     bar.close()
-    print(f"{args.checkpoint} on {args.data}: mIoU, columns in view, probabilities fused over the last K frames")
+    print(
+        f"{args.checkpoint} on {args.data}: mIoU, columns in view, probabilities fused over the last K frames "
+        f"(motion: {args.motion})"
+    )
     print(f"{'K':>3s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
     for k in args.k:
         r = scorers[k].result()["visible"]
