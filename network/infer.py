@@ -130,8 +130,9 @@ class Predictor:
 
         passes = raw(mirror())
         for out in raw(direct()):
-            x, a = mirrored.pop()
-            mirrored.append((x, out["anchors"][None] if a is None else a))  # the same shelf slots in both passes
+            x, a = mirrored[-1]
+            if a is None:  # the row head's: the direct pass's slots, so both passes fill the same shelves
+                mirrored[-1] = (x, out["anchors"][None])
             back = next(passes)
             yield self._decide(
                 {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
