@@ -99,14 +99,28 @@ def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.P
 
 
 def export_weights(
-    src: str | os.PathLike, dst: str | os.PathLike, half: bool = True, note: str | None = None
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    half: bool = True,
+    note: str | None = None,
+    discriminators: bool = False,
 ) -> dict[str, Any]:
     """Strip a training checkpoint to the model's weights (fp16 by default) for shipping.
 
     ``note`` (how it was trained, what it reproduces) is kept in the record beside it.
+    ``discriminators``: keep them too (same precision), so that a warm start from the copy
+    (`init_weights_from`) continues with trained discriminators, as from the full checkpoint.
     """
     payload, record = load_checkpoint(src)
-    state = {k: (v.half() if half and v.is_floating_point() else v) for k, v in payload["model"].items()}
+
+    def cast(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return {k: (v.half() if half and v.is_floating_point() else v) for k, v in state.items()}
+
+    out: dict[str, Any] = {"model": cast(payload["model"])}
+    if discriminators:
+        if not isinstance(payload.get("discriminators"), dict):
+            raise InputError(f"{src}: has no discriminators to keep (a variant or run without them)")
+        out["discriminators"] = cast(payload["discriminators"])
     record = dict(record)
     record["exported_from"] = Path(src).name
     record["dtype"] = "float16" if half else "float32"
@@ -114,7 +128,7 @@ def export_weights(
         record["note"] = note
     record.pop("format", None)
     record.pop("format_version", None)
-    save_checkpoint(dst, {"model": state}, record)
+    save_checkpoint(dst, out, record)
     return record
 
 

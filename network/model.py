@@ -218,7 +218,7 @@ class SlotFeatures:
     front: torch.Tensor  #: (N*R, dw, D/2, D/2) coarse front-view map
     fine: torch.Tensor  #: (N*R, c1, D, D) fine front-window samples of the 1/2 map
     valid: torch.Tensor  #: (N, R) bool: the slot has an anchor
-    motion: torch.Tensor | None = None  #: (N, H, W/2+1) complex `network.motion.motion_signature` of the images
+    motion: torch.Tensor | None = None  #: (N, 2, H, W) `network.motion.motion_signature` of the images
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""

@@ -25,7 +25,7 @@ from torch import nn
 from layouts.canonical import CanonicalView
 
 #: ``d / (d + z)`` of the swept planes: at d = 2.5 m, z from 1.35 m behind the front to 0.5 m in front; ratios
-#: above 1 also take up the image motion estimate, which reads steps ~10-20 % short (`network.motion`)
+#: above 1 also take up an error of the image motion estimate (`network.motion`)
 RATIOS = (1.25, 1.2, 1.15, 1.1, 1.05, 1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.65)
 
 

@@ -46,6 +46,55 @@ def test_camera_shift_is_antisymmetric_and_bounded():
     assert camera_shift(noise[:3], noise[3:], VIEW).abs().max() <= MAX_SHIFT + 1e-6
 
 
+SQUARE = CanonicalView(128, 128, 3.0)  # 16 bands of 8 rows
+
+
+def _layered(moves: list[int], seed: int, border: int = 0) -> torch.Tensor:
+    """Two frames ``(2, 3, 128, 128)``: band i (8 rows) moves ``moves[i]`` pixels left between them.
+
+    ``border`` columns at each side hold the warp's constant fill (outside the source image).
+    """
+    wide = _texture(SQUARE.width + 60, seed=seed)
+    wide = torch.nn.functional.interpolate(wide[None], size=(SQUARE.height, SQUARE.width + 60))[0]
+    prev, cur = wide[:, :, 20 : 20 + SQUARE.width].clone(), torch.empty(3, SQUARE.height, SQUARE.width)
+    for i, k in enumerate(moves):
+        rows = slice(8 * i, 8 * i + 8)
+        cur[:, rows] = wide[:, rows, 20 + k : 20 + k + SQUARE.width]
+    frames = torch.stack([prev, cur])
+    if border:
+        fill = torch.tensor([0.49, 0.45, 0.41])[:, None, None]
+        frames[..., :border] = fill
+        frames[..., -border:] = fill
+    return frames
+
+
+def _read(frames: torch.Tensor) -> float:
+    sig = motion_signature(frames)
+    return float(camera_shift(sig[:1], sig[1:], SQUARE)[0]) / SQUARE.metres_per_pixel
+
+
+def test_camera_shift_reads_the_front_plane_not_the_background():
+    # 12 bands of background (a wall 1.7 m behind: 0.6 of the motion), 4 bands of rack front
+    moves = [4] * 6 + [7] * 4 + [4] * 6
+    assert abs(_read(_layered(moves, seed=7)) - 7) < 0.3
+    # the front plane at the top, a floor below it whose motion grows toward the camera
+    moves = [7] * 8 + [4] * 4 + [8, 9, 11, 13]
+    assert abs(_read(_layered(moves, seed=8)) - 7) < 0.3
+    # seen the other way round (camera moving left), the same magnitude
+    assert abs(_read(_layered(moves, seed=8).flip(0)) + 7) < 0.3
+
+
+def test_camera_shift_ignores_the_static_edge_of_the_source_image():
+    # 32 fill columns each side (a source narrower than the canonical view) around a dim scene:
+    # the fill's edge is the strongest and does not move (unmasked, it reads ~0.1 pixel)
+    frames = _layered([6] * 16, seed=9, border=32)
+    inner = frames[..., 32:-32]
+    frames[..., 32:-32] = (inner - inner.mean()) * 0.3 + 0.6
+    assert abs(_read(frames) - 6) < 0.3
+    with pytest.raises(ValueError, match="signatures"):
+        camera_shift(torch.zeros(1, 128, 128), torch.zeros(1, 128, 128), SQUARE)
+
+
 def test_shift_columns_moves_content_against_the_camera():
     x = torch.zeros(2 * 3, 1, 2, 8)  # 2 frames x 3 slots, 8 columns over 4 m: 0.5 m per column
     x[..., 5] = 1.0

@@ -163,6 +163,16 @@ def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path
     )
     with pytest.raises(InputError, match="hidden"):
         init_weights_from(other, src)
+    # A fp16 copy with its discriminators is a warm start as good as the full checkpoint.
+    export_weights(src, tmp_path / "w.pt")
+    assert not init_weights_from(MVRackLay(tiny()), tmp_path / "w.pt", build_discriminators(tiny()))["discriminators"]
+    export_weights(src, tmp_path / "wd.pt", discriminators=True)
+    discs16 = build_discriminators(tiny())
+    assert init_weights_from(MVRackLay(tiny()), tmp_path / "wd.pt", discs16)["discriminators"]
+    for key, v in discs.state_dict().items():
+        torch.testing.assert_close(discs16.state_dict()[key], v, rtol=2e-3, atol=1e-3)
+    with pytest.raises(InputError, match="no discriminators"):
+        export_weights(tmp_path / "w.pt", tmp_path / "bad.pt", discriminators=True)
 
 
 def test_stop_at_pauses_inside_the_schedule_and_resume_continues(tmp_path):

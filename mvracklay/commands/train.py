@@ -148,6 +148,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
     g.add_argument("--val-mode", choices=["window", "stream"], default=t.val_mode)
     p.add_argument("--note", help="with --export: a line on how the weights were trained, kept in their JSON")
+    p.add_argument(
+        "--with-discriminators",
+        action="store_true",
+        help="with --export: keep the discriminators too (fp16), for a warm start (--init-from) from the copy",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -158,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
 
         if not env.is_main:
             return 0
-        export_weights(args.export, args.out, note=args.note)
+        export_weights(args.export, args.out, note=args.note, discriminators=args.with_discriminators)
         size = args.out.stat().st_size / 2**20
         print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
         return 0
