@@ -73,24 +73,27 @@ def _profiles(prev: torch.Tensor, cur: torch.Tensor, m: int, bands: int) -> tupl
     columns left: the camera moved right).
     """
     n, _, h, w = prev.shape
+    length = w + m + 1  # zero padding: no wrap-around for offsets within +-m
+    # every sum over an overlap is a row-wise correlation of two maps (sums of w, a, b, a*a, b*b, a*b,
+    # where w = valid in both); computed with FFTs in float64 and summed per band before going back
+    gp, mp = prev[:, 0].double(), prev[:, 1].double()  # grey is zero where invalid already
+    gc, mc = cur[:, 0].double(), cur[:, 1].double()
+    fp = torch.fft.rfft(torch.stack([mp, gp, gp * gp], 1), n=length)  # (N, 3, H, F)
+    fc = torch.fft.rfft(torch.stack([mc, gc, gc * gc], 1), n=length).conj()
+    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))  # (prev map, cur map) of each sum
+    prod = torch.stack([fp[:, i] * fc[:, j] for i, j in pairs], 1)  # (N, 6, H, F)
     idx = _band_index(h, bands, prev.device)
-    stats = []  # per offset: (N, 6, H) row sums of w, a, b, a*a, b*b, a*b over pixels valid in both
-    for k in range(-m, m + 1):
-        p, c = (prev[..., k:], cur[..., : w - k]) if k >= 0 else (prev[..., : w + k], cur[..., -k:])
-        wgt = p[:, 1] * c[:, 1]
-        a, b = p[:, 0] * wgt, c[:, 0] * wgt  # grey values are zero where invalid already
-        stats.append(
-            torch.stack([wgt.sum(-1), a.sum(-1), b.sum(-1), (a * a).sum(-1), (b * b).sum(-1), (a * b).sum(-1)], 1)
-        )
-    s = torch.stack(stats, -1)  # (N, 6, H, K)
-    per_band = s.new_zeros(n, 6, bands, s.shape[-1]).index_add_(2, idx, s)
+    per_band_f = prod.new_zeros(n, 6, bands, prod.shape[-1]).index_add_(2, idx, prod)
+    corr = torch.fft.irfft(per_band_f, n=length)  # (N, 6, bands, length): [k] = sum_x prev(x + k) cur(x)
+    offsets = torch.arange(-m, m + 1, device=prev.device) % length
+    per_band = corr[..., offsets]  # (N, 6, bands, 2m+1)
 
     def ncc(t: torch.Tensor) -> torch.Tensor:
         num, sa, sb, saa, sbb, sab = t.unbind(1)
         cnt = num.clamp(min=1.0)
         cov = sab - sa * sb / cnt
         var = (saa - sa * sa / cnt).clamp(min=0) * (sbb - sb * sb / cnt).clamp(min=0)
-        return cov / (var.sqrt() + 1e-6 * cnt)
+        return (cov / (var.sqrt() + 1e-6 * cnt)).float()
 
     return ncc(per_band), ncc(per_band.sum(2))
 

@@ -95,6 +95,23 @@ def test_camera_shift_ignores_the_static_edge_of_the_source_image():
         camera_shift(torch.zeros(1, 128, 128), torch.zeros(1, 128, 128), SQUARE)
 
 
+def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both():
+    from network.motion import _profiles
+
+    g = torch.Generator().manual_seed(11)
+    frames = torch.rand(2, 3, 16, 40, generator=g)
+    sig = motion_signature(frames)
+    sig[0, :, :, :5] = 0.0  # the first frame's 5 left columns outside its source image
+    band, whole = _profiles(sig[:1], sig[1:], 6, 2)
+    for k in (-6, -1, 0, 3, 6):
+        p, c = (sig[0, :, :, k:], sig[1, :, :, : 40 - k]) if k >= 0 else (sig[0, :, :, : 40 + k], sig[1, :, :, -k:])
+        for rows, got in ((slice(0, 8), band[0, 0, k + 6]), (slice(0, 16), whole[0, k + 6])):
+            keep = (p[1, rows] * c[1, rows]) > 0
+            a, b = p[0, rows][keep].double(), c[0, rows][keep].double()
+            want = float(((a - a.mean()) * (b - b.mean())).sum() / ((a - a.mean()).norm() * (b - b.mean()).norm()))
+            assert abs(float(got) - want) < 1e-4, (k, rows)
+
+
 def test_shift_columns_moves_content_against_the_camera():
     x = torch.zeros(2 * 3, 1, 2, 8)  # 2 frames x 3 slots, 8 columns over 4 m: 0.5 m per column
     x[..., 5] = 1.0
