@@ -200,3 +200,18 @@ def test_stop_at_pauses_inside_the_schedule_and_resume_continues(tmp_path):
     assert t2.step == 4 and load_checkpoint(run / "last.pt")[1]["step"] == 4
     with pytest.raises(InputError, match="--stop-at"):
         TrainConfig(stop_minutes=-1.0).validate()
+
+
+def test_native_bf16_is_read_from_the_cpu_flags(tmp_path):
+    from network.train import cpu_has_native_bf16
+
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx2 fma\n\nprocessor\t: 1\nflags\t\t: fpu sse2 avx2 fma\n")
+    assert cpu_has_native_bf16(info) is False
+    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16\n")
+    assert cpu_has_native_bf16(info) is True
+    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 amx_tile amx_bf16\n")
+    assert cpu_has_native_bf16(info) is True
+    info.write_text("no flags here\n")
+    assert cpu_has_native_bf16(info) is None
+    assert cpu_has_native_bf16(tmp_path / "missing") is None
