@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The recipe of scripts/train_default.sh at 256x256 input (2 CPU cores, bf16 autocast), in steps that
+# The recipe of scripts/train_default.sh at 256x256 input (2 CPU cores; bf16 autocast where the CPU has it), in steps that
 # each fit a working session and resume:
 #
 #   1. data: the same 6,500 training scenes, held-out and tuning scenes, rendered at 256x256 (same
@@ -14,7 +14,9 @@
 #      decision offsets chosen on the tuning set.
 #
 # Re-running skips finished data and continues runs from RUN/last.pt. Override the folders with
-# DATA=... RUNS=...; STAGE=1 stops after stage 1, STAGE=2 after stage 2.
+# DATA=... RUNS=...; STAGE=1 stops after stage 1, STAGE=2 after stage 2. A smoke check of the whole
+# script: DATA=/tmp/d RUNS=/tmp/r STAGE1_WEIGHTS=/tmp/r/w.pt TRAIN_SEQUENCES="20 10 10" HELDOUT_SEQUENCES=2
+#   TUNE_SEQUENCES=2 HELDOUT_FRAMES=12 TOTAL=1 STAGE1=0.6 scripts/train_256.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
@@ -25,13 +27,20 @@ STAGE1=${STAGE1:-80}
 STAGE=${STAGE:-4}
 WORKERS=${WORKERS:-2}
 STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
-SIZE=(--input-size 256 256 --precision bf16)
+# bf16 autocast where the CPU computes it natively (AVX512-BF16 / AMX), else fp32 (emulated bf16 is 18-24x slower)
+DEFAULT_PRECISION=$($PY -c "from network.train import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
+PRECISION=${PRECISION:-$DEFAULT_PRECISION}
+SIZE=(--input-size 256 256 --precision "$PRECISION")
 COMMON=(--epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 --quiet)
 
 # 1. Data at 256x256.
+read -r N1 N2 N3 <<< "${TRAIN_SEQUENCES:-1000 2500 3000}"
+HN=${HELDOUT_SEQUENCES:-24}
+TN=${TUNE_SEQUENCES:-8}
+HF=${HELDOUT_FRAMES:-50}
 TRAIN=()
-for SPEC in "train256:1000:12:101" "train256b:2500:12:103" "train256c:3000:12:104" "heldout256:24:50:202" \
-    "tune256:8:50:303"; do
+for SPEC in "train256:$N1:12:101" "train256b:$N2:12:103" "train256c:$N3:12:104" "heldout256:$HN:$HF:202" \
+    "tune256:$TN:$HF:303"; do
     IFS=: read -r NAME N FRAMES SEED <<< "$SPEC"
     $PY -m mvracklay generate "$DATA/$NAME" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" \
         --workers "$WORKERS"
@@ -47,7 +56,7 @@ if [ ! -f "$STAGE1_WEIGHTS" ]; then
     $PY -m mvracklay train --data "${TRAIN[@]}" --out "$RUNS/racklay256" --variant racklay --resume --threads 2 \
         --minutes "$TOTAL" --stop-at "$STAGE1" "${SIZE[@]}" "${COMMON[@]}" >> "$RUNS/racklay256.log" 2>&1
     $PY -m mvracklay train --export "$RUNS/racklay256/last.pt" --out "$STAGE1_WEIGHTS" --with-discriminators \
-        --note "scripts/train_256.sh stage 1: racklay, $STAGE1 of a $TOTAL-minute schedule on 2 threads, bf16, 256x256 input, data seeds 101/103/104; the warm start of stage 2"
+        --note "scripts/train_256.sh stage 1: racklay, $STAGE1 of a $TOTAL-minute schedule on 2 threads, $PRECISION, 256x256 input, data seeds 101/103/104; the warm start of stage 2"
 fi
 [ "$STAGE" -le 1 ] && exit 0
 
