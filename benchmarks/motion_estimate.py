@@ -35,7 +35,7 @@ def main() -> None:
     args = ap.parse_args()
     ds = open_dataset(args.data)
     view = CanonicalView(args.size, args.size, ds.spec.x_extent)
-    errors, truth = [], []
+    errors, truth, ratio = [], [], []
     for seq in ds.sequences()[: args.sequences]:
         pos = np.asarray(seq.camera_positions(), dtype=np.float64)
         imgs = torch.cat(
@@ -46,7 +46,8 @@ def main() -> None:
         true = np.diff(pos[:, 0])
         errors.append(est - true)
         truth.append(true)
-    ratio = np.array([est.sum() / t.sum() for est, t in zip((e + t for e, t in zip(errors, truth)), truth)])
+        ratio.append(est.sum() / true.sum())  # the share of the camera's path the estimate reads
+    ratio = np.array(ratio)
     bias = np.abs([np.mean(x) for x in errors])  # per sequence: how much of the error is a steady bias
     e, t = np.concatenate(errors), np.concatenate(truth)
     a = np.abs(e)

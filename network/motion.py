@@ -138,7 +138,7 @@ def camera_shift(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) -> 
         )
     h, w = prev.shape[-2:]
     m = max(1, min(int(MAX_SHIFT / view.metres_per_pixel), w // 2 - 1))
-    band_prof, whole_prof = _profiles(prev.float(), cur.float(), m, max(1, min(BANDS, h)))
+    band_prof, whole_prof = _profiles(prev, cur, m, max(1, min(BANDS, h)))
     whole = _peak(whole_prof, m)[0].cpu().double().numpy()
     shifts, heights = (t.cpu().double().numpy() for t in _peak(band_prof, m))
     px = [_front(shifts[i], heights[i], float(whole[i]), 1.0 / view.metres_per_pixel) for i in range(len(whole))]

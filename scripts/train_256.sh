@@ -44,7 +44,7 @@ for SPEC in "train256:$N1:12:101" "train256b:$N2:12:103" "train256c:$N3:12:104" 
     IFS=: read -r NAME N FRAMES SEED <<< "$SPEC"
     $PY -m mvracklay generate "$DATA/$NAME" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" \
         --workers "$WORKERS"
-    [[ $NAME == train* ]] && TRAIN+=("$DATA/$NAME")
+    if [[ $NAME == train* ]]; then TRAIN+=("$DATA/$NAME"); fi
 done
 HELDOUT="$DATA/heldout256"
 TUNE="$DATA/tune256"
