@@ -9,17 +9,18 @@ from pathlib import Path
 import pytest
 import torch
 
+from mvracklay import pipeline
 from mvracklay.cli import main
-from network.checkpoint import json_path, load_checkpoint, load_model
+from network.checkpoint import json_path, load_checkpoint, model_from
 
-WEIGHTS = sorted((Path(__file__).resolve().parents[1] / "weights").glob("*.pt"))
+WEIGHTS = sorted((pipeline.REPO_ROOT / "weights").glob("*.pt"))
 #: mIoU floors (percent, columns in view) on the tiny dataset; the shipped files score 84-91 top rack,
 #: 57-76 top box, 95 front rack, 73-84 front box there, and the same model with its initial weights 0
 FLOORS = {("top", "rack"): 70.0, ("top", "box"): 45.0, ("front", "rack"): 85.0, ("front", "box"): 60.0}
 
 
 def test_default_model_is_shipped():
-    assert "mvracklay-disc-4.pt" in [w.name for w in WEIGHTS]
+    assert pipeline.DEFAULT_CHECKPOINT in WEIGHTS
 
 
 @pytest.mark.parametrize("weights", WEIGHTS, ids=[w.stem for w in WEIGHTS])
@@ -30,7 +31,7 @@ def test_shipped_file_is_fp16_small_and_documented(weights: Path):
     floats = [t for t in payload["model"].values() if t.is_floating_point()]
     assert floats and all(t.dtype == torch.float16 for t in floats)
     assert record.get("note"), "a shipped file says how it was trained"
-    model, _ = load_model(weights)
+    model = model_from(payload, record, weights)
     assert all(p.dtype == torch.float32 for p in model.parameters())
 
 
