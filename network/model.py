@@ -48,6 +48,7 @@ from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.convlstm import StackedConvLSTM, State
+from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
 from network.parallax import RATIOS, ParallaxNet, plane_sweep
 from network.resnet import ResNet18Encoder
@@ -91,6 +92,7 @@ class ModelConfig:
     decoder_width: int = 32
     align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.motion`)
     parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.parallax`)
+    geo_top: bool = False  #: top view also samples features where each cell's 3D points project (`network.geotop`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -108,8 +110,9 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        if not isinstance(self.parallax, bool):
-            raise InputError(f"parallax must be true or false, got {self.parallax!r}")
+        for name in ("parallax", "geo_top"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
             raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
@@ -364,6 +367,7 @@ class SlotHeads(nn.Module):
             self.par_out = nn.Conv2d(dw, dw, 1)  # zero-initialised: a warm start computes what its source did
             nn.init.zeros_(self.par_out.weight)
             nn.init.zeros_(self.par_out.bias)
+        self.geo = GeometricTop(cs, dw, view, spec, self.dc) if cfg.geo_top else None
 
     def _band_rows(self, stride: int) -> int:
         """Rows sampled on the top view's band from a map of ``stride`` canonical pixels per row (~1.3 each)."""
@@ -410,6 +414,8 @@ class SlotHeads(nn.Module):
         tb = self.col(self._sample(q, a, self.band, dc))
         if par is not None:
             tb = tb + self.par_out(self.par_col(self._sample(par, a, self.par_band, dc)))
+        if self.geo is not None:
+            tb = tb + self.geo(q, a)
         tc = self.top_c(torch.cat([tb, elev.expand(-1, 1, dc, dc)], 1))
         ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
         return SlotFeatures(tc, fc, ff, valid)

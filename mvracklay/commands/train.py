@@ -52,6 +52,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="sequence variants: the top view also reads depth from the parallax between each frame and the one "
         "before (a plane sweep over the canonical images; network/parallax.py)",
     )
+    g.add_argument(
+        "--geo-top",
+        action="store_true",
+        help="the top view also samples image features where each top-view cell's 3D points project "
+        "(perspective placed by geometry, so off-axis side faces reach their own cells; network/geotop.py)",
+    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     g.add_argument(
         "--init-from",
@@ -199,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
         decoder_width=args.decoder_width,
         memory_hidden=args.memory_hidden,
         parallax=args.parallax,
+        geo_top=args.geo_top,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,
