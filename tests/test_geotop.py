@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from tiny_net import tiny_config
 
 from layouts import LayoutSpec
 from layouts.camera import Intrinsics
@@ -15,16 +16,7 @@ SPEC = LayoutSpec(num_slots=2, size=16)
 
 
 def tiny(geo_top: bool = True, variant: str = "mvracklay-disc-4") -> ModelConfig:
-    return ModelConfig(
-        variant=variant,
-        input_width=64,
-        input_height=64,
-        spec=SPEC,
-        encoder_width=8,
-        hidden=16,
-        decoder_width=8,
-        geo_top=geo_top,
-    )
+    return tiny_config(SPEC, variant, geo_top=geo_top)
 
 
 def test_every_sample_lands_where_the_camera_projects_its_point():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from tiny_net import cached_and_naive_windows
+from tiny_net import cached_and_naive_windows, tiny_config
 
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
@@ -18,16 +18,7 @@ ANCHORS = torch.tensor([52.0, 30.0])
 
 
 def tiny(parallax: bool = True, variant: str = "mvracklay-disc-4") -> ModelConfig:
-    return ModelConfig(
-        variant=variant,
-        input_width=64,
-        input_height=64,
-        spec=SPEC,
-        encoder_width=8,
-        hidden=16,
-        decoder_width=8,
-        parallax=parallax,
-    )
+    return tiny_config(SPEC, variant, parallax=parallax)
 
 
 def _texture(w: int = 96, seed: int = 0) -> torch.Tensor:

@@ -7,6 +7,22 @@ TINY_NET: list[str] = [
 ]
 
 
+def tiny_config(spec, variant: str = "mvracklay-disc-4", **options):
+    """The `ModelConfig` of `TINY_NET` for ``spec`` (64x64 input), with model ``options`` (e.g. ``parallax``)."""
+    from network.model import ModelConfig
+
+    return ModelConfig(
+        variant=variant,
+        input_width=64,
+        input_height=64,
+        spec=spec,
+        encoder_width=8,
+        hidden=16,
+        decoder_width=8,
+        **options,
+    )
+
+
 def lift_row_head(path, bias: float = 2.0) -> None:
     """Make a barely trained checkpoint's row head find boards, so its (noisy) slots decode to content.
 
