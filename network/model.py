@@ -28,7 +28,8 @@ frame, so a memory cell stays on one piece of shelf (how deep a box is shows on 
 top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
 trained ``racklay`` weights. As an option (``ModelConfig.parallax``), sequence variants also read
 depth from the motion parallax with the frame before (`network.parallax`), added to the top view
-the same zero-initialised way.
+the same zero-initialised way; and (``ModelConfig.geo_top``) any variant's top view can also sample
+the features where each cell's 3D points project (`network.geotop`), added the same way.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).
