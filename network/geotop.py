@@ -35,6 +35,43 @@ NOMINAL_RACK_DEPTH = 1.0
 HEIGHT_FRACTIONS = (0.02, 0.1, 0.2, 0.3, 0.42, 0.56, 0.72)
 
 
+def cell_projection(
+    view: CanonicalView,
+    spec: LayoutSpec,
+    cells: int,
+    distance: float = NOMINAL_DISTANCE,
+    rack_depth: float = NOMINAL_RACK_DEPTH,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The frame-independent part of the projection of ``cells x cells`` top-view cells (row 0 = far
+    side, as the layouts): canonical columns ``(rows, cols)`` and the perspective ratio ``rho (rows,)``."""
+    centres = (np.arange(cells) + 0.5) * (spec.size / cells)  # coarse cell centres in layout pixels
+    x = torch.as_tensor(spec.col_to_x(centres))  # (cells,) lateral, column 0 at -X
+    z = torch.as_tensor(spec.row_to_a("top", centres))  # about mid-depth, row 0 far
+    behind = (z + rack_depth / 2).clamp(min=-0.5 * distance)  # metres behind the front plane
+    rho = distance / (distance + behind)
+    return view.width / 2 + x[None, :] * rho[:, None] / view.metres_per_pixel, rho
+
+
+def grid_from_projection(
+    anchors: torch.Tensor, view: CanonicalView, heights: torch.Tensor, col: torch.Tensor, rho: torch.Tensor
+) -> torch.Tensor:
+    """``grid_sample`` coordinates ``(N, R * K, rows * cols, 2)`` of the cells of `cell_projection`
+    over each slot's board at the ``K`` heights (metres above it).
+
+    ``anchors`` ``(N, R)``: the slots' board rows in canonical pixels (finite). Row-major cells;
+    the K heights of slot r are the block ``r*K .. r*K + K - 1``.
+    """
+    n, r = anchors.shape
+    k, (rows, cols) = heights.numel(), col.shape
+    m, h0 = view.metres_per_pixel, view.height / 2
+    # height over the camera of the point: board height over the camera plus h
+    over = (h0 - anchors)[:, :, None] * m + heights.to(anchors)[None, None, :]  # (N, R, K)
+    row = h0 - over[..., None] * rho.to(anchors)[None, None, None, :] / m  # (N, R, K, rows)
+    gx = (col.to(anchors) * (2.0 / view.width) - 1.0).expand(n, r, k, rows, cols)
+    gy = (row * (2.0 / view.height) - 1.0)[..., None].expand(n, r, k, rows, cols)
+    return torch.stack([gx, gy], -1).reshape(n, r * k, rows * cols, 2)
+
+
 def top_view_grid(
     anchors: torch.Tensor,
     view: CanonicalView,
@@ -44,28 +81,9 @@ def top_view_grid(
     distance: float = NOMINAL_DISTANCE,
     rack_depth: float = NOMINAL_RACK_DEPTH,
 ) -> torch.Tensor:
-    """``grid_sample`` coordinates ``(N, R * K, cells * cells, 2)`` of every slot's ``cells x cells``
-    top-view cells (row 0 = far side, as the layouts) at the ``K`` heights (metres above the board).
-
-    ``anchors`` ``(N, R)``: the slots' board rows in canonical pixels (finite). Row-major cells;
-    the K heights of slot r are the block ``r*K .. r*K + K - 1``.
-    """
-    n, r = anchors.shape
-    dev, dt = anchors.device, anchors.dtype
-    centres = (np.arange(cells) + 0.5) * (spec.size / cells)  # coarse cell centres in layout pixels
-    x = torch.as_tensor(spec.col_to_x(centres), device=dev, dtype=dt)  # (cells,) lateral, column 0 at -X
-    z = torch.as_tensor(spec.row_to_a("top", centres), device=dev, dtype=dt)  # about mid-depth, row 0 far
-    behind = (z + rack_depth / 2).clamp(min=-0.5 * distance)  # metres behind the front plane
-    rho = distance / (distance + behind)  # (cells,) per depth row
-    m = view.metres_per_pixel
-    h0, w0 = view.height / 2, view.width / 2
-    col = w0 + x[None, :] * rho[:, None] / m  # (rows, cols)
-    # height over the camera of the point: board height over the camera plus h
-    over = (h0 - anchors)[:, :, None] * m + heights.to(dev, dt)[None, None, :]  # (N, R, K)
-    row = h0 - over[..., None] * rho[None, None, None, :] / m  # (N, R, K, rows)
-    gx = (col * (2.0 / view.width) - 1.0).expand(n, r, heights.numel(), cells, cells)
-    gy = (row * (2.0 / view.height) - 1.0)[..., None].expand(n, r, heights.numel(), cells, cells)
-    return torch.stack([gx, gy], -1).reshape(n, r * heights.numel(), cells * cells, 2)
+    """`grid_from_projection` of `cell_projection`: where every slot's cells at ``heights`` project."""
+    col, rho = cell_projection(view, spec, cells, distance, rack_depth)
+    return grid_from_projection(anchors, view, heights, col, rho)
 
 
 class GeometricTop(nn.Module):
@@ -74,10 +92,13 @@ class GeometricTop(nn.Module):
 
     def __init__(self, channels: int, out: int, view: CanonicalView, spec: LayoutSpec, cells: int) -> None:
         super().__init__()
-        self.view, self.spec, self.cells = view, spec, cells
+        self.view, self.cells = view, cells
         self.register_buffer(
             "heights", torch.tensor(HEIGHT_FRACTIONS, dtype=torch.float32) * spec.h_extent, persistent=False
         )
+        col, rho = cell_projection(view, spec, cells)  # fixed per model: computed once
+        self.register_buffer("col", col.float(), persistent=False)
+        self.register_buffer("rho", rho.float(), persistent=False)
         k = len(HEIGHT_FRACTIONS)
         self.mix = nn.Sequential(
             nn.Conv2d(channels * k, out, 1, bias=False),
@@ -95,7 +116,7 @@ class GeometricTop(nn.Module):
         """``fmap`` ``(N, C, h, w)``, anchors ``(N, R)`` (finite) -> ``(N*R, out, cells, cells)``."""
         n, r = anchors.shape
         c, s, k = fmap.shape[1], self.cells, self.heights.numel()
-        grid = top_view_grid(anchors, self.view, self.spec, s, self.heights)
+        grid = grid_from_projection(anchors, self.view, self.heights, self.col, self.rho)
         v = nn.functional.grid_sample(
             fmap, grid.to(fmap.dtype), mode="bilinear", padding_mode="zeros", align_corners=False
         )

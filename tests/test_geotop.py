@@ -43,11 +43,11 @@ def test_every_sample_lands_where_the_camera_projects_its_point():
             row = (uv[:, 1] - intr.cy) * d / (intr.fy * m) + view.height / 2
             want = np.stack([col * 2 / view.width - 1, row * 2 / view.height - 1], 1)
             np.testing.assert_allclose(grid[0, r * 3 + k], want, atol=1e-9)
-    # on the front plane at the board (h = 0) a cell samples its own column on the anchor row
+    # the rack front lies inside the grid's rows, and a point farther back moves toward the axis
     front = grid[0, 0].reshape(cells, cells, 2)
     z_front = int(np.argmin(np.abs(zs + NOMINAL_RACK_DEPTH / 2)))
     assert abs(zs[z_front] + NOMINAL_RACK_DEPTH / 2) < SPEC.z_extent / cells
-    far_left, near_left = grid[0, 0, 0], front[-1, 0]  # farther back, a point moves toward the axis
+    far_left, near_left = grid[0, 0, 0], front[-1, 0]
     assert abs(far_left[0]) < abs(near_left[0])
 
 
