@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from tiny_net import tiny_config
 
 from layouts import VIEWS, LayoutSpec
 from network.calibrate import apply_box_offset
 from network.infer import Predictor
-from network.model import ModelConfig, MVRackLay
+from network.model import MVRackLay
 from network.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)
@@ -18,8 +19,7 @@ OFFSETS = {"top": 0.5, "front": 0.25}
 
 def tiny_model(seed: int = 3) -> MVRackLay:
     torch.manual_seed(seed)
-    cfg = ModelConfig(input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=16, decoder_width=8)
-    model = MVRackLay(cfg).eval()
+    model = MVRackLay(tiny_config(SPEC)).eval()
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)  # the row head finds boards, so slots decode
     model.box_logit_offset = dict(OFFSETS)
     return model

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from tiny_net import cached_and_naive_windows
+from tiny_net import cached_and_naive_windows, tiny_config
 
 from layouts import VIEWS, InputError, LayoutSpec
 from network.infer import predict_layouts
@@ -16,9 +16,7 @@ SPEC = LayoutSpec(num_slots=2, size=16)
 
 
 def tiny(variant: str = "mvracklay-disc-4") -> ModelConfig:
-    return ModelConfig(
-        variant=variant, input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=16, decoder_width=8
-    )
+    return tiny_config(SPEC, variant)
 
 
 ANCHORS = torch.tensor([52.0, 30.0])  # canonical rows of the two slots' boards (64-row input)

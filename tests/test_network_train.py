@@ -8,6 +8,7 @@ import pickle
 
 import pytest
 import torch
+from tiny_net import tiny_config
 
 from layouts import InputError, LayoutSpec
 from network.checkpoint import export_weights, init_weights_from, load_checkpoint, load_model, save_checkpoint
@@ -20,9 +21,7 @@ SPEC = LayoutSpec(num_slots=2, size=16)
 
 
 def tiny(variant: str = "mvracklay-disc-4") -> ModelConfig:
-    return ModelConfig(
-        variant=variant, input_width=64, input_height=64, spec=SPEC, encoder_width=8, hidden=16, decoder_width=8
-    )
+    return tiny_config(SPEC, variant)
 
 
 def seqs(n: int = 2, frames: int = 6):

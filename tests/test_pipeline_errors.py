@@ -9,27 +9,20 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
+from tiny_net import tiny_config
 
 from layouts.spec import LayoutSpec
 from mvracklay import pipeline
 from mvracklay.cli import main
 from network.checkpoint import save_checkpoint
-from network.model import ModelConfig, MVRackLay
+from network.model import MVRackLay
 
 
 @pytest.fixture(scope="module")
 def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """An untrained tiny checkpoint (errors are caught before the network matters)."""
     torch.manual_seed(0)
-    cfg = ModelConfig(
-        variant="mvracklay-disc-4",
-        spec=LayoutSpec(size=16),
-        input_width=64,
-        input_height=64,
-        encoder_width=8,
-        hidden=16,
-        decoder_width=8,
-    )
+    cfg = tiny_config(LayoutSpec(size=16))
     path = tmp_path_factory.mktemp("ckpt") / "tiny.pt"
     intr = {"fx": 110.85, "fy": 110.85, "cx": 64.0, "cy": 64.0, "width": 128, "height": 128}
     save_checkpoint(path, {"model": MVRackLay(cfg).state_dict()}, {"model_config": cfg.to_dict(), "intrinsics": intr})

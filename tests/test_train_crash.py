@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import torch
+from tiny_net import tiny_config
 
 from layouts import InputError
 from mvracklay.cli import main
@@ -114,9 +115,7 @@ def test_stale_temporaries_are_removed_and_bad_flags_refused(tmp_path):
     from network.toy import ToySequence
 
     spec = LayoutSpec(num_slots=2, size=16)
-    cfg = ModelConfig(
-        variant="mvracklay-4", input_width=64, input_height=64, spec=spec, encoder_width=8, hidden=16, decoder_width=8
-    )
+    cfg = tiny_config(spec, "mvracklay-4")
     data = [ToySequence(spec, num_frames=5, step_cols=2, seed=0, name="toy0")]
     tcfg = TrainConfig(frames_per_step=4, steps_per_epoch=3, epochs=1, checkpoint_every=1, seed=1, threads=1)
     run = tmp_path / "run"
