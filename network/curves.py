@@ -1,12 +1,13 @@
 """Learning curves as a PNG (validation mIoU against training minutes), drawn with Pillow alone.
 
 `plot_curves` reads runs' ``metrics.jsonl`` (warm-started runs shifted by their source's minutes) and draws one panel per view x class (top/front x
-rack/box), one line per run. ``python -m network.curves [--from MINUTES] OUT.png LABEL=RUN_DIR ...``
-does it from the shell (``--from`` keeps the points from that many training minutes on).
+rack/box), one line per run. ``python -m network.curves [--from X] [--x {cpu-minutes,wall-minutes,steps}] OUT.png LABEL=RUN_DIR ...``
+does it from the shell (``--from`` keeps the points from that x on).
 """
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import math
@@ -87,9 +88,10 @@ def plot_curves(
     data = {}
     for label, p in runs.items():
         off = start_offset(p, x_key) if Path(p).is_dir() else 0.0
-        data[label] = [
-            {**e, x_key: e[x_key] + off} for e in read_metrics(p) if "val_visible" in e and e[x_key] + off >= x_from
-        ]
+        entries = [e for e in read_metrics(p) if "val_visible" in e]
+        if any(not isinstance(e.get(x_key), (int, float)) for e in entries):
+            raise InputError(f"{p}: a validation entry has no number under {x_key!r}")
+        data[label] = [{**e, x_key: e[x_key] + off} for e in entries if e[x_key] + off >= x_from]
     pw, ph, m = 420, 260, 50
     legend_rows = max(1, math.ceil(len(data) / LEGEND_PER_ROW))
     img = Image.new("RGB", (2 * pw, 2 * ph + 20 + 20 * legend_rows), "white")
@@ -139,28 +141,34 @@ def plot_curves(
     atomic_write_bytes(out, buf.getvalue())
 
 
+X_AXES = {"cpu-minutes": "train_cpu_minutes", "wall-minutes": "train_wall_minutes", "steps": "step"}
+
+
 def main(argv: list[str]) -> int:
-    x_from = 0.0
-    if argv[:1] == ["--from"] and len(argv) > 1:
-        try:
-            x_from = float(argv[1])
-        except ValueError:
-            print(f"network.curves: error: --from: not a number: {argv[1]!r}", file=sys.stderr)
-            return 2
-        argv = argv[2:]
-    if len(argv) < 2 or any("=" not in a for a in argv[1:]):
-        print(
-            "usage: python -m network.curves [--from MINUTES] OUT.png LABEL=RUN_DIR [LABEL=RUN_DIR ...]",
-            file=sys.stderr,
-        )
-        return 2
-    runs = dict(a.split("=", 1) for a in argv[1:])
+    ap = argparse.ArgumentParser(
+        prog="python -m network.curves",
+        description="Draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG.",
+    )
+    ap.add_argument("out", metavar="OUT.png", help="PNG to write")
+    ap.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR", help="a run directory (or metrics.jsonl) and its label")
+    ap.add_argument("--from", dest="x_from", type=float, default=0.0, metavar="X", help="draw points from this x on")
+    ap.add_argument(
+        "--x",
+        choices=sorted(X_AXES),
+        default="cpu-minutes",
+        help="x axis: training CPU-minutes (default), wall-clock minutes, or optimiser steps",
+    )
+    args = ap.parse_args(argv)
+    bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
+    if bad:
+        ap.error(f"not LABEL=RUN_DIR: {bad[0]!r}")
+    runs = dict(a.split("=", 1) for a in args.runs)
     try:
-        plot_curves(runs, argv[0], x_from=x_from)
+        plot_curves(runs, args.out, x_key=X_AXES[args.x], x_from=args.x_from)
     except InputError as e:
         print(f"network.curves: error: {e}", file=sys.stderr)
         return 2
-    print(f"wrote {argv[0]}")
+    print(f"wrote {args.out}")
     return 0
 
 

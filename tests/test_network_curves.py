@@ -79,3 +79,24 @@ def test_legend_wraps_so_every_label_is_drawn(tmp_path):
     # The fifth and sixth colours' swatches lie inside the image.
     for colour in [(255, 127, 14), (23, 190, 207)]:
         assert any(img.getpixel((x, y)) == colour for x in range(img.width) for y in range(540, img.height))
+
+
+def test_steps_axis_from_the_command_line(tmp_path, capsys):
+    from network.curves import main
+
+    a = _run(tmp_path / "a", [{**_entry(1, 0.2), "step": 100}, {**_entry(2, 0.5), "step": 1000}])
+    b = _run(tmp_path / "b", [{**_entry(10, 0.6), "step": 500}], init={"step": 500, "train_cpu_minutes": 5.0})
+    out = tmp_path / "s.png"
+    assert main([str(out), f"a={a}", f"b={b}", "--x", "steps"]) == 0
+    img = Image.open(out).convert("RGB")
+    # x axis 0..1000 steps: b's only point sits at 500 + 500 warm-start steps, the right edge; a's first at 100.
+    red, blue = (214, 39, 40), (31, 119, 180)
+    panel = [(x, y) for x in range(img.width // 2) for y in range(img.height // 2)]
+    assert max(x for x, y in panel if img.getpixel((x, y)) == red) > 400 - 5
+    assert min(x for x, y in panel if img.getpixel((x, y)) == blue) < 50 + 0.1 * 355 + 5
+    # A run without step numbers is refused with one line, as is a run argument without a label.
+    c = _run(tmp_path / "c", [_entry(1, 0.2)])
+    assert main([str(tmp_path / "t.png"), f"c={c}", "--x", "steps"]) == 2
+    assert "no number under 'step'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([str(out), "nolabel"])
