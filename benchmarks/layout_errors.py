@@ -16,6 +16,14 @@ Runs the model (streaming, row-head anchors) over every sequence and scores Tabl
   box cells elsewhere in the column become shelf). What the boxes' extent along the rows (their
   depth in the top view, their height in the front view) costs once X is right.
 * **both**: true footprint depth and true box depth together.
+* **true box near edge**: in columns where both have a box, the predicted box cells keep their
+  extent but are moved along the rows so that their last row (the top view's front face, the front
+  view's bottom) is the truth's. Splits "true box depth" into where a box starts and how far it
+  reaches.
+* **shifted to the true near edge**: each slot's whole prediction moved along the rows by the
+  difference between the truth's and the prediction's footprint near edge (median last row over
+  columns). In the top view, whose rows are centred on the rack depth, a misjudged rack depth moves
+  the rack front and every box on it; this is what that shift costs.
 
 Then two numbers per frame and slot: the rack depth read off the predicted top view (median over
 columns of the footprint's row extent) against the truth, and the same pooled per sequence
@@ -49,7 +57,15 @@ from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E40
 from network.train import open_data  # noqa: E402
 from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map  # noqa: E402
 
-CASES = ("prediction", "true footprint", "true footprint depth", "true box depth", "both")
+CASES = (
+    "prediction",
+    "true footprint",
+    "true footprint depth",
+    "true box depth",
+    "both",
+    "true box near edge",
+    "shifted to the true near edge",
+)
 
 
 def true_footprint(p: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -79,6 +95,38 @@ def both_depths(p: np.ndarray, g: np.ndarray) -> np.ndarray:
     return true_box_depth(true_footprint_depth(p, g), g)
 
 
+def true_box_near_edge(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    rows = np.arange(p.shape[1])[:, None]
+    for r in range(p.shape[0]):
+        pb, gb = p[r] == BOX, g[r] == BOX
+        for c in np.nonzero(pb.any(0) & gb.any(0))[0]:
+            shift = int(rows[gb[:, c], 0].max() - rows[pb[:, c], 0].max())
+            cells = np.nonzero(pb[:, c])[0] + shift
+            out[r][pb[:, c], c] = SHELF
+            out[r][cells[(cells >= 0) & (cells < p.shape[1])], c] = BOX
+    return out
+
+
+def shifted_to_true_near_edge(p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    out = p.copy()
+    for r in range(p.shape[0]):
+        pf, gf = p[r] > 0, g[r] > 0
+        if not (pf.any() and gf.any()):
+            continue
+        shift = int(np.median(near_rows(gf)) - np.median(near_rows(pf)))
+        out[r] = 0
+        src = p[r][max(-shift, 0) : p.shape[1] - max(shift, 0)]
+        out[r][max(shift, 0) : max(shift, 0) + src.shape[0]] = src
+    return out
+
+
+def near_rows(mask: np.ndarray) -> np.ndarray:
+    """Per column with any cell set: its last row."""
+    rows = np.arange(mask.shape[0])[:, None]
+    return np.where(mask, rows, -1).max(0)[mask.any(0)]
+
+
 def extent_rows(mask: np.ndarray) -> np.ndarray:
     """Per column with any cell set: last row - first row + 1 (``(cols,)``)."""
     cols = np.nonzero(mask.any(0))[0]
@@ -87,6 +135,17 @@ def extent_rows(mask: np.ndarray) -> np.ndarray:
     hi = np.where(m, rows, -1).max(0)
     lo = np.where(m, rows, mask.shape[0]).min(0)
     return hi - lo + 1
+
+
+FIXES = (
+    None,
+    true_footprint,
+    true_footprint_depth,
+    true_box_depth,
+    both_depths,
+    true_box_near_edge,
+    shifted_to_true_near_edge,
+)
 
 
 def main() -> int:
@@ -104,6 +163,7 @@ def main() -> int:
     scorers = {c: FrameScorer() for c in CASES}
     rack = []  # (sequence, predicted depth m, true depth m, board metres below the camera) per frame and slot
     boxes = []  # (predicted, true, board metres below the camera, |X| m, seen) box depth per shared box column
+    fronts = []  # (box front error, its slot's rack front error) in metres per shared box column, top view
     frames = 0
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
@@ -124,7 +184,7 @@ def main() -> int:
             below = [float(sl["board_top_y"]) - cam_y for sl in rec.get("slots", [])]
             col_x = np.abs(seq.spec.col_to_x(np.arange(seq.spec.size) + 0.5))[vis]
             labels = seen.labels(i) if seen is not None else np.full((gt.top.shape[0], seq.spec.size), -1)
-            for case, fn in zip(CASES, (None, true_footprint, true_footprint_depth, true_box_depth, both_depths)):
+            for case, fn in zip(CASES, FIXES):
                 scorers[case].update(p if fn is None else {v: fn(p[v], getattr(gt, v)) for v in ("top", "front")}, gt)
             for r in range(gt.top.shape[0]):
                 pt, g = p["top"][r][:, vis], gt.top[r][:, vis]
@@ -139,6 +199,9 @@ def main() -> int:
                     ge = extent_rows((g == BOX) & shared[None, :])
                     seen_cols = labels[r][vis][shared]
                     boxes.extend(zip(pe * row_m, ge * row_m, np.full(pe.size, elev), col_x[shared], seen_cols))
+                    rack_front = np.median(near_rows(pt > 0)) - np.median(near_rows(g > 0))
+                    box_front = near_rows((pt == BOX) & shared[None, :]) - near_rows((g == BOX) & shared[None, :])
+                    fronts.extend(zip(box_front * row_m, np.full(box_front.size, rack_front * row_m)))
             frames += 1
     bar.close()
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {frames} frames of {len(seqs)} sequences")
@@ -167,6 +230,12 @@ def main() -> int:
             f"box depth (shared box columns): true {tb.mean():.2f} +- {tb.std():.2f} m, predicted "
             f"{pb.mean():.2f} +- {pb.std():.2f} m; error {np.abs(pb - tb).mean() * 100:.1f} cm mean abs, "
             f"corr {np.corrcoef(pb, tb)[0, 1]:.2f}"
+        )
+        bf, rf = (np.array(x) for x in zip(*fronts))
+        print(
+            f"box front (shared box columns, + = nearer the camera): error {np.abs(bf).mean() * 100:.1f} cm mean abs, "
+            f"bias {bf.mean() * 100:+.1f} cm; its slot's rack front: error {np.abs(rf).mean() * 100:.1f} cm, "
+            f"corr between the two {_corr(bf, rf):.2f}"
         )
         lateral = [(f"|X| < {LATERAL[0]} m", ax < LATERAL[0])]
         lateral += [(f"|X| {a}-{b} m", (ax >= a) & (ax < b)) for a, b in zip(LATERAL, LATERAL[1:])]
