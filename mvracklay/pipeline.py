@@ -31,6 +31,7 @@ from layouts import Intrinsics
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
+from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
@@ -59,6 +60,7 @@ class RunConfig:
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
+    rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = as predicted
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -76,6 +78,8 @@ class RunConfig:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
             raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
+        if self.rack_depth is not None and not (np.isfinite(self.rack_depth) and self.rack_depth > 0):
+            raise InputError(f"--rack-depth must be a positive number of metres, got {self.rack_depth}")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -244,6 +248,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         from dataclasses import replace
 
         spec = replace(spec, size=cfg.layout_size)
+    if cfg.rack_depth is not None:
+        check_rack_depth(cfg.rack_depth, spec)
     nominal = record.get("nominal_distance")
     default_distance = cfg.distance or (float(nominal) if isinstance(nominal, (int, float)) else DEFAULT_DISTANCE)
     origin, cam_y, cam_z = _map_origin(source)
@@ -281,6 +287,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             if logits is None:
                 break
             lay = frame_layouts(logits, spec.size)
+            if cfg.rack_depth is not None:
+                lay["top"] = impose_rack_depth(lay["top"], spec, cfg.rack_depth)
             dist = cfg.distance or source.distance(n) or default_distance
             fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
             folder.write(n, fl)

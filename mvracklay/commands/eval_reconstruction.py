@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -43,6 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
     p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")
+    p.add_argument(
+        "--rack-depth",
+        metavar="M|scene",
+        help="with --checkpoint: impose a known rack depth on the predicted top views (as 'mvracklay predict "
+        "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
+    )
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -146,6 +153,19 @@ def _sequences(path: Path, split: str | None, limit: int):
     return seqs[:limit] if limit else seqs
 
 
+def _rack_depth_option(text: str | None) -> float | str | None:
+    """``--rack-depth``: None, ``'scene'``, or a positive number of metres (one-line error otherwise)."""
+    if text is None or text == "scene":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise InputError(f"--rack-depth must be a positive number of metres, got {text}")
+    return value
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -163,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--layouts DIR and --map need a single sequence folder as PATH")
     if args.checkpoint and (args.layouts != "gt" or args.map):
         raise InputError("--checkpoint predicts the layouts itself: drop --layouts / --map")
+    if args.rack_depth is not None and not args.checkpoint:
+        raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
+    rack_depth = _rack_depth_option(args.rack_depth)
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     model = record = None
@@ -188,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
                     seq.root,
                     out,
                     mode=args.mode,
+                    rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
                     progress=False,
                     source=str(args.checkpoint),
                 )

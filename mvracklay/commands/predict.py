@@ -17,6 +17,7 @@ from layouts import Intrinsics
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
+from layouts.rackdepth import RACK_DEPTH_HELP, check_rack_depth, impose_rack_depth
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
@@ -50,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
     )
+    p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -75,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
+    if args.rack_depth is not None and (not math.isfinite(args.rack_depth) or args.rack_depth <= 0):
+        raise InputError(f"--rack-depth must be a positive number of metres, got {args.rack_depth}")
     if args.layout_size and not 8 <= args.layout_size <= 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
     torch.set_num_threads(args.threads)
@@ -90,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         layout_size=args.layout_size,
         intrinsics=args.intrinsics,
         distance=args.distance,
+        rack_depth=args.rack_depth,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -108,6 +113,7 @@ def predict_folder(
     layout_size: int = 0,
     intrinsics: str | None = None,
     distance: float | None = None,
+    rack_depth: float | None = None,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -115,7 +121,8 @@ def predict_folder(
 
     The canonical warp and the visible columns use ``intrinsics`` / ``distance`` when given, else the
     sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
-    distance in ``record``.
+    distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
+    (`layouts.rackdepth.impose_rack_depth`).
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -153,11 +160,15 @@ def predict_folder(
         return default_distance
 
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
+    if rack_depth is not None:
+        check_rack_depth(rack_depth, spec)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(model, lambda i: (intr, dist_of(i)), flip=flip)
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
     for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
         lay = frame_layouts(logits, spec.size)
+        if rack_depth is not None:
+            lay["top"] = impose_rack_depth(lay["top"], spec, rack_depth)
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
         bar.update(1)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
+from layouts.rackdepth import RACK_DEPTH_HELP
 from network.infer import FLIP_HELP
 
 NAME = "run"
@@ -43,6 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
     )
+    p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
@@ -73,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         layout_size=args.layout_size,
         distance=args.distance,
+        rack_depth=args.rack_depth,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,

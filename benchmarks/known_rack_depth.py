@@ -1,0 +1,72 @@
+#!/usr/bin/env python3
+"""What a known rack depth buys: Table I of a checkpoint's layouts as predicted and with the rack depth imposed.
+
+    .venv/bin/python benchmarks/known_rack_depth.py weights/mvracklay-disc-4.pt data/heldout128 [--every 2]
+
+Runs the model (streaming) over every sequence of a generated dataset and scores Table I (columns
+in view, mIoU in percent) of its layouts as they are and after `layouts.rackdepth.impose_rack_depth`
+(what `mvracklay predict/run --rack-depth M` does) with: each scene's true rack depth (from its
+scene.json, what a racking spec sheet gives); the true depth off by +-ERR cm (a spec that is a
+little wrong); and one fixed depth for every scene (a guess). Only the top view changes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts.metrics import FrameScorer  # noqa: E402
+from layouts.rackdepth import impose_rack_depth  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from waresynth.dataset import open_dataset  # noqa: E402
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path)
+    ap.add_argument("data", type=Path, help="a generated dataset (e.g. the held-out set)")
+    ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
+    ap.add_argument("--errors", type=float, nargs="*", default=[2.0, 5.0], help="depth errors to try, cm")
+    ap.add_argument("--fixed", type=float, default=1.0, help="the one depth for every scene, metres")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, record = load_model(args.checkpoint)
+    model.eval()
+    seqs = open_dataset(args.data).sequences()
+    frames = []  # (predicted layouts, ground truth, scene rack depth)
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
+    for seq in seqs:
+        depth = float(seq.scene()["row"]["depth"])
+        pred = Predictor(model, sequence_camera(seq))
+        for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
+            bar.update(1)
+            if i % args.every == 0:
+                frames.append((frame_layouts(out, seq.spec.size), seq.layouts(i), depth, seq.spec))
+    bar.close()
+    cases = [("as predicted", None), ("true rack depth", lambda d: d)]
+    for e in args.errors:
+        cases += [(f"true {sign}{e:g} cm", lambda d, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))]
+    cases.append((f"{args.fixed:g} m for every scene", lambda d: args.fixed))
+    print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {len(frames)} frames of {len(seqs)} sequences")
+    print(f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    for name, depth_of in cases:
+        scorer = FrameScorer()
+        for p, gt, depth, spec in frames:
+            top = p["top"] if depth_of is None else impose_rack_depth(p["top"], spec, depth_of(depth))
+            scorer.update({"top": top, "front": p["front"]}, gt)
+        v = scorer.result()["visible"]
+        cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
+        print(f"{name:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
