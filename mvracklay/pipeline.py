@@ -308,7 +308,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         bar.close()
         if n == 0:
             raise InputError(f"{source.path}: no frames to process")
-        seconds.update(predict=t_pred, stitch=t_stitch, rerun=t_log)
+        seconds.update(predict=t_pred, stitch=t_stitch)
+        if rec is not None:
+            seconds["rerun"] = t_log
 
         t1 = time.perf_counter()
         meta = {

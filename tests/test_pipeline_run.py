@@ -80,6 +80,7 @@ def test_run_prints_free_space_table(seq_dir: Path, checkpoint: Path, tmp_path: 
     text = capsys.readouterr().out
     wmap = WarehouseMap.load(out / "warehouse.json")
     assert "free_len" in text and len(wmap.steps) == 3
+    assert "predict" in text and "rerun" not in text.split("speed:")[1].splitlines()[0]  # nothing logged, no rate
     assert wmap.meta["mode"] == "window" and wmap.meta["flip_average"] is True
     for s in wmap.shelves():
         assert s.id in text
