@@ -320,6 +320,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
             "flip_average": cfg.flip,
+            "rack_depth": cfg.rack_depth,  # metres imposed on the top views (`layouts.rackdepth`), None = as read
             "intrinsics": intr.to_dict(),
             "spec": spec.to_dict(),
         }

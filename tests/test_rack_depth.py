@@ -10,6 +10,7 @@ from layouts.codecs import LayoutFolder
 from layouts.rackdepth import check_rack_depth, depth_rows, impose_rack_depth
 from layouts.raster import fill_rect
 from mvracklay.cli import main
+from stitching.warehouse_map import WarehouseMap
 
 SPEC = LayoutSpec(num_slots=2, size=64)
 
@@ -79,6 +80,7 @@ def test_predict_and_run_take_a_rack_depth(tiny_checkpoint, tiny_dataset, tmp_pa
                 assert np.array_equal(filled[r], rows)
     assert main(["run", str(seq), "--out", str(tmp_path / "r"), "--rack-depth", "0.8", "--no-rrd", *common]) == 0
     top = LayoutFolder(tmp_path / "r" / "layouts").read(0).top
+    assert WarehouseMap.load(tmp_path / "r" / "warehouse.json").meta["rack_depth"] == 0.8
     assert all(np.array_equal((t > 0).any(1), rows) for t in top if t.any())
     capsys.readouterr()
     for cmd in ("predict", "run"):
