@@ -52,6 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import BOX, SHELF  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
+from layouts.rackdepth import front_rows, shift_rows  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from network.train import open_data  # noqa: E402
@@ -114,17 +115,8 @@ def shifted_to_true_near_edge(p: np.ndarray, g: np.ndarray) -> np.ndarray:
         pf, gf = p[r] > 0, g[r] > 0
         if not (pf.any() and gf.any()):
             continue
-        shift = int(np.median(near_rows(gf)) - np.median(near_rows(pf)))
-        out[r] = 0
-        src = p[r][max(-shift, 0) : p.shape[1] - max(shift, 0)]
-        out[r][max(shift, 0) : max(shift, 0) + src.shape[0]] = src
+        out[r] = shift_rows(p[r], int(np.median(front_rows(gf)) - np.median(front_rows(pf))))
     return out
-
-
-def near_rows(mask: np.ndarray) -> np.ndarray:
-    """Per column with any cell set: its last row."""
-    rows = np.arange(mask.shape[0])[:, None]
-    return np.where(mask, rows, -1).max(0)[mask.any(0)]
 
 
 def extent_rows(mask: np.ndarray) -> np.ndarray:
@@ -199,8 +191,8 @@ def main() -> int:
                     ge = extent_rows((g == BOX) & shared[None, :])
                     seen_cols = labels[r][vis][shared]
                     boxes.extend(zip(pe * row_m, ge * row_m, np.full(pe.size, elev), col_x[shared], seen_cols))
-                    rack_front = np.median(near_rows(pt > 0)) - np.median(near_rows(g > 0))
-                    box_front = near_rows((pt == BOX) & shared[None, :]) - near_rows((g == BOX) & shared[None, :])
+                    rack_front = np.median(front_rows(pt > 0)) - np.median(front_rows(g > 0))
+                    box_front = front_rows((pt == BOX) & shared[None, :]) - front_rows((g == BOX) & shared[None, :])
                     fronts.extend(zip(box_front * row_m, np.full(box_front.size, rack_front * row_m)))
             frames += 1
     bar.close()

@@ -28,13 +28,29 @@ RACK_DEPTH_HELP = (
 )
 
 
-def check_rack_depth(depth: float, spec: LayoutSpec, name: str = "--rack-depth") -> float:
-    """``depth`` as a float if it is a rack depth the top view can hold, else a one-line `InputError`."""
+def check_rack_depth(depth: float, spec: LayoutSpec | None = None, name: str = "--rack-depth") -> float:
+    """``depth`` as a float if it is a positive number of metres (and, given ``spec``, fits its top view),
+    else a one-line `InputError`."""
     if isinstance(depth, bool) or not isinstance(depth, (int, float)) or not math.isfinite(depth) or depth <= 0:
         raise InputError(f"{name} must be a positive number of metres, got {depth!r}")
-    if depth > spec.z_extent:
+    if spec is not None and depth > spec.z_extent:
         raise InputError(f"{name} {depth} m exceeds the top view's {spec.z_extent} m depth extent")
     return float(depth)
+
+
+def front_rows(mask: np.ndarray) -> np.ndarray:
+    """Per column of a ``(D, D)`` mask with any cell set: its last row (the top view's front, nearest the camera)."""
+    rows = np.arange(mask.shape[0])[:, None]
+    return np.where(mask, rows, -1).max(0)[mask.any(0)]
+
+
+def shift_rows(slot: np.ndarray, shift: int) -> np.ndarray:
+    """``slot`` moved ``shift`` rows toward the last row (negative: toward row 0), zeros shifted in."""
+    out = np.zeros_like(slot)
+    d = slot.shape[0]
+    src = slot[max(-shift, 0) : d - max(shift, 0)]
+    out[max(shift, 0) : max(shift, 0) + src.shape[0]] = src
+    return out
 
 
 def depth_rows(spec: LayoutSpec, depth: float) -> np.ndarray:
@@ -57,18 +73,13 @@ def impose_rack_depth(top: np.ndarray, spec: LayoutSpec, depth: float) -> np.nda
         raise InputError(f"top view must have shape (R, {spec.size}, {spec.size}), got {top.shape}")
     rows = depth_rows(spec, depth)
     near = int(np.nonzero(rows)[0].max())
-    idx = np.arange(spec.size)[:, None]
     out = top.copy()
     for r in range(top.shape[0]):
         foot = top[r] > 0
         cols = foot.any(0)
         if not cols.any():
             continue
-        pred_near = int(round(float(np.median(np.where(foot, idx, -1).max(0)[cols]))))
-        shift = near - pred_near
-        boxes = np.zeros_like(foot)
-        src = top[r][max(-shift, 0) : spec.size - max(shift, 0)] == BOX
-        boxes[max(shift, 0) : max(shift, 0) + src.shape[0]] = src
+        boxes = shift_rows(top[r] == BOX, near - int(round(float(np.median(front_rows(foot))))))
         band = rows[:, None] & cols[None, :]
         out[r] = np.where(band, SHELF, 0).astype(top.dtype)
         out[r][band & boxes] = BOX

@@ -78,8 +78,8 @@ class RunConfig:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
             raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
-        if self.rack_depth is not None and not (np.isfinite(self.rack_depth) and self.rack_depth > 0):
-            raise InputError(f"--rack-depth must be a positive number of metres, got {self.rack_depth}")
+        if self.rack_depth is not None:
+            check_rack_depth(self.rack_depth)
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ import numpy as np
 
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
+from layouts.rackdepth import check_rack_depth
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -161,9 +161,7 @@ def _rack_depth_option(text: str | None) -> float | str | None:
         value = float(text)
     except ValueError:
         raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise InputError(f"--rack-depth must be a positive number of metres, got {text}")
-    return value
+    return check_rack_depth(value)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
-    if args.rack_depth is not None and (not math.isfinite(args.rack_depth) or args.rack_depth <= 0):
-        raise InputError(f"--rack-depth must be a positive number of metres, got {args.rack_depth}")
+    if args.rack_depth is not None:
+        check_rack_depth(args.rack_depth)
     if args.layout_size and not 8 <= args.layout_size <= 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
     torch.set_num_threads(args.threads)
