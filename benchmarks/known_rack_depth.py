@@ -4,10 +4,12 @@
     .venv/bin/python benchmarks/known_rack_depth.py weights/mvracklay-disc-4.pt data/heldout128 [--every 2]
 
 Runs the model (streaming) over every sequence of a generated dataset and scores Table I (columns
-in view, mIoU in percent) of its layouts as they are and after `layouts.rackdepth.impose_rack_depth`
-(what `mvracklay predict/run --rack-depth M` does) with: each scene's true rack depth (from its
-scene.json, what a racking spec sheet gives); the true depth off by +-ERR cm (a spec that is a
-little wrong); and one fixed depth for every scene (a guess). Only the top view changes.
+in view, mIoU in percent) of its layouts as decoded and after `layouts.rackdepth.impose_rack_depth`
+(what `mvracklay predict/run --rack-depth M` does) with: the depth the model reads from the boards'
+back edges over the frames so far (models with the back-edge head, `network.backedge`; what they
+do by default); each scene's true rack depth (from its scene.json, what a racking spec sheet
+gives); the true depth off by +-ERR cm (a spec that is a little wrong); and one fixed depth for
+every scene (a guess). Only the top view changes.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -49,22 +52,36 @@ def main() -> int:
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
             if i % args.every == 0:
-                frames.append((frame_layouts(out, seq.spec.size), seq.layouts(i), depth, seq.spec))
+                read = float(out["rack_depth"])
+                decoded = frame_layouts({**out, "rack_depth": torch.tensor(float("nan"))}, seq.spec)
+                frames.append((decoded, seq.layouts(i), depth, seq.spec, read))
     bar.close()
-    cases = [("as predicted", None), ("true rack depth", lambda d: d)]
+    cases = [("as decoded", None)]
+    if model.back is not None:
+        cases.append(("read from back edges", "read"))
+    cases.append(("true rack depth", lambda d: d))
     for e in args.errors:
         cases += [(f"true {sign}{e:g} cm", lambda d, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))]
     cases.append((f"{args.fixed:g} m for every scene", lambda d: args.fixed))
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {len(frames)} frames of {len(seqs)} sequences")
-    print(f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    print(
+        f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s} "
+        f"{'depth err':>9s}"
+    )
+    print(f"{'':28s} {'':9s} {'':8s} {'':11s} {'':10s} {'(cm, mean)':>9s}")
     for name, depth_of in cases:
         scorer = FrameScorer()
-        for p, gt, depth, spec in frames:
-            top = p["top"] if depth_of is None else impose_rack_depth(p["top"], spec, depth_of(depth))
+        errors = []
+        for p, gt, depth, spec, read in frames:
+            new = read if depth_of == "read" else None if depth_of is None else depth_of(depth)
+            top = p["top"] if new is None or not np.isfinite(new) else impose_rack_depth(p["top"], spec, new)
+            if new is not None and np.isfinite(new):
+                errors.append(abs(new - depth))
             scorer.update({"top": top, "front": p["front"]}, gt)
         v = scorer.result()["visible"]
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
-        print(f"{name:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
+        err = f"{100 * np.mean(errors):9.1f}" if errors else f"{'':9s}"
+        print(f"{name:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f} {err}")
     return 0
 
 

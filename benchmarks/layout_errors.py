@@ -160,7 +160,7 @@ def main() -> int:
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
         row_m = seq.spec.z_extent / seq.spec.size
-        pred = Predictor(model, sequence_camera(seq))
+        pred = Predictor(model, sequence_camera(seq), read_depth=False)  # the decoder's own depth
         seen = SeenTracker(seq) if args.seen else None
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
@@ -169,7 +169,7 @@ def main() -> int:
             if i % args.every:
                 continue
             gt = seq.layouts(i)
-            p = frame_layouts(out, seq.spec.size)
+            p = frame_layouts(out, seq.spec)
             vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
             rec = seq.frame(i)
             cam_y = float(rec["camera_position"][1])

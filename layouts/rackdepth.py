@@ -27,6 +27,12 @@ RACK_DEPTH_HELP = (
     "largest top-view error; unset, the layouts keep the depth the model reads"
 )
 
+#: the ``--no-depth-read`` option's help, shared by the commands that offer it
+NO_DEPTH_READ_HELP = (
+    "keep the rack depth the top-view decoder draws; by default a model with a back-edge head reads the depth "
+    "from the shelf boards' back edges over the frames so far and redraws the top views at it"
+)
+
 
 def check_rack_depth(depth: float, spec: LayoutSpec | None = None, name: str = "--rack-depth") -> float:
     """``depth`` as a float if it is a positive number of metres (and, given ``spec``, fits its top view),

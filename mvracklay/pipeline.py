@@ -31,7 +31,7 @@ from layouts import Intrinsics
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from layouts.rackdepth import check_rack_depth, impose_rack_depth
+from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
@@ -60,7 +60,8 @@ class RunConfig:
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
-    rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = as predicted
+    rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
+    read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -262,7 +263,14 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         stitcher = Stitcher(spec, stitch_config(cfg))
         if cfg.rrd:
             rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd")
-        pred = Predictor(model, lambda i: (intr, cfg.distance or source.distance(i) or default_distance), flip=cfg.flip)
+        pred = Predictor(
+            model,
+            lambda i: (intr, cfg.distance or source.distance(i) or default_distance),
+            flip=cfg.flip,
+            rack_depth=cfg.rack_depth,
+            read_depth=cfg.read_depth,
+        )
+        depth = float("nan")
         current: dict[str, np.ndarray] = {}
 
         def feed():
@@ -286,9 +294,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             logits = next(outputs, None)
             if logits is None:
                 break
-            lay = frame_layouts(logits, spec.size)
-            if cfg.rack_depth is not None:
-                lay["top"] = impose_rack_depth(lay["top"], spec, cfg.rack_depth)
+            lay = frame_layouts(logits, spec)
+            depth = float(logits["rack_depth"])
             dist = cfg.distance or source.distance(n) or default_distance
             fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
             folder.write(n, fl)
@@ -320,7 +327,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
             "flip_average": cfg.flip,
-            "rack_depth": cfg.rack_depth,  # metres imposed on the top views (`layouts.rackdepth`), None = as read
+            # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
+            "rack_depth": depth if np.isfinite(depth) else None,
+            "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
             "intrinsics": intr.to_dict(),
             "spec": spec.to_dict(),
         }

@@ -30,12 +30,14 @@ def evaluate_sequences(
     progress: bool = True,
     true_anchors: bool = False,
     flip: bool = False,
+    read_depth: bool = True,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
     ``true_anchors`` places the shelf slots at the ground truth's boards instead of the row head's:
     what the decoders score when the boards are found perfectly (an analysis, not a result).
-    ``flip`` averages each frame with its mirror image (`network.infer.Predictor`).
+    ``flip`` averages each frame with its mirror image (`network.infer.Predictor`); ``read_depth``
+    False keeps the top views' rack depth as decoded when the model could read it from back edges.
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -45,14 +47,13 @@ def evaluate_sequences(
     for seq in sequences:
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
-        d = seq.spec.size
         anchors = (
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
-        pred = Predictor(model, sequence_camera(seq), anchors, flip=flip)
+        pred = Predictor(model, sequence_camera(seq), anchors, flip=flip, read_depth=read_depth)
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
-            scorer.update(frame_layouts(out, d), gt)
+            scorer.update(frame_layouts(out, seq.spec), gt)
             found = int(torch.isfinite(out["anchors"]).sum())
             slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
             frames += 1
@@ -63,6 +64,7 @@ def evaluate_sequences(
         "frames": frames,
         "mode": mode,
         "flip_average": flip,
+        "rack_depth": "read from back edges" if read_depth and model.back is not None else "as decoded",
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

@@ -11,16 +11,20 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from layouts import VIEWS, Intrinsics
+from layouts import VIEWS, Intrinsics, LayoutSpec
+from layouts.errors import InputError
+from layouts.rackdepth import check_rack_depth, impose_rack_depth
+from network.backedge import DepthReader
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
-from network.model import MVRackLay
+from network.model import MVRackLay, board_peaks
 
 MODES = ("stream", "window")
 #: the ``--flip-average`` option's help, one text for every command that offers it
@@ -56,6 +60,11 @@ class Predictor:
     shelf anchors, so both fill the same slots), mirrored back: the test-time flip averaging of
     segmentation practice, at twice the compute. Averaging logits, not probabilities, keeps their
     scale, so the record's calibrated box offsets still apply (measured: the same offsets win).
+
+    Rack depth: ``rack_depth`` (metres, known) is given to every frame; otherwise a model with a
+    back-edge head reads it from the boards' back edges over the frames so far
+    (`network.backedge.DepthReader`), unless ``read_depth`` is False. Each output then carries
+    ``"rack_depth"`` (metres, NaN while unknown), which `frame_layouts` imposes on the top view.
     """
 
     def __init__(
@@ -64,12 +73,17 @@ class Predictor:
         camera: CameraFn | None = None,
         anchors: Callable[[int], np.ndarray] | None = None,
         flip: bool = False,
+        rack_depth: float | None = None,
+        read_depth: bool = True,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
         self.camera = camera or fixed_camera()
         self.anchors = anchors  #: frame index -> (R,) canonical board rows (NaN = no slot); None = the row head's
         self.flip = bool(flip)
+        self.rack_depth = None if rack_depth is None else check_rack_depth(rack_depth, self.cfg.spec)
+        #: the depth is read from the back edges (the model has the head, no depth is given, reading is on)
+        self.reads_depth = bool(read_depth) and rack_depth is None and model.back is not None
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -108,8 +122,26 @@ class Predictor:
             return self.window(frames)
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
-    @torch.no_grad()
+    def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
+        """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet)."""
+        reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
+        for i, out in enumerate(outs):
+            depth = self.rack_depth
+            if reader is not None:
+                back = torch.sigmoid(out["back"].float()).cpu().numpy()
+                depth = reader.add(
+                    back, board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view), self.camera(i)[1]
+                )
+            out["rack_depth"] = torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
+            yield out
+
     def _outputs(
+        self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
+    ) -> Iterator[dict[str, torch.Tensor]]:
+        return self._depths(self._decided(frames, raw))
+
+    @torch.no_grad()
+    def _decided(
         self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
     ) -> Iterator[dict[str, torch.Tensor]]:
         """``raw`` (a mode's pass over (image, anchors) inputs) per frame, flip-averaged if asked, decided."""
@@ -169,6 +201,8 @@ class Predictor:
             cached.append(feats)
             out = m.decode_window(list(cached))[-1]
             out["rows"], out["anchors"] = rows, anc
+            if feats.back is not None:
+                out["back"] = feats.back
             yield {k: o[0] for k, o in out.items()}
 
 
@@ -184,9 +218,16 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
     return resize_logits(logits, size).argmax(1).to(torch.uint8).cpu().numpy()
 
 
-def frame_layouts(out: dict[str, torch.Tensor], size: int | None = None) -> dict[str, Any]:
-    """Both views' class-id stacks from one frame's logits."""
-    return {v: logits_to_layout(out[v], size) for v in VIEWS}
+def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, Any]:
+    """Both views' class-id stacks at ``spec.size`` from one frame's outputs, the top view redrawn
+    at the output's ``"rack_depth"`` when it has one (`Predictor`; `layouts.rackdepth.impose_rack_depth`)."""
+    lay = {v: logits_to_layout(out[v], spec.size) for v in VIEWS}
+    depth = out.get("rack_depth")
+    if depth is not None and bool(torch.isfinite(torch.as_tensor(depth))):
+        if float(depth) > spec.z_extent:
+            raise InputError(f"rack depth {float(depth):.3f} m exceeds the layouts' {spec.z_extent} m depth extent")
+        lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))
+    return lay
 
 
 def predict_layouts(
@@ -198,5 +239,6 @@ def predict_layouts(
     flip: bool = False,
 ) -> Iterator[dict[str, np.ndarray]]:
     """``{"top", "front"}`` uint8 ``(R, size, size)`` class ids per frame of uint8 RGB images (any size)."""
+    spec = model.cfg.spec if size is None else replace(model.cfg.spec, size=size)
     for out in Predictor(model, camera, flip=flip).run(frames, mode):
-        yield frame_layouts(out, size)
+        yield frame_layouts(out, spec)

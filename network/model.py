@@ -48,6 +48,7 @@ from torch import nn
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
+from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
 from network.convlstm import StackedConvLSTM, State
 from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
@@ -94,6 +95,9 @@ class ModelConfig:
     align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.motion`)
     parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.parallax`)
     geo_top: bool = False  #: top view also samples features where each cell's 3D points project (`network.geotop`)
+    back_edges: bool = (
+        False  #: a head finds the boards' back edges, from which the rack depth is read (`network.backedge`)
+    )
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -111,7 +115,7 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top"):
+        for name in ("parallax", "geo_top", "back_edges"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
@@ -223,6 +227,9 @@ class SlotFeatures:
     fine: torch.Tensor  #: (N*R, c1, D, D) fine front-window samples of the 1/2 map
     valid: torch.Tensor  #: (N, R) bool: the slot has an anchor
     motion: torch.Tensor | None = None  #: (N, 2, H, W) `network.motion.motion_signature` of the images
+    back: torch.Tensor | None = (
+        None  #: (N, H) back-edge logits (`network.backedge.BackEdgeHead`), if the model has the head
+    )
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
@@ -231,13 +238,15 @@ class SlotFeatures:
             return t.unflatten(0, (n, -1))[i]
 
         motion = None if self.motion is None else pick(self.motion)
-        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion)
+        back = None if self.back is None else pick(self.back)
+        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion, back)
 
     def cat(self, other: SlotFeatures) -> SlotFeatures:
         """These frames' features followed by ``other``'s (both flattened as (frame, batch))."""
         motion = None if self.motion is None or other.motion is None else torch.cat([self.motion, other.motion])
+        back = None if self.back is None or other.back is None else torch.cat([self.back, other.back])
         return SlotFeatures(
-            *(torch.cat([getattr(self, k), getattr(other, k)]) for k in ("top", "front", "fine", "valid")), motion
+            *(torch.cat([getattr(self, k), getattr(other, k)]) for k in ("top", "front", "fine", "valid")), motion, back
         )
 
 
@@ -276,35 +285,20 @@ class RowHead(nn.Module):
     """Logits ``(N, H)`` over canonical rows: does the top edge of a visible shelf board's front lie here?
 
     Boards are horizontal in the canonical image (the camera does not roll), so the evidence is
-    pooled across columns (mean and max) and reasoned about along the rows.
+    pooled across columns (mean and max, `network.backedge.pool_rows`) and reasoned about along the rows.
     """
 
     def __init__(self, c1: int, c2: int, height: int) -> None:
         super().__init__()
         self.height = height
-        cin = 2 * (c1 + c2)
-        w = 64
-        self.net = nn.Sequential(
-            nn.Conv1d(cin, w, 5, padding=2, bias=False),
-            nn.BatchNorm1d(w),
-            nn.ReLU(True),
-            nn.Conv1d(w, w, 5, padding=4, dilation=2, bias=False),
-            nn.BatchNorm1d(w),
-            nn.ReLU(True),
-            nn.Conv1d(w, w, 5, padding=8, dilation=4, bias=False),
-            nn.BatchNorm1d(w),
-            nn.ReLU(True),
-            nn.Conv1d(w, 2, 1),
-        )
-        with torch.no_grad():  # start at a low board probability everywhere (boards are rare rows)
-            self.net[-1].bias.fill_(-3.0)
+        self.net = row_net(2 * (c1 + c2))
+
+    def from_pooled(self, pooled: torch.Tensor) -> torch.Tensor:
+        """Logits from `pool_rows` features (shared with the back-edge head)."""
+        return rows_from_net(self.net(pooled), self.height)
 
     def forward(self, p1: torch.Tensor, p2: torch.Tensor) -> torch.Tensor:
-        a = torch.cat([p1.mean(-1), p1.amax(-1)], 1)  # (N, 2 c1, H/2)
-        b = torch.cat([p2.mean(-1), p2.amax(-1)], 1)  # (N, 2 c2, H/4)
-        b = F.interpolate(b, size=a.shape[-1], mode="linear", align_corners=False)
-        y = self.net(torch.cat([a, b], 1))  # (N, 2, H/2): two canonical rows per 1/2-map row
-        return y.transpose(1, 2).reshape(y.shape[0], -1)[:, : self.height]
+        return self.from_pooled(pool_rows(p1, p2))
 
 
 def anchors_from_rows(
@@ -316,27 +310,36 @@ def anchors_from_rows(
     the probability-weighted centre of its +-2 rows; the lowest R (largest rows) become slots 0..R-1.
     """
     p = torch.sigmoid(logits.detach().float()).cpu()
-    n, h = p.shape
-    gap = MIN_BOARD_GAP / view.metres_per_pixel
-    out = torch.full((n, slots), float("nan"))
-    left = F.pad(p, (1, 0), value=-1.0)[:, :-1]
-    right = F.pad(p, (0, 1), value=-1.0)[:, 1:]
-    peak = (p >= left) & (p > right) & (p > threshold)
-    idx = torch.arange(h, dtype=torch.float32)
-    for i in range(n):
-        cand = torch.nonzero(peak[i]).flatten().tolist()
-        cand.sort(key=lambda r: -float(p[i, r]))
-        kept: list[float] = []
-        for r in cand:
-            lo, hi = max(0, r - 2), min(h, r + 3)
-            w = p[i, lo:hi]
-            c = float((w * idx[lo:hi]).sum() / w.sum()) + 0.5
-            if all(abs(c - k) >= gap for k in kept):
-                kept.append(c)
-        kept.sort(reverse=True)
-        for s, c in enumerate(kept[:slots]):
+    out = torch.full((p.shape[0], slots), float("nan"))
+    for i in range(p.shape[0]):
+        for s, c in enumerate(board_peaks(p[i], view, threshold)[:slots]):
             out[i, s] = c
     return out.to(logits.device)
+
+
+def board_peaks(prob: torch.Tensor, view: CanonicalView, threshold: float = ROW_THRESHOLD) -> list[float]:
+    """Continuous canonical rows of the boards in one frame's row-head probabilities ``(H,)``, lowest first.
+
+    Peaks above ``threshold`` at least `MIN_BOARD_GAP` apart (strongest first), each refined to the
+    probability-weighted centre of its +-2 rows.
+    """
+    p = prob.detach().float().cpu().reshape(-1)
+    h = p.shape[0]
+    gap = MIN_BOARD_GAP / view.metres_per_pixel
+    left = F.pad(p, (1, 0), value=-1.0)[:-1]
+    right = F.pad(p, (0, 1), value=-1.0)[1:]
+    peak = (p >= left) & (p > right) & (p > threshold)
+    idx = torch.arange(h, dtype=torch.float32)
+    cand = torch.nonzero(peak).flatten().tolist()
+    cand.sort(key=lambda r: -float(p[r]))
+    kept: list[float] = []
+    for r in cand:
+        lo, hi = max(0, r - 2), min(h, r + 3)
+        w = p[lo:hi]
+        c = float((w * idx[lo:hi]).sum() / w.sum()) + 0.5
+        if all(abs(c - k) >= gap for k in kept):
+            kept.append(c)
+    return sorted(kept, reverse=True)
 
 
 class SlotHeads(nn.Module):
@@ -557,7 +560,8 @@ class MVRackLay(nn.Module):
 
     `forward` takes a window ``(B, T, 3, H, W)`` of canonical float images in [0, 1] (and, in
     training, the ground-truth anchors ``(B, T, R)``) and returns ``{"top", "front": (B, T, R, 3, D,
-    D) logits, "rows": (B, T, H) row-head logits, "anchors": (B, T, R)}``. `step` is the
+    D) logits, "rows": (B, T, H) row-head logits, "anchors": (B, T, R)}`` (and, with the back-edge
+    head, ``"back": (B, T, H)`` its logits). `step` is the
     streaming form: one frame in, its outputs and the carried memory state out; `frame_features`
     and `decode_window` let a caller cache per-frame work across overlapping windows.
     """
@@ -572,6 +576,7 @@ class MVRackLay(nn.Module):
         self.pyramid = Pyramid(cfg, c2, c2, c3, c4)  # the stem has the width of layer1
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
+        self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
         self.slots = SlotHeads(cfg, fine, coarse)
         self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (
@@ -596,6 +601,11 @@ class MVRackLay(nn.Module):
         s1, f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
         return s1, f2, f3, f4, self.reduce(f5)
 
+    def pooled_rows(self, images: torch.Tensor) -> torch.Tensor:
+        """The row heads' input for frames ``(N, 3, H, W)``: `network.backedge.pool_rows` of the pyramid."""
+        feats = self.encode(images)
+        return pool_rows(*self.pyramid(feats, self.temporal(feats[4])))
+
     def frame_features(
         self,
         images: torch.Tensor,
@@ -611,7 +621,8 @@ class MVRackLay(nn.Module):
         """
         feats = self.encode(images)
         p1, p2 = self.pyramid(feats, self.temporal(feats[4]))
-        rows = self.rows(p1, p2)
+        pooled = pool_rows(p1, p2)
+        rows = self.rows.from_pooled(pooled)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
         sig = motion_signature(images) if self.memory is not None and self.memory.view is not None else None
@@ -630,6 +641,8 @@ class MVRackLay(nn.Module):
             par = self.parallax(cost)
         feats = self.slots.coarse(p1, p2, anchors, par)
         feats.motion = sig
+        if self.back is not None:
+            feats.back = self.back(pooled)
         return feats, rows, anchors
 
     def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
@@ -692,6 +705,8 @@ class MVRackLay(nn.Module):
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
         res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
         res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
+        if feats.back is not None:
+            res["back"] = feats.back.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
         return res
 
     def step(
@@ -720,6 +735,8 @@ class MVRackLay(nn.Module):
         out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors
+        if feats.back is not None:
+            out["back"] = feats.back
         return out, state
 
 

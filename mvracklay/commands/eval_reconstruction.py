@@ -13,7 +13,7 @@ import numpy as np
 
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
-from layouts.rackdepth import check_rack_depth
+from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -50,6 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --checkpoint: impose a known rack depth on the predicted top views (as 'mvracklay predict "
         "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
     )
+    p.add_argument("--no-depth-read", action="store_true", help="with --checkpoint: " + NO_DEPTH_READ_HELP)
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -210,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
                     out,
                     mode=args.mode,
                     rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
+                    read_depth=not args.no_depth_read,
                     progress=False,
                     source=str(args.checkpoint),
                 )

@@ -10,6 +10,7 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from layouts.metrics import format_table
+from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
@@ -37,6 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
+    p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
@@ -69,10 +71,13 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         true_anchors=args.true_anchors,
         flip=args.flip_average,
+        read_depth=not args.no_depth_read,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
         title += ", flip-averaged"
+    if model.back is not None:
+        title += f", rack depth {res['rack_depth']}"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))

@@ -17,7 +17,7 @@ from layouts import Intrinsics
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
-from layouts.rackdepth import RACK_DEPTH_HELP, check_rack_depth, impose_rack_depth
+from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
@@ -52,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
     )
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
+    p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -95,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         intrinsics=args.intrinsics,
         distance=args.distance,
         rack_depth=args.rack_depth,
+        read_depth=not args.no_depth_read,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -114,6 +116,7 @@ def predict_folder(
     intrinsics: str | None = None,
     distance: float | None = None,
     rack_depth: float | None = None,
+    read_depth: bool = True,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -122,7 +125,8 @@ def predict_folder(
     The canonical warp and the visible columns use ``intrinsics`` / ``distance`` when given, else the
     sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
     distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
-    (`layouts.rackdepth.impose_rack_depth`).
+    (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
+    itself unless ``read_depth`` is False (`network.infer.Predictor`).
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -163,14 +167,17 @@ def predict_folder(
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
     folder = LayoutFolder.create(out, spec)
-    pred = Predictor(model, lambda i: (intr, dist_of(i)), flip=flip)
+    pred = Predictor(model, lambda i: (intr, dist_of(i)), flip=flip, rack_depth=rack_depth, read_depth=read_depth)
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
+    depth = float("nan")
     for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
-        lay = frame_layouts(logits, spec.size)
-        if rack_depth is not None:
-            lay["top"] = impose_rack_depth(lay["top"], spec, rack_depth)
+        lay = frame_layouts(logits, spec)
+        depth = float(logits["rack_depth"])
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
         bar.update(1)
     bar.close()
+    if pred.reads_depth and progress:
+        said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
+        print(f"rack depth read from the boards' back edges: {said}")
     return seq.num_frames

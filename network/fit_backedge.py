@@ -1,0 +1,204 @@
+"""Fitting the back-edge head (`network.backedge`) to a trained model, the rest of the network frozen.
+
+The head reads the row head's column-pooled pyramid features, so one pass of the frozen trunk per
+frame gives everything it needs: `cache_features` runs it once over the training sequences (and
+keeps the row head's logits, for the depth read on validation sequences), `train_head` fits the
+head to Gaussian bumps at the true back-edge rows (as the row head is fitted to the front edges),
+and `depth_errors` measures what matters, the rack depth `DepthReader` reads per frame and over a
+sequence. The targets come from the generator's ground truth: each visible board's height, the
+camera pose and distance, the rack depth and the board thickness (scene.json).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from layouts.errors import InputError
+from network.backedge import BackEdgeHead, DepthReader, back_edge_rows
+from network.data import board_rows, row_target
+from network.infer import Predictor, sequence_camera
+from network.model import MVRackLay, board_peaks
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """How the head is fitted (defaults: what was measured, docs/network.md)."""
+
+    epochs: int = 20
+    batch: int = 128
+    lr: float = 2e-3
+    weight_decay: float = 1e-2
+    pos_weight: float = 5.0  #: BCE weight of the rare back-edge rows
+    every: int = 1  #: use every N-th frame of a sequence
+    seed: int = 0
+
+    def validate(self) -> None:
+        for name in ("epochs", "batch", "every"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise InputError(f"--{name} must be a positive integer, got {v!r}")
+        for name in ("lr", "pos_weight"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
+
+
+@dataclass
+class Cached:
+    """Per frame: pooled features ``(N, C, H/2)`` (fp16), back-edge targets ``(N, H)``, row-head logits
+    ``(N, H)``, and the sequence index, camera distance and true rack depth."""
+
+    pooled: torch.Tensor
+    target: torch.Tensor
+    rows: torch.Tensor
+    seq: np.ndarray
+    distance: np.ndarray
+    depth: np.ndarray
+
+
+def _rack_row(seq: Any) -> tuple[float, float]:
+    """(rack depth, board thickness) of a generated sequence's scene, or a one-line error."""
+    try:
+        row = seq.scene()["row"]
+        return float(row["depth"]), float(row["board_thickness"])
+    except (AttributeError, KeyError, TypeError, ValueError, OSError):
+        name = getattr(seq, "root", getattr(seq, "name", "sequence"))
+        raise InputError(
+            f"{name}: fitting the back-edge head needs a generated dataset (scene.json with the rack row)"
+        ) from None
+
+
+@torch.no_grad()
+def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progress: bool = True) -> Cached:
+    """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
+    view = model.cfg.view
+    model.eval()
+    pooled, target, rows, seq_ids, dists, depths = [], [], [], [], [], []
+    total = sum(len(range(0, s.num_frames, every)) for s in sequences)
+    bar = tqdm(total=total, desc="back edges: features", unit="frame", disable=not progress, leave=False)
+    for k, seq in enumerate(sequences):
+        depth, thickness = _rack_row(seq)
+        camera = sequence_camera(seq)
+        ids = list(range(0, seq.num_frames, every))
+        pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will
+        x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
+        p = model.pooled_rows(x)
+        pooled.append(p.half().cpu())
+        rows.append(model.rows.from_pooled(p).float().cpu())
+        for i in ids:
+            dist = camera(i)[1]
+            fronts = board_rows(seq, i, view, model.cfg.spec.num_slots)[1]
+            back = back_edge_rows(fronts, view, dist, depth, thickness)[0]
+            target.append(row_target([float(r) for r in back if np.isfinite(r)], view.height))
+            seq_ids.append(k)
+            dists.append(dist)
+            depths.append(depth)
+        bar.update(len(ids))
+    bar.close()
+    if not pooled:
+        raise InputError("no frames to fit the back-edge head on")
+    return Cached(
+        torch.cat(pooled),
+        torch.from_numpy(np.stack(target)),
+        torch.cat(rows),
+        np.asarray(seq_ids),
+        np.asarray(dists),
+        np.asarray(depths),
+    )
+
+
+def train_head(head: BackEdgeHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
+    """Fit ``head`` to the cached targets (AdamW, cosine decay); returns the mean loss per epoch."""
+    cfg.validate()
+    gen = torch.Generator().manual_seed(cfg.seed)
+    opt = torch.optim.AdamW(head.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
+    loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(cfg.pos_weight))
+    n = data.pooled.shape[0]
+    losses = []
+    bar = tqdm(range(cfg.epochs), desc="back edges: fit", unit="epoch", disable=not progress, leave=False)
+    for _ in bar:
+        head.train()
+        perm = torch.randperm(n, generator=gen)
+        total = 0.0
+        for i in range(0, n, cfg.batch):
+            b = perm[i : i + cfg.batch]
+            loss = loss_fn(head(data.pooled[b].float()), data.target[b])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(b)
+        sched.step()
+        losses.append(total / n)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    head.eval()
+    return losses
+
+
+@torch.no_grad()
+def depth_errors(head: BackEdgeHead, data: Cached, model: MVRackLay) -> dict[str, Any]:
+    """Rack depth read on cached frames (the row head's boards, as at inference): mean absolute error
+    per frame (that frame alone) and running (the frames so far of its sequence), in metres."""
+    head.eval()
+    view, z_extent = model.cfg.view, model.cfg.spec.z_extent
+    probs = torch.sigmoid(torch.cat([head(data.pooled[i : i + 256].float()) for i in range(0, len(data.pooled), 256)]))
+    rows = torch.sigmoid(data.rows)
+    frame_err, run_err, last = [], [], {}
+    readers: dict[int, DepthReader] = {}
+    for k in range(len(probs)):
+        s = int(data.seq[k])
+        fronts = board_peaks(rows[k], view)
+        one = DepthReader(view, z_extent).add(probs[k].numpy(), fronts, float(data.distance[k]))
+        run = readers.setdefault(s, DepthReader(view, z_extent)).add(probs[k].numpy(), fronts, float(data.distance[k]))
+        if one is not None:
+            frame_err.append(abs(one - data.depth[k]))
+        if run is not None:
+            run_err.append(abs(run - data.depth[k]))
+            last[s] = run - data.depth[k]
+    return {
+        "frames": len(probs),
+        "sequences": len(readers),
+        "mae_frame": float(np.mean(frame_err)) if frame_err else None,
+        "mae_running": float(np.mean(run_err)) if run_err else None,
+        "mae_sequence": float(np.mean(np.abs(list(last.values())))) if last else None,
+        "read_fraction": len(run_err) / max(len(probs), 1),
+    }
+
+
+def fit_back_edges(
+    model: MVRackLay,
+    train: list[Any],
+    val: list[Any],
+    cfg: FitConfig,
+    progress: bool = True,
+) -> tuple[BackEdgeHead, dict[str, Any]]:
+    """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record."""
+    cfg.validate()
+    if not train:
+        raise InputError("no training sequences to fit the back-edge head on")
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    data = cache_features(model, train, cfg.every, progress)
+    head = BackEdgeHead(data.pooled.shape[1], model.cfg.input_height)
+    losses = train_head(head, data, cfg, progress)
+    summary: dict[str, Any] = {
+        "train_sequences": len(train),
+        "train_frames": int(data.pooled.shape[0]),
+        "epochs": cfg.epochs,
+        "every": cfg.every,
+        "seed": cfg.seed,
+        "final_loss": losses[-1],
+        "train_depth": depth_errors(head, data, model),
+    }
+    if val:
+        summary["val_depth"] = depth_errors(head, cache_features(model, val, cfg.every, progress), model)
+    summary["wall_minutes"] = (time.perf_counter() - t0) / 60
+    return head, summary

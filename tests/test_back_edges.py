@@ -1,0 +1,190 @@
+"""The rack depth read from the boards' back edges: geometry, the reader, the head in the model,
+inference that imposes it, and `mvracklay fit-back-edges`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from layouts.canonical import CanonicalView
+from layouts.codecs import LayoutFolder
+from layouts.errors import InputError
+from layouts.rackdepth import depth_rows
+from layouts.spec import LayoutSpec
+from mvracklay.cli import main
+from network.backedge import (
+    DEPTH_STEP,
+    MIN_OFFSET,
+    NOMINAL_THICKNESS,
+    DepthReader,
+    back_edge_rows,
+    frame_depth_scores,
+)
+from network.checkpoint import load_checkpoint, load_model
+from network.data import DEFAULT_DISTANCE, row_target
+from network.fit_backedge import FitConfig, cache_features, train_head
+from network.infer import Predictor, frame_layouts
+from network.model import ModelConfig, MVRackLay
+from stitching.warehouse_map import WarehouseMap
+from waresynth.dataset import open_dataset
+
+VIEW = CanonicalView(256, 256, 3.0)
+
+
+def test_back_edges_follow_the_perspective():
+    m, h0 = VIEW.metres_per_pixel, VIEW.height / 2
+    fronts = [h0 + 1.0 / m, h0 - 1.2 / m, h0 + 0.1 / m]  # 1 m below, 1.2 m above, 0.1 m below the camera
+    rows = back_edge_rows(fronts, VIEW, 2.5, 1.0)
+    assert rows.shape == (1, 2)  # the board 0.1 m from the camera height shows no usable back edge
+    rho = 2.5 / 3.5
+    assert rows[0, 0] == pytest.approx(h0 + 1.0 * rho / m)  # top face: from the board's top
+    assert rows[0, 1] == pytest.approx(h0 + (-1.2 + NOMINAL_THICKNESS) * rho / m)  # underside: a thickness lower
+    deeper = back_edge_rows(fronts, VIEW, 2.5, np.array([0.8, 1.2]))
+    assert deeper.shape == (2, 2)
+    assert deeper[1, 0] < deeper[0, 0] and deeper[1, 1] > deeper[0, 1]  # deeper racks: back edges nearer the horizon
+    assert back_edge_rows([h0 + MIN_OFFSET / m * 0.99], VIEW, 2.5, 1.0).shape == (1, 0)
+    far_below = back_edge_rows([VIEW.height + 40.0], VIEW, 2.5, 0.01)  # its back edge is off the image
+    assert np.isnan(far_below).all()
+
+
+def _bumps(depth: float, fronts: list[float], distance: float) -> np.ndarray:
+    rows = back_edge_rows(fronts, VIEW, distance, depth)[0]
+    return 0.02 + 0.97 * row_target([float(r) for r in rows if np.isfinite(r)], VIEW.height)
+
+
+def test_the_reader_recovers_a_depth_and_pools_frames():
+    h0, m = VIEW.height / 2, VIEW.metres_per_pixel
+    reader = DepthReader(VIEW, 1.4)
+    assert reader.depth is None
+    assert reader.add(np.full(VIEW.height, 0.01), [h0 + 0.05 / m], 2.6) is None  # no usable board: no evidence
+    fronts = [h0 + 0.9 / m, h0 - 1.1 / m]
+    for d, dist in ((0.93, 2.6), (0.93, 2.4)):
+        got = reader.add(_bumps(d, fronts, dist), fronts, dist)
+        assert got == pytest.approx(0.93, abs=DEPTH_STEP)
+    assert reader.frames == 2
+    # a frame pointing elsewhere is outvoted by the two before it, and moves the argmax only by summing
+    reader.add(_bumps(1.2, fronts, 2.6), fronts, 2.6)
+    assert reader.depth == pytest.approx(0.93, abs=DEPTH_STEP)
+    scores = frame_depth_scores(_bumps(1.1, fronts, 2.6), fronts, VIEW, 2.6, np.array([0.9, 1.1]))
+    assert scores is not None and scores[1] > scores[0]
+
+
+TINY = dict(encoder_width=8, hidden=16, decoder_width=8, memory_hidden=8, lstm_layers=1)
+
+
+def _model(back: bool, variant: str = "mvracklay-disc-4") -> MVRackLay:
+    torch.manual_seed(0)
+    return MVRackLay(ModelConfig(variant=variant, spec=LayoutSpec(size=32), back_edges=back, **TINY)).eval()
+
+
+def test_the_head_is_part_of_the_model_only_when_asked():
+    with_head, without = _model(True), _model(False)
+    assert any(k.startswith("back.") for k in with_head.state_dict())
+    assert not any(k.startswith("back.") for k in without.state_dict())
+    x = torch.rand(2, 3, 3, 128, 128)
+    out = with_head(x)
+    assert out["back"].shape == (2, 3, 128)
+    assert "back" not in without(x)
+    step, _ = with_head.step(x[:, 0])
+    assert step["back"].shape == (2, 128)
+    assert torch.allclose(step["back"], out["back"][:, 0], atol=1e-5)  # the first frame needs no memory
+    cfg = ModelConfig.from_dict(with_head.cfg.to_dict())
+    assert cfg.back_edges and not ModelConfig.from_dict(without.cfg.to_dict()).back_edges
+    with pytest.raises(InputError, match="back_edges"):
+        ModelConfig(back_edges="yes")  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("mode", ["stream", "window"])
+def test_inference_reads_gives_or_skips_the_depth(mode, monkeypatch):
+    model = _model(True)
+    view = model.cfg.view
+    h0, m = view.height / 2, view.metres_per_pixel
+    fronts = [h0 + 0.9 / m, h0 - 1.0 / m]  # boards the row head "finds"; their back edges where a 1.05 m rack puts them
+    back = back_edge_rows(fronts, view, DEFAULT_DISTANCE, 1.05)[0]
+    prob = 0.02 + 0.96 * row_target([float(r) for r in back], view.height)
+    logits = torch.from_numpy(np.log(prob / (1 - prob))).float()
+    monkeypatch.setattr("network.infer.board_peaks", lambda p, v: fronts)
+    monkeypatch.setattr(model.back, "forward", lambda pooled: logits.expand(pooled.shape[0], -1))
+    frames = [np.random.default_rng(i).integers(0, 255, (96, 128, 3), np.uint8) for i in range(3)]
+    read = list(Predictor(model).run(frames, mode))
+    assert [float(o["rack_depth"]) for o in read] == pytest.approx([1.05] * 3, abs=2 * DEPTH_STEP)
+    spec = model.cfg.spec
+    filled = [(t > 0).any(1) for t in frame_layouts(read[-1], spec)["top"]]
+    assert all(np.array_equal(f, depth_rows(spec, float(read[-1]["rack_depth"]))) for f in filled if f.any())
+    off = list(Predictor(model, read_depth=False).run(frames, mode))
+    assert all(math.isnan(float(o["rack_depth"])) for o in off)
+    plain = {**read[-1], "rack_depth": torch.tensor(float("nan"))}
+    assert np.array_equal(frame_layouts(off[-1], spec)["top"], frame_layouts(plain, spec)["top"])
+    given = list(Predictor(model, rack_depth=0.9).run(frames, mode))
+    assert all(float(o["rack_depth"]) == 0.9 for o in given)
+    assert not Predictor(_model(False)).reads_depth
+
+
+def test_a_depth_beyond_the_top_view_is_refused():
+    model = _model(True)
+    with pytest.raises(InputError, match="rack-depth|depth extent"):
+        Predictor(model, rack_depth=5.0)
+    out = {"top": torch.zeros(3, 3, 32, 32), "front": torch.zeros(3, 3, 32, 32), "rack_depth": torch.tensor(3.0)}
+    with pytest.raises(InputError, match="depth extent"):
+        frame_layouts(out, model.cfg.spec)
+
+
+def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
+    model, _ = load_model(tiny_checkpoint)
+    seqs = open_dataset(tiny_dataset).sequences()
+    data = cache_features(model, seqs, progress=False)
+    assert data.pooled.shape[0] == sum(s.num_frames for s in seqs)
+    assert (data.target.amax(1) > 0.99).float().mean() > 0.5  # most frames show a board's back edge
+    from network.backedge import BackEdgeHead
+
+    torch.manual_seed(0)
+    head = BackEdgeHead(data.pooled.shape[1], model.cfg.input_height)
+    losses = train_head(head, data, FitConfig(epochs=15, batch=8, lr=3e-3), progress=False)
+    assert losses[-1] < 0.6 * losses[0]
+
+
+def test_fit_back_edges_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    out = tmp_path / "with_head.pt"
+    args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    assert (
+        main([*args, "--val", str(tiny_dataset), "--epochs", "2", "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    )
+    said = capsys.readouterr().out
+    assert "val   rack depth error" in said and f"wrote {out}" in said
+    payload, record = load_checkpoint(out)
+    src, _ = load_checkpoint(tiny_checkpoint)
+    assert record["model_config"]["back_edges"] is True
+    assert record["back_edges"]["train_sequences"] == 3 and record["back_edges"]["epochs"] == 2
+    assert all(torch.equal(payload["model"][k], v) for k, v in src["model"].items())  # the trunk is untouched
+    assert load_model(out)[0].back is not None
+    seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
+    common = ["--checkpoint", str(out), "--threads", "1"]
+    assert main(["predict", str(seq), "--out", str(tmp_path / "p"), *common]) == 0
+    assert "rack depth read from the boards' back edges" in capsys.readouterr().out
+    assert LayoutFolder(tmp_path / "p").indices()
+    assert main(["run", str(seq), "--out", str(tmp_path / "r"), "--no-rrd", "--quiet", *common]) == 0
+    meta = WarehouseMap.load(tmp_path / "r" / "warehouse.json").meta
+    assert meta["rack_depth_source"] == "read"
+    assert main(["run", str(seq), "--out", str(tmp_path / "s"), "--no-rrd", "--quiet", "--no-depth-read", *common]) == 0
+    meta = WarehouseMap.load(tmp_path / "s" / "warehouse.json").meta
+    assert meta["rack_depth_source"] == "decoder" and meta["rack_depth"] is None
+    capsys.readouterr()
+    assert main([*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--epochs" in err
+
+
+def test_fitting_needs_generated_ground_truth(tiny_checkpoint):
+    model, _ = load_model(tiny_checkpoint)
+
+    class Folder:  # an image folder: frames but no scene
+        name = "photos"
+        num_frames = 2
+
+    with pytest.raises(InputError, match="photos: fitting the back-edge head needs a generated dataset"):
+        cache_features(model, [Folder()], progress=False)
+    assert replace(FitConfig(), epochs=3).epochs == 3
