@@ -1,0 +1,253 @@
+#!/usr/bin/env python3
+"""What reading each box's depth from its own top face could buy the top view, from one frame.
+
+    .venv/bin/python benchmarks/box_top_faces.py weights/mvracklay-disc-4-256.pt data/heldout256 [--every 2]
+
+A box whose top lies below the camera shows its top face in the canonical view (`layouts.canonical`)
+between two horizontal edges: the front edge, at its front, and the back edge, at its back ``Z``
+behind the rack front. On the front plane a point ``h`` metres above the board, ``Z`` behind the
+front, appears at height ``c - (c - h) * d / (d + Z)`` (``c``: the camera's height above the board,
+``d``: its distance to the rack front), so the two edges' rows give the box's depth, as the boards'
+back edges give the rack's (`network.backedge`). The rows are few: a box top 0.5 m below the camera
+shows a face 4-10 cm tall on the front plane for boxes 0.25-0.7 m deep.
+
+Runs the model (streaming, its own rack-depth reading and row-head anchors) over every sequence and
+scores the top view (Table I mIoU, columns in view) of:
+
+* **prediction** as it is;
+* **true depth where the top face shows**: every predicted box (connected box cells) whose top the
+  front view puts at least ``--min-below`` under the camera and whose top face the board above does
+  not hide gets the true depth (its back row moved to the truth's; X and front kept): the ceiling
+  of any single-frame top-face reader on these predictions;
+* **read from the true edges**: the same boxes' depth decoded from the true top-face edges
+  (drawn as the targets a detector would be fitted to, from scene.json and the camera), by the
+  geometry above: per column, the box top height (within +-8 cm of the front view's) and back
+  depth that best explain both edges, median-filtered over 5 columns: what the geometry gives with a
+  perfect edge detector, with the anchors, box tops and fronts as predicted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.ndimage import map_coordinates, median_filter
+from skimage.measure import label
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts import BOX, SHELF, LayoutSpec  # noqa: E402
+from layouts.canonical import CanonicalView  # noqa: E402
+from layouts.metrics import FrameScorer  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from waresynth.dataset import open_dataset  # noqa: E402
+
+SAMPLES = 24  #: points per side sampled on each top face
+H_SEARCH = np.arange(-0.08, 0.0801, 0.01)  #: box top heights tried around the front view's, metres
+Z_STEP = 0.01  #: back depths tried, metres
+MIN_DEPTH = 0.12  #: shallowest box depth tried, metres
+MEDIAN = 5  #: columns of the median filter over a box's per-column depths
+PROB_FLOOR = 1e-3
+
+
+def top_face_edges(
+    scene: dict, frame: dict, anchors: np.ndarray, view: CanonicalView, spec: LayoutSpec
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per slot and front-window column: the rows (continuous, front-view row axis) of the visible top
+    faces' back and front edges, NaN where no box top face shows; relative to the given anchors."""
+    cx, cy, cz = frame["camera_position"]
+    d, m, h2 = -cz, view.metres_per_pixel, view.height / 2
+    r_n, n = len(anchors), spec.size
+    back, front = np.full((r_n, n), np.nan), np.full((r_n, n), np.nan)
+    levels: dict[int, list[dict]] = {}
+    for rack in scene["racks"]:
+        for sh in rack["shelves"]:
+            levels.setdefault(sh["level"], []).append(sh)
+    u, v = np.meshgrid(np.linspace(-0.5, 0.5, SAMPLES), np.linspace(-0.5, 0.5, SAMPLES))
+    for r, a in enumerate(anchors):
+        if not np.isfinite(a):
+            continue
+        match = [(abs(view.row_of(shs[0]["board_top_y"] - cy) - a), shs) for shs in levels.values()]
+        match = [t for t in match if t[0] < 3]
+        if not match:
+            continue
+        shelves = min(match, key=lambda t: t[0])[1]
+        true_row = float(view.row_of(shelves[0]["board_top_y"] - cy))
+        for sh in shelves:
+            tops: dict[str, list] = {}
+            for b in sh["boxes"]:
+                t = tops.setdefault(b["stack_id"], [b, math.inf])
+                t[1] = min(t[1], b["center"][1] - b["size"][1] / 2)  # Y down: the stack's top
+            for b, y_top in tops.values():
+                if y_top - cy <= 0 or abs(b["center"][0] - cx) > spec.x_extent:
+                    continue  # at or above the camera: no top face
+                x, _, z = b["center"]
+                w, dz, yaw = b["size"][0], b["size"][2], b["yaw"]
+                px = x + math.cos(yaw) * u * w - math.sin(yaw) * v * dz
+                pz = z + math.sin(yaw) * u * w + math.cos(yaw) * v * dz
+                rho = (d / (d + pz)).ravel()
+                row = h2 + (y_top - cy) * rho / m  # canonical rows of the face's points
+                h_used, h_true = (a - row) * m, (true_row - row) * m
+                col = np.floor(spec.x_to_col((px.ravel() - cx) * rho)).astype(int)
+                ok = (col >= 0) & (col < n)
+                hb, hf, ht = np.full(n, -np.inf), np.full(n, np.inf), np.full(n, -np.inf)
+                np.maximum.at(hb, col[ok], h_used[ok])
+                np.minimum.at(hf, col[ok], h_used[ok])
+                np.maximum.at(ht, col[ok], h_true[ok])
+                seen = np.isfinite(hb) & (ht < sh["clear_height"] - 0.01) & (hb < spec.h_extent)
+                kb, kf = spec.a_to_row("front", hb), spec.a_to_row("front", hf)
+                new = seen & (np.isnan(back[r]) | (kb < back[r]))
+                back[r][new], front[r][new] = kb[new], kf[new]
+    return back, front
+
+
+def edge_maps(back: np.ndarray, front: np.ndarray, size: int) -> np.ndarray:
+    """``(R, 2, D, D)`` edge probabilities: a bump (one row sigma) at each column's back and front edge row."""
+    c = np.arange(size) + 0.5
+    maps = [np.exp(-0.5 * (c[None, :, None] - e[:, None, :]) ** 2) for e in (back, front)]
+    return np.nan_to_num(np.stack(maps, 1), nan=0.0)
+
+
+def box_parts(top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float):
+    """Each predicted box of a slot: columns, per-column front and back Z behind the rack front, top height."""
+    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2  # cell centres behind the front
+    half = spec.z_extent / spec.size / 2
+    lab = label(top == BOX, connectivity=1)
+    for k in range(1, int(lab.max()) + 1):
+        comp = lab == k
+        cols = np.nonzero(comp.any(0))[0]
+        rows = [np.nonzero(comp[:, j])[0] for j in cols]
+        fb = front[:, cols] == BOX
+        if not fb.any():
+            continue
+        tops = [np.nonzero(fb[:, i])[0].min() for i in range(len(cols)) if fb[:, i].any()]
+        z_front = np.array([zc[r.max()] - half for r in rows])
+        z_back = np.array([zc[r.min()] + half for r in rows])
+        yield cols, z_front, z_back, float(spec.row_to_a("front", np.median(tops)))
+
+
+def read_depths(prob, cols, c, h_top, d, z_front, z_max, spec):
+    """Per-column back depth (metres behind the rack front) best explaining both edges; NaN where weak."""
+    zs = np.arange(z_front + MIN_DEPTH, z_max + 1e-9, Z_STEP)
+    if not len(zs):
+        return None
+    hs = h_top + H_SEARCH
+    x = spec.col_to_x(cols + 0.5)
+    lb, lf = (np.log(np.clip(p, PROB_FLOOR, 1.0)) for p in prob)
+    rho_b, rho_f = d / (d + zs), d / (d + z_front)
+    ub = np.broadcast_to(spec.x_to_col(x[None, :] * rho_b[:, None])[None] - 0.5, (len(hs), len(zs), len(x)))
+    vb = np.broadcast_to((spec.a_to_row("front", c - (c - hs)[:, None] * rho_b[None, :]) - 0.5)[..., None], ub.shape)
+    sb = map_coordinates(lb, [vb.ravel(), ub.ravel()], order=1, mode="nearest").reshape(ub.shape)
+    uf = np.broadcast_to(spec.x_to_col(x * rho_f)[None] - 0.5, (len(hs), len(x)))
+    vf = np.broadcast_to((spec.a_to_row("front", c - (c - hs) * rho_f) - 0.5)[:, None], uf.shape)
+    sf = map_coordinates(lf, [vf.ravel(), uf.ravel()], order=1, mode="nearest").reshape(uf.shape)
+    score = (sb + sf[:, None, :]).reshape(-1, len(x))
+    best = score.argmax(0)
+    z = zs[np.unravel_index(best, (len(hs), len(zs)))[1]]
+    strong = np.exp(sb.reshape(-1, len(x))[best, np.arange(len(x))]) >= 0.2
+    if not strong.any():
+        return None
+    return np.where(strong, median_filter(z, size=MEDIAN, mode="nearest"), np.nan)
+
+
+def redraw(top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec, depth) -> None:
+    """Box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column, NaN: left) inside the footprint."""
+    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
+    for j, zf, zb in zip(cols, z_front, z_back):
+        if not np.isfinite(zb):
+            continue
+        col = top[:, j]
+        foot = col > 0
+        col[foot & (col == BOX)] = SHELF
+        col[foot & (zc >= zf) & (zc <= zb)] = BOX
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path)
+    ap.add_argument("data", type=Path, help="a generated dataset (e.g. the held-out set)")
+    ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
+    ap.add_argument("--min-below", type=float, nargs="+", default=[0.1, 0.3], help="box top under the camera, m")
+    ap.add_argument("--sequences", type=int, default=None, help="only the first N sequences")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, _ = load_model(args.checkpoint)
+    view = model.cfg.view
+    seqs = open_dataset(args.data).sequences()[: args.sequences]
+    frames = []
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
+    for seq in seqs:
+        scene, spec, camera = seq.scene(), seq.spec, sequence_camera(seq)
+        true_depth = float(scene["row"]["depth"])
+        for i, out in enumerate(Predictor(model, camera).run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
+            bar.update(1)
+            if i % args.every:
+                continue
+            read = float(out["rack_depth"])
+            anchors = out["anchors"].float().cpu().numpy()
+            back, front = top_face_edges(scene, seq.frame(i), anchors, view, spec)
+            truth = seq.layouts(i)
+            frames.append(
+                (frame_layouts(out, spec), truth, anchors, edge_maps(back, front, spec.size),
+                 read if np.isfinite(read) else true_depth, camera(i)[1], spec)
+            )  # fmt: skip
+    bar.close()
+    print(f"{args.checkpoint} on {args.data}: {len(frames)} frames of {len(seqs)} sequences; top view, mIoU")
+    print(f"{'':56s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
+    base = FrameScorer()
+    for pred, truth, *_ in frames:
+        base.update(pred, truth)
+    v = base.result()["visible"]["top"]
+    print(f"{'prediction':56s} {100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}")
+    for below in args.min_below:
+        for name in ("true depth where the top face shows", "read from the true edges"):
+            scorer, errs, boxes = FrameScorer(), [], 0
+            for pred, truth, anchors, maps, depth, dist, spec in frames:
+                top = pred["top"].copy()
+                for r, a in enumerate(anchors):
+                    if not np.isfinite(a):
+                        continue
+                    c = (a - view.height / 2) * view.metres_per_pixel  # camera height above the board
+                    for cols, zf, _, h_top in box_parts(pred["top"][r], pred["front"][r], spec, depth):
+                        g = truth.top[r][:, cols] == BOX
+                        has = g.any(0)
+                        if c - h_top < below or not has.any():
+                            continue  # not under the camera enough, or no box there in the truth
+                        zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
+                        true_back = np.array(
+                            [zc[np.nonzero(g[:, i])[0].min()] if has[i] else np.nan for i in range(len(cols))]
+                        )
+                        true_back += spec.z_extent / spec.size / 2  # the far cell's far boundary
+                        true_back[~has] = np.median(true_back[has])  # columns the truth has no box in
+                        shown = spec.x_to_col(spec.col_to_x(cols + 0.5) * dist / (dist + np.median(true_back)))
+                        shown = np.clip(shown.astype(int), 0, spec.size - 1)
+                        if maps[r, 0][:, shown].max() < 0.5:
+                            continue  # its top face does not show
+                        if name.startswith("true"):
+                            new = true_back
+                        else:
+                            new = read_depths(
+                                maps[r], cols, c, h_top, dist, float(np.median(zf)), min(depth, spec.z_extent), spec
+                            )
+                            if new is None:
+                                continue
+                        boxes += 1
+                        errs.append(np.nanmedian(np.abs(new - true_back)[has]))
+                        redraw(top[r], cols, zf, new, spec, depth)
+                scorer.update({"top": top, "front": pred["front"]}, truth)
+            v = scorer.result()["visible"]["top"]
+            label_ = f"{name} (top >= {below:g} m under)"
+            print(f"{label_:56s} {100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f} {boxes:6d} "
+                  f"{100 * float(np.mean(errs)) if errs else float('nan'):14.1f}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
