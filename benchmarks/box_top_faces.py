@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""What reading each box's depth from its own top face could buy the top view, from one frame.
+"""What reading each box's depth from its own top face could buy the top view, and what any face could.
 
     .venv/bin/python benchmarks/box_top_faces.py weights/mvracklay-disc-4-256.pt data/heldout256 [--every 2]
 
@@ -23,7 +23,13 @@ scores the top view (Table I mIoU, columns in view) of:
   (drawn as the targets a detector would be fitted to, from scene.json and the camera), by the
   geometry above: per column, the box top height (within +-8 cm of the front view's) and back
   depth that best explain both edges, median-filtered over 5 columns: what the geometry gives with a
-  perfect edge detector, with the anchors, box tops and fronts as predicted.
+  perfect edge detector, with the anchors, box tops and fronts as predicted;
+* **true depth where this frame shows it (any face)** and **where this or an earlier frame showed
+  it**: the predicted boxes whose stack's depth the frame shows (`waresynth.visibility`: its visible
+  pixels reach 90 % of its depth, through a top face, a side face in a gap or the back edge), or any
+  frame so far did, get the true depth: the ceilings of a single-frame reader of every face and of a
+  sequence reader, on these predictions (`benchmarks/layout_ceilings.py` gives them on the truth's
+  layouts).
 """
 
 from __future__ import annotations
@@ -40,6 +46,8 @@ from skimage.measure import label
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layout_errors import SeenTracker  # noqa: E402  (benchmarks/, the script's own folder)
 
 from layouts import BOX, SHELF, LayoutSpec  # noqa: E402
 from layouts.canonical import CanonicalView  # noqa: E402
@@ -168,6 +176,50 @@ def redraw(top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.nd
         col[foot & (zc >= zf) & (zc <= zb)] = BOX
 
 
+def true_backs(truth_top: np.ndarray, cols: np.ndarray, spec: LayoutSpec, depth: float):
+    """Per column of a predicted box: the truth's box back (metres behind the rack front, far cell's far
+    boundary; the median where the truth has no box in the column) and which columns have one; None if none."""
+    g = truth_top[:, cols] == BOX
+    has = g.any(0)
+    if not has.any():
+        return None
+    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2 + spec.z_extent / spec.size / 2
+    back = np.array([zc[np.nonzero(g[:, i])[0].min()] if has[i] else np.nan for i in range(len(cols))])
+    back[~has] = np.median(back[has])
+    return back, has
+
+
+def score(frames: list, view: CanonicalView, choose) -> tuple[dict, int, float]:
+    """Top view scored with every predicted box's back replaced by ``choose(frame, r, cols, ...)`` (per-column
+    Z, NaN keeps a column; None keeps the box); returns Table I's visible top view, boxes changed, mean error."""
+    scorer, errs = FrameScorer(), []
+    for f in frames:
+        pred, truth, anchors, depth, spec = f["pred"], f["truth"], f["anchors"], f["depth"], f["spec"]
+        top = pred["top"].copy()
+        for r, a in enumerate(anchors):
+            if not np.isfinite(a):
+                continue
+            c = (a - view.height / 2) * view.metres_per_pixel  # camera height above the board
+            for cols, zf, _, h_top in box_parts(pred["top"][r], pred["front"][r], spec, depth):
+                tb = true_backs(truth.top[r], cols, spec, depth)
+                if tb is None:
+                    continue  # no box there in the truth
+                new = choose(f, r, cols, zf, h_top, c, *tb)
+                if new is None:
+                    continue
+                errs.append(np.nanmedian(np.abs(new - tb[0])[tb[1]]))
+                redraw(top[r], cols, zf, new, spec, depth)
+        scorer.update({"top": top, "front": pred["front"]}, truth)
+    return scorer.result()["visible"]["top"], len(errs), 100 * float(np.mean(errs)) if errs else float("nan")
+
+
+def top_face_shows(f: dict, r: int, cols: np.ndarray, true_back: np.ndarray) -> bool:
+    """Does the box's top face show a back edge in the frame (the true edge map, where perspective puts it)?"""
+    spec, dist = f["spec"], f["distance"]
+    shown = spec.x_to_col(spec.col_to_x(cols + 0.5) * dist / (dist + np.median(true_back)))
+    return bool(f["edges"][r, 0][:, np.clip(shown.astype(int), 0, spec.size - 1)].max() >= 0.5)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path)
@@ -186,66 +238,54 @@ def main() -> int:
     for seq in seqs:
         scene, spec, camera = seq.scene(), seq.spec, sequence_camera(seq)
         true_depth = float(scene["row"]["depth"])
+        seen = SeenTracker(seq)
         for i, out in enumerate(Predictor(model, camera).run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
+            seen.add(i)
             if i % args.every:
                 continue
             read = float(out["rack_depth"])
             anchors = out["anchors"].float().cpu().numpy()
             back, front = top_face_edges(scene, seq.frame(i), anchors, view, spec)
-            truth = seq.layouts(i)
             frames.append(
-                (frame_layouts(out, spec), truth, anchors, edge_maps(back, front, spec.size),
-                 read if np.isfinite(read) else true_depth, camera(i)[1], spec)
+                {"pred": frame_layouts(out, spec), "truth": seq.layouts(i), "anchors": anchors, "spec": spec,
+                 "edges": edge_maps(back, front, spec.size), "depth": read if np.isfinite(read) else true_depth,
+                 "distance": camera(i)[1], "seen": seen.labels(i)}
             )  # fmt: skip
     bar.close()
     print(f"{args.checkpoint} on {args.data}: {len(frames)} frames of {len(seqs)} sequences; top view, mIoU")
-    print(f"{'':56s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
-    base = FrameScorer()
-    for pred, truth, *_ in frames:
-        base.update(pred, truth)
-    v = base.result()["visible"]["top"]
-    print(f"{'prediction':56s} {100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}")
+    print(f"{'':60s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
+
+    def line(name: str, choose) -> None:
+        v, boxes, err = score(frames, view, choose)
+        cells = f"{100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}"
+        print(f"{name:60s} {cells}" + (f" {boxes:6d} {err:14.1f}" if boxes else ""))
+
+    line("prediction", lambda *a: None)
     for below in args.min_below:
-        for name in ("true depth where the top face shows", "read from the true edges"):
-            scorer, errs, boxes = FrameScorer(), [], 0
-            for pred, truth, anchors, maps, depth, dist, spec in frames:
-                top = pred["top"].copy()
-                for r, a in enumerate(anchors):
-                    if not np.isfinite(a):
-                        continue
-                    c = (a - view.height / 2) * view.metres_per_pixel  # camera height above the board
-                    for cols, zf, _, h_top in box_parts(pred["top"][r], pred["front"][r], spec, depth):
-                        g = truth.top[r][:, cols] == BOX
-                        has = g.any(0)
-                        if c - h_top < below or not has.any():
-                            continue  # not under the camera enough, or no box there in the truth
-                        zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
-                        true_back = np.array(
-                            [zc[np.nonzero(g[:, i])[0].min()] if has[i] else np.nan for i in range(len(cols))]
-                        )
-                        true_back += spec.z_extent / spec.size / 2  # the far cell's far boundary
-                        true_back[~has] = np.median(true_back[has])  # columns the truth has no box in
-                        shown = spec.x_to_col(spec.col_to_x(cols + 0.5) * dist / (dist + np.median(true_back)))
-                        shown = np.clip(shown.astype(int), 0, spec.size - 1)
-                        if maps[r, 0][:, shown].max() < 0.5:
-                            continue  # its top face does not show
-                        if name.startswith("true"):
-                            new = true_back
-                        else:
-                            new = read_depths(
-                                maps[r], cols, c, h_top, dist, float(np.median(zf)), min(depth, spec.z_extent), spec
-                            )
-                            if new is None:
-                                continue
-                        boxes += 1
-                        errs.append(np.nanmedian(np.abs(new - true_back)[has]))
-                        redraw(top[r], cols, zf, new, spec, depth)
-                scorer.update({"top": top, "front": pred["front"]}, truth)
-            v = scorer.result()["visible"]["top"]
-            label_ = f"{name} (top >= {below:g} m under)"
-            print(f"{label_:56s} {100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f} {boxes:6d} "
-                  f"{100 * float(np.mean(errs)) if errs else float('nan'):14.1f}")  # fmt: skip
+
+        def true_top(f, r, cols, zf, h_top, c, back, has, below=below):
+            return back if c - h_top >= below and top_face_shows(f, r, cols, back) else None
+
+        def from_edges(f, r, cols, zf, h_top, c, back, has, below=below):
+            if true_top(f, r, cols, zf, h_top, c, back, has) is None:
+                return None
+            depth, spec = f["depth"], f["spec"]
+            z_max = min(depth, spec.z_extent)
+            return read_depths(f["edges"][r], cols, c, h_top, f["distance"], float(np.median(zf)), z_max, spec)
+
+        line(f"true depth where the top face shows (top >= {below:g} m under)", true_top)
+        line(f"read from the true edges (top >= {below:g} m under)", from_edges)
+
+    def seen_in(level: int):
+        def choose(f, r, cols, zf, h_top, c, back, has):
+            lab = f["seen"][r, cols][has]
+            return back if (lab >= level).mean() > 0.5 else None
+
+        return choose
+
+    line("true depth where this frame shows it (any face)", seen_in(2))
+    line("true depth where this or an earlier frame showed it", seen_in(1))
     return 0
 
 
