@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -122,7 +123,9 @@ def edge_maps(back: np.ndarray, front: np.ndarray, size: int) -> np.ndarray:
     return np.nan_to_num(np.stack(maps, 1), nan=0.0)
 
 
-def box_parts(top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float):
+def box_parts(
+    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """Each predicted box of a slot: columns, per-column front and back Z behind the rack front, top height."""
     zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2  # cell centres behind the front
     half = spec.z_extent / spec.size / 2
@@ -140,7 +143,9 @@ def box_parts(top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float
         yield cols, z_front, z_back, float(spec.row_to_a("front", np.median(tops)))
 
 
-def read_depths(prob, cols, c, h_top, d, z_front, z_max, spec):
+def read_depths(
+    prob: np.ndarray, cols: np.ndarray, c: float, h_top: float, d: float, z_front: float, z_max: float, spec: LayoutSpec
+) -> np.ndarray | None:
     """Per-column back depth (metres behind the rack front) best explaining both edges; NaN where weak."""
     zs = np.arange(z_front + MIN_DEPTH, z_max + 1e-9, Z_STEP)
     if not len(zs):
@@ -164,7 +169,9 @@ def read_depths(prob, cols, c, h_top, d, z_front, z_max, spec):
     return np.where(strong, median_filter(z, size=MEDIAN, mode="nearest"), np.nan)
 
 
-def redraw(top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec, depth) -> None:
+def redraw(
+    top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec: LayoutSpec, depth: float
+) -> None:
     """Box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column, NaN: left) inside the footprint."""
     zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
     for j, zf, zb in zip(cols, z_front, z_back):
@@ -189,7 +196,7 @@ def true_backs(truth_top: np.ndarray, cols: np.ndarray, spec: LayoutSpec, depth:
     return back, has
 
 
-def score(frames: list, view: CanonicalView, choose) -> tuple[dict, int, float]:
+def score(frames: list[dict], view: CanonicalView, choose: Callable[..., np.ndarray | None]) -> tuple[dict, int, float]:
     """Top view scored with every predicted box's back replaced by ``choose(frame, r, cols, ...)`` (per-column
     Z, NaN keeps a column; None keeps the box); returns Table I's visible top view, boxes changed, mean error."""
     scorer, errs = FrameScorer(), []
