@@ -81,9 +81,16 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
     view = model.cfg.view
     model.eval()
-    pooled, target, rows, seq_ids, dists, depths = [], [], [], [], [], []
     total = sum(len(range(0, s.num_frames, every)) for s in sequences)
+    if not total:
+        raise InputError("no frames to fit the back-edge head on")
+    # one block per array, filled in place: many small per-sequence pieces fragment the heap (several x the memory)
+    pooled: torch.Tensor | None = None
+    rows = torch.empty((total, view.height))
+    target = np.zeros((total, view.height), np.float32)
+    seq_ids, dists, depths = np.zeros(total, np.int64), np.zeros(total), np.zeros(total)
     bar = tqdm(total=total, desc="back edges: features", unit="frame", disable=not progress, leave=False)
+    n = 0
     for k, seq in enumerate(sequences):
         depth, thickness = _rack_row(seq)
         camera = sequence_camera(seq)
@@ -91,28 +98,22 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
         pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will
         x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
         p = model.pooled_rows(x)
-        pooled.append(p.half().cpu())
-        rows.append(model.rows.from_pooled(p).float().cpu())
-        for i in ids:
+        if pooled is None:
+            pooled = torch.empty((total, *p.shape[1:]), dtype=torch.float16)
+        pooled[n : n + len(ids)] = p.half().cpu()
+        rows[n : n + len(ids)] = model.rows.from_pooled(p).float().cpu()
+        for j, i in enumerate(ids):
             dist = camera(i)[1]
             fronts = board_rows(seq, i, view, model.cfg.spec.num_slots)[1]
             back = back_edge_rows(fronts, view, dist, depth, thickness)[0]
-            target.append(row_target([float(r) for r in back if np.isfinite(r)], view.height))
-            seq_ids.append(k)
-            dists.append(dist)
-            depths.append(depth)
+            target[n + j] = row_target([float(r) for r in back if np.isfinite(r)], view.height)
+            seq_ids[n + j], dists[n + j], depths[n + j] = k, dist, depth
+        n += len(ids)
         bar.update(len(ids))
     bar.close()
-    if not pooled:
+    if pooled is None:  # unreachable: total > 0 means one sequence ran
         raise InputError("no frames to fit the back-edge head on")
-    return Cached(
-        torch.cat(pooled),
-        torch.from_numpy(np.stack(target)),
-        torch.cat(rows),
-        np.asarray(seq_ids),
-        np.asarray(dists),
-        np.asarray(depths),
-    )
+    return Cached(pooled, torch.from_numpy(target), rows, seq_ids, dists, depths)
 
 
 def train_head(head: BackEdgeHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
