@@ -123,11 +123,16 @@ def edge_maps(back: np.ndarray, front: np.ndarray, size: int) -> np.ndarray:
     return np.nan_to_num(np.stack(maps, 1), nan=0.0)
 
 
+def cell_z(spec: LayoutSpec, depth: float) -> np.ndarray:
+    """``(D,)`` metres behind the rack front of the top view's row centres, the rack ``depth`` deep."""
+    return spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
+
+
 def box_parts(
     top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """Each predicted box of a slot: columns, per-column front and back Z behind the rack front, top height."""
-    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2  # cell centres behind the front
+    zc = cell_z(spec, depth)
     half = spec.z_extent / spec.size / 2
     lab = label(top == BOX, connectivity=1)
     for k in range(1, int(lab.max()) + 1):
@@ -173,7 +178,7 @@ def redraw(
     top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec: LayoutSpec, depth: float
 ) -> None:
     """Box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column, NaN: left) inside the footprint."""
-    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
+    zc = cell_z(spec, depth)
     for j, zf, zb in zip(cols, z_front, z_back):
         if not np.isfinite(zb):
             continue
@@ -190,7 +195,7 @@ def true_backs(truth_top: np.ndarray, cols: np.ndarray, spec: LayoutSpec, depth:
     has = g.any(0)
     if not has.any():
         return None
-    zc = spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2 + spec.z_extent / spec.size / 2
+    zc = cell_z(spec, depth) + spec.z_extent / spec.size / 2
     back = np.array([zc[np.nonzero(g[:, i])[0].min()] if has[i] else np.nan for i in range(len(cols))])
     back[~has] = np.median(back[has])
     return back, has

@@ -19,7 +19,6 @@ import torch
 import torch.nn.functional as F
 
 from layouts import VIEWS, Intrinsics, LayoutSpec
-from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
 from network.calibrate import apply_box_offset
@@ -224,9 +223,7 @@ def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, A
     lay = {v: logits_to_layout(out[v], spec.size) for v in VIEWS}
     depth = out.get("rack_depth")
     if depth is not None and bool(torch.isfinite(torch.as_tensor(depth))):
-        if float(depth) > spec.z_extent:
-            raise InputError(f"rack depth {float(depth):.3f} m exceeds the layouts' {spec.z_extent} m depth extent")
-        lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))
+        lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))  # checks it fits the top view
     return lay
 
 
