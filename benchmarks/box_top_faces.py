@@ -219,7 +219,9 @@ def score(frames: list[dict], view: CanonicalView, choose: Callable[..., np.ndar
                 new = choose(f, r, cols, zf, h_top, c, *tb)
                 if new is None:
                     continue
-                errs.append(np.nanmedian(np.abs(new - tb[0])[tb[1]]))
+                err = np.abs(new - tb[0])[tb[1]]
+                if np.isfinite(err).any():
+                    errs.append(np.nanmedian(err))
                 redraw(top[r], cols, zf, new, spec, depth)
         scorer.update({"top": top, "front": pred["front"]}, truth)
     return scorer.result()["visible"]["top"], len(errs), 100 * float(np.mean(errs)) if errs else float("nan")
