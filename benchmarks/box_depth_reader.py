@@ -41,7 +41,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from box_top_faces import box_parts, cell_z, score  # noqa: E402  (benchmarks/, the script's own folder)
+from box_top_faces import Table, box_parts, cell_z, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 from layout_errors import SeenTracker  # noqa: E402
 
 from layouts import BOX, LayoutSpec  # noqa: E402
@@ -153,10 +153,10 @@ def run_sequences(model, seqs, every: int, with_targets: bool, desc: str):
         seen = SeenTracker(seq)
         true_depth = float(seq.scene()["row"]["depth"])
         prev_sig, est_x = None, 0.0
-        imgs = (seq.rgb(i) for i in range(seq.num_frames))
-        for i, out in enumerate(pred.run(imgs, "stream")):
+        rgbs = [seq.rgb(i) for i in range(seq.num_frames)]
+        for i, out in enumerate(pred.run(rgbs, "stream")):
             bar.update(1)
-            sig = motion_signature(pred.preprocess(seq.rgb(i), i))
+            sig = motion_signature(pred.preprocess(rgbs[i], i))
             if prev_sig is not None:
                 est_x += float(camera_shift(prev_sig, sig, model.cfg.view)[0])
             prev_sig = sig
@@ -225,11 +225,34 @@ def fit(model, train_dir: Path, n_seq: int, epochs: int, seed: int, threads: int
     return head, info
 
 
+class RowMap:
+    """One slot's depths shown so far along the row: world-X bin -> (sum of p * depth, sum of p)."""
+
+    def __init__(self, min_shown: float) -> None:
+        self.min_shown = min_shown
+        self.acc: dict[int, list[float]] = {}
+
+    def update(self, bins: np.ndarray, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Adds a frame's columns (world-X ``bins``, depths ``z``, shown probabilities ``p``) where
+        ``p >= min_shown``; returns the map's mean depth at each column (NaN: nothing shown there yet)."""
+        for b, zj, pj in zip(bins, z, p):
+            if pj >= self.min_shown:
+                s = self.acc.setdefault(int(b), [0.0, 0.0])
+                s[0] += pj * zj
+                s[1] += pj
+        out = np.full(len(bins), np.nan)
+        for j, b in enumerate(bins):
+            s = self.acc.get(int(b))
+            if s is not None and s[1] > 0:
+                out[j] = s[0] / s[1]
+        return out
+
+
 def evaluate(model, head: DepthHead, eval_dir: Path, n_seq: int | None, every: int, min_shown: float) -> None:
     seqs = open_dataset(eval_dir).sequences()[:n_seq]
     head.eval()
     frames = []
-    maps: dict[tuple[str, int, int], dict[int, list[float]]] = {}
+    maps: dict[tuple[str, int, int], RowMap] = {}
     for rec in run_sequences(model, seqs, 1, False, "evaluate"):
         spec, out = rec["spec"], rec["out"]
         with torch.no_grad():
@@ -240,20 +263,9 @@ def evaluate(model, head: DepthHead, eval_dir: Path, n_seq: int | None, every: i
         carried = {}
         for key in ("cam_x", "est_x"):
             cz = np.full_like(z, np.nan)
-            for r in range(z.shape[0]):
-                if not rec["valid"][r]:
-                    continue
-                acc = maps.setdefault((key, rec["seq"], r), {})
-                bins = np.round((rec[key] + xs) / (spec_model.x_extent / d)).astype(int)
-                for j in range(d):
-                    if p[r, j] >= min_shown:
-                        s = acc.setdefault(int(bins[j]), [0.0, 0.0])
-                        s[0] += p[r, j] * z[r, j]
-                        s[1] += p[r, j]
-                for j in range(d):
-                    s = acc.get(int(bins[j]))
-                    if s is not None and s[1] > 0:
-                        cz[r, j] = s[0] / s[1]
+            bins = np.round((rec[key] + xs) / (spec_model.x_extent / d)).astype(int)
+            for r in np.nonzero(rec["valid"])[0]:
+                cz[r] = maps.setdefault((key, rec["seq"], r), RowMap(min_shown)).update(bins, z[r], p[r])
             carried[key] = cz
         if rec["i"] % every:
             continue
@@ -264,12 +276,7 @@ def evaluate(model, head: DepthHead, eval_dir: Path, n_seq: int | None, every: i
                        "carry_pose": carried["cam_x"], "carry_image": carried["est_x"]})  # fmt: skip
     view = model.cfg.view
     print(f"{eval_dir}: {len(frames)} frames of {len(seqs)} sequences; top view, mIoU")
-    print(f"{'':58s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
-
-    def line(name: str, choose) -> None:
-        v, boxes, err = score(frames, view, choose)
-        cells = f"{100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}"
-        print(f"{name:58s} {cells}" + (f" {boxes:6d} {err:14.1f}" if boxes else ""), flush=True)
+    line = Table(frames, view, width=58).line
 
     def head_cols(f, cols):
         return cols * f["z"].shape[1] // f["spec"].size
@@ -280,18 +287,9 @@ def evaluate(model, head: DepthHead, eval_dir: Path, n_seq: int | None, every: i
             if key is not None:
                 z = f[key][r, j]
                 return z if np.isfinite(z).any() else None
-            z = f["z"][r, j].copy()
-            if gate:
-                if f["p"][r, j].mean() < min_shown:
-                    return None
-            return z
-
-        return choose
-
-    def seen_in(level: int):
-        def choose(f, r, cols, zf, h_top, c, back, has):
-            lab = f["seen"][r, cols][has]
-            return back if (lab >= level).mean() > 0.5 else None
+            if gate and f["p"][r, j].mean() < min_shown:
+                return None
+            return f["z"][r, j]
 
         return choose
 

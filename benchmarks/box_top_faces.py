@@ -227,6 +227,30 @@ def score(frames: list[dict], view: CanonicalView, choose: Callable[..., np.ndar
     return scorer.result()["visible"]["top"], len(errs), 100 * float(np.mean(errs)) if errs else float("nan")
 
 
+def seen_in(level: int) -> Callable[..., np.ndarray | None]:
+    """A `score` choice: the true depth for boxes whose stack's depth is seen at ``level`` or above
+    (`SeenTracker.labels`: 2 = this frame, 1 = this or an earlier one) in most of their columns."""
+
+    def choose(f, r, cols, zf, h_top, c, back, has):
+        lab = f["seen"][r, cols][has]
+        return back if (lab >= level).mean() > 0.5 else None
+
+    return choose
+
+
+class Table:
+    """Prints `score`'s rows: top rack / box mIoU, boxes changed and their mean back error."""
+
+    def __init__(self, frames: list[dict], view: CanonicalView, width: int = 60) -> None:
+        self.frames, self.view, self.width = frames, view, width
+        print(f"{'':{width}s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
+
+    def line(self, name: str, choose: Callable[..., np.ndarray | None]) -> None:
+        v, boxes, err = score(self.frames, self.view, choose)
+        cells = f"{100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}"
+        print(f"{name:{self.width}s} {cells}" + (f" {boxes:6d} {err:14.1f}" if boxes else ""), flush=True)
+
+
 def top_face_shows(f: dict, r: int, cols: np.ndarray, true_back: np.ndarray) -> bool:
     """Does the box's top face show a back edge in the frame (the true edge map, where perspective puts it)?"""
     spec, dist = f["spec"], f["distance"]
@@ -268,13 +292,7 @@ def main() -> int:
             )  # fmt: skip
     bar.close()
     print(f"{args.checkpoint} on {args.data}: {len(frames)} frames of {len(seqs)} sequences; top view, mIoU")
-    print(f"{'':60s} {'top rack':>9s} {'top box':>8s} {'boxes':>6s} {'back err (cm)':>14s}")
-
-    def line(name: str, choose) -> None:
-        v, boxes, err = score(frames, view, choose)
-        cells = f"{100 * v['rack']['miou']:9.1f} {100 * v['box']['miou']:8.1f}"
-        print(f"{name:60s} {cells}" + (f" {boxes:6d} {err:14.1f}" if boxes else ""))
-
+    line = Table(frames, view).line
     line("prediction", lambda *a: None)
     for below in args.min_below:
 
@@ -290,13 +308,6 @@ def main() -> int:
 
         line(f"true depth where the top face shows (top >= {below:g} m under)", true_top)
         line(f"read from the true edges (top >= {below:g} m under)", from_edges)
-
-    def seen_in(level: int):
-        def choose(f, r, cols, zf, h_top, c, back, has):
-            lab = f["seen"][r, cols][has]
-            return back if (lab >= level).mean() > 0.5 else None
-
-        return choose
 
     line("true depth where this frame shows it (any face)", seen_in(2))
     line("true depth where this or an earlier frame showed it", seen_in(1))
