@@ -37,25 +37,25 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
 from scipy.ndimage import map_coordinates, median_filter
-from skimage.measure import label
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from layout_errors import SeenTracker  # noqa: E402  (benchmarks/, the script's own folder)
 
-from layouts import BOX, SHELF, LayoutSpec  # noqa: E402
+from layouts import BOX, LayoutSpec  # noqa: E402
+from layouts.boxdepth import box_parts, cell_z, redraw  # noqa: E402
 from layouts.canonical import CanonicalView  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
+from waresynth.visibility import SeenTracker  # noqa: E402
 
 SAMPLES = 24  #: points per side sampled on each top face
 H_SEARCH = np.arange(-0.08, 0.0801, 0.01)  #: box top heights tried around the front view's, metres
@@ -123,31 +123,6 @@ def edge_maps(back: np.ndarray, front: np.ndarray, size: int) -> np.ndarray:
     return np.nan_to_num(np.stack(maps, 1), nan=0.0)
 
 
-def cell_z(spec: LayoutSpec, depth: float) -> np.ndarray:
-    """``(D,)`` metres behind the rack front of the top view's row centres, the rack ``depth`` deep."""
-    return spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
-
-
-def box_parts(
-    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float
-) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
-    """Each predicted box of a slot: columns, per-column front and back Z behind the rack front, top height."""
-    zc = cell_z(spec, depth)
-    half = spec.z_extent / spec.size / 2
-    lab = label(top == BOX, connectivity=1)
-    for k in range(1, int(lab.max()) + 1):
-        comp = lab == k
-        cols = np.nonzero(comp.any(0))[0]
-        rows = [np.nonzero(comp[:, j])[0] for j in cols]
-        fb = front[:, cols] == BOX
-        if not fb.any():
-            continue
-        tops = [np.nonzero(fb[:, i])[0].min() for i in range(len(cols)) if fb[:, i].any()]
-        z_front = np.array([zc[r.max()] - half for r in rows])
-        z_back = np.array([zc[r.min()] + half for r in rows])
-        yield cols, z_front, z_back, float(spec.row_to_a("front", np.median(tops)))
-
-
 def read_depths(
     prob: np.ndarray, cols: np.ndarray, c: float, h_top: float, d: float, z_front: float, z_max: float, spec: LayoutSpec
 ) -> np.ndarray | None:
@@ -172,20 +147,6 @@ def read_depths(
     if not strong.any():
         return None
     return np.where(strong, median_filter(z, size=MEDIAN, mode="nearest"), np.nan)
-
-
-def redraw(
-    top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec: LayoutSpec, depth: float
-) -> None:
-    """Box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column, NaN: left) inside the footprint."""
-    zc = cell_z(spec, depth)
-    for j, zf, zb in zip(cols, z_front, z_back):
-        if not np.isfinite(zb):
-            continue
-        col = top[:, j]
-        foot = col > 0
-        col[foot & (col == BOX)] = SHELF
-        col[foot & (zc >= zf) & (zc <= zb)] = BOX
 
 
 def true_backs(truth_top: np.ndarray, cols: np.ndarray, spec: LayoutSpec, depth: float):

@@ -56,7 +56,7 @@ from layouts.rackdepth import front_rows, shift_rows  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from network.train import open_data  # noqa: E402
-from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map  # noqa: E402
+from waresynth.visibility import SeenTracker  # noqa: E402
 
 CASES = (
     "prediction",
@@ -245,35 +245,8 @@ def main() -> int:
 #: board height below the camera (metres; negative = above it) and lateral offset bins of the breakdowns
 ELEVATION = (-0.4, 0.4)
 LATERAL = (0.5, 1.0)
-#: `SeenTracker.labels` values
+#: `waresynth.visibility.SeenTracker.labels` values
 SEEN_LABELS = {2: "seen in this frame", 1: "seen only earlier", 0: "not seen yet"}
-
-
-class SeenTracker:
-    """Which stacks' depth a generated sequence has shown so far (`waresynth.visibility`), frame by frame."""
-
-    def __init__(self, seq) -> None:
-        for name in ("depth", "instance", "scene"):
-            if not callable(getattr(seq, name, None)):
-                raise SystemExit(f"{seq.name}: --seen needs the generator's depth, instance and scene files")
-        self.seq = seq
-        self.stacks = scene_stacks(seq.scene())
-        self.sofar: set[int] = set()
-        self.now: set[int] = set()
-
-    def add(self, i: int) -> None:
-        """Frame ``i`` (frames in order)."""
-        cam_z = float(self.seq.frame(i)["camera_position"][2])
-        self.now = seen_stacks(self.stacks, self.seq.depth(i), self.seq.instance(i), cam_z)
-        self.sofar |= self.now
-
-    def labels(self, i: int) -> np.ndarray:
-        """int ``(R, D)`` per slot and layout column: 2 = a stack whose depth frame ``i`` sees, 1 = seen
-        only earlier, 0 = not seen yet, -1 = no stack."""
-        rec, spec = self.seq.frame(i), self.seq.spec
-        levels = [int(sl["level"]) for sl in rec.get("slots", [])[: spec.num_slots]]
-        values = {k: 2 if k in self.now else 1 if k in self.sofar else 0 for k in range(len(self.stacks))}
-        return stack_column_map(self.stacks, values, spec, levels, float(rec["camera_position"][0]), -1).astype(int)
 
 
 def elevation_bins(el: np.ndarray) -> list[tuple[str, np.ndarray]]:

@@ -29,8 +29,9 @@ RACK_DEPTH_HELP = (
 
 #: the ``--no-depth-read`` option's help, shared by the commands that offer it
 NO_DEPTH_READ_HELP = (
-    "keep the rack depth the top-view decoder draws; by default a model with a back-edge head reads the depth "
-    "from the shelf boards' back edges over the frames so far and redraws the top views at it"
+    "keep the depths the top-view decoder draws; by default a model with a back-edge head reads the rack depth "
+    "from the shelf boards' back edges over the frames so far and redraws the top views at it, and a model with "
+    "a box-depth head moves each box's back to the depth the frames so far showed"
 )
 
 

@@ -330,6 +330,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
+            # each box's back: carried from the box-depth head's readings (`network.boxdepth`) or as decoded
+            "box_depth_source": "read" if pred.reads_box_depth else "decoder",
             "intrinsics": intr.to_dict(),
             "spec": spec.to_dict(),
         }

@@ -65,6 +65,7 @@ def evaluate_sequences(
         "mode": mode,
         "flip_average": flip,
         "rack_depth": "read from back edges" if read_depth and model.back is not None else "as decoded",
+        "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

@@ -19,11 +19,14 @@ import torch
 import torch.nn.functional as F
 
 from layouts import VIEWS, Intrinsics, LayoutSpec
+from layouts.boxdepth import impose_box_backs
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
+from network.boxdepth import BoxDepthReader, decode, head_inputs
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
 from network.model import MVRackLay, board_peaks
+from network.motion import camera_shift, motion_signature
 
 MODES = ("stream", "window")
 #: the ``--flip-average`` option's help, one text for every command that offers it
@@ -64,6 +67,12 @@ class Predictor:
     back-edge head reads it from the boards' back edges over the frames so far
     (`network.backedge.DepthReader`), unless ``read_depth`` is False. Each output then carries
     ``"rack_depth"`` (metres, NaN while unknown), which `frame_layouts` imposes on the top view.
+
+    Box depths: a model with a box-depth head reads each box's depth and carries what the frames
+    have shown along the row (`network.boxdepth.BoxDepthReader`, the camera's motion read from the
+    images), unless ``read_depth`` is False. Each output then carries ``"box_back"`` ``(R, D)``
+    (metres behind the rack front per model column, NaN where none is known), which `frame_layouts`
+    imposes on every predicted box once the rack depth is known.
     """
 
     def __init__(
@@ -83,6 +92,8 @@ class Predictor:
         self.rack_depth = None if rack_depth is None else check_rack_depth(rack_depth, self.cfg.spec)
         #: the depth is read from the back edges (the model has the head, no depth is given, reading is on)
         self.reads_depth = bool(read_depth) and rack_depth is None and model.back is not None
+        self.reads_box_depth = bool(read_depth) and model.box_depth is not None
+        self._motion: deque[torch.Tensor] = deque()  #: the direct pass's motion signatures not yet used
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -104,7 +115,10 @@ class Predictor:
 
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
         for i, rgb in enumerate(frames):
-            yield self.preprocess(rgb, i), self._anchors(i)
+            x = self.preprocess(rgb, i)
+            if self.reads_box_depth:
+                self._motion.append(motion_signature(x))
+            yield x, self._anchors(i)
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
@@ -122,8 +136,12 @@ class Predictor:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
     def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
-        """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet)."""
+        """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
+        with the box-depth head, ``"box_back"``."""
         reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
+        boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
+        self._motion.clear()
+        prev: torch.Tensor | None = None
         for i, out in enumerate(outs):
             depth = self.rack_depth
             if reader is not None:
@@ -132,7 +150,22 @@ class Predictor:
                     back, board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view), self.camera(i)[1]
                 )
             out["rack_depth"] = torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
+            if boxes is not None:
+                sig = self._motion.popleft()
+                step = 0.0 if prev is None else float(camera_shift(prev, sig, self.cfg.view)[0])
+                prev = sig
+                out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
             yield out
+
+    @torch.no_grad()
+    def _box_backs(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
+        """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""
+        head = self.model.box_depth
+        win, extra = head_inputs(
+            out["box_window"], out["top"], out["front"], out["anchors"], self.cfg.view, self.camera(i)[1]
+        )
+        z, p = decode(head(win.to(self.device), extra.to(self.device)))
+        return boxes.add(z, p, torch.isfinite(out["anchors"]).cpu().numpy(), step)
 
     def _outputs(
         self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
@@ -202,6 +235,8 @@ class Predictor:
             out["rows"], out["anchors"] = rows, anc
             if feats.back is not None:
                 out["back"] = feats.back
+            if feats.window is not None:
+                out["box_window"] = feats.window
             yield {k: o[0] for k, o in out.items()}
 
 
@@ -219,11 +254,15 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
 
 def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, Any]:
     """Both views' class-id stacks at ``spec.size`` from one frame's outputs, the top view redrawn
-    at the output's ``"rack_depth"`` when it has one (`Predictor`; `layouts.rackdepth.impose_rack_depth`)."""
+    at the output's ``"rack_depth"`` when it has one (`Predictor`; `layouts.rackdepth.impose_rack_depth`)
+    and then, with ``"box_back"``, every box's back moved there (`layouts.boxdepth.impose_box_backs`)."""
     lay = {v: logits_to_layout(out[v], spec.size) for v in VIEWS}
     depth = out.get("rack_depth")
     if depth is not None and bool(torch.isfinite(torch.as_tensor(depth))):
         lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))  # checks it fits the top view
+        backs = out.get("box_back")
+        if backs is not None:
+            lay["top"] = impose_box_backs(lay["top"], lay["front"], spec, float(depth), np.asarray(backs))
     return lay
 
 

@@ -49,6 +49,7 @@ from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
+from network.boxdepth import WINDOW_ROWS, BoxDepthHead
 from network.convlstm import StackedConvLSTM, State
 from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
@@ -98,6 +99,7 @@ class ModelConfig:
     back_edges: bool = (
         False  #: a head finds the boards' back edges, from which the rack depth is read (`network.backedge`)
     )
+    box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -115,7 +117,7 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top", "back_edges"):
+        for name in ("parallax", "geo_top", "back_edges", "box_depth"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
@@ -230,6 +232,7 @@ class SlotFeatures:
     back: torch.Tensor | None = (
         None  #: (N, H) back-edge logits (`network.backedge.BackEdgeHead`), if the model has the head
     )
+    window: torch.Tensor | None = None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.boxdepth`
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
@@ -237,17 +240,17 @@ class SlotFeatures:
         def pick(t: torch.Tensor) -> torch.Tensor:
             return t.unflatten(0, (n, -1))[i]
 
-        motion = None if self.motion is None else pick(self.motion)
-        back = None if self.back is None else pick(self.back)
-        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion, back)
+        motion, back, window = (None if t is None else pick(t) for t in (self.motion, self.back, self.window))
+        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion, back, window)
 
     def cat(self, other: SlotFeatures) -> SlotFeatures:
         """These frames' features followed by ``other``'s (both flattened as (frame, batch))."""
-        motion = None if self.motion is None or other.motion is None else torch.cat([self.motion, other.motion])
-        back = None if self.back is None or other.back is None else torch.cat([self.back, other.back])
-        return SlotFeatures(
-            *(torch.cat([getattr(self, k), getattr(other, k)]) for k in ("top", "front", "fine", "valid")), motion, back
-        )
+
+        def both(k: str) -> torch.Tensor | None:
+            a, b = getattr(self, k), getattr(other, k)
+            return None if a is None or b is None else torch.cat([a, b])
+
+        return SlotFeatures(*(both(k) for k in ("top", "front", "fine", "valid", "motion", "back", "window")))
 
 
 class Pyramid(nn.Module):
@@ -424,6 +427,16 @@ class SlotHeads(nn.Module):
         ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
         return SlotFeatures(tc, fc, ff, valid)
 
+    def window(self, p1: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
+        """The 1/2 map ``(N, c1, H/2, W/2)`` over each slot's front window, every column of it:
+        ``(N, R, c1, rows, W/2)`` (rows: the front view's in groups, `network.boxdepth.WINDOW_ROWS`; a slot
+        without an anchor samples the image's middle)."""
+        n, r = anchors.shape
+        a = torch.where(torch.isfinite(anchors), anchors, torch.full_like(anchors, self.view.height / 2))
+        rows = math.gcd(WINDOW_ROWS, self.spec.size)
+        offs = self.front_fine.view(rows, -1).mean(1)
+        return self._sample(p1, a, offs, p1.shape[-1]).unflatten(0, (n, r))
+
     def finish(self, f: SlotFeatures) -> dict[str, torch.Tensor]:
         """``R x 3`` logits of both views from (possibly memory-refined) slot features."""
         n, r = f.valid.shape
@@ -577,6 +590,8 @@ class MVRackLay(nn.Module):
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
+        #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
+        self.box_depth = BoxDepthHead(fine + NUM_CLASSES, cfg.spec.size + 2) if cfg.box_depth else None
         self.slots = SlotHeads(cfg, fine, coarse)
         self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (
@@ -643,6 +658,8 @@ class MVRackLay(nn.Module):
         feats.motion = sig
         if self.back is not None:
             feats.back = self.back(pooled)
+        if self.box_depth is not None:
+            feats.window = self.slots.window(p1, anchors)
         return feats, rows, anchors
 
     def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
@@ -737,6 +754,8 @@ class MVRackLay(nn.Module):
         out["anchors"] = anchors
         if feats.back is not None:
             out["back"] = feats.back
+        if feats.window is not None:
+            out["box_window"] = feats.window
         return out, state
 
 

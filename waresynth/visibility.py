@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from layouts import LayoutSpec
+from layouts.errors import InputError
 
 SEEN = 0.9  #: fraction of a stack's depth its visible pixels must reach for its depth to count as seen
 
@@ -86,3 +87,30 @@ def stack_column_map(
             c0, c1 = stack_columns(st, spec, cam_x)
             out[levels.index(st["level"]), c0:c1] = v
     return out
+
+
+class SeenTracker:
+    """Which stacks' depth a generated sequence has shown so far, frame by frame (frames in order)."""
+
+    def __init__(self, seq: Any) -> None:
+        for name in ("depth", "instance", "scene"):
+            if not callable(getattr(seq, name, None)):
+                raise InputError(f"{seq.name}: visibility needs the generator's depth, instance and scene files")
+        self.seq = seq
+        self.stacks = scene_stacks(seq.scene())
+        self.sofar: set[int] = set()
+        self.now: set[int] = set()
+
+    def add(self, i: int) -> None:
+        """Frame ``i`` (frames in order)."""
+        cam_z = float(self.seq.frame(i)["camera_position"][2])
+        self.now = seen_stacks(self.stacks, self.seq.depth(i), self.seq.instance(i), cam_z)
+        self.sofar |= self.now
+
+    def labels(self, i: int) -> np.ndarray:
+        """int ``(R, D)`` per slot and layout column: 2 = a stack whose depth frame ``i`` sees, 1 = seen
+        only earlier, 0 = not seen yet, -1 = no stack."""
+        rec, spec = self.seq.frame(i), self.seq.spec
+        levels = [int(sl["level"]) for sl in rec.get("slots", [])[: spec.num_slots]]
+        values = {k: 2 if k in self.now else 1 if k in self.sofar else 0 for k in range(len(self.stacks))}
+        return stack_column_map(self.stacks, values, spec, levels, float(rec["camera_position"][0]), -1).astype(int)

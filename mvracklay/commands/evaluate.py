@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         title += ", flip-averaged"
     if model.back is not None:
         title += f", rack depth {res['rack_depth']}"
+    if model.box_depth is not None:
+        title += f", box depths {res['box_depth']}"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))

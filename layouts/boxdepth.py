@@ -1,0 +1,84 @@
+"""Each predicted box's depth in the top view: its parts, and its back redrawn at a given depth.
+
+A top-view box is a connected component of box cells in one slot; per layout column it spans from
+a front to a back depth behind the rack front (the top view is centred on the rack's mid-depth, so
+the rack ``depth`` places its rows, `layouts.spec`). `box_parts` lists the boxes a slot's top and
+front views agree on; `redraw` moves a box's back per column; `impose_box_backs` does so for every
+box of a frame from per-column back depths read elsewhere (`network.boxdepth`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+from skimage.measure import label
+
+from layouts.classes import BOX, SHELF
+from layouts.spec import LayoutSpec
+
+
+def cell_z(spec: LayoutSpec, depth: float) -> np.ndarray:
+    """``(D,)`` metres behind the rack front of the top view's row centres, the rack ``depth`` deep."""
+    return spec.row_to_a("top", np.arange(spec.size) + 0.5) + depth / 2
+
+
+def box_parts(
+    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
+    """Each box of a slot's top view ``(D, D)`` that the front view also shows (box cells in its columns):
+    its columns, per-column front and back Z (metres behind the rack front) and its top height (metres)."""
+    zc = cell_z(spec, depth)
+    half = spec.z_extent / spec.size / 2
+    lab = label(top == BOX, connectivity=1)
+    for k in range(1, int(lab.max()) + 1):
+        comp = lab == k
+        cols = np.nonzero(comp.any(0))[0]
+        rows = [np.nonzero(comp[:, j])[0] for j in cols]
+        fb = front[:, cols] == BOX
+        if not fb.any():
+            continue
+        tops = [np.nonzero(fb[:, i])[0].min() for i in range(len(cols)) if fb[:, i].any()]
+        z_front = np.array([zc[r.max()] - half for r in rows])
+        z_back = np.array([zc[r.min()] + half for r in rows])
+        yield cols, z_front, z_back, float(spec.row_to_a("front", np.median(tops)))
+
+
+def redraw(
+    top: np.ndarray, cols: np.ndarray, z_front: np.ndarray, z_back: np.ndarray, spec: LayoutSpec, depth: float
+) -> None:
+    """In place: the box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column; NaN leaves a
+    column) inside the rack footprint; the box's old cells there become shelf."""
+    zc = cell_z(spec, depth)
+    for j, zf, zb in zip(cols, z_front, z_back):
+        if not np.isfinite(zb):
+            continue
+        col = top[:, j]
+        foot = col > 0
+        col[foot & (col == BOX)] = SHELF
+        col[foot & (zc >= zf) & (zc <= zb)] = BOX
+
+
+def impose_box_backs(
+    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float, backs: np.ndarray
+) -> np.ndarray:
+    """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
+    front per column of a grid of ``W`` columns over the same X extent (NaN: unknown, the column is
+    left). Fronts stay; a copy is returned."""
+    top = np.asarray(top)
+    backs = np.asarray(backs, dtype=np.float64)
+    r, d = top.shape[0], spec.size
+    if top.shape != (r, d, d) or np.shape(front) != top.shape:
+        raise ValueError(f"top and front must both be (R, {d}, {d}) class ids, got {top.shape} and {np.shape(front)}")
+    if backs.ndim != 2 or backs.shape[0] != r or backs.shape[1] < 1:
+        raise ValueError(f"backs must be ({r}, W) back depths, got {backs.shape}")
+    if not np.isfinite(depth) or depth <= 0:
+        raise ValueError(f"rack depth must be a positive number of metres, got {depth}")
+    out = top.copy()
+    w = backs.shape[1]
+    for k in range(r):
+        for cols, zf, _, _ in box_parts(top[k], front[k], spec, depth):
+            zb = backs[k, cols * w // d]
+            if np.isfinite(zb).any():
+                redraw(out[k], cols, zf, zb, spec, depth)
+    return out

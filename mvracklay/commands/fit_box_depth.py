@@ -1,0 +1,84 @@
+"""``mvracklay fit-box-depth``: give a trained checkpoint the head that reads each box's depth."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, nan_to_null
+
+NAME = "fit-box-depth"
+HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
+DESCRIPTION = (
+    "The top-view decoder places a box's front well but reads its depth poorly. This fits a small head that "
+    "reads, per shelf slot and layout column, a box's back depth and whether the frame shows it (the rest of "
+    "the network frozen, one streamed pass per frame over generated data with depth, instance and scene files), "
+    "and writes CKPT with the head added; predict, run and evaluate then carry the depths the frames showed "
+    "along the row and move every predicted box's back there (--no-depth-read turns that off). "
+    "The inputs are cached on disk (about 4 GB per thousand 12-frame scenes at 256x256)."
+)
+ORDER = 35
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", type=Path, required=True, help="a trained .pt checkpoint (its .json beside)")
+    p.add_argument(
+        "--data", type=Path, nargs="+", required=True,
+        help="generated dataset(s) with depth, instance and scene files to fit on",
+    )  # fmt: skip
+    p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
+    p.add_argument("--epochs", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
+    p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from network.checkpoint import load_checkpoint, model_from, save_checkpoint
+    from network.fit_boxdepth import FitConfig, fit_box_depth
+    from network.train import open_data
+    from waresynth.visibility import SeenTracker
+
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    if args.sequences < 1:
+        raise InputError(f"--sequences must be >= 1, got {args.sequences}")
+    if args.cache_dir is not None and not args.cache_dir.is_dir():
+        raise InputError(f"--cache-dir {args.cache_dir}: not a folder")
+    cfg = FitConfig(epochs=args.epochs, seed=args.seed)
+    cfg.validate()
+    torch.set_num_threads(args.threads)
+    payload, record = load_checkpoint(args.checkpoint)
+    model = model_from(payload, record, args.checkpoint)
+    train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
+    if not train:
+        raise InputError(f"--data {' '.join(map(str, args.data))}: no sequences")
+    SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
+    head, summary = fit_box_depth(model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet)
+    print(
+        f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
+        f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
+        + ", ".join(f"{v:.3f}" for v in summary["losses"])
+    )
+    state = dict(payload["model"])
+    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
+    state = {k: v for k, v in state.items() if not k.startswith("box_depth.")}
+    state.update(
+        {f"box_depth.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()}
+    )
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record["model_config"] = replace(model.cfg, box_depth=True).to_dict()
+    record["box_depth"] = {"data": [str(d) for d in args.data], **summary}
+    out = args.out or args.checkpoint
+    save_checkpoint(out, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+    print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
+    if args.json:
+        atomic_write_json(args.json, nan_to_null(summary))
+    return 0

@@ -1,0 +1,212 @@
+"""Fitting the box-depth head (`network.boxdepth`) to a trained model, the rest of the network frozen.
+
+One streamed pass of the frozen model over the training sequences (`Predictor`, as at inference)
+gives each frame's head inputs per valid slot; they are cached on disk (memory-mapped: a thousand
+scenes are ~4 GB of fp16 windows) with the targets from the generator's ground truth: per model
+column the truth's box back behind the rack front (the top-view layout, the scene's rack depth)
+and whether the frame shows that stack's depth (``labels``: `waresynth.visibility.SeenTracker`).
+The head is then fitted with a two-hot cross entropy over the depth bins (columns whose depth is
+shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from layouts import BOX, LayoutSpec
+from layouts.boxdepth import cell_z
+from layouts.errors import InputError
+from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, head_inputs
+from network.infer import Predictor, sequence_camera
+from network.model import MVRackLay
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """How the head is fitted (defaults: what was measured, docs/network.md)."""
+
+    epochs: int = 3
+    batch: int = 64
+    lr: float = 2e-3
+    weight_decay: float = 1e-2
+    shown_weight: float = 4.0  #: depth loss weight of the columns whose depth the frame shows
+    seed: int = 0
+
+    def validate(self) -> None:
+        for name in ("epochs", "batch"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise InputError(f"--{name} must be a positive integer, got {v!r}")
+        for name in ("lr", "shown_weight"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
+
+
+def with_box_head(model: MVRackLay) -> MVRackLay:
+    """``model`` itself if it has the box-depth head, else a copy with a fresh one (same weights otherwise)."""
+    if model.box_depth is not None:
+        return model
+    out = MVRackLay(replace(model.cfg, box_depth=True))
+    missing, unexpected = out.load_state_dict(model.state_dict(), strict=False)
+    if unexpected or any(not k.startswith("box_depth.") for k in missing):
+        raise InputError(f"model weights do not fit the model with a box-depth head: {unexpected or missing}")
+    out.box_logit_offset = dict(model.box_logit_offset)
+    return out.to(next(model.parameters()).device).eval()
+
+
+def column_targets(
+    truth_top: np.ndarray, labels: np.ndarray, spec: LayoutSpec, depth: float, d: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per slot and model column (``d`` of them): the truth's box back behind the rack front (metres, the
+    mean over the layout columns it covers; NaN: no box) and whether the frame shows that stack's depth
+    (``labels`` ``(R, D)``: 2 = shown in this frame, `waresynth.visibility.SeenTracker.labels`)."""
+    if spec.size % d:
+        raise InputError(f"layouts of size {spec.size} do not cover the model's {d} columns evenly")
+    g = truth_top == BOX  # (R, D, D), row 0 deepest
+    zb = cell_z(spec, depth) + spec.z_extent / spec.size / 2
+    back = np.where(g.any(1), zb[np.argmax(g, 1)], np.nan)  # (R, D)
+    k = spec.size // d
+    with warnings.catch_warnings():  # columns without a box: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        back = np.nanmean(back.reshape(back.shape[0], d, k), 2)
+    shown = (np.asarray(labels).reshape(labels.shape[0], d, k) >= 2).any(2)
+    return back, shown
+
+
+@dataclass
+class Cache:
+    """Per valid slot: window, extras (fp16), back targets (metres, NaN: no box), shown flags."""
+
+    win: np.ndarray
+    extra: np.ndarray
+    back: np.ndarray
+    shown: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.win)
+
+
+def cache_inputs(
+    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, progress: bool = True
+) -> Cache:
+    """Streams every frame of ``seqs`` through ``model`` (it has the head) and memory-maps the head's inputs
+    and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and ``labels(i)`` (frames in order)."""
+    r, d = model.cfg.spec.num_slots, model.cfg.spec.size
+    cap = sum(s.num_frames for s in seqs) * r  # an upper bound on the valid slots
+    arrays: dict[str, np.ndarray] = {}
+    n = 0
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="box depth: cache", unit="frame", disable=not progress)
+    for seq in seqs:
+        camera = sequence_camera(seq)
+        seen = labels(seq)
+        depth = float(seq.scene()["row"]["depth"])
+        pred = Predictor(model, camera, read_depth=False)
+        for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(seq.num_frames))):
+            bar.update(1)
+            seen.add(i)
+            win, extra = head_inputs(
+                out["box_window"], out["top"], out["front"], out["anchors"], model.cfg.view, camera(i)[1]
+            )
+            back, shown = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
+            v = torch.isfinite(out["anchors"]).cpu().numpy()
+            parts = {"win": win[v].half().numpy(), "extra": extra[v].half().numpy(),
+                     "back": back[v].astype(np.float32), "shown": shown[v]}  # fmt: skip
+            if not arrays:
+                arrays = {
+                    k: np.lib.format.open_memmap(folder / f"{k}.npy", "w+", a.dtype, (cap, *a.shape[1:]))
+                    for k, a in parts.items()
+                }
+            m = int(v.sum())
+            for k, a in parts.items():
+                arrays[k][n : n + m] = a
+            n += m
+    bar.close()
+    if not n:
+        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+    return Cache(*(arrays[k][:n] for k in ("win", "extra", "back", "shown")))
+
+
+def train_head(head: BoxDepthHead, data: Cache, cfg: FitConfig, progress: bool = True) -> list[float]:
+    """Fit ``head`` to the cached targets (AdamW, one-cycle schedule); returns the mean loss per epoch."""
+    cfg.validate()
+    opt = torch.optim.AdamW(head.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    n = len(data)
+    per_epoch = math.ceil(n / cfg.batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.lr, total_steps=cfg.epochs * per_epoch)
+    bins = torch.as_tensor(BINS, dtype=torch.float32)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    head.train()
+    losses = []
+    for ep in range(cfg.epochs):
+        perm = torch.randperm(n, generator=gen)
+        total = 0.0
+        for idx in tqdm(perm.split(cfg.batch), desc=f"box depth: epoch {ep + 1}/{cfg.epochs}", disable=not progress):
+            b = np.sort(idx.numpy())  # sorted: the memory map reads forward
+            logits = head(torch.from_numpy(data.win[b]).float(), torch.from_numpy(data.extra[b]).float())
+            lz, ls = logits[:, :-1], logits[:, -1]
+            tb, sb = torch.from_numpy(data.back[b]), torch.from_numpy(data.shown[b])
+            m = torch.isfinite(tb)
+            loss = F.binary_cross_entropy_with_logits(ls[m], sb[m].float()) if m.any() else ls.sum() * 0
+            if m.any():
+                t = tb.nan_to_num(0.0).clamp(float(BINS[0]), float(BINS[-1]))
+                w = (1 - (t[..., None] - bins).abs() / BIN_STEP).clamp(min=0)  # two-hot target
+                ce = -(w * torch.log_softmax(lz, 1).permute(0, 2, 1)).sum(-1)
+                wt = torch.where(sb, cfg.shown_weight, 1.0)
+                loss = loss + (ce * wt)[m].sum() / wt[m].sum()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += float(loss.detach())
+        losses.append(total / per_epoch)
+    head.eval()
+    return losses
+
+
+def fit_box_depth(
+    model: MVRackLay,
+    train: list[Any],
+    labels: Callable[[Any], Any],
+    cfg: FitConfig,
+    cache_dir: Path | None = None,
+    progress: bool = True,
+) -> tuple[BoxDepthHead, dict[str, Any]]:
+    """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record.
+    The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the end."""
+    cfg.validate()
+    if not train:
+        raise InputError("no training sequences to fit the box-depth head on")
+    t0 = time.perf_counter()
+    model = with_box_head(model)
+    with tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir) as tmp:
+        data = cache_inputs(model, train, labels, Path(tmp), progress)
+        t1 = time.perf_counter()
+        torch.manual_seed(cfg.seed)
+        head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
+        losses = train_head(head, data, cfg, progress)
+        slots, shown = len(data), float(np.mean(data.shown[np.isfinite(data.back)]))
+        del data
+    summary = {
+        "train_sequences": len(train),
+        "train_slots": slots,
+        "shown_fraction": shown,
+        "epochs": cfg.epochs,
+        "seed": cfg.seed,
+        "losses": losses,
+        "cache_minutes": (t1 - t0) / 60,
+        "fit_minutes": (time.perf_counter() - t1) / 60,
+    }
+    return head, summary

@@ -1,0 +1,217 @@
+"""Each box's depth read by a head and carried along the row: the redraw, the carried map, the head in
+the model and inference, the fit, and `mvracklay fit-box-depth`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from layouts import BOX, SHELF
+from layouts.boxdepth import box_parts, cell_z, impose_box_backs
+from layouts.codecs import LayoutFolder
+from layouts.errors import InputError
+from layouts.spec import LayoutSpec
+from mvracklay.cli import main
+from network.boxdepth import BINS, BoxDepthReader, RowMap, decode
+from network.checkpoint import load_checkpoint, load_model
+from network.fit_boxdepth import FitConfig, cache_inputs, column_targets, train_head, with_box_head
+from network.infer import Predictor, frame_layouts
+from network.model import MVRackLay
+from network.toy import ToySequence
+from stitching.warehouse_map import WarehouseMap
+from waresynth.dataset import open_dataset
+from waresynth.visibility import SeenTracker
+
+SPEC = LayoutSpec(size=16)
+
+
+def slot_with_box(spec: LayoutSpec, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
+    """One slot: the whole top view shelf with a box at ``rows`` x ``cols``; the front view shows it."""
+    top = np.full((1, spec.size, spec.size), SHELF, np.uint8)
+    top[0, rows, cols] = BOX
+    front = np.zeros_like(top)
+    front[0, -4:, cols] = BOX
+    return top, front
+
+
+def test_box_backs_move_the_back_and_keep_the_front():
+    top, front = slot_with_box(SPEC, slice(10, 14), slice(3, 7))
+    depth = 1.0
+    zc = cell_z(SPEC, depth)
+    (cols, zf, zb, _), *rest = list(box_parts(top[0], front[0], SPEC, depth))
+    assert not rest and list(cols) == [3, 4, 5, 6]
+    deeper = zb[0] + 0.3
+    backs = np.full((1, SPEC.size), np.nan)
+    backs[0, 3:6] = deeper  # column 6 unknown: left as drawn
+    out = impose_box_backs(top, front, SPEC, depth, backs)
+    for j in (3, 4, 5):
+        box = np.nonzero(out[0, :, j] == BOX)[0]
+        assert box.max() == 13  # the front row stays
+        assert zc[box.min()] == pytest.approx(deeper, abs=SPEC.z_extent / SPEC.size)  # the back moved deeper
+        assert box.min() < 10
+    assert np.array_equal(out[0, :, 6], top[0, :, 6])
+    assert np.array_equal(top[0, 10:14, 3:7], np.full((4, 4), BOX))  # the input is not changed
+    coarse = np.full((1, SPEC.size // 4), zb[0] - 0.1)  # a coarser grid of columns: a shallower box
+    shallow = impose_box_backs(top, front, SPEC, depth, coarse)
+    assert (shallow[0, :, 3:7] == BOX).sum() < (top[0, :, 3:7] == BOX).sum()
+    with pytest.raises(ValueError, match="backs must be"):
+        impose_box_backs(top, front, SPEC, depth, np.zeros(SPEC.size))
+    with pytest.raises(ValueError, match="rack depth"):
+        impose_box_backs(top, front, SPEC, float("nan"), backs)
+
+
+def test_a_box_the_front_view_does_not_show_is_left():
+    top, front = slot_with_box(SPEC, slice(10, 14), slice(3, 7))
+    front[:] = SHELF
+    out = impose_box_backs(top, front, SPEC, 1.0, np.full((1, SPEC.size), 0.2))
+    assert np.array_equal(out, top)
+
+
+def test_the_row_map_carries_shown_depths_with_the_camera():
+    reader = BoxDepthReader(SPEC)
+    z = np.full((1, SPEC.size), 0.4)
+    p = np.zeros((1, SPEC.size))
+    p[0, 8] = 0.9  # only column 8 is shown
+    first = reader.add(z, p, np.array([True]))
+    assert first[0, 8] == pytest.approx(0.4) and np.isnan(np.delete(first[0], 8)).all()
+    step = SPEC.x_extent / SPEC.size  # the camera moves one column along +X: the same shelf is one column left
+    second = reader.add(np.full((1, SPEC.size), 0.9), np.zeros((1, SPEC.size)), np.array([True]), step)
+    assert second[0, 7] == pytest.approx(0.4) and np.isnan(second[0, 8])
+    third = reader.add(np.full((1, SPEC.size), 0.8), np.ones((1, SPEC.size)), np.array([True]))
+    assert third[0, 7] == pytest.approx((0.9 * 0.4 + 0.8) / 1.9)  # weighted by the shown probability
+    assert np.isnan(reader.add(z, p, np.array([False]))).all()  # a slot without an anchor gets nothing
+    m = RowMap(min_shown=0.5)
+    assert np.isnan(m.update(np.array([0]), np.array([0.3]), np.array([0.49]))).all()
+
+
+def test_decode_gives_the_expected_depth_and_shown_probability():
+    logits = torch.full((1, len(BINS) + 1, 2), -30.0)
+    logits[0, 3, 0] = logits[0, 7, 1] = 30.0
+    logits[0, -1] = torch.tensor([5.0, -5.0])
+    z, p = decode(logits)
+    assert z[0] == pytest.approx([BINS[3], BINS[7]], abs=1e-4)
+    assert p[0, 0] > 0.99 and p[0, 1] < 0.01
+
+
+def test_the_head_is_part_of_the_model_and_inference_only_when_asked():
+    from tiny_net import tiny_config
+
+    plain = MVRackLay(tiny_config(SPEC)).eval()
+    assert plain.box_depth is None
+    torch.nn.init.constant_(plain.rows.net[-1].bias, 2.0)
+    seq = ToySequence(SPEC, num_frames=4, image_size=(64, 64))
+    frames = [seq.rgb(i) for i in range(4)]
+    assert "box_back" not in next(iter(Predictor(plain).run(frames)))
+    model = with_box_head(plain)
+    assert model.box_depth is not None and plain.box_depth is None
+    a, b = plain.state_dict(), model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)  # the trunk is the same
+    for mode in ("stream", "window"):
+        for flip in (False, True):
+            outs = list(Predictor(model, flip=flip, rack_depth=0.8).run(frames, mode))
+            assert all(tuple(o["box_back"].shape) == (SPEC.num_slots, SPEC.size) for o in outs)
+            ref = list(Predictor(plain, flip=flip, rack_depth=0.8).run(frames, mode))
+            assert all(torch.equal(o["top"], r["top"]) for o, r in zip(outs, ref))  # the logits are the plain model's
+    off = list(Predictor(model, rack_depth=0.8, read_depth=False).run(frames))
+    assert "box_back" not in off[-1]
+    with torch.no_grad():  # a head that says every column is shown at 0.3 m: every box gets that back
+        model.box_depth.out.weight.zero_()
+        model.box_depth.out.bias.fill_(-20.0)
+        model.box_depth.out.bias[int(np.argmin(np.abs(BINS - 0.3)))] = 20.0
+        model.box_depth.out.bias[-1] = 20.0
+    outs = list(Predictor(model, rack_depth=0.8).run(frames))
+    valid = np.isfinite(outs[-1]["anchors"].numpy())
+    assert valid.any() and np.allclose(outs[-1]["box_back"].numpy()[valid], 0.3, atol=1e-3)
+    assert np.isnan(outs[-1]["box_back"].numpy()[~valid]).all()
+
+
+def test_frame_layouts_move_every_box_to_the_carried_back():
+    top, front = slot_with_box(SPEC, slice(10, 14), slice(3, 7))
+    top, front = (np.repeat(v, SPEC.num_slots, 0) for v in (top, front))
+
+    def logits(lay: np.ndarray) -> torch.Tensor:
+        return 10.0 * torch.nn.functional.one_hot(torch.from_numpy(lay).long(), 3).permute(0, 3, 1, 2).float()
+
+    depth = 1.0
+    backs = np.full((SPEC.num_slots, SPEC.size), np.nan)
+    backs[1] = 0.9  # slot 1 only: deeper than drawn
+    out = {"top": logits(top), "front": logits(front), "rack_depth": torch.tensor(depth, dtype=torch.float64)}
+    plain = frame_layouts(out, SPEC)["top"]
+    moved = frame_layouts({**out, "box_back": torch.from_numpy(backs)}, SPEC)["top"]
+    assert np.array_equal(moved[[0, 2]], plain[[0, 2]])
+    ((_, _, zb_plain, _),) = box_parts(plain[1], front[1], SPEC, depth)
+    ((_, _, zb, _),) = box_parts(moved[1], front[1], SPEC, depth)
+    assert np.all(zb_plain < 0.8) and np.allclose(zb, 0.9, atol=SPEC.z_extent / SPEC.size)
+    unknown = frame_layouts(
+        {**out, "rack_depth": torch.tensor(float("nan")), "box_back": torch.from_numpy(backs)}, SPEC
+    )
+    assert np.array_equal(unknown["top"], frame_layouts({**out, "rack_depth": torch.tensor(float("nan"))}, SPEC)["top"])
+
+
+def test_column_targets_pool_the_truth_to_the_model_columns():
+    spec = LayoutSpec(size=8)
+    top = np.full((1, 8, 8), SHELF, np.uint8)
+    top[0, 5:8, 2:4] = BOX
+    labels = np.full((1, 8), -1)
+    labels[0, 2] = 2
+    back, shown = column_targets(top, labels, spec, 1.0, 4)
+    zb = cell_z(spec, 1.0)[5] + spec.z_extent / 16
+    assert np.isnan(back[0, 0]) and back[0, 1] == pytest.approx(zb) and np.isnan(back[0, 2:]).all()
+    assert shown[0].tolist() == [False, True, False, False]
+    with pytest.raises(InputError, match="evenly"):
+        column_targets(top, labels, spec, 1.0, 3)
+
+
+def test_the_head_learns_box_depths(tiny_checkpoint, tiny_dataset, tmp_path):
+    model = with_box_head(load_model(tiny_checkpoint)[0])
+    seqs = open_dataset(tiny_dataset).sequences()
+    data = cache_inputs(model, seqs, SeenTracker, tmp_path, progress=False)
+    assert len(data) > 0 and data.win.dtype == np.float16 and np.isfinite(data.back).any()
+    torch.manual_seed(0)
+    from network.boxdepth import BoxDepthHead
+
+    head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
+    losses = train_head(head, data, FitConfig(epochs=12, batch=8, lr=3e-3), progress=False)
+    assert losses[-1] < 0.7 * losses[0]
+
+
+def test_fit_box_depth_writes_a_model_that_reads_box_depths(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    out = tmp_path / "with_head.pt"
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    common = ["--threads", "1", "--quiet"]
+    assert main([*args, "--epochs", "1", "--out", str(out), "--cache-dir", str(tmp_path), *common]) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith("box-depth-")] == []  # the cache is removed
+    payload, record = load_checkpoint(out)
+    src, _ = load_checkpoint(tiny_checkpoint)
+    assert record["model_config"]["box_depth"] is True and record["box_depth"]["train_sequences"] == 3
+    assert all(torch.equal(payload["model"][k], v) for k, v in src["model"].items())  # the trunk is untouched
+    assert load_model(out)[0].box_depth is not None
+    again = tmp_path / "again.pt"  # refitting a model with the head replaces the head
+    assert main(["fit-box-depth", "--checkpoint", str(out), "--data", str(tiny_dataset), "--epochs", "1",
+                 "--out", str(again), *common]) == 0  # fmt: skip
+    assert load_model(again)[0].box_depth is not None
+    seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
+    run = ["--checkpoint", str(out), "--threads", "1"]
+    assert main(["predict", str(seq), "--out", str(tmp_path / "p"), "--rack-depth", "0.8", *run]) == 0
+    assert LayoutFolder(tmp_path / "p").indices()
+    assert main(["run", str(seq), "--out", str(tmp_path / "r"), "--no-rrd", "--quiet", *run]) == 0
+    assert WarehouseMap.load(tmp_path / "r" / "warehouse.json").meta["box_depth_source"] == "read"
+    capsys.readouterr()
+    assert main([*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--epochs" in err
+
+
+def test_fitting_needs_depth_instance_and_scene(tiny_checkpoint, tmp_path, capsys):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    from PIL import Image
+
+    for i in range(2):
+        Image.fromarray(np.zeros((64, 64, 3), np.uint8)).save(photos / f"{i:03d}.png")
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(photos), "--quiet"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "photos" in err
