@@ -724,6 +724,8 @@ class MVRackLay(nn.Module):
         res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
         if feats.back is not None:
             res["back"] = feats.back.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
+        if feats.window is not None:
+            res["box_window"] = feats.window.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
         return res
 
     def step(

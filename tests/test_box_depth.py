@@ -113,6 +113,9 @@ def test_the_head_is_part_of_the_model_and_inference_only_when_asked():
             assert all(tuple(o["box_back"].shape) == (SPEC.num_slots, SPEC.size) for o in outs)
             ref = list(Predictor(plain, flip=flip, rack_depth=0.8).run(frames, mode))
             assert all(torch.equal(o["top"], r["top"]) for o, r in zip(outs, ref))  # the logits are the plain model's
+    naive = list(Predictor(model, rack_depth=0.8).window(frames, recompute=True))  # the whole window re-run
+    cached = list(Predictor(model, rack_depth=0.8).window(frames))
+    assert all(np.allclose(n["box_back"], c["box_back"], atol=1e-4, equal_nan=True) for n, c in zip(naive, cached))
     off = list(Predictor(model, rack_depth=0.8, read_depth=False).run(frames))
     assert "box_back" not in off[-1]
     with torch.no_grad():  # a head that says every column is shown at 0.3 m: every box gets that back
