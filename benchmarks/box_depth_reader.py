@@ -27,8 +27,9 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from box_top_faces import Table, box_parts, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
+from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 
+from layouts.boxdepth import box_parts  # noqa: E402
 from network.boxdepth import MIN_SHOWN, BoxDepthReader, decode, head_inputs  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402

@@ -43,6 +43,28 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any], record: di
     atomic_write_json(json_path(path), record)
 
 
+def save_with_head(
+    path: str | os.PathLike,
+    payload: dict[str, Any],
+    record: dict[str, Any],
+    cfg: ModelConfig,
+    name: str,
+    head: torch.nn.Module,
+    key: str,
+    info: dict[str, Any],
+) -> None:
+    """A loaded checkpoint written to ``path`` with a head fitted afterwards (the trunk untouched): its
+    weights under ``name.`` (any old ones replaced, in the payload's float dtype), ``cfg`` as the model
+    config and ``info`` in the record under ``key``."""
+    state = {k: v for k, v in payload["model"].items() if not k.startswith(f"{name}.")}
+    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
+    state.update({f"{name}.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()})
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record["model_config"] = cfg.to_dict()
+    record[key] = info
+    save_checkpoint(path, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+
+
 def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, Any]]:
     """Load ``(payload, record)`` safely; any problem is one line naming the file."""
     path = Path(path)

@@ -40,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.checkpoint import load_checkpoint, model_from, save_checkpoint
+    from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.fit_backedge import FitConfig, fit_back_edges
     from network.train import open_data
 
@@ -64,14 +64,9 @@ def run(args: argparse.Namespace) -> int:
                 f"{_cm(d['mae_frame'])} one frame, {_cm(d['mae_running'])} over the frames so far, "
                 f"{_cm(d['mae_sequence'])} at a sequence's end"
             )
-    state = dict(payload["model"])
-    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
-    state.update({f"back.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()})
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
-    record["model_config"] = replace(model.cfg, back_edges=True).to_dict()
-    record["back_edges"] = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **summary}
     out = args.out or args.checkpoint
-    save_checkpoint(out, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+    info = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **summary}
+    save_with_head(out, payload, record, replace(model.cfg, back_edges=True), "back", head, "back_edges", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
         atomic_write_json(args.json, nan_to_null(summary))

@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.checkpoint import load_checkpoint, model_from, save_checkpoint
+    from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.fit_boxdepth import FitConfig, fit_box_depth
     from network.train import open_data
     from waresynth.visibility import SeenTracker
@@ -67,17 +67,9 @@ def run(args: argparse.Namespace) -> int:
         f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
         + ", ".join(f"{v:.3f}" for v in summary["losses"])
     )
-    state = dict(payload["model"])
-    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
-    state = {k: v for k, v in state.items() if not k.startswith("box_depth.")}
-    state.update(
-        {f"box_depth.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()}
-    )
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
-    record["model_config"] = replace(model.cfg, box_depth=True).to_dict()
-    record["box_depth"] = {"data": [str(d) for d in args.data], **summary}
     out = args.out or args.checkpoint
-    save_checkpoint(out, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+    info = {"data": [str(d) for d in args.data], **summary}
+    save_with_head(out, payload, record, replace(model.cfg, box_depth=True), "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
         atomic_write_json(args.json, nan_to_null(summary))
