@@ -30,11 +30,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="all", help="which split of --data to use (train, val, test, or all)")
     p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
-    p.add_argument("--mode", choices=["window", "stream"], default="stream")
+    p.add_argument(
+        "--mode", choices=["window", "stream"], default="stream",
+        help="streaming (memory carried frame to frame) or windowed (the paper)",
+    )  # fmt: skip
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write every offset's scores as JSON here")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:

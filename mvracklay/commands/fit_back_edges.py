@@ -30,13 +30,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--sequences", type=int, default=1200, help="training sequences to use (the first N of --data)")
     p.add_argument("--val", type=Path, help="generated dataset to measure the depth read on (never trained on)")
-    p.add_argument("--epochs", type=int, default=20)
+    p.add_argument("--epochs", type=int, default=20, help="passes over the training frames")
     p.add_argument("--every", type=int, default=1, help="use every N-th frame")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bars")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -31,13 +31,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="generated dataset(s) with depth, instance and scene files to fit on",
     )  # fmt: skip
     p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
-    p.add_argument("--epochs", type=int, default=3)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=3, help="passes over the cached inputs")
+    p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bars")
 
 
 def run(args: argparse.Namespace) -> int:

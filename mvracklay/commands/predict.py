@@ -44,7 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seq_dir", type=Path, metavar="SEQ_DIR", help="generated sequence folder or image folder")
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint, e.g. weights/mvracklay-disc-4.pt")
     p.add_argument("--out", type=Path, required=True, help="layout folder to write")
-    p.add_argument("--mode", choices=["stream", "window"], default="stream")
+    p.add_argument(
+        "--mode", choices=["stream", "window"], default="stream",
+        help="streaming (memory carried frame to frame) or windowed (the paper)",
+    )  # fmt: skip
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
     p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
@@ -53,11 +56,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
     )
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
 def _parse_intrinsics(text: str, width: int, height: int) -> Intrinsics:

@@ -35,17 +35,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "'mvracklay export --format racklay' (several are joined; same layout spec)",
     )
     p.add_argument("--out", type=Path, required=True, help="run folder (or the weights file with --export)")
-    p.add_argument("--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT)
+    p.add_argument(
+        "--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT,
+        help="racklay: one frame, no memory (the baseline); mvracklay-T: windows of T frames through the slot memory; "
+        "-disc-: with the LSGAN discriminators",
+    )  # fmt: skip
     p.add_argument("--resume", action="store_true", help="continue from RUN/last.pt when it exists (else start)")
     p.add_argument("--export", type=Path, metavar="CKPT", help="write CKPT's model weights as fp16 to --out, then stop")
     m = ModelConfig()
     g = p.add_argument_group("model")
-    g.add_argument("--input-size", type=int, nargs=2, default=[m.input_width, m.input_height], metavar=("W", "H"))
+    g.add_argument("--input-size", type=int, nargs=2, default=[m.input_width, m.input_height], metavar=("W", "H"),
+                   help="network input in pixels (frames are resized to it)")  # fmt: skip
     g.add_argument("--layout-size", type=int, default=m.spec.size, help="D of the predicted layouts")
     g.add_argument("--encoder-width", type=int, default=m.encoder_width, help="ResNet-18 base width (64 = standard)")
     g.add_argument("--hidden", type=int, default=m.hidden, help="channels of the reduced 1/32 map")
     g.add_argument("--memory-hidden", type=int, default=m.memory_hidden, help="ConvLSTM channels of the slot memory")
-    g.add_argument("--decoder-width", type=int, default=m.decoder_width)
+    g.add_argument("--decoder-width", type=int, default=m.decoder_width, help="channels of the layout decoders")
     g.add_argument(
         "--parallax",
         action="store_true",
@@ -67,8 +72,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     t = TrainConfig()
     g = p.add_argument_group("optimisation")
-    g.add_argument("--epochs", type=int, default=t.epochs)
-    g.add_argument("--steps-per-epoch", type=int, default=t.steps_per_epoch)
+    g.add_argument("--epochs", type=int, default=t.epochs, help="epochs (validation and checkpoints after each)")
+    g.add_argument("--steps-per-epoch", type=int, default=t.steps_per_epoch, help="optimiser steps per epoch")
     g.add_argument(
         "--minutes",
         type=float,
@@ -84,16 +89,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--resume continues it (0 = no pause)",
     )
     g.add_argument("--frames-per-step", type=int, default=t.frames_per_step, help="frames per batch (all variants)")
-    g.add_argument("--lr", type=float, default=t.lr)
+    g.add_argument("--lr", type=float, default=t.lr, help="peak learning rate (one-cycle schedule)")
     g.add_argument(
-        "--class-weights", type=float, nargs=3, default=list(t.class_weights), metavar=("BG", "SHELF", "BOX")
+        "--class-weights",
+        type=float,
+        nargs=3,
+        default=list(t.class_weights),
+        metavar=("BG", "SHELF", "BOX"),
+        help="per-class weights of the cross entropy (the rare box class weighted up)",
     )
     g.add_argument("--dice-weight", type=float, default=t.dice_weight, help="soft Dice on the box class")
     g.add_argument("--row-weight", type=float, default=t.row_weight, help="the row head's board-finding loss")
     g.add_argument("--adv-weight", type=float, default=t.adv_weight, help="LSGAN weight (0 drops the discriminators)")
     g.add_argument("--short-weight", type=float, default=t.short_weight, help="consistency j vs j+1")
     g.add_argument("--long-weight", type=float, default=t.long_weight, help="consistency j vs k >= j+2")
-    g.add_argument("--no-augment", action="store_true")
+    g.add_argument("--no-augment", action="store_true", help="no colour jitter or horizontal flips")
     g.add_argument(
         "--max-stride",
         type=int,
@@ -127,7 +137,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "the saved checkpoints stay fp32): ~1.6x the steps per minute on CPUs with native bf16 (AVX512-BF16, "
         "AMX) and on recent GPUs; elsewhere it is emulated, 18-24x slower (a warning says so) (default %(default)s)",
     )
-    g.add_argument("--seed", type=int, default=t.seed)
+    g.add_argument("--seed", type=int, default=t.seed, help="seed of the weights, the data order and augmentation")
     g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
     g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
     g.add_argument(
@@ -153,7 +163,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("validation")
     g.add_argument("--val-sequences", type=int, default=t.val_sequences, help="0 = all 'val' sequences")
     g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
-    g.add_argument("--val-mode", choices=["window", "stream"], default=t.val_mode)
+    g.add_argument(
+        "--val-mode", choices=["window", "stream"], default=t.val_mode,
+        help="validate on windows (the paper) or streaming",
+    )  # fmt: skip
     p.add_argument("--note", help="with --export: a line on how the weights were trained, kept in their JSON")
     p.add_argument(
         "--with-discriminators",
