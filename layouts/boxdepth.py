@@ -3,8 +3,8 @@
 A top-view box is a connected component of box cells in one slot; per layout column it spans from
 a front to a back depth behind the rack front (the top view is centred on the rack's mid-depth, so
 the rack ``depth`` places its rows, `layouts.spec`). `box_parts` lists the boxes a slot's top and
-front views agree on; `redraw` moves a box's back per column; `impose_box_backs` does so for every
-box of a frame from per-column back depths read elsewhere (`network.boxdepth`).
+front views agree on; `redraw` moves a box's back per column; `impose_box_backs` gives every box of a
+frame one back from per-column back depths read elsewhere (`network.boxdepth`).
 """
 
 from __future__ import annotations
@@ -64,7 +64,9 @@ def impose_box_backs(
 ) -> np.ndarray:
     """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
     front per column of a grid of ``W`` columns over the same X extent (NaN: unknown, the column is
-    left). Fronts stay; a copy is returned."""
+    left). Fronts stay; each box gets one back, the median of its known columns (a box is a cuboid:
+    per-column backs left ragged edges, and a column read shallower than its front split the box in
+    two for the stitcher), at least its front cell deep; a copy is returned."""
     top = np.asarray(top)
     backs = np.asarray(backs, dtype=np.float64)
     r, d = top.shape[0], spec.size
@@ -76,9 +78,12 @@ def impose_box_backs(
         raise ValueError(f"rack depth must be a positive number of metres, got {depth}")
     out = top.copy()
     w = backs.shape[1]
+    cell = spec.z_extent / d
     for k in range(r):
         for cols, zf, _, _ in box_parts(top[k], front[k], spec, depth):
             zb = backs[k, cols * w // d]
-            if np.isfinite(zb).any():
-                redraw(out[k], cols, zf, zb, spec, depth)
+            known = zb[np.isfinite(zb)]
+            if known.size:
+                back = np.maximum(float(np.median(known)), zf + cell)
+                redraw(out[k], cols, zf, back, spec, depth)
     return out

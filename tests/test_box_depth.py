@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from skimage.measure import label
 
 from layouts import BOX, SHELF
 from layouts.boxdepth import box_parts, cell_z, impose_box_backs
@@ -43,14 +44,19 @@ def test_box_backs_move_the_back_and_keep_the_front():
     assert not rest and list(cols) == [3, 4, 5, 6]
     deeper = zb[0] + 0.3
     backs = np.full((1, SPEC.size), np.nan)
-    backs[0, 3:6] = deeper  # column 6 unknown: left as drawn
+    backs[0, 3:6] = deeper  # column 6 unknown: it takes the box's back too (one cuboid)
     out = impose_box_backs(top, front, SPEC, depth, backs)
-    for j in (3, 4, 5):
+    for j in (3, 4, 5, 6):
         box = np.nonzero(out[0, :, j] == BOX)[0]
         assert box.max() == 13  # the front row stays
         assert zc[box.min()] == pytest.approx(deeper, abs=SPEC.z_extent / SPEC.size)  # the back moved deeper
         assert box.min() < 10
-    assert np.array_equal(out[0, :, 6], top[0, :, 6])
+    cells = (out[0, :, 3:7] == BOX).sum(0).tolist()
+    backs[0, 3:6] = [deeper, deeper, zb[0] - 1.0]  # one column read in front of the box's front
+    out = impose_box_backs(top, front, SPEC, depth, backs)
+    assert (label(out[0] == BOX, connectivity=1).max(), (out[0, :, 3:7] == BOX).sum(0).tolist()) == (1, cells)
+    backs[0, 3:6] = zb[0] - 1.0  # every column in front of the box's front: the front cells stay a box
+    assert (impose_box_backs(top, front, SPEC, depth, backs)[0] == BOX).sum(0)[3:7].tolist() == [1] * 4
     assert np.array_equal(top[0, 10:14, 3:7], np.full((4, 4), BOX))  # the input is not changed
     coarse = np.full((1, SPEC.size // 4), zb[0] - 0.1)  # a coarser grid of columns: a shallower box
     shallow = impose_box_backs(top, front, SPEC, depth, coarse)
