@@ -109,7 +109,8 @@ def back_edge_rows(
 
 def depth_hypotheses(z_extent: float) -> np.ndarray:
     """The rack depths `DepthReader` weighs: `DEPTH_MIN` to ``z_extent`` metres in `DEPTH_STEP` steps."""
-    return np.arange(DEPTH_MIN, z_extent + 1e-9, DEPTH_STEP)
+    # capped: the float steps of arange end a hair past z_extent (1.400000000000001), which the top view refuses
+    return np.minimum(np.arange(DEPTH_MIN, z_extent + 1e-9, DEPTH_STEP), z_extent)
 
 
 def frame_depth_scores(

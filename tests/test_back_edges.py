@@ -22,6 +22,7 @@ from network.backedge import (
     NOMINAL_THICKNESS,
     DepthReader,
     back_edge_rows,
+    depth_hypotheses,
     frame_depth_scores,
 )
 from network.checkpoint import load_checkpoint, load_model
@@ -131,6 +132,8 @@ def test_a_depth_beyond_the_top_view_is_refused():
     out = {"top": torch.zeros(3, 3, 32, 32), "front": torch.zeros(3, 3, 32, 32), "rack_depth": torch.tensor(3.0)}
     with pytest.raises(InputError, match="depth extent"):
         frame_layouts(out, model.cfg.spec)
+    for extent in (1.4, 1.2, 0.9):  # the deepest hypothesis is the extent itself, never a float step past it
+        assert depth_hypotheses(extent).max() == extent
 
 
 def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
