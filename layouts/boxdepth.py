@@ -63,8 +63,8 @@ def impose_box_backs(
     top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float, backs: np.ndarray
 ) -> np.ndarray:
     """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
-    front per column of a grid of ``W`` columns over the same X extent (NaN: unknown, the column is
-    left). Fronts stay; each box gets one back, the median of its known columns (a box is a cuboid:
+    front per column of a grid of ``W`` columns over the same X extent (NaN: unknown; a box with no
+    known column is left). Fronts stay; each box gets one back, the median of its known columns (a box is a cuboid:
     per-column backs left ragged edges, and a column read shallower than its front split the box in
     two for the stitcher), at least its front cell deep; a copy is returned."""
     top = np.asarray(top)
