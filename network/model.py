@@ -720,12 +720,9 @@ class MVRackLay(nn.Module):
             feats, rows, a = part(slice(None))
         outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
-        res["rows"] = rows.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
-        res["anchors"] = a.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
-        if feats.back is not None:
-            res["back"] = feats.back.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
-        if feats.window is not None:
-            res["box_window"] = feats.window.unflatten(0, (t, b)).transpose(0, 1)[:, skip:]
+        extra = {"rows": rows, "anchors": a, "back": feats.back, "box_window": feats.window}
+        # frame-major (T*B, ...) -> (B, T - skip, ...), as the views are stacked
+        res.update({k: x.unflatten(0, (t, b)).transpose(0, 1)[:, skip:] for k, x in extra.items() if x is not None})
         return res
 
     def step(
