@@ -54,7 +54,9 @@ def run(model, seqs, every: int) -> list[dict]:
             seen.add(i)
             dist = camera(i)[1]
             with torch.no_grad():
-                win, extra = head_inputs(out["box_window"], out["top"], out["front"], out["anchors"], view, dist)
+                win, extra = head_inputs(
+                    out["box_window"], out["top"], out["front"], out["anchors"], view, dist, out.get("box_parallax")
+                )
                 z, p = decode(model.box_depth(win, extra))
             valid = torch.isfinite(out["anchors"]).numpy()
             by_pose = poses.add(z, p, valid, xs[i] - xs[i - 1] if i else 0.0)

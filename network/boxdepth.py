@@ -22,6 +22,8 @@ every predicted box's back there (`layouts.boxdepth.impose_box_backs`).
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -29,12 +31,17 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
+from network.parallax import RATIOS, plane_sweep
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres
 WINDOW_ROWS = 32  #: rows of the front window sampled from the 1/2 map
 MIN_SHOWN = 0.5  #: shown probability from which a column's depth enters the carried map
 DISTANCE_OFFSET = 1.5  #: metres subtracted from the camera-to-rack distance among the head's inputs
+#: frames back that each frame is paired with for the head's parallax inputs (option `box_parallax`)
+PARALLAX_BASELINES = (1, 3)
+#: parallax maps per frame: per baseline the plane-sweep cost relative to its mean over the planes, and that mean
+PARALLAX_CHANNELS = len(PARALLAX_BASELINES) * (len(RATIOS) + 1)
 
 
 class BoxDepthHead(nn.Module):
@@ -70,16 +77,48 @@ class BoxDepthHead(nn.Module):
         return self.out(self.conv1d(torch.cat([x, extra], 1)))
 
 
+class ParallaxHistory:
+    """One sequence's last canonical images and camera steps; `add` gives a frame's plane-sweep costs
+    (`network.parallax.plane_sweep`) against the frames `PARALLAX_BASELINES` back, on the 1/2 map's grid.
+
+    A box's top and side faces lie behind the rack front, so between two frames they move by less than
+    the front does (``rho = d / (d + z)`` of it); which swept plane matches tells their depth ``z``. A
+    longer baseline moves them apart by more pixels. At a sequence start the earliest frame stands in
+    (none at all: zero costs, nothing read)."""
+
+    def __init__(self, view: CanonicalView) -> None:
+        self.view = view
+        self.images: deque[torch.Tensor] = deque(maxlen=max(PARALLAX_BASELINES) + 1)
+        self.steps: deque[float] = deque(maxlen=max(PARALLAX_BASELINES))
+
+    def add(self, image: torch.Tensor, step: float) -> torch.Tensor:
+        """``image`` ``(1, 3, H, W)`` canonical, ``step`` the camera's X motion (metres) since the frame
+        before -> ``(1, PARALLAX_CHANNELS, H/2, W/2)`` maps."""
+        if self.images:
+            self.steps.append(float(step))
+        self.images.append(image)
+        maps = []
+        for b in PARALLAX_BASELINES:
+            j = min(b, len(self.images) - 1)
+            prev = self.images[-1 - j]
+            dx = torch.tensor([sum(list(self.steps)[len(self.steps) - j :])], device=image.device)
+            cost = plane_sweep(image.float(), prev.float(), dx, self.view)
+            mean = cost.mean(1, keepdim=True)
+            maps.append(torch.cat([cost - mean, mean], 1) * 10.0)
+        return F.avg_pool2d(torch.cat(maps, 1), 2)
+
+
 def head_inputs(
     window: torch.Tensor, top: torch.Tensor, front: torch.Tensor, anchors: torch.Tensor, view: CanonicalView,
-    distance: float,
+    distance: float, parallax: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
-    """One frame's head inputs: window ``(R, c1 + 3, WINDOW_ROWS, W)`` and extras ``(R, D + 2, D)``, float32.
+    """One frame's head inputs: window ``(R, c1 + 3 [+ P], WINDOW_ROWS, W)`` and extras ``(R, D + 2, D)``, float32.
 
     ``window``: ``(R, c1, WINDOW_ROWS, W)`` 1/2-map samples (`network.model.SlotHeads.window`);
     ``top``/``front``: ``(R, 3, D, D)`` logits (box offsets applied); ``anchors``: ``(R,)`` canonical rows
-    (NaN: no slot); ``distance``: camera to rack front, metres. Rounded through fp16, as the head is
-    fitted on an fp16 cache."""
+    (NaN: no slot); ``distance``: camera to rack front, metres; ``parallax``: `ParallaxHistory` maps
+    sampled the same way, ``(R, P, WINDOW_ROWS, W)`` (option `box_parallax`). Rounded through fp16, as
+    the head is fitted on an fp16 cache."""
     d = top.shape[-1]
     a = anchors.float()
     a = torch.where(torch.isfinite(a), a, torch.full_like(a, view.height / 2))
@@ -88,7 +127,7 @@ def head_inputs(
     tb = torch.softmax(top.float(), 1)[:, BOX]  # (R, D depth rows, D columns)
     elev = ((a - view.height / 2) * view.metres_per_pixel).view(-1, 1, 1).expand(-1, 1, d)
     dist = torch.full_like(elev, distance - DISTANCE_OFFSET)
-    win = torch.cat([window.float(), fr], 1).half().float()
+    win = torch.cat([window.float(), fr] + ([] if parallax is None else [parallax.float()]), 1).half().float()
     extra = torch.cat([tb, elev, dist], 1).half().float()
     return win, extra
 

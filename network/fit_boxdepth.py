@@ -55,12 +55,14 @@ class FitConfig:
                 raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
 
 
-def with_box_head(model: MVRackLay) -> MVRackLay:
-    """``model`` itself if it has the box-depth head, else a copy with a fresh one (same weights otherwise)."""
-    if model.box_depth is not None:
+def with_box_head(model: MVRackLay, parallax: bool = False) -> MVRackLay:
+    """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps),
+    else a copy with a fresh one (same weights otherwise)."""
+    if model.box_depth is not None and model.cfg.box_parallax == parallax:
         return model
-    out = MVRackLay(replace(model.cfg, box_depth=True))
-    missing, unexpected = out.load_state_dict(model.state_dict(), strict=False)
+    out = MVRackLay(replace(model.cfg, box_depth=True, box_parallax=parallax))
+    state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
+    missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
         raise InputError(f"model weights do not fit the model with a box-depth head: {unexpected or missing}")
     out.box_logit_offset = dict(model.box_logit_offset)
@@ -113,13 +115,14 @@ def cache_inputs(
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
-        pred = Predictor(model, camera, read_depth=False)
+        pred = Predictor(model, camera, read_depth=False, box_inputs=True)
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(seq.num_frames))):
             bar.update(1)
             seen.add(i)
             win, extra = head_inputs(
-                out["box_window"], out["top"], out["front"], out["anchors"], model.cfg.view, camera(i)[1]
-            )
+                out["box_window"], out["top"], out["front"], out["anchors"], model.cfg.view, camera(i)[1],
+                out.get("box_parallax"),
+            )  # fmt: skip
             back, shown = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
             v = torch.isfinite(out["anchors"]).cpu().numpy()
             parts = {"win": win[v].half().numpy(), "extra": extra[v].half().numpy(),
@@ -183,14 +186,16 @@ def fit_box_depth(
     cfg: FitConfig,
     cache_dir: Path | None = None,
     progress: bool = True,
+    parallax: bool = False,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
-    """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record.
-    The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the end."""
+    """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
+    `network.boxdepth.ParallaxHistory`) and a summary for the checkpoint's record. The cache lives in a
+    temporary folder (under ``cache_dir`` if given) removed at the end."""
     cfg.validate()
     if not train:
         raise InputError("no training sequences to fit the box-depth head on")
     t0 = time.perf_counter()
-    model = with_box_head(model)
+    model = with_box_head(model, parallax)
     with tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir) as tmp:
         data = cache_inputs(model, train, labels, Path(tmp), progress)
         t1 = time.perf_counter()
@@ -201,6 +206,7 @@ def fit_box_depth(
         del data
     summary = {
         "train_sequences": len(train),
+        "parallax": parallax,
         "train_slots": slots,
         "shown_fraction": shown,
         "epochs": cfg.epochs,

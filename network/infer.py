@@ -22,7 +22,7 @@ from layouts import VIEWS, Intrinsics, LayoutSpec
 from layouts.boxdepth import impose_box_backs
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
-from network.boxdepth import BoxDepthReader, decode, head_inputs
+from network.boxdepth import BoxDepthReader, ParallaxHistory, decode, head_inputs
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
 from network.model import MVRackLay, board_peaks
@@ -72,7 +72,9 @@ class Predictor:
     have shown along the row (`network.boxdepth.BoxDepthReader`, the camera's motion read from the
     images), unless ``read_depth`` is False. Each output then carries ``"box_back"`` ``(R, D)``
     (metres behind the rack front per model column, NaN where none is known), which `frame_layouts`
-    imposes on every predicted box once the rack depth is known.
+    imposes on every predicted box once the rack depth is known. A head that also reads parallax
+    (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
+    output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading.
     """
 
     def __init__(
@@ -83,6 +85,7 @@ class Predictor:
         flip: bool = False,
         rack_depth: float | None = None,
         read_depth: bool = True,
+        box_inputs: bool = False,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -93,7 +96,11 @@ class Predictor:
         #: the depth is read from the back edges (the model has the head, no depth is given, reading is on)
         self.reads_depth = bool(read_depth) and rack_depth is None and model.back is not None
         self.reads_box_depth = bool(read_depth) and model.box_depth is not None
-        self._motion: deque[torch.Tensor] = deque()  #: the direct pass's motion signatures not yet used
+        #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
+        self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
+        self._tracks_motion = self.reads_box_depth or self.box_parallax
+        #: the direct pass's motion signatures and canonical images not yet used
+        self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -116,8 +123,8 @@ class Predictor:
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
         for i, rgb in enumerate(frames):
             x = self.preprocess(rgb, i)
-            if self.reads_box_depth:
-                self._motion.append(motion_signature(x))
+            if self._tracks_motion:
+                self._motion.append((motion_signature(x), x))
             yield x, self._anchors(i)
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
@@ -140,6 +147,7 @@ class Predictor:
         with the box-depth head, ``"box_back"``."""
         reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
         boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
+        history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
         self._motion.clear()
         prev: torch.Tensor | None = None
         for i, out in enumerate(outs):
@@ -150,11 +158,15 @@ class Predictor:
                     back, board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view), self.camera(i)[1]
                 )
             out["rack_depth"] = torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
-            if boxes is not None:
-                sig = self._motion.popleft()
+            if self._tracks_motion:
+                sig, x = self._motion.popleft()
                 step = 0.0 if prev is None else float(camera_shift(prev, sig, self.cfg.view)[0])
                 prev = sig
-                out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
+                if history is not None:
+                    maps = history.add(x, step)
+                    out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
+                if boxes is not None:
+                    out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
             yield out
 
     @torch.no_grad()
@@ -162,8 +174,9 @@ class Predictor:
         """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""
         head = self.model.box_depth
         win, extra = head_inputs(
-            out["box_window"], out["top"], out["front"], out["anchors"], self.cfg.view, self.camera(i)[1]
-        )
+            out["box_window"], out["top"], out["front"], out["anchors"], self.cfg.view, self.camera(i)[1],
+            out.get("box_parallax"),
+        )  # fmt: skip
         z, p = decode(head(win.to(self.device), extra.to(self.device)))
         return boxes.add(z, p, torch.isfinite(out["anchors"]).cpu().numpy(), step)
 

@@ -49,6 +49,7 @@ from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
+from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
 from network.boxdepth import WINDOW_ROWS, BoxDepthHead
 from network.convlstm import StackedConvLSTM, State
 from network.geotop import GeometricTop
@@ -100,6 +101,7 @@ class ModelConfig:
         False  #: a head finds the boards' back edges, from which the rack depth is read (`network.backedge`)
     )
     box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
+    box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -117,11 +119,13 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top", "back_edges", "box_depth"):
+        for name in ("parallax", "geo_top", "back_edges", "box_depth", "box_parallax"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
             raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
+        if self.box_parallax and not self.box_depth:
+            raise InputError("box_parallax is an input of the box-depth head; it needs box_depth")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
             object.__setattr__(self, "align_memory", True)
         if self.decoder_width < 4:
@@ -591,7 +595,8 @@ class MVRackLay(nn.Module):
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
         #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
-        self.box_depth = BoxDepthHead(fine + NUM_CLASSES, cfg.spec.size + 2) if cfg.box_depth else None
+        c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
+        self.box_depth = BoxDepthHead(c2d, cfg.spec.size + 2) if cfg.box_depth else None
         self.slots = SlotHeads(cfg, fine, coarse)
         self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (

@@ -224,3 +224,65 @@ def test_fitting_needs_depth_instance_and_scene(tiny_checkpoint, tmp_path, capsy
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "photos" in err
+
+
+def test_parallax_history_reads_the_depth_of_what_moved_and_nothing_at_a_start():
+    """A texture on the front plane moves by the camera's full step: against the frames 1 and 3 back the
+    plane with ratio 1 matches best; the first frame has no earlier one and gives zero maps."""
+    from layouts.canonical import CanonicalView
+    from network.boxdepth import PARALLAX_BASELINES, PARALLAX_CHANNELS, ParallaxHistory
+    from network.parallax import RATIOS
+
+    view = CanonicalView(64, 32, 3.0)
+    g = torch.Generator().manual_seed(0)
+    strip = torch.rand(1, 3, 1, 160, generator=g).expand(1, 3, 32, 160).contiguous()
+    m, k = view.metres_per_pixel, len(RATIOS)
+    hist = ParallaxHistory(view)
+    maps = [hist.add(torch.roll(strip, -3 * i, dims=-1)[..., 32:96], 3 * m if i else 0.0) for i in range(5)]
+    assert all(tuple(x.shape) == (1, PARALLAX_CHANNELS, 16, 32) for x in maps)
+    assert float(maps[0].abs().max()) < 1e-4
+    for j, _ in enumerate(PARALLAX_BASELINES):
+        rel = maps[-1][0, j * (k + 1) : j * (k + 1) + k, 2:-2, 2:-2]
+        best = torch.tensor(RATIOS)[rel.argmin(0)]
+        assert (best == 1.0).float().mean() > 0.9
+        assert float(maps[-1][0, j * (k + 1) + k].mean()) > 0.0  # the mean cost: there is texture to match
+    wrong = ParallaxHistory(view)  # told the camera went the other way: the front plane is not found
+    for i in range(4):
+        out = wrong.add(torch.roll(strip, -3 * i, dims=-1)[..., 32:96], -3 * m if i else 0.0)
+    rel = out[0, :k, 2:-2, 2:-2]
+    assert (torch.tensor(RATIOS)[rel.argmin(0)] == 1.0).float().mean() < 0.5
+
+
+def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkpoint, tiny_dataset, tmp_path):
+    from dataclasses import replace
+
+    from network.boxdepth import PARALLAX_CHANNELS
+
+    base = load_model(tiny_checkpoint)[0]
+    with pytest.raises(InputError, match="box_parallax .* needs box_depth"):
+        replace(base.cfg, box_parallax=True, box_depth=False)
+    plain = with_box_head(base)
+    model = with_box_head(plain, parallax=True)  # a head of the other kind is replaced
+    assert model is not plain and model.cfg.box_parallax
+    c_in = [next(m.box_depth.conv2d.parameters()).shape[1] for m in (plain, model)]
+    assert c_in[1] == c_in[0] + PARALLAX_CHANNELS
+    assert with_box_head(model, parallax=True) is model
+    seqs = open_dataset(tiny_dataset).sequences()
+    (tmp_path / "a").mkdir(), (tmp_path / "b").mkdir()  # each cache maps its own files
+    data = cache_inputs(model, seqs[:1], SeenTracker, tmp_path / "a", progress=False)
+    ref = cache_inputs(plain, seqs[:1], SeenTracker, tmp_path / "b", progress=False)
+    assert data.win.shape[1] == ref.win.shape[1] + PARALLAX_CHANNELS
+    np.testing.assert_array_equal(data.win[:, : ref.win.shape[1]], ref.win)  # the other inputs are the same
+    assert np.abs(data.win[:, ref.win.shape[1] :].astype(np.float32)).max() > 0  # the camera moved: costs differ
+    out = tmp_path / "par.pt"
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax"]
+    assert main([*args, "--epochs", "1", "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    loaded = load_model(out)[0]
+    assert loaded.cfg.box_parallax and load_checkpoint(out)[1]["box_depth"]["parallax"] is True
+    seq = seqs[0]
+    frames = [seq.rgb(i) for i in range(seq.num_frames)]
+    for mode in ("stream", "window"):
+        outs = list(Predictor(loaded, rack_depth=0.8).run(frames, mode))
+        assert all(tuple(o["box_back"].shape) == (SPEC.num_slots, loaded.cfg.spec.size) for o in outs)
+        assert all(o["box_parallax"].shape[1] == PARALLAX_CHANNELS for o in outs)
+    assert "box_parallax" not in next(iter(Predictor(loaded, rack_depth=0.8, read_depth=False).run(frames)))

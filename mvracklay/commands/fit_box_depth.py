@@ -34,6 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
     p.add_argument("--epochs", type=int, default=3, help="passes over the cached inputs")
     p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
+    p.add_argument(
+        "--parallax", action="store_true",
+        help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
+        "the rack front move less than the front as the camera moves); about twice the cache",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
@@ -62,7 +67,9 @@ def run(args: argparse.Namespace) -> int:
     if not train:
         raise InputError(f"--data {' '.join(map(str, args.data))}: no sequences")
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
-    head, summary = fit_box_depth(model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet)
+    head, summary = fit_box_depth(
+        model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax
+    )
     print(
         f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
         f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
@@ -70,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **summary}
-    save_with_head(out, payload, record, replace(model.cfg, box_depth=True), "box_depth", head, "box_depth", info)
+    cfg_out = replace(model.cfg, box_depth=True, box_parallax=args.parallax)
+    save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
         atomic_write_json(args.json, nan_to_null(summary))
