@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--parallax", action="store_true",
         help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
-        "the rack front move less than the front as the camera moves); about twice the cache",
+        "the rack front move less than the front as the camera moves); a cache ~2.4x as large, slower inference",
     )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
