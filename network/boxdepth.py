@@ -31,7 +31,7 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.parallax import RATIOS, plane_sweep
+from network.parallax import RATIOS, plane_sweep, relative_costs
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres
@@ -102,9 +102,7 @@ class ParallaxHistory:
             j = min(b, len(self.images) - 1)
             prev = self.images[-1 - j]
             dx = torch.tensor([sum(list(self.steps)[len(self.steps) - j :])], device=image.device)
-            cost = plane_sweep(image.float(), prev.float(), dx, self.view)
-            mean = cost.mean(1, keepdim=True)
-            maps.append(torch.cat([cost - mean, mean], 1) * 10.0)
+            maps.append(relative_costs(plane_sweep(image.float(), prev.float(), dx, self.view)))
         return F.avg_pool2d(torch.cat(maps, 1), 2)
 
 

@@ -50,11 +50,18 @@ def plane_sweep(cur: torch.Tensor, prev: torch.Tensor, dx: torch.Tensor, view: C
     return F.avg_pool2d(cost, 3, 1, 1, count_include_pad=False)
 
 
+def relative_costs(cost: torch.Tensor) -> torch.Tensor:
+    """``(N, K, H, W)`` costs -> ``(N, K + 1, H, W)``: each plane's cost relative to the mean over the
+    planes (which plane matches best) and that mean (how much texture there is to match), x10 (unit scale)."""
+    mean = cost.mean(1, keepdim=True)
+    return torch.cat([cost - mean, mean], 1) * 10.0
+
+
 class ParallaxNet(nn.Module):
     """Cost volume -> ``channels`` feature maps at half the image's resolution (the 1/2 map's grid).
 
-    Input: the cost relative to its mean over the planes (which plane matches best) and the mean
-    itself (how much texture there is to match), both scaled for the first batch norm.
+    Input: `relative_costs` of the volume (which plane matches best, and how much texture there is
+    to match), scaled for the first batch norm.
     """
 
     def __init__(self, channels: int = 16) -> None:
@@ -74,5 +81,4 @@ class ParallaxNet(nn.Module):
         )
 
     def forward(self, cost: torch.Tensor) -> torch.Tensor:
-        mean = cost.mean(1, keepdim=True)
-        return self.net(torch.cat([cost - mean, mean], 1) * 10.0)
+        return self.net(relative_costs(cost))
