@@ -36,6 +36,7 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=3)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--cache-dir", type=Path)
+    ap.add_argument("--seed", type=int, default=0, help="both heads' initial weights and batch order")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -43,7 +44,7 @@ def main() -> None:
     payload, record = load_checkpoint(args.checkpoint)
     model = with_box_head(model_from(payload, record, args.checkpoint), parallax=True)
     train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
-    cfg = FitConfig(epochs=args.epochs)
+    cfg = FitConfig(epochs=args.epochs, seed=args.seed)
     results = {}
     with tempfile.TemporaryDirectory(prefix="box-parallax-", dir=args.cache_dir) as tmp:
         t0 = time.perf_counter()
