@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 
 from layouts.boxdepth import box_parts  # noqa: E402
-from network.boxdepth import MIN_SHOWN, BoxDepthReader, decode, head_inputs  # noqa: E402
+from network.boxdepth import MIN_SHOWN, BoxDepthReader, decode, frame_head_inputs  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -54,9 +54,7 @@ def run(model, seqs, every: int) -> list[dict]:
             seen.add(i)
             dist = camera(i)[1]
             with torch.no_grad():
-                win, extra = head_inputs(
-                    out["box_window"], out["top"], out["front"], out["anchors"], view, dist, out.get("box_parallax")
-                )
+                win, extra = frame_head_inputs(out, view, dist)
                 z, p = decode(model.box_depth(win, extra))
             valid = torch.isfinite(out["anchors"]).numpy()
             by_pose = poses.add(z, p, valid, xs[i] - xs[i - 1] if i else 0.0)

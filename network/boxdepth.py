@@ -101,7 +101,7 @@ class ParallaxHistory:
         for b in PARALLAX_BASELINES:
             j = min(b, len(self.images) - 1)
             prev = self.images[-1 - j]
-            dx = torch.tensor([sum(list(self.steps)[len(self.steps) - j :])], device=image.device)
+            dx = torch.tensor([sum(list(self.steps)[-j:]) if j else 0.0], device=image.device)
             maps.append(relative_costs(plane_sweep(image.float(), prev.float(), dx, self.view)))
         return F.avg_pool2d(torch.cat(maps, 1), 2)
 
@@ -128,6 +128,16 @@ def head_inputs(
     win = torch.cat([window.float(), fr] + ([] if parallax is None else [parallax.float()]), 1).half().float()
     extra = torch.cat([tb, elev, dist], 1).half().float()
     return win, extra
+
+
+def frame_head_inputs(
+    out: dict[str, torch.Tensor], view: CanonicalView, distance: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`head_inputs` of one `network.infer.Predictor` output (its box window, logits, anchors and, for a
+    head that reads them, parallax maps)."""
+    return head_inputs(
+        out["box_window"], out["top"], out["front"], out["anchors"], view, distance, out.get("box_parallax")
+    )
 
 
 def decode(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:

@@ -28,7 +28,7 @@ from tqdm import tqdm
 from layouts import BOX, LayoutSpec
 from layouts.boxdepth import cell_z
 from layouts.errors import InputError
-from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, head_inputs
+from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, frame_head_inputs
 from network.infer import Predictor, sequence_camera
 from network.model import MVRackLay
 
@@ -119,10 +119,7 @@ def cache_inputs(
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(seq.num_frames))):
             bar.update(1)
             seen.add(i)
-            win, extra = head_inputs(
-                out["box_window"], out["top"], out["front"], out["anchors"], model.cfg.view, camera(i)[1],
-                out.get("box_parallax"),
-            )  # fmt: skip
+            win, extra = frame_head_inputs(out, model.cfg.view, camera(i)[1])
             back, shown = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
             v = torch.isfinite(out["anchors"]).cpu().numpy()
             parts = {"win": win[v].half().numpy(), "extra": extra[v].half().numpy(),
