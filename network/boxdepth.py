@@ -102,8 +102,8 @@ class ParallaxHistory:
             j = min(b, len(self.images) - 1)
             prev = self.images[-1 - j]
             dx = torch.tensor([sum(list(self.steps)[-j:]) if j else 0.0], device=image.device)
-            maps.append(relative_costs(plane_sweep(image.float(), prev.float(), dx, self.view)))
-        return F.avg_pool2d(torch.cat(maps, 1), 2)
+            maps.append(F.avg_pool2d(plane_sweep(image.float(), prev.float(), dx, self.view), 2))
+        return torch.cat([relative_costs(m) for m in maps], 1)  # pooled first: both steps are linear
 
 
 def head_inputs(

@@ -10,7 +10,7 @@ from tiny_net import cached_and_naive_windows, tiny_config
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
 from network.model import ModelConfig, MVRackLay
-from network.parallax import RATIOS, ParallaxNet, plane_sweep
+from network.parallax import RATIOS, ParallaxNet, box_mean3, plane_sweep, shift_x
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 VIEW = CanonicalView(64, 32, 3.0)
@@ -54,6 +54,27 @@ def test_a_camera_that_does_not_move_gives_no_information():
     other = plane_sweep(cur.flip(-1), cur.flip(-1), torch.zeros(1), VIEW)
     with torch.no_grad():
         torch.testing.assert_close(net(cost), net(other))
+
+
+def test_the_fast_shift_and_box_mean_equal_grid_sample_and_avg_pool():
+    """`shift_x` is bilinear sampling at x + shift with the border clamped (what `grid_sample` does with
+    a pure X translation), whole and fractional shifts, in range and past either edge; `box_mean3` is a
+    3x3 average that counts only the cells inside, down to a single row or column."""
+    g = torch.Generator().manual_seed(1)
+    src = torch.rand(2, 3, 5, 11, generator=g)
+    shift = torch.tensor([[0.0, 2.5, -3.25, 14.0], [-0.75, 1.0, 9.6, -20.0]])
+    theta = torch.zeros(8, 2, 3)
+    theta[:, 0, 0] = theta[:, 1, 1] = 1.0
+    theta[:, 0, 2] = 2.0 * shift.reshape(-1) / 11
+    grid = torch.nn.functional.affine_grid(theta, [8, 3, 5, 11], align_corners=False)
+    ref = torch.nn.functional.grid_sample(
+        src.repeat_interleave(4, 0), grid, mode="bilinear", padding_mode="border", align_corners=False
+    )
+    torch.testing.assert_close(shift_x(src, shift), ref.view(2, 4, 3, 5, 11), atol=1e-5, rtol=0)
+    for shape in ((2, 3, 5, 11), (1, 1, 1, 7), (1, 2, 6, 1), (1, 1, 1, 1)):
+        x = torch.rand(*shape, generator=g)
+        want = torch.nn.functional.avg_pool2d(x, 3, 1, 1, count_include_pad=False)
+        torch.testing.assert_close(box_mean3(x), want)
 
 
 def test_parallax_needs_a_sequence_variant_and_round_trips():
