@@ -19,6 +19,7 @@ the cost volume is zero, so the features carry nothing, as for a camera that doe
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from layouts.canonical import CanonicalView
@@ -36,25 +37,30 @@ def plane_sweep(cur: torch.Tensor, prev: torch.Tensor, dx: torch.Tensor, view: C
     """
     rho = torch.tensor(RATIOS, device=cur.device, dtype=torch.float32)
     shift = dx.float().to(cur.device)[:, None] * rho[None, :] / view.metres_per_pixel  # (N, K) pixels
-    cost = (shift_x(prev, shift) - cur[:, None]).abs().mean(2)
-    return box_mean3(cost)
+    return box_mean3(shifted_costs(cur, prev, shift))
 
 
-def shift_x(src: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
-    """``src`` ``(N, C, H, W)`` sampled at ``x + shift`` for each of ``shift`` ``(N, K)`` (pixels) ->
-    ``(N, K, C, H, W)``: linear between the two nearest columns, clamped at the edges.
+def shifted_costs(cur: torch.Tensor, prev: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+    """Mean absolute colour difference ``(N, K, H, W)`` between ``cur`` and ``prev`` (``(N, C, H, W)``)
+    sampled at ``x + shift`` for each of ``shift`` ``(N, K)`` (pixels): linear between the two nearest
+    columns, clamped at the edges.
 
     The same as `grid_sample` (bilinear, border padding) with a pure X translation, without its cost:
-    one shift per plane, so every row gathers the same two columns."""
-    n, c, h, w = src.shape
-    k = shift.shape[1]
-    i = torch.floor(shift)
-    frac = (shift - i).to(src.dtype).view(n, k, 1, 1, 1)
-    x0 = torch.arange(w, device=src.device) + i.long()[..., None]  # (N, K, W)
-    rows = src[:, None].expand(n, k, c, h, w)
-    left = rows.gather(4, x0.clamp(0, w - 1).view(n, k, 1, 1, w).expand(n, k, c, h, w))
-    right = rows.gather(4, (x0 + 1).clamp(0, w - 1).view(n, k, 1, 1, w).expand(n, k, c, h, w))
-    return torch.lerp(left, right, frac)
+    one shift per plane, so each plane is two column-shifted views of ``prev`` padded at its edges
+    (a shift past the image's width samples the edge column everywhere, as a width's shift does)."""
+    n, c, h, w = prev.shape
+    shift = shift.float().clamp(-w, w)
+    whole = torch.floor(shift)
+    frac, whole = (shift - whole).tolist(), whole.long().tolist()
+    pad = max(abs(v) for row in whole for v in row) + 1
+    padded = F.pad(prev, (pad, pad, 0, 0), mode="replicate")
+    out = cur.new_empty(n, shift.shape[1], h, w)
+    for i in range(n):
+        for k, (o, f) in enumerate(zip(whole[i], frac[i])):
+            o += pad
+            warped = torch.lerp(padded[i, :, :, o : o + w], padded[i, :, :, o + 1 : o + 1 + w], f)
+            out[i, k] = (warped - cur[i]).abs().mean(0)
+    return out
 
 
 def box_mean3(x: torch.Tensor) -> torch.Tensor:

@@ -10,7 +10,7 @@ from tiny_net import cached_and_naive_windows, tiny_config
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
 from network.model import ModelConfig, MVRackLay
-from network.parallax import RATIOS, ParallaxNet, box_mean3, plane_sweep, shift_x
+from network.parallax import RATIOS, ParallaxNet, box_mean3, plane_sweep, shifted_costs
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 VIEW = CanonicalView(64, 32, 3.0)
@@ -57,8 +57,8 @@ def test_a_camera_that_does_not_move_gives_no_information():
 
 
 def test_the_fast_shift_and_box_mean_equal_grid_sample_and_avg_pool():
-    """`shift_x` is bilinear sampling at x + shift with the border clamped (what `grid_sample` does with
-    a pure X translation), whole and fractional shifts, in range and past either edge; `box_mean3` is a
+    """`shifted_costs` samples at x + shift bilinearly with the border clamped (what `grid_sample` does
+    with a pure X translation), whole and fractional shifts, in range and past either edge; `box_mean3` is a
     3x3 average that counts only the cells inside, down to a single row or column."""
     g = torch.Generator().manual_seed(1)
     src = torch.rand(2, 3, 5, 11, generator=g)
@@ -70,7 +70,9 @@ def test_the_fast_shift_and_box_mean_equal_grid_sample_and_avg_pool():
     ref = torch.nn.functional.grid_sample(
         src.repeat_interleave(4, 0), grid, mode="bilinear", padding_mode="border", align_corners=False
     )
-    torch.testing.assert_close(shift_x(src, shift), ref.view(2, 4, 3, 5, 11), atol=1e-5, rtol=0)
+    cur = torch.rand(2, 3, 5, 11, generator=g)
+    want = (ref.view(2, 4, 3, 5, 11) - cur[:, None]).abs().mean(2)
+    torch.testing.assert_close(shifted_costs(cur, src, shift), want, atol=1e-5, rtol=0)
     for shape in ((2, 3, 5, 11), (1, 1, 1, 7), (1, 2, 6, 1), (1, 1, 1, 1)):
         x = torch.rand(*shape, generator=g)
         want = torch.nn.functional.avg_pool2d(x, 3, 1, 1, count_include_pad=False)
