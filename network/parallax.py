@@ -52,7 +52,7 @@ def shifted_costs(cur: torch.Tensor, prev: torch.Tensor, shift: torch.Tensor) ->
     shift = shift.float().clamp(-w, w)
     whole = torch.floor(shift)
     frac, whole = (shift - whole).tolist(), whole.long().tolist()
-    pad = max(abs(v) for row in whole for v in row) + 1
+    pad = max((abs(v) for row in whole for v in row), default=0) + 1
     padded = F.pad(prev, (pad, pad, 0, 0), mode="replicate")
     out = cur.new_empty(n, shift.shape[1], h, w)
     for i in range(n):
