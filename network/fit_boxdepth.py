@@ -11,6 +11,9 @@ shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the show
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import json
 import math
 import tempfile
 import time
@@ -28,6 +31,7 @@ from tqdm import tqdm
 from layouts import BOX, LayoutSpec
 from layouts.boxdepth import cell_z
 from layouts.errors import InputError
+from layouts.fileio import atomic_write_json
 from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, frame_head_inputs
 from network.infer import Predictor, sequence_camera
 from network.model import MVRackLay
@@ -55,12 +59,13 @@ class FitConfig:
                 raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
 
 
-def with_box_head(model: MVRackLay, parallax: bool = False) -> MVRackLay:
-    """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps),
-    else a copy with a fresh one (same weights otherwise)."""
-    if model.box_depth is not None and model.cfg.box_parallax == parallax:
+def with_box_head(model: MVRackLay, parallax: bool = False, row_profile: bool = False) -> MVRackLay:
+    """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps;
+    ``row_profile``: `BoxDepthHead`'s row profile), else a copy with a fresh one (same weights otherwise)."""
+    cfg = model.cfg
+    if model.box_depth is not None and (cfg.box_parallax, cfg.box_row_profile) == (parallax, row_profile):
         return model
-    out = MVRackLay(replace(model.cfg, box_depth=True, box_parallax=parallax))
+    out = MVRackLay(replace(model.cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile))
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
     missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
@@ -139,6 +144,70 @@ def cache_inputs(
     return Cache(*(arrays[k][:n] for k in ("win", "extra", "back", "shown")))
 
 
+CACHE_FIELDS = ("win", "extra", "back", "shown")
+CACHE_RECORD = "cache.json"  #: in a kept cache's folder: what it holds (`cache_key`) and how many slots
+
+
+def cache_key(model: MVRackLay, seqs: list[Any]) -> dict[str, Any]:
+    """What a cache of head inputs depends on: the frozen trunk's weights (a digest), the inputs the head
+    reads (parallax maps or not) and the training sequences (folders and frame counts), in order."""
+    digest = hashlib.sha256()
+    for k, v in sorted(model.state_dict().items()):
+        if not k.startswith("box_depth."):
+            digest.update(k.encode())
+            digest.update(v.detach().cpu().contiguous().view(-1).view(torch.uint8).numpy().tobytes())
+    return {
+        "trunk_sha256": digest.hexdigest(),
+        "parallax": bool(model.cfg.box_parallax),
+        "box_logit_offset": {k: float(v) for k, v in sorted(model.box_logit_offset.items())},
+        "sequences": [[str(Path(s.root).resolve()), int(s.num_frames)] for s in seqs],
+    }
+
+
+def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
+    """The complete cache in ``folder`` if it was made for ``key``; None if the folder holds none (or an
+    unfinished one); a one-line error if it holds another model's or other data's inputs."""
+    path = folder / CACHE_RECORD
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        n = int(rec["slots"])
+        same = rec["key"] == key
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"{path}: not a box-depth input cache record ({e})") from None
+    if not same:
+        raise InputError(
+            f"--keep-cache {folder}: holds the inputs of another checkpoint, head inputs or training sequences; "
+            "give another folder (or remove this one)"
+        )
+    try:
+        arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
+    except (OSError, ValueError) as e:
+        raise InputError(f"--keep-cache {folder}: unreadable cache ({e}); remove the folder to rebuild it") from None
+    if any(len(a) != n for a in arrays):
+        raise InputError(f"--keep-cache {folder}: cache files shorter than its record; remove the folder to rebuild it")
+    return Cache(*arrays)
+
+
+def kept_cache(
+    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, progress: bool = True
+) -> tuple[Cache, bool]:
+    """``(cache, reused)``: the inputs in ``folder`` if a finished cache for this model and these sequences is
+    there, else `cache_inputs` into it, its record written last (an interrupted pass is redone, never used)."""
+    key = cache_key(model, seqs)
+    data = open_kept_cache(folder, key)
+    if data is not None:
+        return data, True
+    folder.mkdir(parents=True, exist_ok=True)
+    data = cache_inputs(model, seqs, labels, folder, progress)
+    for a in (data.win, data.extra, data.back, data.shown):
+        if isinstance(a, np.memmap):
+            a.flush()
+    atomic_write_json(folder / CACHE_RECORD, {"key": key, "slots": len(data)})
+    return data, False
+
+
 def train_head(head: BoxDepthHead, data: Cache, cfg: FitConfig, progress: bool = True) -> list[float]:
     """Fit ``head`` to the cached targets (AdamW, one-cycle schedule); returns the mean loss per epoch."""
     cfg.validate()
@@ -184,26 +253,36 @@ def fit_box_depth(
     cache_dir: Path | None = None,
     progress: bool = True,
     parallax: bool = False,
+    row_profile: bool = False,
+    keep_cache: Path | None = None,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
-    `network.boxdepth.ParallaxHistory`) and a summary for the checkpoint's record. The cache lives in a
-    temporary folder (under ``cache_dir`` if given) removed at the end."""
+    `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
+    checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
+    end, or in ``keep_cache``, kept, and reused by a later fit of the same trunk on the same sequences
+    (`kept_cache`): heads of other seeds, epochs or designs then skip the streamed pass."""
     cfg.validate()
     if not train:
         raise InputError("no training sequences to fit the box-depth head on")
     t0 = time.perf_counter()
-    model = with_box_head(model, parallax)
-    with tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir) as tmp:
-        data = cache_inputs(model, train, labels, Path(tmp), progress)
+    model = with_box_head(model, parallax, row_profile)
+    with contextlib.ExitStack() as stack:
+        if keep_cache is None:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
+            data, reused = cache_inputs(model, train, labels, Path(tmp), progress), False
+        else:
+            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress)
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
-        head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
+        head = BoxDepthHead(data.win.shape[1], data.extra.shape[1], row_profile=row_profile, rows=data.win.shape[2])
         losses = train_head(head, data, cfg, progress)
         slots, shown = len(data), float(np.mean(data.shown[np.isfinite(data.back)]))
         del data
     summary = {
         "train_sequences": len(train),
         "parallax": parallax,
+        "row_profile": row_profile,
+        "cache_reused": reused,
         "train_slots": slots,
         "shown_fraction": shown,
         "epochs": cfg.epochs,

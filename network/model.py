@@ -50,7 +50,7 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
 from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
-from network.boxdepth import WINDOW_ROWS, BoxDepthHead
+from network.boxdepth import BoxDepthHead, window_rows
 from network.convlstm import StackedConvLSTM, State
 from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
@@ -102,6 +102,7 @@ class ModelConfig:
     )
     box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
     box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
+    box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.boxdepth`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -119,13 +120,14 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top", "back_edges", "box_depth", "box_parallax"):
+        for name in ("parallax", "geo_top", "back_edges", "box_depth", "box_parallax", "box_row_profile"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
             raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
-        if self.box_parallax and not self.box_depth:
-            raise InputError("box_parallax is an input of the box-depth head; it needs box_depth")
+        for name in ("box_parallax", "box_row_profile"):
+            if getattr(self, name) and not self.box_depth:
+                raise InputError(f"{name} is part of the box-depth head; it needs box_depth")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
             object.__setattr__(self, "align_memory", True)
         if self.decoder_width < 4:
@@ -437,7 +439,7 @@ class SlotHeads(nn.Module):
         without an anchor samples the image's middle)."""
         n, r = anchors.shape
         a = torch.where(torch.isfinite(anchors), anchors, torch.full_like(anchors, self.view.height / 2))
-        rows = math.gcd(WINDOW_ROWS, self.spec.size)
+        rows = window_rows(self.spec.size)
         offs = self.front_fine.view(rows, -1).mean(1)
         return self._sample(p1, a, offs, p1.shape[-1]).unflatten(0, (n, r))
 
@@ -596,7 +598,11 @@ class MVRackLay(nn.Module):
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
         #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
         c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
-        self.box_depth = BoxDepthHead(c2d, cfg.spec.size + 2) if cfg.box_depth else None
+        self.box_depth = (
+            BoxDepthHead(c2d, cfg.spec.size + 2, row_profile=cfg.box_row_profile, rows=window_rows(cfg.spec.size))
+            if cfg.box_depth
+            else None
+        )
         self.slots = SlotHeads(cfg, fine, coarse)
         self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (

@@ -20,7 +20,9 @@ DESCRIPTION = (
     "and writes CKPT with the head added; predict, run and evaluate then carry the depths the frames showed "
     "along the row and move every predicted box's back there (--no-depth-read turns that off). "
     "The inputs are cached on disk (about 4.4 GB per thousand 12-frame scenes at 256x256, 2.4 GB at 128x128; "
-    "--cache-dir puts them where there is room) and removed at the end."
+    "--cache-dir puts them where there is room) and removed at the end; --keep-cache DIR keeps them, and a later "
+    "fit of the same checkpoint on the same sequences with --keep-cache DIR reuses them (another seed, more "
+    "epochs or --row-profile without the hour-long pass)."
 )
 ORDER = 35
 
@@ -39,8 +41,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
         "the rack front move less than the front as the camera moves); a cache ~2.4x as large, slower inference",
     )  # fmt: skip
+    p.add_argument(
+        "--row-profile", action="store_true",
+        help="the head also reads its window's rows through a learned profile over the rows, keeping where a box's "
+        "top or side face lies along the height (pooling over rows alone discards it)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
+    p.add_argument(
+        "--keep-cache", type=Path, metavar="DIR",
+        help="keep the input cache in DIR (created if missing) and reuse it when DIR already holds this checkpoint's "
+        "inputs for these sequences; refused when it holds another's",
+    )  # fmt: skip
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
@@ -58,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--sequences must be >= 1, got {args.sequences}")
     if args.cache_dir is not None and not args.cache_dir.is_dir():
         raise InputError(f"--cache-dir {args.cache_dir}: not a folder")
+    if args.keep_cache is not None and args.keep_cache.exists() and not args.keep_cache.is_dir():
+        raise InputError(f"--keep-cache {args.keep_cache}: not a folder")
     cfg = FitConfig(epochs=args.epochs, seed=args.seed)
     cfg.validate()
     torch.set_num_threads(args.threads)
@@ -68,16 +82,18 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--data {' '.join(map(str, args.data))}: no sequences")
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
     head, summary = fit_box_depth(
-        model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax
-    )
+        model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
+        row_profile=args.row_profile, keep_cache=args.keep_cache,
+    )  # fmt: skip
     print(
-        f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
+        ("reused the inputs cached in " + str(args.keep_cache) + "; " if summary["cache_reused"] else "")
+        + f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
         f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
         + ", ".join(f"{v:.3f}" for v in summary["losses"])
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **summary}
-    cfg_out = replace(model.cfg, box_depth=True, box_parallax=args.parallax)
+    cfg_out = replace(model.cfg, box_depth=True, box_parallax=args.parallax, box_row_profile=args.row_profile)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
