@@ -7,6 +7,8 @@ column the truth's box back behind the rack front (the top-view layout, the scen
 and whether the frame shows that stack's depth (``labels``: `waresynth.visibility.SeenTracker`).
 The head is then fitted with a two-hot cross entropy over the depth bins (columns whose depth is
 shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit.
+`kept_cache` keeps the inputs in a folder with a record of what they depend on (`cache_key`), so
+later fits of other seeds, epochs or head designs on the same trunk and sequences skip the streamed pass.
 """
 
 from __future__ import annotations
@@ -93,6 +95,10 @@ def column_targets(
     return back, shown
 
 
+CACHE_FIELDS = ("win", "extra", "back", "shown")
+CACHE_RECORD = "cache.json"  #: in a kept cache's folder: what it holds (`cache_key`) and how many slots
+
+
 @dataclass
 class Cache:
     """Per valid slot: window, extras (fp16), back targets (metres, NaN: no box), shown flags."""
@@ -141,11 +147,7 @@ def cache_inputs(
     bar.close()
     if not n:
         raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
-    return Cache(*(arrays[k][:n] for k in ("win", "extra", "back", "shown")))
-
-
-CACHE_FIELDS = ("win", "extra", "back", "shown")
-CACHE_RECORD = "cache.json"  #: in a kept cache's folder: what it holds (`cache_key`) and how many slots
+    return Cache(*(arrays[k][:n] for k in CACHE_FIELDS))
 
 
 def cache_key(model: MVRackLay, seqs: list[Any]) -> dict[str, Any]:
@@ -201,7 +203,8 @@ def kept_cache(
         return data, True
     folder.mkdir(parents=True, exist_ok=True)
     data = cache_inputs(model, seqs, labels, folder, progress)
-    for a in (data.win, data.extra, data.back, data.shown):
+    for k in CACHE_FIELDS:
+        a = getattr(data, k)
         if isinstance(a, np.memmap):
             a.flush()
     atomic_write_json(folder / CACHE_RECORD, {"key": key, "slots": len(data)})
