@@ -15,7 +15,6 @@ import argparse
 import json
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ import torch
 
 from network.boxdepth import PARALLAX_CHANNELS, BoxDepthHead
 from network.checkpoint import load_checkpoint, model_from, save_with_head
-from network.fit_boxdepth import Cache, FitConfig, cache_inputs, train_head, with_box_head
+from network.fit_boxdepth import Cache, FitConfig, box_head_config, cache_inputs, train_head, with_box_head
 from network.train import open_data
 from waresynth.visibility import SeenTracker
 
@@ -63,7 +62,7 @@ def main() -> None:
                 "shown_fraction": float(np.mean(data.shown[np.isfinite(data.back)])), "epochs": cfg.epochs,
                 "seed": cfg.seed, "losses": losses, "fit_minutes": minutes, "parallax": name == "with",
             }  # fmt: skip
-            mcfg = replace(model.cfg, box_depth=True, box_parallax=name == "with")
+            mcfg = box_head_config(model.cfg, parallax=name == "with")
             save_with_head(args.out / f"{name}.pt", payload, record, mcfg, "box_depth", head, "box_depth", info)
             results[name] = {"losses": losses, "fit_minutes": minutes}
             print(f"{name}: losses {', '.join(f'{v:.3f}' for v in losses)} ({minutes:.1f} min)", flush=True)

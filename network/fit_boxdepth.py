@@ -36,7 +36,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
 from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, frame_head_inputs
 from network.infer import Predictor, sequence_camera
-from network.model import MVRackLay
+from network.model import ModelConfig, MVRackLay
 
 
 @dataclass(frozen=True)
@@ -61,13 +61,19 @@ class FitConfig:
                 raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
 
 
+def box_head_config(cfg: ModelConfig, parallax: bool = False, row_profile: bool = False) -> ModelConfig:
+    """``cfg`` with a box-depth head of that kind (``parallax``: it reads the plane-sweep maps; ``row_profile``:
+    `BoxDepthHead`'s row profile): what a fitted head's checkpoint records."""
+    return replace(cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile)
+
+
 def with_box_head(model: MVRackLay, parallax: bool = False, row_profile: bool = False) -> MVRackLay:
     """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps;
     ``row_profile``: `BoxDepthHead`'s row profile), else a copy with a fresh one (same weights otherwise)."""
     cfg = model.cfg
     if model.box_depth is not None and (cfg.box_parallax, cfg.box_row_profile) == (parallax, row_profile):
         return model
-    out = MVRackLay(replace(model.cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile))
+    out = MVRackLay(box_head_config(cfg, parallax, row_profile))
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
     missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -60,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FitConfig, fit_box_depth
+    from network.fit_boxdepth import FitConfig, box_head_config, fit_box_depth
     from network.train import open_data
     from waresynth.visibility import SeenTracker
 
@@ -93,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **summary}
-    cfg_out = replace(model.cfg, box_depth=True, box_parallax=args.parallax, box_row_profile=args.row_profile)
+    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
