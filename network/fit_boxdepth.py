@@ -7,8 +7,9 @@ column the truth's box back behind the rack front (the top-view layout, the scen
 and whether the frame shows that stack's depth (``labels``: `waresynth.visibility.SeenTracker`).
 The head is then fitted with a two-hot cross entropy over the depth bins (columns whose depth is
 shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit.
-`kept_cache` keeps the inputs in a folder with a record of what they depend on (`cache_key`), so
-later fits of other seeds, epochs or head designs on the same trunk and sequences skip the streamed pass.
+`kept_cache` keeps the inputs in a folder, one part per dataset folder, each with a record of what it
+depends on (`cache_key`), so later fits of other seeds, epochs or head designs on the same trunk, or on
+more datasets, skip the streamed passes already made.
 """
 
 from __future__ import annotations
@@ -102,7 +103,7 @@ def column_targets(
 
 
 CACHE_FIELDS = ("win", "extra", "back", "shown")
-CACHE_RECORD = "cache.json"  #: in a kept cache's folder: what it holds (`cache_key`) and how many slots
+CACHE_RECORD = "cache.json"  #: in a kept cache part's folder: what it holds (`cache_key`) and how many slots
 
 
 @dataclass
@@ -116,6 +117,39 @@ class Cache:
 
     def __len__(self) -> int:
         return len(self.win)
+
+    def take(self, idx: np.ndarray) -> Cache:
+        """Slots ``idx`` (sorted ascending: a memory map reads forward) as arrays in memory."""
+        return Cache(*(np.asarray(getattr(self, k)[idx]) for k in CACHE_FIELDS))
+
+
+class Chain:
+    """Several caches read as one, in order (a kept cache has one part per folder of sequences)."""
+
+    def __init__(self, parts: list[Cache]) -> None:
+        if not parts:
+            raise ValueError("a chain of caches needs at least one part")
+        self.parts = parts
+        self.ends = np.cumsum([len(c) for c in parts])
+
+    def __len__(self) -> int:
+        return int(self.ends[-1])
+
+    def take(self, idx: np.ndarray) -> Cache:
+        """Slots ``idx`` (sorted ascending) of the chain, as `Cache.take`."""
+        starts = np.concatenate([[0], self.ends[:-1]])
+        pieces = [
+            c.take(i - s)
+            for c, i, s in zip(self.parts, np.split(idx, np.searchsorted(idx, self.ends[:-1])), starts)
+            if len(i)
+        ]
+        if not pieces:
+            return self.parts[0].take(idx)
+        return Cache(*(np.concatenate([getattr(c, k) for c in pieces]) for k in CACHE_FIELDS))
+
+    def field(self, name: str) -> np.ndarray:
+        """One field over every slot, in memory (the small ones: ``back``, ``shown``)."""
+        return np.concatenate([np.asarray(getattr(c, name)) for c in self.parts])
 
 
 def cache_inputs(
@@ -187,7 +221,7 @@ def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
     if not same:
         raise InputError(
             f"--keep-cache {folder}: holds the inputs of another checkpoint, head inputs or training sequences; "
-            "give another folder (or remove this one)"
+            "give another --keep-cache folder (or remove this one)"
         )
     try:
         arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
@@ -198,26 +232,74 @@ def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
     return Cache(*arrays)
 
 
+def part_name(folder: Path) -> str:
+    """The name of the kept-cache part that holds the inputs of the sequences in ``folder``: readable (the
+    folder's name) and unique (a digest of its resolved path)."""
+    path = str(Path(folder).resolve())
+    return f"{Path(path).name}-{hashlib.sha256(path.encode()).hexdigest()[:8]}"
+
+
+def by_folder(seqs: list[Any]) -> list[tuple[Path, list[Any]]]:
+    """``seqs`` in runs of the same parent folder (a dataset), in order."""
+    runs: list[tuple[Path, list[Any]]] = []
+    for s in seqs:
+        parent = Path(s.root).resolve().parent
+        if runs and runs[-1][0] == parent:
+            runs[-1][1].append(s)
+        else:
+            runs.append((parent, [s]))
+    return runs
+
+
+def move_single_part(folder: Path) -> None:
+    """A cache kept in the earlier layout (its files and record in ``folder`` itself, one dataset's sequences)
+    is moved into its part's folder, where `kept_cache` looks for it (renames only: nothing is rewritten)."""
+    record = folder / CACHE_RECORD
+    if not record.is_file():
+        return
+    try:
+        first = json.loads(record.read_text())["key"]["sequences"][0][0]
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as e:
+        raise InputError(f"{record}: not a box-depth input cache record ({e})") from None
+    sub = folder / part_name(Path(first).parent)
+    if sub.exists():
+        raise InputError(f"--keep-cache {folder}: holds a cache both in {folder} and in {sub}; remove one")
+    sub.mkdir()
+    for k in CACHE_FIELDS:
+        if (folder / f"{k}.npy").is_file():
+            (folder / f"{k}.npy").rename(sub / f"{k}.npy")
+    record.rename(sub / CACHE_RECORD)  # last: the part counts as finished only with all its files
+
+
 def kept_cache(
     model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, progress: bool = True
-) -> tuple[Cache, bool]:
-    """``(cache, reused)``: the inputs in ``folder`` if a finished cache for this model and these sequences is
-    there, else `cache_inputs` into it, its record written last (an interrupted pass is redone, never used)."""
-    key = cache_key(model, seqs)
-    data = open_kept_cache(folder, key)
-    if data is not None:
-        return data, True
-    folder.mkdir(parents=True, exist_ok=True)
-    data = cache_inputs(model, seqs, labels, folder, progress)
-    for k in CACHE_FIELDS:
-        a = getattr(data, k)
-        if isinstance(a, np.memmap):
-            a.flush()
-    atomic_write_json(folder / CACHE_RECORD, {"key": key, "slots": len(data)})
-    return data, False
+) -> tuple[Chain, int]:
+    """``(chain, reused)``: the inputs of ``seqs`` kept in ``folder``, one part (`part_name`) per folder the
+    sequences sit in, so a fit on more data reuses the parts already made. A part with a finished cache for
+    this model and its sequences is reused (``reused`` counts them), an absent or unfinished one is made
+    (`cache_inputs`, its record written last: an interrupted pass is redone, never used)."""
+    move_single_part(folder)
+    parts, reused = [], 0
+    for parent, group in by_folder(seqs):
+        sub = folder / part_name(parent)
+        key = cache_key(model, group)
+        data = open_kept_cache(sub, key)
+        if data is not None:
+            parts.append(data)
+            reused += 1
+            continue
+        sub.mkdir(parents=True, exist_ok=True)
+        data = cache_inputs(model, group, labels, sub, progress)
+        for k in CACHE_FIELDS:
+            a = getattr(data, k)
+            if isinstance(a, np.memmap):
+                a.flush()
+        atomic_write_json(sub / CACHE_RECORD, {"key": key, "slots": len(data)})
+        parts.append(data)
+    return Chain(parts), reused
 
 
-def train_head(head: BoxDepthHead, data: Cache, cfg: FitConfig, progress: bool = True) -> list[float]:
+def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress: bool = True) -> list[float]:
     """Fit ``head`` to the cached targets (AdamW, one-cycle schedule); returns the mean loss per epoch."""
     cfg.validate()
     opt = torch.optim.AdamW(head.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -233,9 +315,10 @@ def train_head(head: BoxDepthHead, data: Cache, cfg: FitConfig, progress: bool =
         total = 0.0
         for idx in tqdm(perm.split(cfg.batch), desc=f"box depth: epoch {ep + 1}/{cfg.epochs}", disable=not progress):
             b = np.sort(idx.numpy())  # sorted: the memory map reads forward
-            logits = head(torch.from_numpy(data.win[b]).float(), torch.from_numpy(data.extra[b]).float())
+            batch = data.take(b)
+            logits = head(torch.from_numpy(batch.win).float(), torch.from_numpy(batch.extra).float())
             lz, ls = logits[:, :-1], logits[:, -1]
-            tb, sb = torch.from_numpy(data.back[b]), torch.from_numpy(data.shown[b])
+            tb, sb = torch.from_numpy(batch.back), torch.from_numpy(batch.shown)
             m = torch.isfinite(tb)
             loss = F.binary_cross_entropy_with_logits(ls[m], sb[m].float()) if m.any() else ls.sum() * 0
             if m.any():
@@ -268,8 +351,8 @@ def fit_box_depth(
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
     `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
-    end, or in ``keep_cache``, kept, and reused by a later fit of the same trunk on the same sequences
-    (`kept_cache`): heads of other seeds, epochs or designs then skip the streamed pass."""
+    end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
+    (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made."""
     cfg.validate()
     if not train:
         raise InputError("no training sequences to fit the box-depth head on")
@@ -278,19 +361,22 @@ def fit_box_depth(
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
-            data, reused = cache_inputs(model, train, labels, Path(tmp), progress), False
+            data, reused = Chain([cache_inputs(model, train, labels, Path(tmp), progress)]), 0
         else:
             data, reused = kept_cache(model, train, labels, Path(keep_cache), progress)
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
-        head = BoxDepthHead(data.win.shape[1], data.extra.shape[1], row_profile=row_profile, rows=data.win.shape[2])
+        win = data.parts[0].win
+        head = BoxDepthHead(win.shape[1], data.parts[0].extra.shape[1], row_profile=row_profile, rows=win.shape[2])
         losses = train_head(head, data, cfg, progress)
-        slots, shown = len(data), float(np.mean(data.shown[np.isfinite(data.back)]))
-        del data
+        back = data.field("back")
+        slots, parts, shown = len(data), len(data.parts), float(np.mean(data.field("shown")[np.isfinite(back)]))
+        del data, win
     summary = {
         "train_sequences": len(train),
         "parallax": parallax,
         "row_profile": row_profile,
+        "cache_parts": parts,
         "cache_reused": reused,
         "train_slots": slots,
         "shown_fraction": shown,

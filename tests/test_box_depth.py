@@ -16,7 +16,16 @@ from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from network.boxdepth import BINS, BoxDepthReader, RowMap, decode
 from network.checkpoint import load_checkpoint, load_model
-from network.fit_boxdepth import FitConfig, cache_inputs, column_targets, train_head, with_box_head
+from network.fit_boxdepth import (
+    Cache,
+    Chain,
+    FitConfig,
+    cache_inputs,
+    column_targets,
+    part_name,
+    train_head,
+    with_box_head,
+)
 from network.infer import Predictor, frame_layouts
 from network.model import MVRackLay
 from network.toy import ToySequence
@@ -322,12 +331,13 @@ def test_the_row_profile_reads_where_an_edge_lies_along_the_window():
 
 def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     keep = tmp_path / "cache"
+    part = keep / part_name(tiny_dataset)
     args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
     common = ["--threads", "1", "--quiet", "--keep-cache", str(keep)]
     assert main([*args, "--out", str(tmp_path / "a.pt"), *common]) == 0
-    assert "reused the inputs" not in capsys.readouterr().out and (keep / "cache.json").is_file()
+    assert "reused the inputs" not in capsys.readouterr().out and (part / "cache.json").is_file()
     assert main([*args, "--out", str(tmp_path / "b.pt"), *common]) == 0
-    assert f"reused the inputs cached in {keep}" in capsys.readouterr().out
+    assert f"reused the inputs cached in {keep} for 1 of 1 data folders" in capsys.readouterr().out
     a, b = (load_checkpoint(tmp_path / f"{k}.pt")[0]["model"] for k in "ab")
     heads = [k for k in a if k.startswith("box_depth.")]
     assert heads and all(torch.equal(a[k], b[k]) for k in heads)  # same inputs, same seed: the same head
@@ -337,7 +347,56 @@ def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, t
     assert "reused the inputs" in capsys.readouterr().out
     assert main([*args, "--out", str(tmp_path / "d.pt"), "--parallax", *common]) == 2  # other inputs: refused
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "--keep-cache" in err and "another" in err
-    (keep / "cache.json").unlink()  # an unfinished cache is made again, not used
+    assert len(err.splitlines()) == 1 and str(part) in err and "another" in err
+    (part / "cache.json").unlink()  # an unfinished cache is made again, not used
     assert main([*args, "--out", str(tmp_path / "e.pt"), *common]) == 0
-    assert "reused the inputs" not in capsys.readouterr().out and (keep / "cache.json").is_file()
+    assert "reused the inputs" not in capsys.readouterr().out and (part / "cache.json").is_file()
+
+
+def test_a_kept_cache_grows_by_one_part_per_data_folder(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    """A fit on a second dataset reuses the first one's part and makes only the new one; the head equals a
+    fit on both through a single temporary cache; a cache kept in the earlier one-folder layout is moved into
+    its part and reused."""
+    from waresynth.generate import generate_dataset
+
+    more = generate_dataset(
+        tmp_path / "more", num_sequences=2, frames=4, image_size=(128, 128), spec=LayoutSpec(size=64), seed=8,
+        progress=False,
+    )  # fmt: skip
+    keep = tmp_path / "cache"
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--epochs", "1", "--threads", "1", "--quiet"]
+    assert main([*args, "--data", str(tiny_dataset), "--out", str(tmp_path / "a.pt"), "--keep-cache", str(keep)]) == 0
+    capsys.readouterr()
+    both = ["--data", str(tiny_dataset), str(more)]
+    assert main([*args, *both, "--out", str(tmp_path / "b.pt"), "--keep-cache", str(keep)]) == 0
+    assert "for 1 of 2 data folders" in capsys.readouterr().out
+    assert sorted(p.name for p in keep.iterdir()) == sorted([part_name(tiny_dataset), part_name(more)])
+    assert main([*args, *both, "--out", str(tmp_path / "c.pt")]) == 0  # one temporary cache of both
+    b, c = (load_checkpoint(tmp_path / f"{k}.pt")[0]["model"] for k in "bc")
+    heads = [k for k in b if k.startswith("box_depth.")]
+    assert heads and all(torch.equal(b[k], c[k]) for k in heads)
+    assert load_checkpoint(tmp_path / "b.pt")[1]["box_depth"]["train_slots"] > 0
+    old = keep / part_name(tiny_dataset)  # the earlier layout: one dataset's files in the folder itself
+    for f in old.iterdir():
+        f.rename(keep / f.name)
+    old.rmdir()
+    assert main([*args, *both, "--out", str(tmp_path / "d.pt"), "--keep-cache", str(keep)]) == 0
+    assert "for 2 of 2 data folders" in capsys.readouterr().out and (old / "cache.json").is_file()
+    d = load_checkpoint(tmp_path / "d.pt")[0]["model"]
+    assert all(torch.equal(b[k], d[k]) for k in heads)
+
+
+def test_a_chain_of_caches_reads_as_their_concatenation():
+    rng = np.random.default_rng(0)
+
+    def cache(n: int) -> Cache:
+        return Cache(rng.random((n, 2, 3)), rng.random((n, 1)), rng.random((n, 4)), rng.random((n, 4)) > 0.5)
+
+    parts = [cache(5), cache(0), cache(7), cache(3)]
+    chain = Chain(parts)
+    assert len(chain) == 15
+    for idx in (np.arange(15), np.array([0, 4, 5, 11, 12, 14]), np.array([6]), np.array([], dtype=int)):
+        got = chain.take(idx)
+        for k in ("win", "extra", "back", "shown"):
+            np.testing.assert_array_equal(getattr(got, k), np.concatenate([getattr(p, k) for p in parts])[idx])
+    np.testing.assert_array_equal(chain.field("back"), np.concatenate([p.back for p in parts]))

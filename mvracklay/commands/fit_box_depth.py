@@ -19,9 +19,10 @@ DESCRIPTION = (
     "and writes CKPT with the head added; predict, run and evaluate then carry the depths the frames showed "
     "along the row and move every predicted box's back there (--no-depth-read turns that off). "
     "The inputs are cached on disk (about 4.4 GB per thousand 12-frame scenes at 256x256, 2.4 GB at 128x128; "
-    "--cache-dir puts them where there is room) and removed at the end; --keep-cache DIR keeps them, and a later "
-    "fit of the same checkpoint on the same sequences with --keep-cache DIR reuses them (another seed, more "
-    "epochs or --row-profile without the hour-long pass)."
+    "--cache-dir puts them where there is room) and removed at the end; --keep-cache DIR keeps them, one part "
+    "per --data folder, and a later fit of the same checkpoint with --keep-cache DIR reuses the parts of the "
+    "folders it shares (another seed, more epochs, --row-profile or one more dataset without the hour-long "
+    "passes already made)."
 )
 ORDER = 35
 
@@ -49,8 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
     p.add_argument(
         "--keep-cache", type=Path, metavar="DIR",
-        help="keep the input cache in DIR (created if missing) and reuse it when DIR already holds this checkpoint's "
-        "inputs for these sequences; refused when it holds another's",
+        help="keep the input cache in DIR (created if missing), one part per data folder, and reuse a part when "
+        "it holds this checkpoint's inputs for that folder's sequences; refused when it holds another's",
     )  # fmt: skip
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
@@ -85,7 +86,12 @@ def run(args: argparse.Namespace) -> int:
         row_profile=args.row_profile, keep_cache=args.keep_cache,
     )  # fmt: skip
     print(
-        ("reused the inputs cached in " + str(args.keep_cache) + "; " if summary["cache_reused"] else "")
+        (
+            f"reused the inputs cached in {args.keep_cache} for {summary['cache_reused']} of "
+            f"{summary['cache_parts']} data folders; "
+            if summary["cache_reused"]
+            else ""
+        )
         + f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
         f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
         + ", ".join(f"{v:.3f}" for v in summary["losses"])
