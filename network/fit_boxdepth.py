@@ -190,9 +190,9 @@ def cache_inputs(
     return Cache(*(arrays[k][:n] for k in CACHE_FIELDS))
 
 
-def cache_key(model: MVRackLay, seqs: list[Any]) -> dict[str, Any]:
-    """What a cache of head inputs depends on: the frozen trunk's weights (a digest), the inputs the head
-    reads (parallax maps or not) and the training sequences (folders and frame counts), in order."""
+def model_key(model: MVRackLay) -> dict[str, Any]:
+    """What a cache of head inputs takes from the model: the frozen trunk's weights (a digest), the inputs the
+    head reads (parallax maps or not) and the box-logit offsets."""
     digest = hashlib.sha256()
     for k, v in sorted(model.state_dict().items()):
         if not k.startswith("box_depth."):
@@ -202,8 +202,14 @@ def cache_key(model: MVRackLay, seqs: list[Any]) -> dict[str, Any]:
         "trunk_sha256": digest.hexdigest(),
         "parallax": bool(model.cfg.box_parallax),
         "box_logit_offset": {k: float(v) for k, v in sorted(model.box_logit_offset.items())},
-        "sequences": [[str(Path(s.root).resolve()), int(s.num_frames)] for s in seqs],
     }
+
+
+def cache_key(model: MVRackLay | dict[str, Any], seqs: list[Any]) -> dict[str, Any]:
+    """What a cache of head inputs depends on: the model's part (`model_key`, or the model to take it from)
+    and the training sequences (folders and frame counts), in order."""
+    base = model if isinstance(model, dict) else model_key(model)
+    return {**base, "sequences": [[str(Path(s.root).resolve()), int(s.num_frames)] for s in seqs]}
 
 
 def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
@@ -280,9 +286,10 @@ def kept_cache(
     (`cache_inputs`, its record written last: an interrupted pass is redone, never used)."""
     move_single_part(folder)
     parts, reused = [], 0
+    base = model_key(model)  # the trunk's digest once, not per part
     for parent, group in by_folder(seqs):
         sub = folder / part_name(parent)
-        key = cache_key(model, group)
+        key = cache_key(base, group)
         data = open_kept_cache(sub, key)
         if data is not None:
             parts.append(data)
@@ -366,12 +373,12 @@ def fit_box_depth(
             data, reused = kept_cache(model, train, labels, Path(keep_cache), progress)
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
-        win = data.parts[0].win
-        head = BoxDepthHead(win.shape[1], data.parts[0].extra.shape[1], row_profile=row_profile, rows=win.shape[2])
+        first = data.parts[0]
+        head = BoxDepthHead(first.win.shape[1], first.extra.shape[1], row_profile=row_profile, rows=first.win.shape[2])
         losses = train_head(head, data, cfg, progress)
         back = data.field("back")
         slots, parts, shown = len(data), len(data.parts), float(np.mean(data.field("shown")[np.isfinite(back)]))
-        del data, win
+        del data, first  # the memory maps closed before the temporary folder goes
     summary = {
         "train_sequences": len(train),
         "parallax": parallax,
