@@ -19,6 +19,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,7 @@ class RunConfig:
     distance: float | None = None
     rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
+    whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -269,14 +271,18 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             flip=cfg.flip,
             rack_depth=cfg.rack_depth,
             read_depth=cfg.read_depth,
+            whole_sequence=cfg.whole_sequence,
         )
         depth = float("nan")
-        current: dict[str, np.ndarray] = {}
+        # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
+        pending: deque[np.ndarray | None] = deque()
 
         def feed():
             for rgb in source.frames(cfg.max_frames or None):
-                current["rgb"] = rgb
+                pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
                 yield rgb
+                if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads
+                    bar.update(1)
 
         path: list[tuple[float, float, float]] = []
         t_pred = t_stitch = t_log = 0.0
@@ -304,14 +310,17 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             tc = time.perf_counter()
             if rec is not None:
                 path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
-                rgb = _thumbnail(current["rgb"]) if cfg.rgb else None
+                rgb = pending.popleft()
                 rerun_log.log_frame(rec, n, fl, frame_rec, step.offset, rgb, _decimate(path))
                 if n % cfg.map_every == 0:
                     rerun_log.log_map(rec, stitcher.map(), n, spec.num_slots)
             td = time.perf_counter()
             t_pred, t_stitch, t_log = t_pred + tb - ta, t_stitch + tc - tb, t_log + td - tc
             n += 1
-            bar.update(1)
+            if rec is None:
+                pending.popleft()
+            if not cfg.whole_sequence:
+                bar.update(1)
         bar.close()
         if n == 0:
             raise InputError(f"{source.path}: no frames to process")
@@ -327,6 +336,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
             "flip_average": cfg.flip,
+            "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",

@@ -173,14 +173,17 @@ class RowMap:
         self.min_shown = min_shown
         self.acc: dict[int, list[float]] = {}
 
-    def update(self, cells: np.ndarray, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+    def add(self, cells: np.ndarray, z: np.ndarray, p: np.ndarray) -> None:
         """Adds a frame's columns (world-X ``cells``, depths ``z``, shown probabilities ``p``) where
-        ``p >= min_shown``; returns the map's mean depth at each column (NaN: nothing shown there yet)."""
+        ``p >= min_shown``."""
         for c, zj, pj in zip(cells, z, p):
             if pj >= self.min_shown:
                 s = self.acc.setdefault(int(c), [0.0, 0.0])
                 s[0] += float(pj * zj)
                 s[1] += float(pj)
+
+    def mean(self, cells: np.ndarray) -> np.ndarray:
+        """The map's mean depth at each of ``cells`` (NaN: nothing shown there)."""
         out = np.full(len(cells), np.nan)
         for j, c in enumerate(cells):
             s = self.acc.get(int(c))
@@ -188,10 +191,19 @@ class RowMap:
                 out[j] = s[0] / s[1]
         return out
 
+    def update(self, cells: np.ndarray, z: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """`add`, then the map's `mean` at the same cells."""
+        self.add(cells, z, p)
+        return self.mean(cells)
+
 
 class BoxDepthReader:
     """One sequence's (one rack row's) carried box depths: `add` a frame's head output and camera step,
-    get its ``(R, D)`` back depths (metres behind the rack front; NaN: none shown there yet)."""
+    get its ``(R, D)`` back depths (metres behind the rack front; NaN: none shown there yet).
+
+    `backs` looks the maps up for any camera position later, so a reader fed a whole sequence gives
+    every frame what all the frames showed (`network.infer.Predictor`, ``whole_sequence``).
+    """
 
     def __init__(self, spec: LayoutSpec, min_shown: float = MIN_SHOWN) -> None:
         self.spec = spec  #: the model's layouts (the head's columns)
@@ -199,14 +211,27 @@ class BoxDepthReader:
         self.camera_x = 0.0  #: metres along the row since the first frame
         self.maps: dict[int, RowMap] = {}
 
+    def cells(self, camera_x: float) -> np.ndarray:
+        """The world-X cell of each layout column's centre with the camera at ``camera_x``."""
+        width = self.spec.x_extent / self.spec.size
+        # floor: centres sit mid-cell, never on a boundary
+        return np.floor((camera_x + self.spec.col_to_x(np.arange(self.spec.size) + 0.5)) / width).astype(int)
+
     def add(self, z: np.ndarray, p: np.ndarray, valid: np.ndarray, step: float = 0.0) -> np.ndarray:
         """``z``, ``p``: the head's ``(R, D)`` (`decode`); ``valid`` ``(R,)``: slots with an anchor; ``step``:
-        the camera's motion along X since the previous frame (metres)."""
+        the camera's motion along X since the previous frame (metres). Returns `backs` here."""
         self.camera_x += float(step)
-        width = self.spec.x_extent / self.spec.size
-        # the world-X cell of each column's centre (floor: centres sit mid-cell, never on a boundary)
-        cells = np.floor((self.camera_x + self.spec.col_to_x(np.arange(self.spec.size) + 0.5)) / width).astype(int)
-        out = np.full(z.shape, np.nan)
+        cells = self.cells(self.camera_x)
         for r in np.nonzero(valid)[0]:
-            out[r] = self.maps.setdefault(int(r), RowMap(self.min_shown)).update(cells, z[r], p[r])
+            self.maps.setdefault(int(r), RowMap(self.min_shown)).add(cells, z[r], p[r])
+        return self.backs(self.camera_x, valid)
+
+    def backs(self, camera_x: float, valid: np.ndarray) -> np.ndarray:
+        """``(R, D)`` mean back depths the maps hold for the slots ``valid`` with the camera at ``camera_x``."""
+        cells = self.cells(camera_x)
+        out = np.full((len(valid), self.spec.size), np.nan)
+        for r in np.nonzero(valid)[0]:
+            m = self.maps.get(int(r))
+            if m is not None:
+                out[r] = m.mean(cells)
         return out

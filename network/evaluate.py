@@ -31,13 +31,15 @@ def evaluate_sequences(
     true_anchors: bool = False,
     flip: bool = False,
     read_depth: bool = True,
+    whole_sequence: bool = False,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
     ``true_anchors`` places the shelf slots at the ground truth's boards instead of the row head's:
     what the decoders score when the boards are found perfectly (an analysis, not a result).
     ``flip`` averages each frame with its mirror image (`network.infer.Predictor`); ``read_depth``
-    False keeps the top views' rack depth as decoded when the model could read it from back edges.
+    False keeps the top views' rack depth as decoded when the model could read it from back edges;
+    ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`).
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -50,7 +52,9 @@ def evaluate_sequences(
         anchors = (
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
-        pred = Predictor(model, sequence_camera(seq), anchors, flip=flip, read_depth=read_depth)
+        pred = Predictor(
+            model, sequence_camera(seq), anchors, flip=flip, read_depth=read_depth, whole_sequence=whole_sequence
+        )
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
             scorer.update(frame_layouts(out, seq.spec), gt)
@@ -66,6 +70,7 @@ def evaluate_sequences(
         "flip_average": flip,
         "rack_depth": "read from back edges" if read_depth and model.back is not None else "as decoded",
         "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
+        "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

@@ -29,6 +29,13 @@ from network.model import MVRackLay, board_peaks
 from network.motion import camera_shift, motion_signature
 
 MODES = ("stream", "window")
+#: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
+HEAD_INPUTS = ("back", "box_window", "box_parallax")
+#: the options' help, one text for every command that offers it
+WHOLE_SEQUENCE_HELP = (
+    "read the rack depth and box depths from every frame of the sequence, not only the frames so far "
+    "(offline: layouts come once the whole sequence is read; measured +0.6-0.8 top rack, +0.4-1.2 top box mIoU)"
+)
 #: the ``--flip-average`` option's help, one text for every command that offers it
 FLIP_HELP = (
     "also run every frame mirrored left-right and average the logits (test-time flip; measured on the "
@@ -75,6 +82,13 @@ class Predictor:
     imposes on every predicted box once the rack depth is known. A head that also reads parallax
     (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
     output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading.
+
+    ``whole_sequence``: the rack depth and the box depths come from every frame of the sequence, not
+    only the frames so far: the frames are all read first, then each frame's outputs are given with
+    the depth summed over the sequence and the box backs every frame showed (offline, for recorded
+    footage: a frame also gains what later frames show; measured +0.6-0.8 top rack and +0.4-1.2 top
+    box mIoU on the tuning sets). The outputs are held until the sequence ends, without the
+    intermediate maps the heads read (~0.3 MB per frame at D = 64).
     """
 
     def __init__(
@@ -86,6 +100,7 @@ class Predictor:
         rack_depth: float | None = None,
         read_depth: bool = True,
         box_inputs: bool = False,
+        whole_sequence: bool = False,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -99,6 +114,7 @@ class Predictor:
         #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
         self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
         self._tracks_motion = self.reads_box_depth or self.box_parallax
+        self.whole_sequence = bool(whole_sequence)
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
@@ -144,12 +160,13 @@ class Predictor:
 
     def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
         """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
-        with the box-depth head, ``"box_back"``."""
+        with the box-depth head, ``"box_back"``: from the frames so far, or (``whole_sequence``) from all."""
         reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
         boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
         history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
         self._motion.clear()
         prev: torch.Tensor | None = None
+        held: list[tuple[dict[str, torch.Tensor], float, np.ndarray]] = []  # whole_sequence: (out, camera X, slots)
         for i, out in enumerate(outs):
             depth = self.rack_depth
             if reader is not None:
@@ -157,7 +174,7 @@ class Predictor:
                 depth = reader.add(
                     back, board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view), self.camera(i)[1]
                 )
-            out["rack_depth"] = torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
+            out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
                 sig, x = self._motion.popleft()
                 step = 0.0 if prev is None else float(camera_shift(prev, sig, self.cfg.view)[0])
@@ -167,6 +184,16 @@ class Predictor:
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
                     out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
+            if not self.whole_sequence:
+                yield out
+                continue
+            kept = {k: v for k, v in out.items() if k not in HEAD_INPUTS}
+            held.append((kept, 0.0 if boxes is None else boxes.camera_x, torch.isfinite(out["anchors"]).cpu().numpy()))
+        depth = self.rack_depth if reader is None else reader.depth
+        for out, camera_x, valid in held:
+            out["rack_depth"] = _depth_tensor(depth)
+            if boxes is not None:
+                out["box_back"] = torch.from_numpy(boxes.backs(camera_x, valid))
             yield out
 
     @torch.no_grad()
@@ -248,6 +275,11 @@ class Predictor:
             if feats.window is not None:
                 out["box_window"] = feats.window
             yield {k: o[0] for k, o in out.items()}
+
+
+def _depth_tensor(depth: float | None) -> torch.Tensor:
+    """A rack depth as the outputs carry it: a 0-d float64 tensor, NaN while unknown."""
+    return torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
 
 
 def resize_logits(logits: torch.Tensor, size: int | None = None) -> torch.Tensor:

@@ -14,7 +14,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
-from network.infer import FLIP_HELP
+from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.train import open_data
 
 NAME = "evaluate"
@@ -39,6 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
+    p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
@@ -72,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         true_anchors=args.true_anchors,
         flip=args.flip_average,
         read_depth=not args.no_depth_read,
+        whole_sequence=args.whole_sequence,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
@@ -80,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         title += f", rack depth {res['rack_depth']}"
     if model.box_depth is not None:
         title += f", box depths {res['box_depth']}"
+    if args.whole_sequence and not args.no_depth_read and (model.back is not None or model.box_depth is not None):
+        title += ", depths from the whole sequence"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -21,7 +22,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_de
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
-from network.infer import FLIP_HELP, Predictor, frame_layouts
+from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
 
 NAME = "predict"
@@ -56,6 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
+    p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -100,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         distance=args.distance,
         rack_depth=args.rack_depth,
         read_depth=not args.no_depth_read,
+        whole_sequence=args.whole_sequence,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -120,6 +123,7 @@ def predict_folder(
     distance: float | None = None,
     rack_depth: float | None = None,
     read_depth: bool = True,
+    whole_sequence: bool = False,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -129,7 +133,8 @@ def predict_folder(
     sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
     distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
-    itself unless ``read_depth`` is False (`network.infer.Predictor`).
+    itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
+    ``whole_sequence``, from every frame.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -170,15 +175,27 @@ def predict_folder(
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
     folder = LayoutFolder.create(out, spec)
-    pred = Predictor(model, lambda i: (intr, dist_of(i)), flip=flip, rack_depth=rack_depth, read_depth=read_depth)
+    pred = Predictor(
+        model,
+        lambda i: (intr, dist_of(i)),
+        flip=flip,
+        rack_depth=rack_depth,
+        read_depth=read_depth,
+        whole_sequence=whole_sequence,
+    )
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
+
+    def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
+        for i in range(seq.num_frames):
+            yield seq.rgb(i)
+            bar.update(1)
+
     depth = float("nan")
-    for i, logits in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), mode)):
+    for i, logits in enumerate(pred.run(frames(), mode)):
         lay = frame_layouts(logits, spec)
         depth = float(logits["rack_depth"])
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
-        bar.update(1)
     bar.close()
     if pred.reads_depth and progress:
         said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
-from network.infer import FLIP_HELP
+from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -46,6 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
+    p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
@@ -78,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         distance=args.distance,
         rack_depth=args.rack_depth,
         read_depth=not args.no_depth_read,
+        whole_sequence=args.whole_sequence,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,
