@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 
@@ -57,8 +57,8 @@ def main() -> int:
                 frames.append((decoded, seq.layouts(i), depth, seq.spec, read))
     bar.close()
     cases = [("as decoded", None)]
-    if model.back is not None:
-        cases.append(("read from back edges", "read"))
+    if pred.reads_depth:
+        cases.append((rack_depth_source(model), "read"))
     cases.append(("true rack depth", lambda d: d))
     for e in args.errors:
         cases += [(f"true {sign}{e:g} cm", lambda d, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))]

@@ -27,6 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from layouts.canonical import CanonicalView
+from network.uprights import BACK_EDGE_WEIGHT, upright_depth_scores
 
 #: board thickness assumed for the underside of boards above the camera (the generator draws 4-8 cm)
 NOMINAL_THICKNESS = 0.06
@@ -143,10 +144,13 @@ def frame_depth_scores(
 
 
 class DepthReader:
-    """The rack depth of one sequence, from each frame's back-edge probabilities and board rows.
+    """The rack depth of one sequence, from each frame's back-edge probabilities and board rows and, with
+    an upright head, its front and rear upright probabilities (`network.uprights`).
 
-    `add` accumulates a frame's `frame_depth_scores`; `depth` is the best hypothesis so far (None
-    before any board has shown a back edge). One reader per sequence (one rack row).
+    `add` accumulates a frame's `frame_depth_scores` (times `network.uprights.BACK_EDGE_WEIGHT` when
+    the frame's uprights are given) and `network.uprights.upright_depth_scores`; `depth` is the best
+    hypothesis so far (None before any board or upright has given evidence). One reader per sequence
+    (one rack row).
     """
 
     def __init__(self, view: CanonicalView, z_extent: float) -> None:
@@ -155,8 +159,24 @@ class DepthReader:
         self.scores = np.zeros(len(self.depths))
         self.frames = 0  #: frames that contributed
 
-    def add(self, back_prob: np.ndarray, front_rows: np.ndarray | list[float], distance: float) -> float | None:
-        s = frame_depth_scores(back_prob, front_rows, self.view, distance, self.depths)
+    def add(
+        self,
+        back_prob: np.ndarray | None,
+        front_rows: np.ndarray | list[float],
+        distance: float,
+        uprights: np.ndarray | None = None,
+    ) -> float | None:
+        """One frame: back-edge probabilities ``(H,)`` (None: a model without that head), board front rows,
+        camera distance and, from a model with the upright head, upright probabilities ``(2, W)`` (front,
+        rear). Returns `depth`."""
+        s = None if back_prob is None else frame_depth_scores(back_prob, front_rows, self.view, distance, self.depths)
+        if uprights is not None:
+            u = upright_depth_scores(uprights[0], uprights[1], self.view, distance, self.depths)
+            s = (
+                None
+                if s is None and u is None
+                else (0.0 if u is None else u) + BACK_EDGE_WEIGHT * (0.0 if s is None else s)
+            )
         if s is not None:
             self.scores += s
             self.frames += 1

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, board_rows, check_spec_compatible
-from network.infer import Predictor, frame_layouts, sequence_camera
+from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera
 from network.model import MVRackLay
 
 
@@ -68,7 +68,7 @@ def evaluate_sequences(
         "frames": frames,
         "mode": mode,
         "flip_average": flip,
-        "rack_depth": "read from back edges" if read_depth and model.back is not None else "as decoded",
+        "rack_depth": rack_depth_source(model) if read_depth else "as decoded",
         "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "anchors": "truth" if true_anchors else "row head",

@@ -64,16 +64,14 @@ class Cached:
     depth: np.ndarray
 
 
-def _rack_row(seq: Any) -> tuple[float, float]:
-    """(rack depth, board thickness) of a generated sequence's scene, or a one-line error."""
+def rack_row(seq: Any, what: str = "the back-edge head") -> tuple[float, float]:
+    """(rack depth, board thickness) of a generated sequence's scene, or a one-line error (fitting ``what``)."""
     try:
         row = seq.scene()["row"]
         return float(row["depth"]), float(row["board_thickness"])
     except (AttributeError, KeyError, TypeError, ValueError, OSError):
         name = getattr(seq, "root", getattr(seq, "name", "sequence"))
-        raise InputError(
-            f"{name}: fitting the back-edge head needs a generated dataset (scene.json with the rack row)"
-        ) from None
+        raise InputError(f"{name}: fitting {what} needs a generated dataset (scene.json with the rack row)") from None
 
 
 @torch.no_grad()
@@ -92,7 +90,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     bar = tqdm(total=total, desc="back edges: features", unit="frame", disable=not progress, leave=False)
     n = 0
     for k, seq in enumerate(sequences):
-        depth, thickness = _rack_row(seq)
+        depth, thickness = rack_row(seq)
         camera = sequence_camera(seq)
         ids = list(range(0, seq.num_frames, every))
         pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will

@@ -25,12 +25,12 @@ from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, decode, frame_head_inputs
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
-from network.model import MVRackLay, board_peaks
+from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
-HEAD_INPUTS = ("back", "box_window", "box_parallax")
+HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax")
 #: the options' help, one text for every command that offers it
 WHOLE_SEQUENCE_HELP = (
     "read the rack depth and box depths from every frame of the sequence, not only the frames so far "
@@ -109,7 +109,9 @@ class Predictor:
         self.flip = bool(flip)
         self.rack_depth = None if rack_depth is None else check_rack_depth(rack_depth, self.cfg.spec)
         #: the depth is read from the back edges (the model has the head, no depth is given, reading is on)
-        self.reads_depth = bool(read_depth) and rack_depth is None and model.back is not None
+        self.reads_depth = (
+            bool(read_depth) and rack_depth is None and (model.back is not None or model.uprights is not None)
+        )
         self.reads_box_depth = bool(read_depth) and model.box_depth is not None
         #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
         self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
@@ -170,9 +172,12 @@ class Predictor:
         for i, out in enumerate(outs):
             depth = self.rack_depth
             if reader is not None:
-                back = torch.sigmoid(out["back"].float()).cpu().numpy()
+                back, ups = out.get("back"), out.get("uprights")
                 depth = reader.add(
-                    back, board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view), self.camera(i)[1]
+                    None if back is None else torch.sigmoid(back.float()).cpu().numpy(),
+                    board_peaks(torch.sigmoid(out["rows"].float()), self.cfg.view),
+                    self.camera(i)[1],
+                    None if ups is None else torch.sigmoid(ups.float()).cpu().numpy(),
                 )
             out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
@@ -270,11 +275,14 @@ class Predictor:
             cached.append(feats)
             out = m.decode_window(list(cached))[-1]
             out["rows"], out["anchors"] = rows, anc
-            if feats.back is not None:
-                out["back"] = feats.back
-            if feats.window is not None:
-                out["box_window"] = feats.window
+            out.update(head_outputs(feats))
             yield {k: o[0] for k, o in out.items()}
+
+
+def rack_depth_source(model: MVRackLay) -> str:
+    """How ``model`` reads the rack depth, in words (records and tables)."""
+    cues = [name for name, head in (("uprights", model.uprights), ("back edges", model.back)) if head is not None]
+    return "read from " + " and ".join(cues) if cues else "as decoded"
 
 
 def _depth_tensor(depth: float | None) -> torch.Tensor:

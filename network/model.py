@@ -56,6 +56,7 @@ from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
 from network.parallax import RATIOS, ParallaxNet, plane_sweep
 from network.resnet import ResNet18Encoder
+from network.uprights import UprightHead, pool_columns
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
 VARIANTS: dict[str, tuple[int, bool, bool]] = {
@@ -100,6 +101,7 @@ class ModelConfig:
     back_edges: bool = (
         False  #: a head finds the boards' back edges, from which the rack depth is read (`network.backedge`)
     )
+    uprights: bool = False  #: a head marks front and rear uprights, which also give the rack depth (`network.uprights`)
     box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
     box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
     box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.boxdepth`)
@@ -120,7 +122,7 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top", "back_edges", "box_depth", "box_parallax", "box_row_profile"):
+        for name in ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
@@ -239,15 +241,15 @@ class SlotFeatures:
         None  #: (N, H) back-edge logits (`network.backedge.BackEdgeHead`), if the model has the head
     )
     window: torch.Tensor | None = None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.boxdepth`
+    uprights: torch.Tensor | None = None  #: (N, 2, W) upright logits (`network.uprights.UprightHead`), with the head
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
 
-        def pick(t: torch.Tensor) -> torch.Tensor:
-            return t.unflatten(0, (n, -1))[i]
+        def pick(t: torch.Tensor | None) -> torch.Tensor | None:
+            return None if t is None else t.unflatten(0, (n, -1))[i]
 
-        motion, back, window = (None if t is None else pick(t) for t in (self.motion, self.back, self.window))
-        return SlotFeatures(pick(self.top), pick(self.front), pick(self.fine), pick(self.valid), motion, back, window)
+        return SlotFeatures(**{k: pick(getattr(self, k)) for k in SLOT_FEATURES})
 
     def cat(self, other: SlotFeatures) -> SlotFeatures:
         """These frames' features followed by ``other``'s (both flattened as (frame, batch))."""
@@ -256,7 +258,11 @@ class SlotFeatures:
             a, b = getattr(self, k), getattr(other, k)
             return None if a is None or b is None else torch.cat([a, b])
 
-        return SlotFeatures(*(both(k) for k in ("top", "front", "fine", "valid", "motion", "back", "window")))
+        return SlotFeatures(**{k: both(k) for k in SLOT_FEATURES})
+
+
+#: `SlotFeatures`' fields, in order
+SLOT_FEATURES = ("top", "front", "fine", "valid", "motion", "back", "window", "uprights")
 
 
 class Pyramid(nn.Module):
@@ -596,6 +602,7 @@ class MVRackLay(nn.Module):
         fine, coarse = self.pyramid.channels
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
+        self.uprights = UprightHead(2 * (fine + coarse), cfg.input_width) if cfg.uprights else None
         #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
         c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
         self.box_depth = (
@@ -669,6 +676,8 @@ class MVRackLay(nn.Module):
         feats.motion = sig
         if self.back is not None:
             feats.back = self.back(pooled)
+        if self.uprights is not None:
+            feats.uprights = self.uprights(pool_columns(p1, p2))
         if self.box_depth is not None:
             feats.window = self.slots.window(p1, anchors)
         return feats, rows, anchors
@@ -731,7 +740,7 @@ class MVRackLay(nn.Module):
             feats, rows, a = part(slice(None))
         outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
-        extra = {"rows": rows, "anchors": a, "back": feats.back, "box_window": feats.window}
+        extra = {"rows": rows, "anchors": a, "back": feats.back, "uprights": feats.uprights, "box_window": feats.window}
         # frame-major (T*B, ...) -> (B, T - skip, ...), as the views are stacked
         res.update({k: x.unflatten(0, (t, b)).transpose(0, 1)[:, skip:] for k, x in extra.items() if x is not None})
         return res
@@ -762,11 +771,15 @@ class MVRackLay(nn.Module):
         out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors
-        if feats.back is not None:
-            out["back"] = feats.back
-        if feats.window is not None:
-            out["box_window"] = feats.window
+        out.update(head_outputs(feats))
         return out, state
+
+
+def head_outputs(feats: SlotFeatures) -> dict[str, torch.Tensor]:
+    """The depth heads' per-frame outputs a model gives beside the layouts: ``"back"``, ``"uprights"``,
+    ``"box_window"`` (those of the heads it has)."""
+    named = {"back": feats.back, "uprights": feats.uprights, "box_window": feats.window}
+    return {k: v for k, v in named.items() if v is not None}
 
 
 def build_discriminators(cfg: ModelConfig) -> nn.ModuleDict | None:

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from tiny_net import tiny_config
 
 from layouts.spec import LayoutSpec
 from network.backedge import DEPTH_STEP, back_edge_rows
@@ -15,7 +16,6 @@ from network.data import DEFAULT_DISTANCE, row_target
 from network.fit_boxdepth import with_box_head
 from network.infer import HEAD_INPUTS, Predictor, frame_layouts
 from network.model import MVRackLay
-from tiny_net import tiny_config
 
 SPEC = LayoutSpec(size=16)
 FRAMES = 5

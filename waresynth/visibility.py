@@ -1,4 +1,5 @@
-"""Which box stacks' depth a frame shows: the ground truth of "could a reader know how deep it is".
+"""Which box stacks' depth a frame shows: the ground truth of "could a reader know how deep it is";
+and where a frame shows the row's front and rear uprights (`upright_faces`).
 
 A stack's depth (its extent along Z) shows in an image only through a top face, a side face seen
 through a gap, or its back edge. A stack counts as *seen* in a frame when its visible pixels
@@ -16,8 +17,13 @@ import numpy as np
 
 from layouts import LayoutSpec
 from layouts.errors import InputError
+from waresynth.semantics import RACK
 
 SEEN = 0.9  #: fraction of a stack's depth its visible pixels must reach for its depth to count as seen
+#: metres from the rack's back to the middle of the rear uprights' front faces (uprights are 6-10 cm wide)
+REAR_UPRIGHT_FACE = 0.08
+#: metres either side of a face's depth that still count as that face (covers the widths and side faces)
+UPRIGHT_TOLERANCE = 0.12
 
 
 def scene_stacks(scene: dict[str, Any]) -> list[dict[str, Any]]:
@@ -114,3 +120,18 @@ class SeenTracker:
         levels = [int(sl["level"]) for sl in rec.get("slots", [])[: spec.num_slots]]
         values = {k: 2 if k in self.now else 1 if k in self.sofar else 0 for k in range(len(self.stacks))}
         return stack_column_map(self.stacks, values, spec, levels, float(rec["camera_position"][0]), -1).astype(int)
+
+
+def upright_faces(
+    semantic: np.ndarray, depth: np.ndarray, distance: float, rack_depth: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks ``(H, W)`` of a frame's mapped-row rack pixels (uprights and beams; semantic `RACK`)
+    whose depth (metres along Z from the camera) puts them on the front plane, and at the rear uprights'
+    face `REAR_UPRIGHT_FACE` in front of the rack's back; each within `UPRIGHT_TOLERANCE`."""
+    semantic, depth = np.asarray(semantic), np.asarray(depth, np.float64)
+    if semantic.shape != depth.shape:
+        raise InputError(f"semantic {semantic.shape} and depth {depth.shape} images differ in shape")
+    rack = semantic == RACK
+    front = rack & (np.abs(depth - distance) < UPRIGHT_TOLERANCE)
+    rear = rack & (np.abs(depth - (distance + rack_depth - REAR_UPRIGHT_FACE)) < UPRIGHT_TOLERANCE)
+    return front, rear

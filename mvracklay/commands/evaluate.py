@@ -78,11 +78,11 @@ def run(args: argparse.Namespace) -> int:
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
         title += ", flip-averaged"
-    if model.back is not None:
+    if model.back is not None or model.uprights is not None:
         title += f", rack depth {res['rack_depth']}"
     if model.box_depth is not None:
         title += f", box depths {res['box_depth']}"
-    if args.whole_sequence and not args.no_depth_read and (model.back is not None or model.box_depth is not None):
+    if args.whole_sequence and not args.no_depth_read and (model.back, model.uprights, model.box_depth) != (None,) * 3:
         title += ", depths from the whole sequence"
     if args.true_anchors:
         title += ", ground-truth shelf boards"

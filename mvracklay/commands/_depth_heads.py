@@ -1,0 +1,83 @@
+"""What `fit-back-edges` and `fit-uprights` share: their options and the depth errors they print."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, nan_to_null
+
+
+def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:
+    """The options of a command that fits a depth head to a trained checkpoint (the trunk frozen)."""
+    p.add_argument("--checkpoint", type=Path, required=True, help="a trained .pt checkpoint (its .json beside)")
+    p.add_argument(
+        "--data", type=Path, nargs="+", required=True, help="generated dataset(s) with ground truth to fit on"
+    )
+    p.add_argument("--sequences", type=int, default=sequences, help="training sequences to use (the first N of --data)")
+    p.add_argument("--val", type=Path, help="generated dataset to measure the depth read on (never trained on)")
+    p.add_argument("--epochs", type=int, default=epochs, help="passes over the training frames")
+    p.add_argument("--every", type=int, default=1, help="use every N-th frame")
+    p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
+    p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bars")
+
+
+def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source: str, flag: str, name: str) -> int:
+    """Fit a depth head with ``fit(model, train, val, cfg, progress)`` and write the checkpoint with it:
+    its weights under ``name.``, the model config's ``flag`` set, the fit's summary in the record under
+    ``flag``; prints the depth errors ``source`` gives."""
+    from network.checkpoint import load_checkpoint, model_from, save_with_head
+    from network.train import open_data
+
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    if args.sequences < 1:
+        raise InputError(f"--sequences must be >= 1, got {args.sequences}")
+    cfg = replace(cfg, epochs=args.epochs, every=args.every, seed=args.seed)
+    cfg.validate()
+    torch.set_num_threads(args.threads)
+    payload, record = load_checkpoint(args.checkpoint)
+    model = model_from(payload, record, args.checkpoint)
+    train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
+    val = open_data(args.val).sequences(None) if args.val else []
+    head, summary = fit(model, train, val, cfg, progress=not args.quiet)
+    print_depth_errors(summary, source)
+    out = args.out or args.checkpoint
+    info = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **summary}
+    save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
+    print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
+    if args.json:
+        atomic_write_json(args.json, nan_to_null(summary))
+    return 0
+
+
+def print_depth_errors(summary: dict[str, Any], source: str) -> None:
+    """One line per part (train, val) of a fit's summary: the rack depth ``source`` gives, per frame, over
+    the frames so far and at a sequence's end (and the marks' precision / recall where the fit has them)."""
+    for name in ("train_depth", "val_depth"):
+        if name not in summary:
+            continue
+        d = summary[name]
+        line = (
+            f"{name.split('_')[0]:5s} rack depth error from {source} ({d['sequences']} sequences, {d['frames']} "
+            f"frames): {cm(d['mae_frame'])} one frame, {cm(d['mae_running'])} over the frames so far, "
+            f"{cm(d['mae_sequence'])} at a sequence's end"
+        )
+        if "marks" in d:
+            line += "; marks precision / recall " + ", ".join(
+                f"{k} {100 * m['precision']:.0f} / {100 * m['recall']:.0f} %" for k, m in d["marks"].items()
+            )
+        print(line)
+
+
+def cm(metres: float | None) -> str:
+    return "n/a" if metres is None else f"{100 * metres:.1f} cm"

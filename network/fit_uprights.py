@@ -1,0 +1,197 @@
+"""Fitting the upright head (`network.uprights`) to a trained model, the rest of the network frozen.
+
+The head reads row-pooled pyramid features, so one pass of the frozen trunk per frame gives all it
+needs: `cache_features` runs it once over the training sequences, `train_head` fits the head to the
+columns where the generator's semantic and depth images show front and rear uprights of the mapped
+row (`waresynth.visibility.upright_faces`, sampled at the canonical pixels), and `depth_errors`
+measures what matters, the rack depth the uprights give (`network.backedge.DepthReader`) per frame,
+over the frames so far and over a whole sequence.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from layouts.canonical import CanonicalView
+from layouts.errors import InputError
+from network.backedge import DepthReader
+from network.data import frame_camera
+from network.fit_backedge import FitConfig, rack_row
+from network.infer import Predictor, sequence_camera
+from network.model import MVRackLay
+from network.uprights import UprightHead, pool_columns
+
+#: a canonical column is an upright's when this fraction of its rows inside the image show it
+UPRIGHT_ROWS = 0.15
+#: the fit's defaults (what was measured, docs/network.md)
+DEFAULT_FIT = FitConfig(epochs=15, batch=64, pos_weight=3.0)
+
+
+@dataclass
+class Cached:
+    """Per frame: pooled features ``(N, C, W/2)`` (fp16), targets ``(N, 2, W)`` (front, rear), the columns
+    inside the source image ``(N, W)``, and the sequence index, camera distance and true rack depth."""
+
+    pooled: torch.Tensor
+    target: torch.Tensor
+    inside: torch.Tensor
+    seq: np.ndarray
+    distance: np.ndarray
+    depth: np.ndarray
+
+
+def upright_targets(seq: Any, i: int, view: CanonicalView, rack_depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``i``'s targets ``(2, W)``: does canonical column j show a front (0) / rear (1) upright (at
+    least `UPRIGHT_ROWS` of its rows inside the image), and ``(W,)`` which columns lie inside the image."""
+    from waresynth.visibility import upright_faces
+
+    intr, distance = frame_camera(seq, i)
+    if intr is None:
+        raise InputError(f"{getattr(seq, 'name', 'sequence')}: fitting the upright head needs the camera intrinsics")
+    front, rear = upright_faces(seq.semantic(i), seq.depth(i), distance, rack_depth)
+    u, v = view.source_coords(intr, distance)
+    cols = (u >= 0) & (u < front.shape[1])
+    rows = (v >= 0) & (v < front.shape[0])
+    ui = np.clip(np.floor(u).astype(int), 0, front.shape[1] - 1)
+    vi = np.floor(v[rows]).astype(int)
+    target = np.zeros((2, view.width), np.float32)
+    if rows.any():
+        for k, mask in enumerate((front, rear)):
+            target[k] = (mask[vi][:, ui].mean(0) >= UPRIGHT_ROWS) & cols
+    return target, cols
+
+
+@torch.no_grad()
+def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progress: bool = True) -> Cached:
+    """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
+    view = model.cfg.view
+    model.eval()
+    total = sum(len(range(0, s.num_frames, every)) for s in sequences)
+    if not total:
+        raise InputError("no frames to fit the upright head on")
+    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.fit_backedge)
+    target = np.zeros((total, 2, view.width), np.float32)
+    inside = np.zeros((total, view.width), bool)
+    seq_ids, dists, depths = np.zeros(total, np.int64), np.zeros(total), np.zeros(total)
+    bar = tqdm(total=total, desc="uprights: features", unit="frame", disable=not progress, leave=False)
+    n = 0
+    for k, seq in enumerate(sequences):
+        depth = rack_row(seq, "the upright head")[0]
+        camera = sequence_camera(seq)
+        ids = list(range(0, seq.num_frames, every))
+        pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will
+        x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
+        feats = model.encode(x)
+        p = pool_columns(*model.pyramid(feats, model.temporal(feats[4])))
+        if pooled is None:
+            pooled = torch.empty((total, *p.shape[1:]), dtype=torch.float16)
+        pooled[n : n + len(ids)] = p.half().cpu()
+        for j, i in enumerate(ids):
+            target[n + j], inside[n + j] = upright_targets(seq, i, view, depth)
+            seq_ids[n + j], dists[n + j], depths[n + j] = k, camera(i)[1], depth
+        n += len(ids)
+        bar.update(len(ids))
+    bar.close()
+    if pooled is None:  # unreachable: total > 0 means one sequence ran
+        raise InputError("no frames to fit the upright head on")
+    return Cached(pooled, torch.from_numpy(target), torch.from_numpy(inside), seq_ids, dists, depths)
+
+
+def train_head(head: UprightHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
+    """Fit ``head`` to the cached targets over the columns inside the image (AdamW, cosine decay); returns
+    the mean loss per epoch."""
+    cfg.validate()
+    gen = torch.Generator().manual_seed(cfg.seed)
+    opt = torch.optim.AdamW(head.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
+    loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(cfg.pos_weight), reduction="none")
+    n = data.pooled.shape[0]
+    losses = []
+    bar = tqdm(range(cfg.epochs), desc="uprights: fit", unit="epoch", disable=not progress, leave=False)
+    for _ in bar:
+        head.train()
+        perm = torch.randperm(n, generator=gen)
+        total = 0.0
+        for i in range(0, n, cfg.batch):
+            b = perm[i : i + cfg.batch]
+            w = data.inside[b][:, None].float().expand(-1, 2, -1)
+            loss = (loss_fn(head(data.pooled[b].float()), data.target[b]) * w).sum() / w.sum().clamp_min(1.0)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(b)
+        sched.step()
+        losses.append(total / n)
+        bar.set_postfix(loss=f"{losses[-1]:.4f}")
+    head.eval()
+    return losses
+
+
+@torch.no_grad()
+def depth_errors(head: UprightHead, data: Cached, model: MVRackLay) -> dict[str, Any]:
+    """Rack depth the uprights alone give on cached frames: mean absolute error per frame (that frame
+    alone), running (the frames so far of its sequence) and at a sequence's end, in metres; and the
+    marks' precision and recall (columns inside the image, probability >= 0.5)."""
+    head.eval()
+    view, z_extent = model.cfg.view, model.cfg.spec.z_extent
+    probs = torch.sigmoid(torch.cat([head(data.pooled[i : i + 256].float()) for i in range(0, len(data.pooled), 256)]))
+    frame_err, run_err, last = [], [], {}
+    readers: dict[int, DepthReader] = {}
+    for k in range(len(probs)):
+        s, dist, ups = int(data.seq[k]), float(data.distance[k]), probs[k].numpy()
+        one = DepthReader(view, z_extent).add(None, [], dist, ups)
+        run = readers.setdefault(s, DepthReader(view, z_extent)).add(None, [], dist, ups)
+        if one is not None:
+            frame_err.append(abs(one - data.depth[k]))
+        if run is not None:
+            run_err.append(abs(run - data.depth[k]))
+            last[s] = run - data.depth[k]
+    marks = {}
+    for c, name in enumerate(("front", "rear")):
+        pred = (probs[:, c] >= 0.5) & data.inside
+        true = (data.target[:, c] > 0.5) & data.inside
+        tp = int((pred & true).sum())
+        marks[name] = {"precision": tp / max(int(pred.sum()), 1), "recall": tp / max(int(true.sum()), 1)}
+    return {
+        "frames": len(probs),
+        "sequences": len(readers),
+        "mae_frame": float(np.mean(frame_err)) if frame_err else None,
+        "mae_running": float(np.mean(run_err)) if run_err else None,
+        "mae_sequence": float(np.mean(np.abs(list(last.values())))) if last else None,
+        "read_fraction": len(run_err) / max(len(probs), 1),
+        "marks": marks,
+    }
+
+
+def fit_uprights(
+    model: MVRackLay, train: list[Any], val: list[Any], cfg: FitConfig = DEFAULT_FIT, progress: bool = True
+) -> tuple[UprightHead, dict[str, Any]]:
+    """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record."""
+    cfg.validate()
+    if not train:
+        raise InputError("no training sequences to fit the upright head on")
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    data = cache_features(model, train, cfg.every, progress)
+    head = UprightHead(data.pooled.shape[1], model.cfg.input_width)
+    losses = train_head(head, data, cfg, progress)
+    summary: dict[str, Any] = {
+        "train_sequences": len(train),
+        "train_frames": int(data.pooled.shape[0]),
+        "epochs": cfg.epochs,
+        "every": cfg.every,
+        "seed": cfg.seed,
+        "final_loss": losses[-1],
+        "train_depth": depth_errors(head, data, model),
+    }
+    if val:
+        summary["val_depth"] = depth_errors(head, cache_features(model, val, cfg.every, progress), model)
+    summary["wall_minutes"] = (time.perf_counter() - t0) / 60
+    return head, summary
