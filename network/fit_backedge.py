@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -114,23 +115,29 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     return Cached(pooled, torch.from_numpy(target), rows, seq_ids, dists, depths)
 
 
-def train_head(head: BackEdgeHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
-    """Fit ``head`` to the cached targets (AdamW, cosine decay); returns the mean loss per epoch."""
+def fit_epochs(
+    head: nn.Module,
+    n: int,
+    batch_loss: Callable[[torch.Tensor], torch.Tensor],
+    cfg: FitConfig,
+    desc: str,
+    progress: bool = True,
+) -> list[float]:
+    """Fit ``head`` over ``n`` cached frames, ``batch_loss(indices)`` the loss of one batch (AdamW, cosine
+    decay, batches in a seeded order); returns the mean loss per epoch. Shared by the column heads."""
     cfg.validate()
     gen = torch.Generator().manual_seed(cfg.seed)
     opt = torch.optim.AdamW(head.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
-    loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(cfg.pos_weight))
-    n = data.pooled.shape[0]
     losses = []
-    bar = tqdm(range(cfg.epochs), desc="back edges: fit", unit="epoch", disable=not progress, leave=False)
+    bar = tqdm(range(cfg.epochs), desc=desc, unit="epoch", disable=not progress, leave=False)
     for _ in bar:
         head.train()
         perm = torch.randperm(n, generator=gen)
         total = 0.0
         for i in range(0, n, cfg.batch):
             b = perm[i : i + cfg.batch]
-            loss = loss_fn(head(data.pooled[b].float()), data.target[b])
+            loss = batch_loss(b)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -142,34 +149,98 @@ def train_head(head: BackEdgeHead, data: Cached, cfg: FitConfig, progress: bool 
     return losses
 
 
+def train_head(head: BackEdgeHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
+    """Fit ``head`` to the cached targets (AdamW, cosine decay); returns the mean loss per epoch."""
+    loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(cfg.pos_weight))
+    return fit_epochs(
+        head, data.pooled.shape[0], lambda b: loss_fn(head(data.pooled[b].float()), data.target[b]), cfg,
+        "back edges: fit", progress,
+    )  # fmt: skip
+
+
 @torch.no_grad()
-def depth_errors(head: BackEdgeHead, data: Cached, model: MVRackLay) -> dict[str, Any]:
-    """Rack depth read on cached frames (the row head's boards, as at inference): mean absolute error
-    per frame (that frame alone) and running (the frames so far of its sequence), in metres."""
+def head_probs(head: nn.Module, pooled: torch.Tensor) -> torch.Tensor:
+    """The head's probabilities over cached pooled features, 256 frames at a time."""
     head.eval()
+    return torch.sigmoid(torch.cat([head(pooled[i : i + 256].float()) for i in range(0, len(pooled), 256)]))
+
+
+def reading_errors(
+    seq: np.ndarray, depth: np.ndarray, read: Callable[[int, DepthReader], float | None], model: MVRackLay
+) -> dict[str, Any]:
+    """Errors of the rack depth ``read(k, reader)`` gives after adding cached frame ``k`` to ``reader``: per
+    frame (a fresh reader), running (one reader per sequence ``seq[k]``) and at a sequence's end, against
+    the true ``depth[k]`` (metres; None where nothing was read)."""
     view, z_extent = model.cfg.view, model.cfg.spec.z_extent
-    probs = torch.sigmoid(torch.cat([head(data.pooled[i : i + 256].float()) for i in range(0, len(data.pooled), 256)]))
-    rows = torch.sigmoid(data.rows)
     frame_err, run_err, last = [], [], {}
     readers: dict[int, DepthReader] = {}
-    for k in range(len(probs)):
-        s = int(data.seq[k])
-        fronts = board_peaks(rows[k], view)
-        one = DepthReader(view, z_extent).add(probs[k].numpy(), fronts, float(data.distance[k]))
-        run = readers.setdefault(s, DepthReader(view, z_extent)).add(probs[k].numpy(), fronts, float(data.distance[k]))
+    for k in range(len(seq)):
+        s = int(seq[k])
+        one = read(k, DepthReader(view, z_extent))
+        run = read(k, readers.setdefault(s, DepthReader(view, z_extent)))
         if one is not None:
-            frame_err.append(abs(one - data.depth[k]))
+            frame_err.append(abs(one - depth[k]))
         if run is not None:
-            run_err.append(abs(run - data.depth[k]))
-            last[s] = run - data.depth[k]
+            run_err.append(abs(run - depth[k]))
+            last[s] = run - depth[k]
     return {
-        "frames": len(probs),
+        "frames": len(seq),
         "sequences": len(readers),
         "mae_frame": float(np.mean(frame_err)) if frame_err else None,
         "mae_running": float(np.mean(run_err)) if run_err else None,
         "mae_sequence": float(np.mean(np.abs(list(last.values())))) if last else None,
-        "read_fraction": len(run_err) / max(len(probs), 1),
+        "read_fraction": len(run_err) / max(len(seq), 1),
     }
+
+
+def depth_errors(head: BackEdgeHead, data: Cached, model: MVRackLay) -> dict[str, Any]:
+    """Rack depth read on cached frames (the row head's boards, as at inference): mean absolute error
+    per frame (that frame alone), running (the frames so far of its sequence) and at a sequence's end,
+    in metres."""
+    probs = head_probs(head, data.pooled).numpy()
+    fronts = [board_peaks(r, model.cfg.view) for r in torch.sigmoid(data.rows)]
+    return reading_errors(
+        data.seq, data.depth, lambda k, reader: reader.add(probs[k], fronts[k], float(data.distance[k])), model
+    )
+
+
+def fit_head(
+    model: MVRackLay,
+    train: list[Any],
+    val: list[Any],
+    cfg: FitConfig,
+    *,
+    what: str,
+    cache: Callable[[MVRackLay, list[Any], int, bool], Any],
+    make_head: Callable[[Any], nn.Module],
+    fit: Callable[[Any, Any, FitConfig, bool], list[float]],
+    errors: Callable[[Any, Any, MVRackLay], dict[str, Any]],
+    progress: bool = True,
+) -> tuple[Any, dict[str, Any]]:
+    """One column head fitted to ``model`` (its trunk unchanged): ``cache`` the frozen trunk's features of
+    ``train``, ``make_head`` for them, ``fit`` it, and measure the depth read (``errors``) on the training
+    and ``val`` frames; returns the head and a summary for the checkpoint's record."""
+    cfg.validate()
+    if not train:
+        raise InputError(f"no training sequences to fit {what} on")
+    torch.manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    data = cache(model, train, cfg.every, progress)
+    head = make_head(data)
+    losses = fit(head, data, cfg, progress)
+    summary: dict[str, Any] = {
+        "train_sequences": len(train),
+        "train_frames": int(data.pooled.shape[0]),
+        "epochs": cfg.epochs,
+        "every": cfg.every,
+        "seed": cfg.seed,
+        "final_loss": losses[-1],
+        "train_depth": errors(head, data, model),
+    }
+    if val:
+        summary["val_depth"] = errors(head, cache(model, val, cfg.every, progress), model)
+    summary["wall_minutes"] = (time.perf_counter() - t0) / 60
+    return head, summary
 
 
 def fit_back_edges(
@@ -180,24 +251,8 @@ def fit_back_edges(
     progress: bool = True,
 ) -> tuple[BackEdgeHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record."""
-    cfg.validate()
-    if not train:
-        raise InputError("no training sequences to fit the back-edge head on")
-    torch.manual_seed(cfg.seed)
-    t0 = time.perf_counter()
-    data = cache_features(model, train, cfg.every, progress)
-    head = BackEdgeHead(data.pooled.shape[1], model.cfg.input_height)
-    losses = train_head(head, data, cfg, progress)
-    summary: dict[str, Any] = {
-        "train_sequences": len(train),
-        "train_frames": int(data.pooled.shape[0]),
-        "epochs": cfg.epochs,
-        "every": cfg.every,
-        "seed": cfg.seed,
-        "final_loss": losses[-1],
-        "train_depth": depth_errors(head, data, model),
-    }
-    if val:
-        summary["val_depth"] = depth_errors(head, cache_features(model, val, cfg.every, progress), model)
-    summary["wall_minutes"] = (time.perf_counter() - t0) / 60
-    return head, summary
+    return fit_head(
+        model, train, val, cfg, what="the back-edge head", cache=cache_features,
+        make_head=lambda data: BackEdgeHead(data.pooled.shape[1], model.cfg.input_height),
+        fit=train_head, errors=depth_errors, progress=progress,
+    )  # fmt: skip

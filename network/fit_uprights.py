@@ -10,7 +10,6 @@ over the frames so far and over a whole sequence.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,9 +20,8 @@ from tqdm import tqdm
 
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network.backedge import DepthReader
 from network.data import frame_camera
-from network.fit_backedge import FitConfig, rack_row
+from network.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
 from network.infer import Predictor, sequence_camera
 from network.model import MVRackLay
 from network.uprights import UprightHead, pool_columns
@@ -107,91 +105,39 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
 def train_head(head: UprightHead, data: Cached, cfg: FitConfig, progress: bool = True) -> list[float]:
     """Fit ``head`` to the cached targets over the columns inside the image (AdamW, cosine decay); returns
     the mean loss per epoch."""
-    cfg.validate()
-    gen = torch.Generator().manual_seed(cfg.seed)
-    opt = torch.optim.AdamW(head.parameters(), cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
     loss_fn = nn.BCEWithLogitsLoss(pos_weight=torch.tensor(cfg.pos_weight), reduction="none")
-    n = data.pooled.shape[0]
-    losses = []
-    bar = tqdm(range(cfg.epochs), desc="uprights: fit", unit="epoch", disable=not progress, leave=False)
-    for _ in bar:
-        head.train()
-        perm = torch.randperm(n, generator=gen)
-        total = 0.0
-        for i in range(0, n, cfg.batch):
-            b = perm[i : i + cfg.batch]
-            w = data.inside[b][:, None].float().expand(-1, 2, -1)
-            loss = (loss_fn(head(data.pooled[b].float()), data.target[b]) * w).sum() / w.sum().clamp_min(1.0)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            total += float(loss.detach()) * len(b)
-        sched.step()
-        losses.append(total / n)
-        bar.set_postfix(loss=f"{losses[-1]:.4f}")
-    head.eval()
-    return losses
+
+    def batch_loss(b: torch.Tensor) -> torch.Tensor:
+        w = data.inside[b][:, None].float().expand(-1, 2, -1)
+        return (loss_fn(head(data.pooled[b].float()), data.target[b]) * w).sum() / w.sum().clamp_min(1.0)
+
+    return fit_epochs(head, data.pooled.shape[0], batch_loss, cfg, "uprights: fit", progress)
 
 
-@torch.no_grad()
 def depth_errors(head: UprightHead, data: Cached, model: MVRackLay) -> dict[str, Any]:
     """Rack depth the uprights alone give on cached frames: mean absolute error per frame (that frame
     alone), running (the frames so far of its sequence) and at a sequence's end, in metres; and the
     marks' precision and recall (columns inside the image, probability >= 0.5)."""
-    head.eval()
-    view, z_extent = model.cfg.view, model.cfg.spec.z_extent
-    probs = torch.sigmoid(torch.cat([head(data.pooled[i : i + 256].float()) for i in range(0, len(data.pooled), 256)]))
-    frame_err, run_err, last = [], [], {}
-    readers: dict[int, DepthReader] = {}
-    for k in range(len(probs)):
-        s, dist, ups = int(data.seq[k]), float(data.distance[k]), probs[k].numpy()
-        one = DepthReader(view, z_extent).add(None, [], dist, ups)
-        run = readers.setdefault(s, DepthReader(view, z_extent)).add(None, [], dist, ups)
-        if one is not None:
-            frame_err.append(abs(one - data.depth[k]))
-        if run is not None:
-            run_err.append(abs(run - data.depth[k]))
-            last[s] = run - data.depth[k]
+    probs = head_probs(head, data.pooled)
+    ups = probs.numpy()
+    summary = reading_errors(
+        data.seq, data.depth, lambda k, reader: reader.add(None, [], float(data.distance[k]), ups[k]), model
+    )
     marks = {}
     for c, name in enumerate(("front", "rear")):
         pred = (probs[:, c] >= 0.5) & data.inside
         true = (data.target[:, c] > 0.5) & data.inside
         tp = int((pred & true).sum())
         marks[name] = {"precision": tp / max(int(pred.sum()), 1), "recall": tp / max(int(true.sum()), 1)}
-    return {
-        "frames": len(probs),
-        "sequences": len(readers),
-        "mae_frame": float(np.mean(frame_err)) if frame_err else None,
-        "mae_running": float(np.mean(run_err)) if run_err else None,
-        "mae_sequence": float(np.mean(np.abs(list(last.values())))) if last else None,
-        "read_fraction": len(run_err) / max(len(probs), 1),
-        "marks": marks,
-    }
+    return {**summary, "marks": marks}
 
 
 def fit_uprights(
     model: MVRackLay, train: list[Any], val: list[Any], cfg: FitConfig = DEFAULT_FIT, progress: bool = True
 ) -> tuple[UprightHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged) and a summary for the checkpoint's record."""
-    cfg.validate()
-    if not train:
-        raise InputError("no training sequences to fit the upright head on")
-    torch.manual_seed(cfg.seed)
-    t0 = time.perf_counter()
-    data = cache_features(model, train, cfg.every, progress)
-    head = UprightHead(data.pooled.shape[1], model.cfg.input_width)
-    losses = train_head(head, data, cfg, progress)
-    summary: dict[str, Any] = {
-        "train_sequences": len(train),
-        "train_frames": int(data.pooled.shape[0]),
-        "epochs": cfg.epochs,
-        "every": cfg.every,
-        "seed": cfg.seed,
-        "final_loss": losses[-1],
-        "train_depth": depth_errors(head, data, model),
-    }
-    if val:
-        summary["val_depth"] = depth_errors(head, cache_features(model, val, cfg.every, progress), model)
-    summary["wall_minutes"] = (time.perf_counter() - t0) / 60
-    return head, summary
+    return fit_head(
+        model, train, val, cfg, what="the upright head", cache=cache_features,
+        make_head=lambda data: UprightHead(data.pooled.shape[1], model.cfg.input_width),
+        fit=train_head, errors=depth_errors, progress=progress,
+    )  # fmt: skip
