@@ -65,10 +65,10 @@ def main() -> int:
     cases.append((f"{args.fixed:g} m for every scene", lambda d: args.fixed))
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {len(frames)} frames of {len(seqs)} sequences")
     print(
-        f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s} "
+        f"{'mIoU, columns in view':34s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s} "
         f"{'depth err':>9s}"
     )
-    print(f"{'':28s} {'':9s} {'':8s} {'':11s} {'':10s} {'(cm, mean)':>9s}")
+    print(f"{'':34s} {'':9s} {'':8s} {'':11s} {'':10s} {'(cm, mean)':>9s}")
     for name, depth_of in cases:
         scorer = FrameScorer()
         errors = []
@@ -81,7 +81,7 @@ def main() -> int:
         v = scorer.result()["visible"]
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
         err = f"{100 * np.mean(errors):9.1f}" if errors else f"{'':9s}"
-        print(f"{name:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f} {err}")
+        print(f"{name:34s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f} {err}")
     return 0
 
 
