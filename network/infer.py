@@ -34,7 +34,7 @@ HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax")
 #: the options' help, one text for every command that offers it
 WHOLE_SEQUENCE_HELP = (
     "read the rack depth and box depths from every frame of the sequence, not only the frames so far "
-    "(offline: layouts come once the whole sequence is read; measured +0.6-0.8 top rack, +0.4-1.2 top box mIoU)"
+    "(offline: layouts come once the whole sequence is read; measured +0.2-1.4 top rack, +0.3-1.5 top box mIoU)"
 )
 #: the ``--flip-average`` option's help, one text for every command that offers it
 FLIP_HELP = (
@@ -86,8 +86,8 @@ class Predictor:
     ``whole_sequence``: the rack depth and the box depths come from every frame of the sequence, not
     only the frames so far: the frames are all read first, then each frame's outputs are given with
     the depth summed over the sequence and the box backs every frame showed (offline, for recorded
-    footage: a frame also gains what later frames show; measured +0.6-0.8 top rack and +0.4-1.2 top
-    box mIoU on the tuning sets). The outputs are held until the sequence ends, without the
+    footage: a frame also gains what later frames show; measured +0.2-1.4 top rack and +0.3-1.5 top
+    box mIoU on the tuning and held-out sets, docs/network.md). The outputs are held until the sequence ends, without the
     intermediate maps the heads read (~0.3 MB per frame at D = 64).
     """
 
