@@ -6,10 +6,11 @@
 Runs the model (streaming) over every sequence of a generated dataset and scores Table I (columns
 in view, mIoU in percent) of its layouts as decoded and after `layouts.rackdepth.impose_rack_depth`
 (what `mvracklay predict/run --rack-depth M` does) with: the depth the model reads from the boards'
-back edges and, with the upright head, the racks' uprights over the frames so far (`network.backedge`,
-`network.uprights`; what such models do by default); each scene's true rack depth (from its scene.json, what a racking spec sheet
-gives); the true depth off by +-ERR cm (a spec that is a little wrong); and one fixed depth for
-every scene (a guess). Only the top view changes.
+back edges and, with the upright head, the racks' uprights over the frames so far
+(`network.backedge`, `network.uprights`; what such models do by default); each scene's true rack
+depth (from its scene.json, what a racking spec sheet gives); the true depth off by +-ERR cm (a
+spec that is a little wrong); and one fixed depth for every scene (a guess). Only the top view
+changes.
 """
 
 from __future__ import annotations

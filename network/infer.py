@@ -88,8 +88,8 @@ class Predictor:
     only the frames so far: the frames are all read first, then each frame's outputs are given with
     the depth summed over the sequence and the box backs every frame showed (offline, for recorded
     footage: a frame also gains what later frames show; measured +0.2-1.4 top rack and +0.3-1.5 top
-    box mIoU on the tuning and held-out sets, docs/network.md). The outputs are held until the sequence ends, without the
-    intermediate maps the heads read (~0.3 MB per frame at D = 64).
+    box mIoU on the tuning and held-out sets, docs/network.md). The outputs are held until the
+    sequence ends, without the intermediate maps the heads read (~0.3 MB per frame at D = 64).
     """
 
     def __init__(
