@@ -30,11 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 
 from layouts.boxdepth import box_parts  # noqa: E402
-from network.boxdepth import MIN_SHOWN, BoxDepthReader, decode, frame_head_inputs  # noqa: E402
+from network.boxdepth import BoxDepthReader, bin_log_probs, decode, frame_head_inputs  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
+
+MIN_SHOWN = 0.5  #: shown probability from which this script counts a column as shown by its frame
 
 
 def run(model, seqs, every: int) -> list[dict]:
@@ -55,9 +57,10 @@ def run(model, seqs, every: int) -> list[dict]:
             dist = camera(i)[1]
             with torch.no_grad():
                 win, extra = frame_head_inputs(out, view, dist)
-                z, p = decode(model.box_depth(win, extra))
+                logits = model.box_depth(win, extra)
+                z, p = decode(logits)
             valid = torch.isfinite(out["anchors"]).numpy()
-            by_pose = poses.add(z, p, valid, xs[i] - xs[i - 1] if i else 0.0)
+            by_pose = poses.add(bin_log_probs(logits), p, valid, xs[i] - xs[i - 1] if i else 0.0)
             if i % every:
                 continue
             read = float(out["rack_depth"])

@@ -22,7 +22,7 @@ from layouts import VIEWS, Intrinsics, LayoutSpec
 from layouts.boxdepth import impose_box_backs
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
-from network.boxdepth import BoxDepthReader, ParallaxHistory, decode, frame_head_inputs
+from network.boxdepth import BoxDepthReader, ParallaxHistory, bin_log_probs, decode, frame_head_inputs
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
 from network.model import MVRackLay, board_peaks, head_outputs
@@ -207,8 +207,8 @@ class Predictor:
         """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""
         head = self.model.box_depth
         win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
-        z, p = decode(head(win.to(self.device), extra.to(self.device)))
-        return boxes.add(z, p, torch.isfinite(out["anchors"]).cpu().numpy(), step)
+        logits = head(win.to(self.device), extra.to(self.device))
+        return boxes.add(bin_log_probs(logits), decode(logits)[1], torch.isfinite(out["anchors"]).cpu().numpy(), step)
 
     def _outputs(
         self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]

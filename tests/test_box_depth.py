@@ -14,7 +14,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.boxdepth import BINS, BoxDepthReader, RowMap, decode
+from network.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, bin_log_probs, decode
 from network.checkpoint import load_checkpoint, load_model
 from network.fit_boxdepth import (
     Cache,
@@ -83,21 +83,50 @@ def test_a_box_the_front_view_does_not_show_is_left():
     assert np.array_equal(out, top)
 
 
-def test_the_row_map_carries_shown_depths_with_the_camera():
+def bins_around(depth: float, sigma: float = 0.08) -> np.ndarray:
+    """``(K,)`` log-probabilities of a Gaussian reading over `BINS` centred at ``depth``."""
+    lg = -0.5 * ((BINS - depth) / sigma) ** 2
+    return lg - np.log(np.exp(lg).sum())
+
+
+def test_the_row_map_carries_depths_with_the_camera():
     reader = BoxDepthReader(SPEC)
-    z = np.full((1, SPEC.size), 0.4)
-    p = np.zeros((1, SPEC.size))
-    p[0, 8] = 0.9  # only column 8 is shown
-    first = reader.add(z, p, np.array([True]))
-    assert first[0, 8] == pytest.approx(0.4) and np.isnan(np.delete(first[0], 8)).all()
+    k, d = len(BINS), SPEC.size
+    log_q = np.broadcast_to(bins_around(0.4)[None, :, None], (1, k, d)).copy()
+    p = np.zeros((1, d))
+    p[0, 8] = 0.9  # only column 8 counts
+    first = reader.add(log_q, p, np.array([True]))
+    assert first[0, 8] == pytest.approx(0.4, abs=0.005) and np.isnan(np.delete(first[0], 8)).all()
     step = SPEC.x_extent / SPEC.size  # the camera moves one column along +X: the same shelf is one column left
-    second = reader.add(np.full((1, SPEC.size), 0.9), np.zeros((1, SPEC.size)), np.array([True]), step)
-    assert second[0, 7] == pytest.approx(0.4) and np.isnan(second[0, 8])
-    third = reader.add(np.full((1, SPEC.size), 0.8), np.ones((1, SPEC.size)), np.array([True]))
-    assert third[0, 7] == pytest.approx((0.9 * 0.4 + 0.8) / 1.9)  # weighted by the shown probability
-    assert np.isnan(reader.add(z, p, np.array([False]))).all()  # a slot without an anchor gets nothing
-    m = RowMap(min_shown=0.5)
-    assert np.isnan(m.update(np.array([0]), np.array([0.3]), np.array([0.49]))).all()
+    second = reader.add(np.zeros((1, k, d)), np.zeros((1, d)), np.array([True]), step)
+    assert second[0, 7] == pytest.approx(first[0, 8]) and np.isnan(second[0, 8])
+    assert np.isnan(reader.add(log_q, p, np.array([False]))).all()  # a slot without an anchor gets nothing
+    assert np.isnan(reader.backs(-10.0, np.array([True]))).all()  # far away: never in view
+
+
+def test_the_row_map_fuses_the_frames_by_how_sure_and_how_shown_each_is():
+    m = RowMap()
+    cell = np.array([3])
+    flat = np.full((len(BINS), 1), -np.log(len(BINS)))
+    # a flat guess changes nothing, however shown: the sharp reading decides
+    m.add(cell, bins_around(0.4)[:, None], np.array([0.9]))
+    assert m.update(cell, flat, np.array([0.9]))[0] == pytest.approx(0.4, abs=0.005)
+    # two readings as sure: the product lands between them by their shown probabilities (0.9 and 0.3)
+    m = RowMap()
+    m.add(cell, bins_around(0.4)[:, None], np.array([0.9]))
+    m.add(cell, bins_around(0.6)[:, None], np.array([0.3]))
+    assert m.mean(cell)[0] == pytest.approx((0.9 * 0.4 + 0.3 * 0.6) / 1.2, abs=0.005)
+    # the sharper of two readings weighs more (a product of Gaussians: precision-weighted)
+    m = RowMap()
+    m.add(cell, bins_around(0.4, 0.05)[:, None], np.array([0.5]))
+    m.add(cell, bins_around(0.6, 0.10)[:, None], np.array([0.5]))
+    assert m.mean(cell)[0] == pytest.approx((0.4 / 0.05**2 + 0.6 / 0.10**2) / (1 / 0.05**2 + 1 / 0.10**2), abs=0.005)
+    # the map grows both ways along X; cells never in view, or shown less than MIN_WEIGHT in all, stay NaN
+    m.add(np.array([-2, 10, 12]), np.stack([bins_around(0.3), bins_around(0.7), bins_around(0.7)], 1), [1.0, 0.0, 0.3])
+    got = m.mean(np.array([-2, -1, 3, 10, 11, 12]))
+    assert got[0] == pytest.approx(0.3, abs=0.005) and np.isnan(got[[1, 3, 4, 5]]).all() and np.isfinite(got[2])
+    m.add(np.array([12]), bins_around(0.7)[:, None], np.array([MIN_WEIGHT - 0.3]))  # now shown enough
+    assert m.mean(np.array([12]))[0] == pytest.approx(0.7, abs=0.005)
 
 
 def test_decode_gives_the_expected_depth_and_shown_probability():
@@ -106,6 +135,9 @@ def test_decode_gives_the_expected_depth_and_shown_probability():
     logits[0, -1] = torch.tensor([5.0, -5.0])
     z, p = decode(logits)
     assert z[0] == pytest.approx([BINS[3], BINS[7]], abs=1e-4)
+    log_q = bin_log_probs(logits)
+    assert log_q.shape == (1, len(BINS), 2) and np.exp(log_q).sum(1) == pytest.approx(np.ones((1, 2)))
+    assert log_q[0, 3, 0] == pytest.approx(0.0, abs=1e-6) and log_q[0, 4, 0] < -50
     assert p[0, 0] > 0.99 and p[0, 1] < 0.01
 
 

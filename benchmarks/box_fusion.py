@@ -1,0 +1,168 @@
+#!/usr/bin/env python3
+"""How the box-depth head's per-frame readings are best fused along the row: Table I's top view per rule.
+
+    .venv/bin/python benchmarks/box_fusion.py CKPT DATA [--mode window] [--sequences N]
+
+CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`). The model runs once over
+DATA (as `mvracklay evaluate`: the rack depth read, windowed by default); each frame's head logits
+and camera step are kept, and every rule below rebuilds the carried backs from them, over the frames
+so far and over the whole sequence, then scores the top view (columns in view, mIoU):
+
+* ``mean p>=0.5``: the shown-weighted mean of the expected depths of the frames whose shown probability
+  is at least 0.5 (what `network.boxdepth.BoxDepthReader` did before the product);
+* ``mean``: the same without the threshold;
+* ``inverse variance``: each frame's expected depth weighted by its shown probability over its variance;
+* ``product``: the frames' distributions multiplied, each raised to its shown probability (`RowMap`,
+  shipped); ``product x2``: the same with every exponent doubled (a sharper fused distribution).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts.boxdepth import impose_box_backs  # noqa: E402
+from layouts.metrics import FrameScorer  # noqa: E402
+from layouts.rackdepth import impose_rack_depth  # noqa: E402
+from network.boxdepth import BINS, BoxDepthReader, RowMap, bin_log_probs, decode, frame_head_inputs  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
+from waresynth.dataset import open_dataset  # noqa: E402
+
+
+class Keeping(Predictor):
+    """A `Predictor` that also hands out each frame's head logits and camera step."""
+
+    @torch.no_grad()
+    def _box_backs(self, out: dict, boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
+        win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
+        out["head_logits"] = self.model.box_depth(win.to(self.device), extra.to(self.device)).float().cpu()
+        out["step"] = step
+        return super()._box_backs(out, boxes, i, step)
+
+
+class MeanMap(RowMap):
+    """The mean rules: per cell a weighted mean of the frames' expected depths, the weights from ``weigh``
+    (shown probability, variance); column 0 of ``logs`` holds the weighted sum of depths."""
+
+    def __init__(self, weigh: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
+        super().__init__(1)
+        self.weigh = weigh
+
+    def add(self, cells: np.ndarray, log_q: np.ndarray, p: np.ndarray) -> None:
+        q = np.exp(log_q)
+        z = BINS @ q
+        w = self.weigh(np.asarray(p), ((BINS[:, None] - z[None]) ** 2 * q).sum(0))
+        self._cover(np.asarray(cells))
+        idx = np.asarray(cells) - self.first
+        np.add.at(self.logs[:, 0], idx, w * z)
+        np.add.at(self.weight, idx, w)
+
+    def mean(self, cells: np.ndarray) -> np.ndarray:
+        idx = np.asarray(cells) - self.first
+        out = np.full(idx.shape, np.nan)
+        ok = (idx >= 0) & (idx < self.weight.size)
+        ok[ok] = self.weight[idx[ok]] > 0
+        out[ok] = self.logs[idx[ok], 0] / self.weight[idx[ok]]
+        return out
+
+
+class Doubled(RowMap):
+    """The product with every frame's exponent doubled."""
+
+    def add(self, cells: np.ndarray, log_q: np.ndarray, p: np.ndarray) -> None:
+        super().add(cells, log_q, 2 * np.asarray(p))
+
+
+RULES: dict[str, Callable[[], RowMap]] = {
+    "mean p>=0.5": lambda: MeanMap(lambda p, v: np.where(p >= 0.5, p, 0.0)),
+    "mean": lambda: MeanMap(lambda p, v: p),
+    "inverse variance": lambda: MeanMap(lambda p, v: p / (v + 0.001)),
+    "product (shipped)": RowMap,
+    "product x2": Doubled,
+}
+
+
+def carried(frames: list[dict], spec_m, make: Callable[[], RowMap], whole: bool) -> list[np.ndarray]:  # noqa: ANN001
+    """Each frame's ``(R, D)`` backs from ``frames`` (one sequence) fused by the maps ``make`` builds."""
+    reader = BoxDepthReader(spec_m)
+    maps: dict[int, RowMap] = {}
+    xs, out = [], []
+    for f in frames:
+        reader.camera_x += f["step"]
+        xs.append(reader.camera_x)
+        cells = reader.cells(reader.camera_x)
+        for r in np.nonzero(f["valid"])[0]:
+            maps.setdefault(int(r), make()).add(cells, f["log_q"][r], f["p"][r])
+        if not whole:
+            out.append(backs_of(maps, reader, reader.camera_x, f["valid"]))
+    if whole:
+        out = [backs_of(maps, reader, x, f["valid"]) for x, f in zip(xs, frames)]
+    return out
+
+
+def backs_of(maps: dict[int, RowMap], reader: BoxDepthReader, camera_x: float, valid: np.ndarray) -> np.ndarray:
+    cells = reader.cells(camera_x)
+    out = np.full((len(valid), reader.spec.size), np.nan)
+    for r in np.nonzero(valid)[0]:
+        if int(r) in maps:
+            out[r] = maps[int(r)].mean(cells)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path, help="a checkpoint with the box-depth head")
+    ap.add_argument("data", type=Path, help="generated sequences (any split)")
+    ap.add_argument("--mode", choices=["window", "stream"], default="window")
+    ap.add_argument("--sequences", type=int, default=None, help="only the first N sequences")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, _ = load_model(args.checkpoint)
+    if model.box_depth is None:
+        sys.exit(f"{args.checkpoint}: has no box-depth head (mvracklay fit-box-depth)")
+    seqs = open_dataset(args.data).sequences(None)[: args.sequences]
+    runs = []
+    for seq in tqdm(seqs, desc="sequences"):
+        frames = []
+        pred = Keeping(model, sequence_camera(seq))
+        for i, out in enumerate(pred.run((seq.rgb(j) for j in range(seq.num_frames)), args.mode)):
+            gt = seq.layouts(i)
+            logits = out["head_logits"]
+            frames.append({
+                "top": logits_to_layout(out["top"], seq.spec.size), "front": logits_to_layout(out["front"], seq.spec.size),
+                "depth": float(out["rack_depth"]), "log_q": bin_log_probs(logits), "p": decode(logits)[1],
+                "step": out["step"], "valid": torch.isfinite(out["anchors"]).numpy(), "gt": gt,
+            })  # fmt: skip
+        runs.append((seq.spec, frames))
+    print(
+        f"{args.checkpoint} on {args.data}: {sum(len(f) for _, f in runs)} frames, {args.mode} mode; top rack / top box"
+    )
+    for whole in (False, True):
+        for name, make in RULES.items():
+            scorer = FrameScorer()
+            for spec, frames in runs:
+                last_depth = frames[-1]["depth"]
+                for f, backs in zip(frames, carried(frames, model.cfg.spec, make, whole)):
+                    depth = last_depth if whole else f["depth"]
+                    top = f["top"]
+                    if np.isfinite(depth):
+                        top = impose_box_backs(impose_rack_depth(top, spec, depth), f["front"], spec, depth, backs)
+                    scorer.update({"top": top, "front": f["front"]}, f["gt"])
+            v = scorer.result()["visible"]["top"]
+            frames_from = "whole sequence" if whole else "frames so far"
+            print(f"  {frames_from:<15} {name:<20} {100 * v['rack']['miou']:6.2f} / {100 * v['box']['miou']:6.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
