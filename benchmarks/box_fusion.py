@@ -129,7 +129,7 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     model, _ = load_model(args.checkpoint)
     if model.box_depth is None:
-        sys.exit(f"{args.checkpoint}: has no box-depth head (mvracklay fit-box-depth)")
+        ap.error(f"{args.checkpoint}: no box-depth head (fit one with mvracklay fit-box-depth)")
     seqs = open_dataset(args.data).sequences(None)[: args.sequences]
     runs = []
     for seq in tqdm(seqs, desc="sequences"):
