@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 
 from layouts.boxdepth import box_parts  # noqa: E402
-from network.boxdepth import BoxDepthReader, bin_log_probs, decode, frame_head_inputs  # noqa: E402
+from network.boxdepth import BoxDepthReader, decode, frame_head_inputs, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -60,7 +60,7 @@ def run(model, seqs, every: int) -> list[dict]:
                 logits = model.box_depth(win, extra)
                 z, p = decode(logits)
             valid = torch.isfinite(out["anchors"]).numpy()
-            by_pose = poses.add(bin_log_probs(logits), p, valid, xs[i] - xs[i - 1] if i else 0.0)
+            by_pose = poses.add(*reading(logits), valid, xs[i] - xs[i - 1] if i else 0.0)
             if i % every:
                 continue
             read = float(out["rack_depth"])

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.boxdepth import impose_box_backs  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
-from network.boxdepth import BINS, BoxDepthReader, RowMap, bin_log_probs, decode, frame_head_inputs  # noqa: E402
+from network.boxdepth import BINS, BoxDepthReader, RowMap, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -41,10 +41,11 @@ from waresynth.dataset import open_dataset  # noqa: E402
 class Keeping(Predictor):
     """A `Predictor` that also hands out each frame's head logits and camera step."""
 
-    @torch.no_grad()
+    def _box_logits(self, out: dict, i: int) -> torch.Tensor:
+        out["head_logits"] = super()._box_logits(out, i)
+        return out["head_logits"]
+
     def _box_backs(self, out: dict, boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
-        win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
-        out["head_logits"] = self.model.box_depth(win.to(self.device), extra.to(self.device)).float().cpu()
         out["step"] = step
         return super()._box_backs(out, boxes, i, step)
 
@@ -92,30 +93,11 @@ RULES: dict[str, Callable[[], RowMap]] = {
 
 
 def carried(frames: list[dict], spec_m, make: Callable[[], RowMap], whole: bool) -> list[np.ndarray]:  # noqa: ANN001
-    """Each frame's ``(R, D)`` backs from ``frames`` (one sequence) fused by the maps ``make`` builds."""
-    reader = BoxDepthReader(spec_m)
-    maps: dict[int, RowMap] = {}
-    xs, out = [], []
-    for f in frames:
-        reader.camera_x += f["step"]
-        xs.append(reader.camera_x)
-        cells = reader.cells(reader.camera_x)
-        for r in np.nonzero(f["valid"])[0]:
-            maps.setdefault(int(r), make()).add(cells, f["log_q"][r], f["p"][r])
-        if not whole:
-            out.append(backs_of(maps, reader, reader.camera_x, f["valid"]))
-    if whole:
-        out = [backs_of(maps, reader, x, f["valid"]) for x, f in zip(xs, frames)]
-    return out
-
-
-def backs_of(maps: dict[int, RowMap], reader: BoxDepthReader, camera_x: float, valid: np.ndarray) -> np.ndarray:
-    cells = reader.cells(camera_x)
-    out = np.full((len(valid), reader.spec.size), np.nan)
-    for r in np.nonzero(valid)[0]:
-        if int(r) in maps:
-            out[r] = maps[int(r)].mean(cells)
-    return out
+    """Each frame's ``(R, D)`` backs from ``frames`` (one sequence) fused by the maps ``make`` builds, as
+    `network.infer.Predictor` gives them (``whole``: every frame from the maps of the whole sequence)."""
+    reader = BoxDepthReader(spec_m, make)
+    out = [(reader.add(f["log_q"], f["p"], f["valid"], f["step"]), reader.camera_x) for f in frames]
+    return [reader.backs(x, f["valid"]) if whole else backs for (backs, x), f in zip(out, frames)]
 
 
 def main() -> int:
@@ -137,10 +119,10 @@ def main() -> int:
         pred = Keeping(model, sequence_camera(seq))
         for i, out in enumerate(pred.run((seq.rgb(j) for j in range(seq.num_frames)), args.mode)):
             gt = seq.layouts(i)
-            logits = out["head_logits"]
+            log_q, p = reading(out["head_logits"])
             frames.append({
                 "top": logits_to_layout(out["top"], seq.spec.size), "front": logits_to_layout(out["front"], seq.spec.size),
-                "depth": float(out["rack_depth"]), "log_q": bin_log_probs(logits), "p": decode(logits)[1],
+                "depth": float(out["rack_depth"]), "log_q": log_q, "p": p,
                 "step": out["step"], "valid": torch.isfinite(out["anchors"]).numpy(), "gt": gt,
             })  # fmt: skip
         runs.append((seq.spec, frames))

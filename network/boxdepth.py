@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -169,9 +170,13 @@ def decode(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     return z.cpu().numpy(), torch.sigmoid(logits[:, -1].float()).cpu().numpy()
 
 
-def bin_log_probs(logits: torch.Tensor) -> np.ndarray:
-    """``(R, K+1, D)`` logits -> ``(R, K, D)`` log-probabilities of the back-depth bins (`BINS`)."""
-    return torch.log_softmax(logits[:, :-1].float(), 1).cpu().numpy()
+def reading(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, K+1, D)`` logits -> what `BoxDepthReader.add` takes: ``(R, K, D)`` log-probabilities of the
+    back-depth bins (`BINS`) and the probability ``(R, D)`` that the frame shows the depth."""
+    return (
+        torch.log_softmax(logits[:, :-1].float(), 1).cpu().numpy(),
+        torch.sigmoid(logits[:, -1].float()).cpu().numpy(),
+    )
 
 
 class RowMap:
@@ -240,8 +245,9 @@ class BoxDepthReader:
     every frame what all the frames showed (`network.infer.Predictor`, ``whole_sequence``).
     """
 
-    def __init__(self, spec: LayoutSpec) -> None:
+    def __init__(self, spec: LayoutSpec, make_map: Callable[[], RowMap] = RowMap) -> None:
         self.spec = spec  #: the model's layouts (the head's columns)
+        self.make_map = make_map  #: one slot's map (`RowMap`; benchmarks/box_fusion.py passes other rules)
         self.camera_x = 0.0  #: metres along the row since the first frame
         self.maps: dict[int, RowMap] = {}
 
@@ -252,13 +258,13 @@ class BoxDepthReader:
         return np.floor((camera_x + self.spec.col_to_x(np.arange(self.spec.size) + 0.5)) / width).astype(int)
 
     def add(self, log_q: np.ndarray, p: np.ndarray, valid: np.ndarray, step: float = 0.0) -> np.ndarray:
-        """``log_q`` ``(R, K, D)``: the head's bin log-probabilities (`bin_log_probs`); ``p`` ``(R, D)``: its
-        shown probabilities (`decode`); ``valid`` ``(R,)``: slots with an anchor; ``step``: the camera's
+        """``log_q`` ``(R, K, D)``, ``p`` ``(R, D)``: the head's bin log-probabilities and shown probabilities
+        (`reading`); ``valid`` ``(R,)``: slots with an anchor; ``step``: the camera's
         motion along X since the previous frame (metres). Returns `backs` here."""
         self.camera_x += float(step)
         cells = self.cells(self.camera_x)
         for r in np.nonzero(valid)[0]:
-            self.maps.setdefault(int(r), RowMap(log_q.shape[1])).add(cells, log_q[r], p[r])
+            self.maps.setdefault(int(r), self.make_map()).add(cells, log_q[r], p[r])
         return self.backs(self.camera_x, valid)
 
     def backs(self, camera_x: float, valid: np.ndarray) -> np.ndarray:

@@ -22,7 +22,7 @@ from layouts import VIEWS, Intrinsics, LayoutSpec
 from layouts.boxdepth import impose_box_backs
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
-from network.boxdepth import BoxDepthReader, ParallaxHistory, bin_log_probs, decode, frame_head_inputs
+from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
 from network.model import MVRackLay, board_peaks, head_outputs
@@ -203,12 +203,14 @@ class Predictor:
             yield out
 
     @torch.no_grad()
+    def _box_logits(self, out: dict[str, torch.Tensor], i: int) -> torch.Tensor:
+        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.boxdepth`)."""
+        win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
+        return self.model.box_depth(win.to(self.device), extra.to(self.device))
+
     def _box_backs(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
         """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""
-        head = self.model.box_depth
-        win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
-        logits = head(win.to(self.device), extra.to(self.device))
-        return boxes.add(bin_log_probs(logits), decode(logits)[1], torch.isfinite(out["anchors"]).cpu().numpy(), step)
+        return boxes.add(*reading(self._box_logits(out, i)), torch.isfinite(out["anchors"]).cpu().numpy(), step)
 
     def _outputs(
         self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]

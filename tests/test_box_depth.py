@@ -14,7 +14,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, bin_log_probs, decode
+from network.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
 from network.checkpoint import load_checkpoint, load_model
 from network.fit_boxdepth import (
     Cache,
@@ -135,7 +135,8 @@ def test_decode_gives_the_expected_depth_and_shown_probability():
     logits[0, -1] = torch.tensor([5.0, -5.0])
     z, p = decode(logits)
     assert z[0] == pytest.approx([BINS[3], BINS[7]], abs=1e-4)
-    log_q = bin_log_probs(logits)
+    log_q, shown = reading(logits)
+    assert np.array_equal(shown, p)
     assert log_q.shape == (1, len(BINS), 2) and np.exp(log_q).sum(1) == pytest.approx(np.ones((1, 2)))
     assert log_q[0, 3, 0] == pytest.approx(0.0, abs=1e-6) and log_q[0, 4, 0] < -50
     assert p[0, 0] > 0.99 and p[0, 1] < 0.01
