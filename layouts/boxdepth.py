@@ -4,7 +4,8 @@ A top-view box is a connected component of box cells in one slot; per layout col
 a front to a back depth behind the rack front (the top view is centred on the rack's mid-depth, so
 the rack ``depth`` places its rows, `layouts.spec`). `box_parts` lists the boxes a slot's top and
 front views agree on; `redraw` moves a box's back per column; `impose_box_backs` gives every box of a
-frame one back from per-column back depths read elsewhere (`network.boxdepth`).
+frame one back from per-column back depths read elsewhere (`network.boxdepth`), boxes that touch side
+by side told apart by their heights in the front view (`layouts.steps`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from skimage.measure import label
 
 from layouts.classes import BOX, SHELF
 from layouts.spec import LayoutSpec
+from layouts.steps import MIN_BOX_WIDTH, SPLIT_STEP, pieces
 
 
 def cell_z(spec: LayoutSpec, depth: float) -> np.ndarray:
@@ -66,7 +68,10 @@ def impose_box_backs(
     front per column of a grid of ``W`` columns over the same X extent (NaN: unknown; a box with no
     known column is left). Fronts stay; each box gets one back, the median of its known columns (a box is a cuboid:
     per-column backs left ragged edges, and a column read shallower than its front split the box in
-    two for the stitcher), at least its front cell deep; a copy is returned."""
+    two for the stitcher), at least its front cell deep. Boxes that touch side by side form one component;
+    it is split where the front view's box height steps (`layouts.steps.pieces`, as the stitcher splits
+    it), each piece with the median of its own known columns (of the whole component where it has none).
+    A copy is returned."""
     top = np.asarray(top)
     backs = np.asarray(backs, dtype=np.float64)
     r, d = top.shape[0], spec.size
@@ -79,11 +84,19 @@ def impose_box_backs(
     out = top.copy()
     w = backs.shape[1]
     cell = spec.z_extent / d
+    dx, dh = spec.pixel_size("front")
+    min_cols = max(1, int(round(MIN_BOX_WIDTH / dx)))
     for k in range(r):
         for cols, zf, _, _ in box_parts(top[k], front[k], spec, depth):
             zb = backs[k, cols * w // d]
-            known = zb[np.isfinite(zb)]
-            if known.size:
-                back = np.maximum(float(np.median(known)), zf + cell)
-                redraw(out[k], cols, zf, back, spec, depth)
+            known = np.isfinite(zb)
+            if not known.any():
+                continue
+            whole = float(np.median(zb[known]))
+            back = np.empty(len(cols))
+            height = np.count_nonzero(front[k][:, cols] == BOX, axis=0) * dh
+            for a, b in pieces(height, SPLIT_STEP, min_cols):
+                part = zb[a:b][known[a:b]]
+                back[a:b] = np.median(part) if part.size else whole
+            redraw(out[k], cols, zf, np.maximum(back, zf + cell), spec, depth)
     return out

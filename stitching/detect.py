@@ -30,6 +30,7 @@ from layouts.classes import BOX
 from layouts.codecs import FrameLayouts
 from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
+from layouts.steps import MIN_BOX_WIDTH, SPLIT_STEP, profile_steps, split_positions
 from stitching.geometry import min_area_rect
 
 # Label structure: 4-connectivity inside a slot, nothing across slots.
@@ -44,8 +45,8 @@ class DetectConfig:
     min_box_area: float = 0.012  #: m^2; smaller box components are noise
     opening: int = 0  #: iterations of a 3x3 binary opening of the box masks (0 = off; 1 for noisy output)
     shelf_fraction: float = 0.3  #: a top-view column is shelf when this fraction of rows is shelf/box
-    split_step: float = 0.045  #: m; a step this large in a component's depth edges or height splits it
-    min_box_width: float = 0.18  #: m; no split leaves a piece narrower than this
+    split_step: float = SPLIT_STEP  #: m; a step this large in a component's depth edges or height splits it
+    min_box_width: float = MIN_BOX_WIDTH  #: m; no split leaves a piece narrower than this
     min_box_height: float = 0.08  #: m; front-view columns with less box than this hold none (noise)
     cut_margin: float = 0.04  #: m; a box ending this close to the visible range's edge counts as cut there
     fit_yaw: bool = True  #: fit an oriented rectangle to components that fill their bounds poorly
@@ -140,42 +141,6 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist()))
 
 
-def _med3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Element-wise median of three arrays (no sorting)."""
-    return np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
-
-
-def _steps(profiles: np.ndarray) -> np.ndarray:
-    """Per split position, the largest |median of the 3 values right - median of the 3 left| over profiles.
-
-    ``profiles`` is ``(P, n)`` or ``(n,)``; the result has length ``n + 1`` (position j splits before
-    column j) and is 0 within 3 columns of either end.
-    """
-    p = np.atleast_2d(profiles)
-    n = p.shape[1]
-    out = np.zeros(n + 1)
-    if n < 6:
-        return out
-    med = _med3(p[:, :-2], p[:, 1:-1], p[:, 2:])  # med[:, i] = median of p[:, i:i+3]
-    # Position j (3 <= j <= n-3): left window starts at j-3, right window at j.
-    out[3 : n - 2] = np.abs(med[:, 3:] - med[:, : n - 5]).max(axis=0)
-    # A plateau of equal scores surrounds a clean step: the raw jump picks the exact column.
-    out[1:n] += 1e-3 * np.abs(np.diff(p, axis=1)).max(axis=0)
-    return out
-
-
-def _split_positions(score: np.ndarray, thr: float, min_cols: int, n: int) -> list[int]:
-    """Greedy strongest-first split positions in ``(0, n)`` above ``thr``, at least ``min_cols`` apart."""
-    cand = np.flatnonzero(score > thr)
-    cuts: list[int] = []
-    for j in cand[np.argsort(-score[cand], kind="stable")]:
-        if j < min_cols or n - j < min_cols:
-            continue
-        if all(abs(j - c) >= min_cols for c in cuts):
-            cuts.append(int(j))
-    return sorted(cuts)
-
-
 def _piece(
     spec: LayoutSpec,
     sub: np.ndarray,
@@ -245,7 +210,7 @@ def _front_runs(
             continue
         score = h_steps[a : b + 1].copy()
         score[0] = score[-1] = 0.0
-        cuts = _split_positions(score, cfg.split_step, min_cols, b - a)
+        cuts = split_positions(score, cfg.split_step, min_cols, b - a)
         edges = [0, *cuts, b - a]
         for p, q in zip(edges[:-1], edges[1:]):
             out.append(
@@ -294,7 +259,7 @@ def detect_frame(
     clear[:, lo:hi] = np.count_nonzero(fvis, axis=1) * dh  # class ids: nonzero = not background
 
     # Height steps along the whole front profile of each slot (split positions 0..D).
-    h_steps = np.stack([_steps(box_h[r]) for r in range(R)])
+    h_steps = np.stack([profile_steps(box_h[r]) for r in range(R)])
     tvis = top[:, :, lo:hi]
     shelf_frac = np.count_nonzero(tvis, axis=1) / D  # nonzero = not background
     nonbg_rows = np.count_nonzero(tvis, axis=2)
@@ -350,9 +315,9 @@ def detect_frame(
                 has = sub.any(axis=0)
                 top_r = np.where(has, sub.argmax(axis=0), 0) * dz
                 bot_r = np.where(has, sub.shape[0] - sub[::-1].argmax(axis=0), 0) * dz
-                score = np.maximum(_steps(np.stack([top_r, bot_r])), h_steps[r, c_off : c_off + ncol + 1])
+                score = np.maximum(profile_steps(np.stack([top_r, bot_r])), h_steps[r, c_off : c_off + ncol + 1])
                 score[0] = score[-1] = 0.0
-                cuts = _split_positions(score, cfg.split_step, min_cols, ncol)
+                cuts = split_positions(score, cfg.split_step, min_cols, ncol)
                 edges = [0, *cuts, ncol]
                 pieces = list(zip(edges[:-1], edges[1:]))
             trim = max(2, int(np.ceil(0.04 / dx)))

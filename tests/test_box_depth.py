@@ -76,6 +76,34 @@ def test_box_backs_move_the_back_and_keep_the_front():
         impose_box_backs(top, front, SPEC, float("nan"), backs)
 
 
+def test_boxes_side_by_side_get_their_own_backs_where_their_heights_step():
+    spec = LayoutSpec(size=64)
+    depth = 1.0
+    top, front = slot_with_box(spec, slice(40, 50), slice(10, 30))  # one component, two boxes touching
+    front[0] = SHELF
+    front[0, -20:, 10:20] = BOX  # the left box is twice as tall as the right one
+    front[0, -10:, 20:30] = BOX
+    backs = np.full((1, spec.size), np.nan)
+    backs[0, 10:20], backs[0, 20:30] = 0.3, 0.6
+    backs[0, 12] = 0.9  # one stray reading does not move its box's back
+    zc = cell_z(spec, depth)
+    cell = spec.z_extent / spec.size
+
+    def back_of(out: np.ndarray, j: int) -> float:
+        return float(zc[np.nonzero(out[0, :, j] == BOX)[0].min()] + cell / 2)
+
+    out = impose_box_backs(top, front, spec, depth, backs)
+    assert [back_of(out, j) for j in range(10, 20)] == pytest.approx([0.3] * 10, abs=cell)
+    assert [back_of(out, j) for j in range(20, 30)] == pytest.approx([0.6] * 10, abs=cell)
+    backs[0, 20:30] = np.nan  # a piece with no reading takes the component's
+    out = impose_box_backs(top, front, spec, depth, backs)
+    assert [back_of(out, j) for j in range(10, 30)] == pytest.approx([0.3] * 20, abs=cell)
+    front[0, -20:, 20:30] = BOX  # equal heights: one box as far as the front view tells, one back
+    backs[0, 20:30] = 0.6
+    out = impose_box_backs(top, front, spec, depth, backs)
+    assert len({back_of(out, j) for j in range(10, 30)}) == 1
+
+
 def test_a_box_the_front_view_does_not_show_is_left():
     top, front = slot_with_box(SPEC, slice(10, 14), slice(3, 7))
     front[:] = SHELF
