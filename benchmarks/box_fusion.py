@@ -14,6 +14,10 @@ so far and over the whole sequence, then scores the top view (columns in view, m
 * ``inverse variance``: each frame's expected depth weighted by its shown probability over its variance;
 * ``product``: the frames' distributions multiplied, each raised to its shown probability (`RowMap`,
   shipped); ``product x2``: the same with every exponent doubled (a sharper fused distribution).
+
+Every rule gives each box one back, boxes side by side in one component told apart where the front
+view's box height steps (`layouts.boxdepth.impose_box_backs`, shipped); ``product, one back per
+component`` is the shipped product without that split.
 """
 
 from __future__ import annotations
@@ -83,12 +87,14 @@ class Doubled(RowMap):
         super().add(cells, log_q, 2 * np.asarray(p))
 
 
-RULES: dict[str, Callable[[], RowMap]] = {
-    "mean p>=0.5": lambda: MeanMap(lambda p, v: np.where(p >= 0.5, p, 0.0)),
-    "mean": lambda: MeanMap(lambda p, v: p),
-    "inverse variance": lambda: MeanMap(lambda p, v: p / (v + 0.001)),
-    "product (shipped)": RowMap,
-    "product x2": Doubled,
+#: name -> (map factory, split side-by-side boxes by the front view's heights)
+RULES: dict[str, tuple[Callable[[], RowMap], bool]] = {
+    "mean p>=0.5": (lambda: MeanMap(lambda p, v: np.where(p >= 0.5, p, 0.0)), True),
+    "mean": (lambda: MeanMap(lambda p, v: p), True),
+    "inverse variance": (lambda: MeanMap(lambda p, v: p / (v + 0.001)), True),
+    "product (shipped)": (RowMap, True),
+    "product x2": (Doubled, True),
+    "product, one back per component": (RowMap, False),
 }
 
 
@@ -130,7 +136,7 @@ def main() -> int:
         f"{args.checkpoint} on {args.data}: {sum(len(f) for _, f in runs)} frames, {args.mode} mode; top rack / top box"
     )
     for whole in (False, True):
-        for name, make in RULES.items():
+        for name, (make, split) in RULES.items():
             scorer = FrameScorer()
             for spec, frames in runs:
                 last_depth = frames[-1]["depth"]
@@ -138,11 +144,12 @@ def main() -> int:
                     depth = last_depth if whole else f["depth"]
                     top = f["top"]
                     if np.isfinite(depth):
-                        top = impose_box_backs(impose_rack_depth(top, spec, depth), f["front"], spec, depth, backs)
+                        top = impose_rack_depth(top, spec, depth)
+                        top = impose_box_backs(top, f["front"], spec, depth, backs, split)
                     scorer.update({"top": top, "front": f["front"]}, f["gt"])
             v = scorer.result()["visible"]["top"]
             frames_from = "whole sequence" if whole else "frames so far"
-            print(f"  {frames_from:<15} {name:<20} {100 * v['rack']['miou']:6.2f} / {100 * v['box']['miou']:6.2f}")
+            print(f"  {frames_from:<15} {name:<32} {100 * v['rack']['miou']:6.2f} / {100 * v['box']['miou']:6.2f}")
     return 0
 
 

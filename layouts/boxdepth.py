@@ -62,7 +62,7 @@ def redraw(
 
 
 def impose_box_backs(
-    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float, backs: np.ndarray
+    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float, backs: np.ndarray, split: bool = True
 ) -> np.ndarray:
     """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
     front per column of a grid of ``W`` columns over the same X extent (NaN: unknown; a box with no
@@ -70,8 +70,8 @@ def impose_box_backs(
     per-column backs left ragged edges, and a column read shallower than its front split the box in
     two for the stitcher), at least its front cell deep. Boxes that touch side by side form one component;
     it is split where the front view's box height steps (`layouts.steps.pieces`, as the stitcher splits
-    it), each piece with the median of its own known columns (of the whole component where it has none).
-    A copy is returned."""
+    it), each piece with the median of its own known columns (of the whole component where it has none;
+    ``split=False``: one back per component). A copy is returned."""
     top = np.asarray(top)
     backs = np.asarray(backs, dtype=np.float64)
     r, d = top.shape[0], spec.size
@@ -95,7 +95,7 @@ def impose_box_backs(
             whole = float(np.median(zb[known]))
             back = np.empty(len(cols))
             height = np.count_nonzero(front[k][:, cols] == BOX, axis=0) * dh
-            for a, b in pieces(height, SPLIT_STEP, min_cols):
+            for a, b in pieces(height, SPLIT_STEP, min_cols) if split else [(0, len(cols))]:
                 part = zb[a:b][known[a:b]]
                 back[a:b] = np.median(part) if part.size else whole
             redraw(out[k], cols, zf, np.maximum(back, zf + cell), spec, depth)

@@ -95,6 +95,8 @@ def test_boxes_side_by_side_get_their_own_backs_where_their_heights_step():
     out = impose_box_backs(top, front, spec, depth, backs)
     assert [back_of(out, j) for j in range(10, 20)] == pytest.approx([0.3] * 10, abs=cell)
     assert [back_of(out, j) for j in range(20, 30)] == pytest.approx([0.6] * 10, abs=cell)
+    one = impose_box_backs(top, front, spec, depth, backs, split=False)  # one back per component
+    assert len({back_of(one, j) for j in range(10, 30)}) == 1
     backs[0, 20:30] = np.nan  # a piece with no reading takes the component's
     out = impose_box_backs(top, front, spec, depth, backs)
     assert [back_of(out, j) for j in range(10, 30)] == pytest.approx([0.3] * 20, abs=cell)
