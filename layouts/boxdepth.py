@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
+from scipy.ndimage import find_objects
 from skimage.measure import label
 
 from layouts.classes import BOX, SHELF
@@ -33,17 +34,18 @@ def box_parts(
     zc = cell_z(spec, depth)
     half = spec.z_extent / spec.size / 2
     lab = label(top == BOX, connectivity=1)
-    for k in range(1, int(lab.max()) + 1):
-        comp = lab == k
-        cols = np.nonzero(comp.any(0))[0]
-        rows = [np.nonzero(comp[:, j])[0] for j in cols]
-        fb = front[:, cols] == BOX
-        if not fb.any():
+    front_box = front == BOX
+    for k, (rs, cs) in enumerate(find_objects(lab), start=1):
+        comp = lab[rs, cs] == k
+        cols = np.arange(cs.start, cs.stop)  # a connected component has a cell in every column it spans
+        fb = front_box[:, cs]
+        shown = fb.any(0)
+        if not shown.any():
             continue
-        tops = [np.nonzero(fb[:, i])[0].min() for i in range(len(cols)) if fb[:, i].any()]
-        z_front = np.array([zc[r.max()] - half for r in rows])
-        z_back = np.array([zc[r.min()] + half for r in rows])
-        yield cols, z_front, z_back, float(spec.row_to_a("front", np.median(tops)))
+        tops = fb.argmax(0)[shown]
+        first = comp.argmax(0) + rs.start
+        last = rs.stop - 1 - comp[::-1].argmax(0)
+        yield cols, zc[last] - half, zc[first] + half, float(spec.row_to_a("front", np.median(tops)))
 
 
 def redraw(
@@ -51,14 +53,15 @@ def redraw(
 ) -> None:
     """In place: the box cells of ``cols`` set from ``z_front`` to ``z_back`` (per column; NaN leaves a
     column) inside the rack footprint; the box's old cells there become shelf."""
-    zc = cell_z(spec, depth)
-    for j, zf, zb in zip(cols, z_front, z_back):
-        if not np.isfinite(zb):
-            continue
-        col = top[:, j]
-        foot = col > 0
-        col[foot & (col == BOX)] = SHELF
-        col[foot & (zc >= zf) & (zc <= zb)] = BOX
+    z_back = np.asarray(z_back, dtype=np.float64)
+    ok = np.isfinite(z_back)
+    cols = np.asarray(cols)[ok]
+    zc = cell_z(spec, depth)[:, None]
+    sub = top[:, cols]
+    foot = sub > 0
+    sub[sub == BOX] = SHELF
+    sub[foot & (zc >= np.asarray(z_front, dtype=np.float64)[ok]) & (zc <= z_back[ok])] = BOX
+    top[:, cols] = sub
 
 
 def impose_box_backs(
