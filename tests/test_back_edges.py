@@ -74,6 +74,17 @@ def test_the_reader_recovers_a_depth_and_pools_frames():
     assert scores is not None and scores[1] > scores[0]
 
 
+def test_a_best_depth_on_the_end_of_the_hypotheses_is_no_reading():
+    reader = DepthReader(VIEW, 1.4)
+    ramp = np.linspace(0.0, 1.0, len(reader.depths))
+    reader.scores, reader.frames = ramp.copy(), 1  # the scores still climb at the deepest hypothesis
+    assert reader.depth is None
+    reader.scores = ramp[::-1].copy()  # ... or at the shallowest
+    assert reader.depth is None
+    reader.scores = -((reader.depths - 0.9) ** 2)  # a peak inside
+    assert reader.depth == pytest.approx(0.9, abs=DEPTH_STEP)
+
+
 TINY = dict(encoder_width=8, hidden=16, decoder_width=8, memory_hidden=8, lstm_layers=1)
 
 
