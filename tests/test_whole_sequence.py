@@ -69,7 +69,8 @@ def test_every_frame_gets_what_the_last_frame_showed(mode, monkeypatch):
     # so far: only the last frame knows the depths
     last = float(causal[-1]["rack_depth"])
     assert last == pytest.approx(1.05, abs=0.1)  # a 64-pixel-high canonical view reads it to a few centimetres
-    assert all(abs(float(o["rack_depth"]) - last) > 10 * DEPTH_STEP for o in causal[:-1])
+    # before it the depth is unknown (NaN: flat scores peak on the hypotheses' edge) or far from it
+    assert all(not abs(float(o["rack_depth"]) - last) <= 10 * DEPTH_STEP for o in causal[:-1])
     assert all(np.isnan(o["box_back"].numpy()[0]).all() for o in causal[:-1])
     # whole sequence: every frame has the last frame's rack depth, and its box backs where the last frame's view
     # overlaps its own (frame i sees the last frame's column j at its column j + (FRAMES - 1 - i))
