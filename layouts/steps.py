@@ -51,11 +51,17 @@ def split_positions(score: np.ndarray, thr: float, min_cols: int, n: int) -> lis
     return sorted(cuts)
 
 
-def pieces(profile: np.ndarray, thr: float, min_cols: int) -> list[tuple[int, int]]:
-    """Half-open column ranges ``[a, b)`` of one run of ``len(profile)`` box columns, split where the profile
-    steps by more than ``thr`` (never at the run's ends, no piece under ``min_cols``)."""
-    n = len(profile)
-    score = profile_steps(profile)
-    score[0] = score[-1] = 0.0
-    edges = [0, *split_positions(score, thr, min_cols, n), n]
+def score_pieces(score: np.ndarray, thr: float, min_cols: int) -> list[tuple[int, int]]:
+    """Half-open column ranges ``[a, b)`` of one run of ``len(score) - 1`` box columns, split where the step
+    ``score`` (`profile_steps`, per split position) exceeds ``thr``: never at the run's ends, no piece under
+    ``min_cols``."""
+    n = len(score) - 1
+    inner = np.array(score, dtype=np.float64)
+    inner[0] = inner[-1] = 0.0
+    edges = [0, *split_positions(inner, thr, min_cols, n), n]
     return list(zip(edges[:-1], edges[1:]))
+
+
+def pieces(profile: np.ndarray, thr: float, min_cols: int) -> list[tuple[int, int]]:
+    """`score_pieces` of one run of box columns where its ``profile`` steps by more than ``thr``."""
+    return score_pieces(profile_steps(profile), thr, min_cols)

@@ -30,7 +30,7 @@ from layouts.classes import BOX
 from layouts.codecs import FrameLayouts
 from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
-from layouts.steps import MIN_BOX_WIDTH, SPLIT_STEP, profile_steps, split_positions
+from layouts.steps import MIN_BOX_WIDTH, SPLIT_STEP, profile_steps, score_pieces
 from stitching.geometry import min_area_rect
 
 # Label structure: 4-connectivity inside a slot, nothing across slots.
@@ -208,11 +208,7 @@ def _front_runs(
         a, b = a + lo, b + lo
         if (b - a) * dx < 0.05:
             continue
-        score = h_steps[a : b + 1].copy()
-        score[0] = score[-1] = 0.0
-        cuts = split_positions(score, cfg.split_step, min_cols, b - a)
-        edges = [0, *cuts, b - a]
-        for p, q in zip(edges[:-1], edges[1:]):
+        for p, q in score_pieces(h_steps[a : b + 1], cfg.split_step, min_cols):
             out.append(
                 FrontRun(
                     a + p,
@@ -316,10 +312,7 @@ def detect_frame(
                 top_r = np.where(has, sub.argmax(axis=0), 0) * dz
                 bot_r = np.where(has, sub.shape[0] - sub[::-1].argmax(axis=0), 0) * dz
                 score = np.maximum(profile_steps(np.stack([top_r, bot_r])), h_steps[r, c_off : c_off + ncol + 1])
-                score[0] = score[-1] = 0.0
-                cuts = split_positions(score, cfg.split_step, min_cols, ncol)
-                edges = [0, *cuts, ncol]
-                pieces = list(zip(edges[:-1], edges[1:]))
+                pieces = score_pieces(score, cfg.split_step, min_cols)
             trim = max(2, int(np.ceil(0.04 / dx)))
             for a, b in pieces:
                 piece = sub[:, a:b]
