@@ -70,7 +70,7 @@ def main() -> int:
         xs = seq.camera_positions()[:, 0]
         hist: list[tuple[float, dict[str, torch.Tensor], np.ndarray]] = []
         frames = (seq.rgb(i) for i in range(seq.num_frames))
-        pred = Predictor(model, sequence_camera(seq))
+        pred = Predictor(model, sequence_camera(seq), fuse_tau=0)  # its own fusion
         if args.motion == "images":  # the camera's X from the frame-to-frame shifts, from the first frame's
             sig = [motion_signature(pred.preprocess(seq.rgb(i), i)) for i in range(seq.num_frames)]
             steps = [camera_shift(a, b, model.cfg.view).item() for a, b in zip(sig, sig[1:])]

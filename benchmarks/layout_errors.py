@@ -160,7 +160,7 @@ def main() -> int:
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
         row_m = seq.spec.z_extent / seq.spec.size
-        pred = Predictor(model, sequence_camera(seq), read_depth=False)  # the decoder's own depth
+        pred = Predictor(model, sequence_camera(seq), read_depth=False, fuse_tau=0)  # the decoder's own depth
         seen = SeenTracker(seq) if args.seen else None
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)

@@ -53,7 +53,7 @@ def main() -> None:
     seqs = ds.sequences()[: args.sequences]
     with torch.no_grad():
         for seq in tqdm(seqs, desc="sequences", leave=False):
-            pred = Predictor(model, sequence_camera(seq))
+            pred = Predictor(model, sequence_camera(seq), fuse_tau=0)  # the model alone
             state = true_state = None
             cam_x = np.asarray(seq.camera_positions(), dtype=np.float64)[:, 0]
             for i in range(seq.num_frames):

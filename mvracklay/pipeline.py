@@ -36,6 +36,7 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
+from network.fusion import FUSE_TAU, check_tau
 from network.infer import MODES, Predictor, frame_layouts
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
@@ -64,6 +65,7 @@ class RunConfig:
     rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
+    fuse_tau: float = FUSE_TAU  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -83,6 +85,7 @@ class RunConfig:
             raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
         if self.rack_depth is not None:
             check_rack_depth(self.rack_depth)
+        check_tau(self.fuse_tau, "--fuse-frames")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -272,6 +275,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rack_depth=cfg.rack_depth,
             read_depth=cfg.read_depth,
             whole_sequence=cfg.whole_sequence,
+            fuse_tau=cfg.fuse_tau,
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
@@ -337,6 +341,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "mode": cfg.mode,
             "flip_average": cfg.flip,
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
+            "fuse_frames": cfg.fuse_tau,
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",

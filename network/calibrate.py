@@ -87,7 +87,9 @@ def fit_box_offsets(
         for seq in sequences:
             d = seq.spec.size
             for i, out in enumerate(
-                Predictor(model, sequence_camera(seq), flip=flip).run((seq.rgb(k) for k in range(seq.num_frames)), mode)
+                Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0).run(
+                    (seq.rgb(k) for k in range(seq.num_frames)), mode
+                )
             ):
                 bar.update(1)
                 if i % every:

@@ -17,6 +17,7 @@ from tqdm import tqdm
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, board_rows, check_spec_compatible
+from network.fusion import FUSE_TAU
 from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera
 from network.model import MVRackLay
 
@@ -32,6 +33,7 @@ def evaluate_sequences(
     flip: bool = False,
     read_depth: bool = True,
     whole_sequence: bool = False,
+    fuse_tau: float = FUSE_TAU,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -39,7 +41,8 @@ def evaluate_sequences(
     what the decoders score when the boards are found perfectly (an analysis, not a result).
     ``flip`` averages each frame with its mirror image (`network.infer.Predictor`); ``read_depth``
     False keeps the top views' rack depth as decoded when the model could read it from back edges;
-    ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`).
+    ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
+    ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off).
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -53,7 +56,13 @@ def evaluate_sequences(
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
         pred = Predictor(
-            model, sequence_camera(seq), anchors, flip=flip, read_depth=read_depth, whole_sequence=whole_sequence
+            model,
+            sequence_camera(seq),
+            anchors,
+            flip=flip,
+            read_depth=read_depth,
+            whole_sequence=whole_sequence,
+            fuse_tau=fuse_tau,
         )
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
@@ -71,6 +80,7 @@ def evaluate_sequences(
         "rack_depth": rack_depth_source(model) if read_depth else "as decoded",
         "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
+        "fuse_frames": fuse_tau,
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

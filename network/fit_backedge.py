@@ -94,7 +94,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
         depth, thickness = rack_row(seq)
         camera = sequence_camera(seq)
         ids = list(range(0, seq.num_frames, every))
-        pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will
+        pred = Predictor(model, camera, fuse_tau=0)  # the canonical warp of inference, so the head sees what it will
         x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
         p = model.pooled_rows(x)
         if pooled is None:

@@ -166,7 +166,7 @@ def cache_inputs(
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
-        pred = Predictor(model, camera, read_depth=False, box_inputs=True)
+        pred = Predictor(model, camera, read_depth=False, box_inputs=True, fuse_tau=0)  # each frame's own layouts
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(seq.num_frames))):
             bar.update(1)
             seen.add(i)

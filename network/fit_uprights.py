@@ -84,7 +84,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
         depth = rack_row(seq, "the upright head")[0]
         camera = sequence_camera(seq)
         ids = list(range(0, seq.num_frames, every))
-        pred = Predictor(model, camera)  # the canonical warp of inference, so the head sees what it will
+        pred = Predictor(model, camera, fuse_tau=0)  # the canonical warp of inference, so the head sees what it will
         x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
         feats = model.encode(x)
         p = pool_columns(*model.pyramid(feats, model.temporal(feats[4])))

@@ -25,6 +25,7 @@ from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
+from network.fusion import FUSE_TAU, LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
 
@@ -90,6 +91,11 @@ class Predictor:
     footage: a frame also gains what later frames show; measured +0.2-1.4 top rack and +0.3-1.5 top
     box mIoU on the tuning and held-out sets, docs/network.md). The outputs are held until the
     sequence ends, without the intermediate maps the heads read (~0.3 MB per frame at D = 64).
+
+    ``fuse_tau``: each frame's logits are averaged with its neighbours' (the frames so far; with
+    ``whole_sequence`` the later ones too), shifted by the camera motion the images show and weighted by
+    ``exp(-frames apart / fuse_tau)`` (`network.fusion`); 0 leaves every frame alone. The depth heads
+    read each frame's own outputs; the fused logits are what the frame's outputs then carry.
     """
 
     def __init__(
@@ -102,6 +108,7 @@ class Predictor:
         read_depth: bool = True,
         box_inputs: bool = False,
         whole_sequence: bool = False,
+        fuse_tau: float = FUSE_TAU,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -116,7 +123,8 @@ class Predictor:
         self.reads_box_depth = bool(read_depth) and model.box_depth is not None
         #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
         self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
-        self._tracks_motion = self.reads_box_depth or self.box_parallax
+        self.fuse_tau = check_tau(fuse_tau)
+        self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         self.whole_sequence = bool(whole_sequence)
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
@@ -163,8 +171,13 @@ class Predictor:
 
     def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
         """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
-        with the box-depth head, ``"box_back"``: from the frames so far, or (``whole_sequence``) from all."""
+        with the box-depth head, ``"box_back"``: from the frames so far, or (``whole_sequence``) from all;
+        the logits fused with the neighbouring frames' (``fuse_tau``) once the heads have read them."""
         reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
+        x_extent = self.cfg.spec.x_extent
+        fusion = LayoutFusion(self.fuse_tau, x_extent) if self.fuse_tau > 0 and not self.whole_sequence else None
+        steps: list[float] = []  # whole_sequence with fusion: each frame's camera step and columns seen
+        seen: list[torch.Tensor] = []
         boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
         history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
         self._motion.clear()
@@ -190,12 +203,23 @@ class Predictor:
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
                     out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
+                if self.fuse_tau > 0:
+                    cols = seen_columns(sig, out["top"].shape[-1]).to(out["top"].device)
+                    if fusion is not None:
+                        out.update(fusion.add({v: out[v] for v in VIEWS}, step, cols))
+                    else:
+                        steps.append(step)
+                        seen.append(cols)
             if not self.whole_sequence:
                 yield out
                 continue
             kept = {k: v for k, v in out.items() if k not in HEAD_INPUTS}
             held.append((kept, 0.0 if boxes is None else boxes.camera_x, torch.isfinite(out["anchors"]).cpu().numpy()))
         depth = self.rack_depth if reader is None else reader.depth
+        if self.fuse_tau > 0 and held:
+            fused = fuse_sequence([{v: o[v] for v in VIEWS} for o, _, _ in held], steps, seen, self.fuse_tau, x_extent)
+            for (out, _, _), f in zip(held, fused):
+                out.update(f)
         for out, camera_x, valid in held:
             out["rack_depth"] = _depth_tensor(depth)
             if boxes is not None:

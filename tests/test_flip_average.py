@@ -32,8 +32,8 @@ def toy_frames(n: int = 5) -> list[np.ndarray]:
 
 def test_streamed_flip_average_is_the_mean_of_a_direct_and_a_mirrored_pass():
     model, frames = tiny_model(), toy_frames()
-    got = list(Predictor(model, flip=True).stream(frames))
-    plain = Predictor(model)
+    got = list(Predictor(model, flip=True, fuse_tau=0).stream(frames))  # each frame alone (network.fusion)
+    plain = Predictor(model, fuse_tau=0)
     direct = mirrored = None
     with torch.no_grad():
         for i, f in enumerate(frames):
@@ -51,7 +51,7 @@ def test_streamed_flip_average_is_the_mean_of_a_direct_and_a_mirrored_pass():
 
 def test_windowed_flip_average_cached_equals_re_encoded():
     model, frames = tiny_model(4), toy_frames(6)
-    pred = Predictor(model, flip=True)
+    pred = Predictor(model, flip=True, fuse_tau=0)
     cached, naive = list(pred.window(frames)), list(pred.window(frames, recompute=True))
     assert len(cached) == len(naive) == 6
     for c, n in zip(cached, naive):
@@ -66,7 +66,7 @@ def test_flip_average_of_mirror_symmetric_frames_is_mirror_symmetric(mode):
     for f in toy_frames(4):
         left = f[:, :32]
         frames.append(np.ascontiguousarray(np.concatenate([left, left[:, ::-1]], axis=1)))
-    plain, flipped = Predictor(model), Predictor(model, flip=True)
+    plain, flipped = Predictor(model, fuse_tau=0), Predictor(model, flip=True, fuse_tau=0)
     x = plain.preprocess(frames[0])
     torch.testing.assert_close(x, x.flip(-1))  # the canonical warp keeps the symmetry
     for out in flipped.run(frames, mode):

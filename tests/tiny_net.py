@@ -57,5 +57,5 @@ def cached_and_naive_windows(model, spec, num_frames: int = 6):
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
     seq = ToySequence(spec, num_frames=num_frames, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(num_frames)]
-    pred = Predictor(model)
+    pred = Predictor(model, fuse_tau=0)  # each frame's own outputs (network.fusion aside)
     return pred, frames, list(pred.window(frames)), list(pred.window(frames, recompute=True))

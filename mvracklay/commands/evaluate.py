@@ -14,6 +14,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
+from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.train import open_data
 
@@ -40,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
+    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help=FUSE_HELP)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
@@ -57,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
+    fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
@@ -74,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         flip=args.flip_average,
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
+        fuse_tau=fuse_tau,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
@@ -84,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
         title += f", box depths {res['box_depth']}"
     if args.whole_sequence and not args.no_depth_read and (model.back, model.uprights, model.box_depth) != (None,) * 3:
         title += ", depths from the whole sequence"
+    if fuse_tau > 0:
+        title += f", neighbouring frames fused (tau {fuse_tau:g})"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))

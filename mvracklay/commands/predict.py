@@ -22,6 +22,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_de
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
+from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
 
@@ -58,6 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
+    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help=FUSE_HELP)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -81,6 +83,7 @@ def _parse_intrinsics(text: str, width: int, height: int) -> Intrinsics:
 def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
+    fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -103,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         rack_depth=args.rack_depth,
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
+        fuse_tau=fuse_tau,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -124,6 +128,7 @@ def predict_folder(
     rack_depth: float | None = None,
     read_depth: bool = True,
     whole_sequence: bool = False,
+    fuse_tau: float = FUSE_TAU,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -134,7 +139,7 @@ def predict_folder(
     distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
     itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
-    ``whole_sequence``, from every frame.
+    ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -182,6 +187,7 @@ def predict_folder(
         rack_depth=rack_depth,
         read_depth=read_depth,
         whole_sequence=whole_sequence,
+        fuse_tau=fuse_tau,
     )
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
 
