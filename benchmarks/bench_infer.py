@@ -27,6 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
+from network.fusion import FUSE_TAU  # noqa: E402
 from network.infer import Predictor  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
@@ -43,7 +44,7 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
         "stream": lambda f: pred.stream(f),
         "window": lambda f: pred.window(f),
         "window-recompute": lambda f: pred.window(f, recompute=True),
-        "stream-flip": lambda f: Predictor(pred.model, pred.camera, flip=True).stream(f),  # --flip-average
+        "stream-flip": lambda f: Predictor(pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau).stream(f),
     }[mode]
     for _ in run(frames[:warmup]):
         pass
@@ -78,6 +79,9 @@ def main() -> int:
         choices=["stream", "window", "window-recompute", "stream-flip"],
         help="stream-flip: streaming with the test-time flip average (--flip-average)",
     )
+    ap.add_argument(
+        "--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help="neighbouring frames fused (0 = off)"
+    )
     ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
@@ -98,12 +102,12 @@ def main() -> int:
     rows = []
     print(
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
-        f"layouts {cfg.spec.shape}"
+        f"layouts {cfg.spec.shape}, neighbouring frames fused with tau {args.fuse_frames:g}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
-        pred = Predictor(model.to(device))
+        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)

@@ -12,6 +12,14 @@ fused scores would climb with K; if they are a bias shared by neighbouring views
 they stay close to K = 1. ``--motion images`` shifts by the camera motion read from the
 canonical images (`network.motion`, what the slot memory uses) instead of the truth: what such a
 fusion would give on footage without poses.
+
+``--tau T [T ...]`` scores the shipped fusion instead (`network.fusion`, what ``--fuse-frames T`` does):
+the whole pipeline of ``mvracklay evaluate`` (windowed, depth heads, every frame), each frame's logits
+fused with weights exp(-frames apart / T) (T = 0: each frame alone), the camera motion read from the
+images (the same figures as ``evaluate --fuse-frames T``) or, with ``--motion truth``, the true steps;
+``--whole-sequence`` takes the later frames and the depths from all frames too.
+
+    .venv/bin/python benchmarks/frame_fusion.py weights/mvracklay-disc-4-256.pt data/tune256 --tau 0 1 2 4 --motion truth
 """
 
 from __future__ import annotations
@@ -29,7 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts import VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, resize_logits, sequence_camera  # noqa: E402
+from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
+from network.infer import Predictor, frame_layouts, resize_logits, sequence_camera  # noqa: E402
 from network.motion import camera_shift, motion_signature  # noqa: E402
 from network.train import open_data  # noqa: E402
 
@@ -48,6 +57,47 @@ def shift_columns(p: torch.Tensor, seen: np.ndarray, s: int) -> tuple[torch.Tens
     return out, m
 
 
+def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace) -> int:
+    """Table I (columns in view) of the shipped pipeline with `network.fusion` at each of ``args.tau``."""
+    for t in args.tau:
+        check_tau(t, "--tau")
+    scorers = {t: FrameScorer() for t in args.tau}
+    x_extent = model.cfg.spec.x_extent
+    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="fuse", unit="frame", leave=False)
+    for seq in seqs:
+        pred = Predictor(model, sequence_camera(seq), fuse_tau=0, whole_sequence=args.whole_sequence)
+        sig = [motion_signature(pred.preprocess(seq.rgb(i), i)) for i in range(seq.num_frames)]
+        if args.motion == "truth":
+            steps = np.diff(seq.camera_positions()[:, 0], prepend=seq.camera_positions()[0, 0]).tolist()
+        else:  # what the Predictor reads
+            steps = [0.0] + [float(camera_shift(a, b, model.cfg.view)[0]) for a, b in zip(sig, sig[1:])]
+        outs = list(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "window"))
+        raw = [{v: o[v] for v in VIEWS} for o in outs]
+        seen = [seen_columns(s, raw[0]["top"].shape[-1]) for s in sig]
+        for t in args.tau:
+            if t == 0:
+                fused = raw
+            elif args.whole_sequence:
+                fused = fuse_sequence(raw, steps, seen, t, x_extent)
+            else:
+                fusion = LayoutFusion(t, x_extent)
+                fused = [fusion.add(r, st, sn) for r, st, sn in zip(raw, steps, seen)]
+            for i, (o, f) in enumerate(zip(outs, fused)):
+                scorers[t].update(frame_layouts({**o, **f}, seq.spec), seq.layouts(i))
+        bar.update(seq.num_frames)
+    bar.close()
+    print(
+        f"{args.checkpoint} on {args.data}: mIoU, columns in view, network.fusion (motion: {args.motion}"
+        f"{', whole sequence' if args.whole_sequence else ''})"
+    )
+    print(f"{'tau':>5s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    for t in args.tau:
+        r = scorers[t].result()["visible"]
+        cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
+        print(f"{t:5g} {cells[0]:9.2f} {cells[1]:8.2f} {cells[2]:11.2f} {cells[3]:10.2f}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path)
@@ -58,10 +108,14 @@ def main() -> int:
     ap.add_argument(
         "--motion", choices=["truth", "images"], default="truth", help="camera motion: ground truth or read from images"
     )
+    ap.add_argument("--tau", type=float, nargs="+", help="score the shipped fusion at these taus (frames) instead")
+    ap.add_argument("--whole-sequence", action="store_true", help="with --tau: later frames and depths from all")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model, _ = load_model(args.checkpoint)
     seqs = open_data(args.data).sequences()
+    if args.tau:
+        return shipped_fusion(model, seqs, args)
     scorers = {k: FrameScorer() for k in args.k}
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="fuse", unit="frame", leave=False)
     for seq in seqs:
