@@ -14,6 +14,7 @@ import numpy as np
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
+from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -51,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
     )
     p.add_argument("--no-depth-read", action="store_true", help="with --checkpoint: " + NO_DEPTH_READ_HELP)
+    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help="with --checkpoint: " + FUSE_HELP)
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -195,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
 
         if args.threads < 1:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
+        check_tau(args.fuse_frames, "--fuse-frames")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
     results = []
@@ -212,6 +215,7 @@ def run(args: argparse.Namespace) -> int:
                     mode=args.mode,
                     rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
                     read_depth=not args.no_depth_read,
+                    fuse_tau=args.fuse_frames,
                     progress=False,
                     source=str(args.checkpoint),
                 )
