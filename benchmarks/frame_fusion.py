@@ -57,6 +57,16 @@ def shift_columns(p: torch.Tensor, seen: np.ndarray, s: int) -> tuple[torch.Tens
     return out, m
 
 
+def print_table(args: argparse.Namespace, title: str, key: str, scorers: dict, digits: int) -> None:
+    """One row of top/front x rack/box mIoU (columns in view) per setting ``key`` of ``scorers``."""
+    print(f"{args.checkpoint} on {args.data}: mIoU, columns in view, {title}")
+    print(f"{key:>5s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
+    for k, sc in scorers.items():
+        r = sc.result()["visible"]
+        cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
+        print(f"{k:5g} {cells[0]:9.{digits}f} {cells[1]:8.{digits}f} {cells[2]:11.{digits}f} {cells[3]:10.{digits}f}")
+
+
 def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace) -> int:
     """Table I (columns in view) of the shipped pipeline with `network.fusion` at each of ``args.tau``."""
     for t in args.tau:
@@ -86,15 +96,8 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
                 scorers[t].update(frame_layouts({**o, **f}, seq.spec), seq.layouts(i))
         bar.update(seq.num_frames)
     bar.close()
-    print(
-        f"{args.checkpoint} on {args.data}: mIoU, columns in view, network.fusion (motion: {args.motion}"
-        f"{', whole sequence' if args.whole_sequence else ''})"
-    )
-    print(f"{'tau':>5s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
-    for t in args.tau:
-        r = scorers[t].result()["visible"]
-        cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
-        print(f"{t:5g} {cells[0]:9.2f} {cells[1]:8.2f} {cells[2]:11.2f} {cells[3]:10.2f}")
+    title = f"network.fusion (motion: {args.motion}{', whole sequence' if args.whole_sequence else ''})"
+    print_table(args, title, "tau", scorers, 2)
     return 0
 
 
@@ -155,15 +158,7 @@ def main() -> int:
                 }
                 scorers[k].update(pred, gt)
     bar.close()
-    print(
-        f"{args.checkpoint} on {args.data}: mIoU, columns in view, probabilities fused over the last K frames "
-        f"(motion: {args.motion})"
-    )
-    print(f"{'K':>3s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
-    for k in args.k:
-        r = scorers[k].result()["visible"]
-        cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
-        print(f"{k:3d} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")
+    print_table(args, f"probabilities fused over the last K frames (motion: {args.motion})", "K", scorers, 1)
     return 0
 
 

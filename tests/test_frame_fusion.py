@@ -147,11 +147,19 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
         assert not torch.allclose(got[1]["top"], plain[1]["top"])  # fusion did something
 
 
-def test_fuse_frames_option_fails_with_one_line(tmp_path):
+@pytest.mark.parametrize("command", ["evaluate", "predict", "run", "eval-reconstruction"])
+def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_checkpoint, tmp_path):
+    seq = str(sorted(p for p in tiny_dataset.iterdir() if p.is_dir())[0])
+    ck = ["--checkpoint", str(tiny_checkpoint)]
+    argv = {
+        "evaluate": [*ck, "--data", str(tiny_dataset)],
+        "predict": [seq, *ck, "--out", str(tmp_path / "pred")],
+        "run": [seq, *ck, "--out", str(tmp_path / "run")],
+        "eval-reconstruction": [str(tiny_dataset), *ck],
+    }[command]
     r = subprocess.run(
-        [sys.executable, "-m", "mvracklay", "evaluate", "--checkpoint", str(tmp_path / "x.pt"), "--data", str(tmp_path),
-         "--fuse-frames", "-1"],
-        capture_output=True, text=True,
-    )  # fmt: skip
+        [sys.executable, "-m", "mvracklay", command, *argv, "--fuse-frames", "-1"], capture_output=True, text=True
+    )
     assert r.returncode != 0
-    assert "--fuse-frames" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "--fuse-frames" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "pred").exists() and not (tmp_path / "run").exists()  # nothing written
