@@ -27,7 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
-from network.fusion import FUSE_TAU  # noqa: E402
+from network.fusion import add_fuse_option  # noqa: E402
 from network.infer import Predictor  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
@@ -79,9 +79,7 @@ def main() -> int:
         choices=["stream", "window", "window-recompute", "stream-flip"],
         help="stream-flip: streaming with the test-time flip average (--flip-average)",
     )
-    ap.add_argument(
-        "--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help="neighbouring frames fused (0 = off)"
-    )
+    add_fuse_option(ap)
     ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
@@ -102,7 +100,7 @@ def main() -> int:
     rows = []
     print(
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
-        f"layouts {cfg.spec.shape}, neighbouring frames fused with tau {args.fuse_frames:g}"
+        f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)

@@ -36,7 +36,7 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
-from network.fusion import FUSE_TAU, check_tau
+from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
@@ -65,7 +65,7 @@ class RunConfig:
     rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
-    fuse_tau: float = FUSE_TAU  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
+    fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1

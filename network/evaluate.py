@@ -17,7 +17,6 @@ from tqdm import tqdm
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, board_rows, check_spec_compatible
-from network.fusion import FUSE_TAU
 from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera
 from network.model import MVRackLay
 
@@ -33,7 +32,7 @@ def evaluate_sequences(
     flip: bool = False,
     read_depth: bool = True,
     whole_sequence: bool = False,
-    fuse_tau: float = FUSE_TAU,
+    fuse_tau: float = 0.0,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 

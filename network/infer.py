@@ -25,7 +25,7 @@ from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
 from network.calibrate import apply_box_offset
 from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
-from network.fusion import FUSE_TAU, LayoutFusion, check_tau, fuse_sequence, seen_columns
+from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
 
@@ -94,7 +94,7 @@ class Predictor:
 
     ``fuse_tau``: each frame's logits are averaged with its neighbours' (the frames so far; with
     ``whole_sequence`` the later ones too), shifted by the camera motion the images show and weighted by
-    ``exp(-frames apart / fuse_tau)`` (`network.fusion`); 0 leaves every frame alone. The depth heads
+    ``exp(-frames apart / fuse_tau)`` (`network.fusion`); 0 (the default) leaves every frame alone. The depth heads
     read each frame's own outputs; the fused logits are what the frame's outputs then carry.
     """
 
@@ -108,7 +108,7 @@ class Predictor:
         read_depth: bool = True,
         box_inputs: bool = False,
         whole_sequence: bool = False,
-        fuse_tau: float = FUSE_TAU,
+        fuse_tau: float = 0.0,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg

@@ -163,3 +163,15 @@ def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_chec
     assert r.returncode != 0
     assert "--fuse-frames" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "pred").exists() and not (tmp_path / "run").exists()  # nothing written
+
+
+def test_fuse_frames_is_off_unless_asked_and_tau_1_when_bare():
+    from mvracklay.cli import build_parser
+    from network.fusion import FUSE_TAU
+
+    parse = build_parser().parse_args
+    base = ["evaluate", "--checkpoint", "c.pt", "--data", "d"]
+    assert parse(base).fuse_frames == 0.0
+    assert parse([*base, "--fuse-frames"]).fuse_frames == FUSE_TAU == 1.0
+    assert parse([*base, "--fuse-frames", "0.5"]).fuse_frames == 0.5
+    assert Predictor(MVRackLay(tiny_config(LayoutSpec(size=16)))).fuse_tau == 0.0

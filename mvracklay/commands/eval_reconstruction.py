@@ -14,7 +14,7 @@ import numpy as np
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
-from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
+from network.fusion import add_fuse_option, check_tau
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -52,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
     )
     p.add_argument("--no-depth-read", action="store_true", help="with --checkpoint: " + NO_DEPTH_READ_HELP)
-    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help="with --checkpoint: " + FUSE_HELP)
+    add_fuse_option(p, "with --checkpoint: ")
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")

@@ -14,7 +14,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
-from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
+from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.train import open_data
 
@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
-    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help=FUSE_HELP)
+    add_fuse_option(p)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(

@@ -22,7 +22,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_de
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
-from network.fusion import FUSE_HELP, FUSE_TAU, check_tau
+from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
 
@@ -59,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
-    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help=FUSE_HELP)
+    add_fuse_option(p)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -128,7 +128,7 @@ def predict_folder(
     rack_depth: float | None = None,
     read_depth: bool = True,
     whole_sequence: bool = False,
-    fuse_tau: float = FUSE_TAU,
+    fuse_tau: float = 0.0,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
-from network.fusion import FUSE_HELP, FUSE_TAU
+from network.fusion import add_fuse_option
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 
 NAME = "run"
@@ -48,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
-    p.add_argument("--fuse-frames", type=float, default=FUSE_TAU, metavar="TAU", help=FUSE_HELP)
+    add_fuse_option(p)
     p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
