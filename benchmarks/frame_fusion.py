@@ -76,12 +76,15 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="fuse", unit="frame", leave=False)
     for seq in seqs:
         pred = Predictor(model, sequence_camera(seq), fuse_tau=0, whole_sequence=args.whole_sequence)
-        sig = [motion_signature(pred.preprocess(seq.rgb(i), i)) for i in range(seq.num_frames)]
+        frames = [seq.rgb(i) for i in range(seq.num_frames)]  # read once: signatures and the pass
+        truths = [seq.layouts(i) for i in range(seq.num_frames)]
+        sig = [motion_signature(pred.preprocess(f, i)) for i, f in enumerate(frames)]
         if args.motion == "truth":
-            steps = np.diff(seq.camera_positions()[:, 0], prepend=seq.camera_positions()[0, 0]).tolist()
+            x = seq.camera_positions()[:, 0]
+            steps = np.diff(x, prepend=x[0]).tolist()
         else:  # what the Predictor reads
             steps = [0.0] + [float(camera_shift(a, b, model.cfg.view)[0]) for a, b in zip(sig, sig[1:])]
-        outs = list(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "window"))
+        outs = list(pred.run(frames, "window"))
         raw = [{v: o[v] for v in VIEWS} for o in outs]
         seen = [seen_columns(s, raw[0]["top"].shape[-1]) for s in sig]
         for t in args.tau:
@@ -92,8 +95,8 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
             else:
                 fusion = LayoutFusion(t, x_extent)
                 fused = [fusion.add(r, st, sn) for r, st, sn in zip(raw, steps, seen)]
-            for i, (o, f) in enumerate(zip(outs, fused)):
-                scorers[t].update(frame_layouts({**o, **f}, seq.spec), seq.layouts(i))
+            for o, f, gt in zip(outs, fused, truths):
+                scorers[t].update(frame_layouts({**o, **f}, seq.spec), gt)
         bar.update(seq.num_frames)
     bar.close()
     title = f"network.fusion (motion: {args.motion}{', whole sequence' if args.whole_sequence else ''})"

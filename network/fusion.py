@@ -19,6 +19,7 @@ layouts' X extent is dropped from the running sums (a camera that turns back sta
 from __future__ import annotations
 
 import argparse
+import copy
 import math
 from collections.abc import Sequence
 
@@ -62,6 +63,13 @@ def seen_columns(signature: torch.Tensor, size: int) -> torch.Tensor:
     """
     cols = signature[0, 1].amax(0)  # (W,) 1 where the column holds source pixels
     return (F.adaptive_avg_pool1d(cols[None, None].float(), size)[0, 0] > 0.5).float()
+
+
+def _decay(tau: float) -> float:
+    """Each frame's weight relative to the next one's, ``exp(-1 / tau)``; ``tau`` must be > 0."""
+    if check_tau(tau) == 0:
+        raise InputError("fusion needs fuse_tau > 0 (0 means no fusion: skip it)")
+    return math.exp(-1.0 / tau)
 
 
 class _Sums:
@@ -110,12 +118,7 @@ class LayoutFusion:
     """
 
     def __init__(self, tau: float, x_extent: float) -> None:
-        tau = check_tau(tau)
-        if tau == 0:
-            raise InputError("LayoutFusion needs fuse_tau > 0 (0 means no fusion: skip it)")
-        self.decay = math.exp(-1.0 / tau)
-        self.x_extent = x_extent
-        self._sums = _Sums(self.decay, x_extent)
+        self._sums = _Sums(_decay(tau), x_extent)
 
     def add(self, logits: dict[str, torch.Tensor], step: float, seen: torch.Tensor) -> dict[str, torch.Tensor]:
         """``logits``: ``{view: (R, 3, D, D)}``; ``step``: camera motion along X since the previous frame
@@ -140,18 +143,17 @@ def fuse_sequence(
     n = len(logits)
     if not (len(steps) == len(seen) == n):
         raise InputError(f"fuse_sequence: {n} frames of logits, {len(steps)} steps, {len(seen)} seen masks")
-    fwd = LayoutFusion(tau, x_extent)
-    ahead = _Sums(fwd.decay, x_extent)  # frames after i, in frame i's columns
+    decay = _decay(tau)
+    ahead = _Sums(decay, x_extent)  # frames after i, in frame i's columns
     later: list[_Sums] = [None] * n  # type: ignore[list-item]
     for i in range(n - 1, -1, -1):
-        snap = _Sums(fwd.decay, x_extent)
-        snap.logits, snap.weight = ahead.logits, ahead.weight
-        later[i] = snap
+        later[i] = copy.copy(ahead)  # the sums are replaced, never changed in place: a shallow copy holds
         ahead.add(logits[i], seen[i])
         ahead.move(-float(steps[i]))  # into frame i-1's columns, one more frame away
+    before = _Sums(decay, x_extent)  # frames up to i, in frame i's columns
     out = []
     for i in range(n):
-        fwd._sums.move(float(steps[i]) if i else 0.0)
-        fwd._sums.add(logits[i], seen[i])
-        out.append(_average(logits[i], [fwd._sums, later[i]]))
+        before.move(float(steps[i]) if i else 0.0)
+        before.add(logits[i], seen[i])
+        out.append(_average(logits[i], [before, later[i]]))
     return out
