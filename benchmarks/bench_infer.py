@@ -30,6 +30,7 @@ from network.checkpoint import load_model  # noqa: E402
 from network.fusion import add_fuse_option  # noqa: E402
 from network.infer import Predictor  # noqa: E402
 from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+from network.roll import add_roll_option  # noqa: E402
 
 
 def sync(device: torch.device) -> None:
@@ -44,7 +45,9 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
         "stream": lambda f: pred.stream(f),
         "window": lambda f: pred.window(f),
         "window-recompute": lambda f: pred.window(f, recompute=True),
-        "stream-flip": lambda f: Predictor(pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau).stream(f),
+        "stream-flip": lambda f: Predictor(
+            pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau, roll=pred.roll
+        ).stream(f),
     }[mode]
     for _ in run(frames[:warmup]):
         pass
@@ -80,6 +83,7 @@ def main() -> int:
         help="stream-flip: streaming with the test-time flip average (--flip-average)",
     )
     add_fuse_option(ap)
+    add_roll_option(ap)
     ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
@@ -101,11 +105,12 @@ def main() -> int:
     print(
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
+        f"{f', camera roll {args.roll}' if args.roll else ''}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
-        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames)
+        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)

@@ -10,6 +10,11 @@ source image at ``u = cx + fx * X / d``, ``v = cy + fy * Y / d`` with ``(X, Y)``
 offset from the optical axis on the front plane: a separable, per-axis affine map, exact on the
 front plane (points behind it are scaled as perspective scales them).
 
+A camera rolled about its optical axis by ``roll_deg`` (the image content turned that many degrees
+counter-clockwise as displayed, e.g. a camera mounted a little askew) is levelled in the same
+resampling: the level camera's normalised coordinates are turned by the roll before they are
+mapped to source pixels, so the map is no longer separable but still one bilinear pass.
+
 Coordinates are continuous pixel coordinates (pixel k spans ``[k, k+1)``, centre ``k + 0.5``),
 as in `layouts.camera.Intrinsics`. Canonical pixels outside the source image take ``fill``.
 """
@@ -27,6 +32,8 @@ from layouts.errors import LayoutError
 
 #: fill colour for canonical pixels the camera does not see: the ImageNet mean (0 after normalising)
 FILL_RGB = (124, 116, 104)
+#: the largest camera roll levelled (degrees): beyond it a shelf board is no longer the image's horizontal
+MAX_ROLL_DEG = 45.0
 
 
 @dataclass(frozen=True)
@@ -65,20 +72,35 @@ class CanonicalView:
         y = (np.arange(self.height) + 0.5 - self.height / 2) * m
         return intr.cx + intr.fx * x / distance, intr.cy + intr.fy * y / distance
 
+    def rolled_coords(self, intr: Intrinsics, distance: float, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """Source coordinates ``u, v (height, width)`` of the canonical pixel centres for a camera rolled ``roll_deg``.
+
+        A level camera's normalised point ``(x, y)`` (y down) appears in the rolled image at
+        ``(c x + s y, -s x + c y)`` with ``c, s = cos, sin(roll)``: the content turned counter-clockwise.
+        """
+        roll = _check_roll(roll_deg)
+        u, v = self.source_coords(intr, distance)
+        x = ((u - intr.cx) / intr.fx)[None, :]
+        y = ((v - intr.cy) / intr.fy)[:, None]
+        c, s = math.cos(math.radians(roll)), math.sin(math.radians(roll))
+        return intr.cx + intr.fx * (c * x + s * y), intr.cy + intr.fy * (-s * x + c * y)
+
     def source_scale(self, intr: Intrinsics, distance: float) -> float:
         """Source pixels per canonical pixel (the larger axis): > 1 means the source is finer."""
         _check_distance(distance)
         return max(intr.fx, intr.fy) * self.metres_per_pixel / distance
 
-    def warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float) -> np.ndarray:
+    def warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float = 0.0) -> np.ndarray:
         """uint8 ``(H0, W0, 3)`` image of camera ``intr`` -> uint8 canonical ``(height, width, 3)``.
 
         Bilinear; a source much finer than the canonical grid is first downsized with an
-        antialiasing filter, so no aliasing whatever the input resolution.
+        antialiasing filter, so no aliasing whatever the input resolution. ``roll_deg``: the
+        camera's roll (see the module), levelled in the same pass.
         """
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise LayoutError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+        roll = _check_roll(roll_deg)
         if rgb.shape[:2] != (intr.height, intr.width):
             intr = intr.scaled(rgb.shape[1], rgb.shape[0])
         s = self.source_scale(intr, distance)
@@ -87,11 +109,16 @@ class CanonicalView:
             h = max(1, round(intr.height / s))
             rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.BILINEAR, reducing_gap=None))
             intr = intr.scaled(w, h)
+        if roll:
+            return _bilinear(rgb, *self.rolled_coords(intr, distance, roll))
         u, v = self.source_coords(intr, distance)
         return _bilinear_separable(rgb, u, v)
 
-    def valid_mask(self, intr: Intrinsics, distance: float) -> np.ndarray:
+    def valid_mask(self, intr: Intrinsics, distance: float, roll_deg: float = 0.0) -> np.ndarray:
         """bool ``(height, width)``: canonical pixels whose centre falls inside the source image."""
+        if _check_roll(roll_deg):
+            u, v = self.rolled_coords(intr, distance, roll_deg)
+            return (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
         u, v = self.source_coords(intr, distance)
         return ((v >= 0) & (v < intr.height))[:, None] & ((u >= 0) & (u < intr.width))[None, :]
 
@@ -103,6 +130,16 @@ def _check_distance(distance: float) -> None:
         or not (math.isfinite(distance) and distance > 0)
     ):
         raise LayoutError(f"distance must be a positive finite number of metres, got {distance!r}")
+
+
+def _check_roll(roll_deg: float) -> float:
+    if (
+        isinstance(roll_deg, bool)
+        or not isinstance(roll_deg, (int, float, np.floating))
+        or not (math.isfinite(roll_deg) and abs(roll_deg) <= MAX_ROLL_DEG)
+    ):
+        raise LayoutError(f"roll must be a finite number of degrees within +-{MAX_ROLL_DEG:g}, got {roll_deg!r}")
+    return float(roll_deg)
 
 
 def _axis_weights(coords: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -123,4 +160,18 @@ def _bilinear_separable(rgb: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.nda
     out = rows[:, c0] * (1 - wc)[None, :, None] + rows[:, c1] * wc[None, :, None]
     out[~rin] = FILL_RGB
     out[:, ~cin] = FILL_RGB
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def _bilinear(rgb: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``rgb`` at continuous coordinates ``u, v`` (any equal shapes); outside -> fill."""
+    h0, w0 = rgb.shape[:2]
+    r0, r1, wr, rin = _axis_weights(v, h0)
+    c0, c1, wc, cin = _axis_weights(u, w0)
+    src = rgb.astype(np.float32)
+    wr, wc = wr[..., None], wc[..., None]
+    top = src[r0, c0] * (1 - wc) + src[r0, c1] * wc
+    bottom = src[r1, c0] * (1 - wc) + src[r1, c1] * wc
+    out = top * (1 - wr) + bottom * wr
+    out[~(rin & cin)] = FILL_RGB
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)

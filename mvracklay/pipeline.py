@@ -38,6 +38,7 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
+from network.roll import check_roll, resolve_roll
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -66,6 +67,8 @@ class RunConfig:
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
     fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
+    #: the camera's roll (degrees or "auto", `network.roll`); None = 0 for a generated sequence, else "auto"
+    roll: float | str | None = None
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -86,6 +89,7 @@ class RunConfig:
         if self.rack_depth is not None:
             check_rack_depth(self.rack_depth)
         check_tau(self.fuse_tau, "--fuse-frames")
+        check_roll(self.roll, "--roll")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -106,6 +110,8 @@ class RunResult:
     intrinsics_source: str
     warnings: list[str] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
+    rolls: list[float] = field(default_factory=list)  #: the roll levelled in each frame (degrees; [] = level)
+    roll_source: str = "level"  #: "level" (taken as level), "given" or "read" (from the frames)
 
     @property
     def paths(self) -> dict[str, Path]:
@@ -261,6 +267,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
+    roll = resolve_roll(cfg.roll, level=source.kind == "sequence")  # a generated sequence's camera is level
+    roll_source = "read" if roll == "auto" else "given" if roll else "level"
     stage = staging_dir(out)
     rec = None
     try:
@@ -276,6 +284,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             read_depth=cfg.read_depth,
             whole_sequence=cfg.whole_sequence,
             fuse_tau=cfg.fuse_tau,
+            roll=roll,
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
@@ -342,6 +351,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "flip_average": cfg.flip,
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
+            # the camera roll levelled before the network (`network.roll`): the median over the frames
+            "camera_roll_deg": float(np.median(pred.leveller.rolls)) if pred.leveller and pred.leveller.rolls else 0.0,
+            "camera_roll_source": roll_source,
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
@@ -371,7 +383,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
-    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds)
+    rolls = list(pred.leveller.rolls) if pred.leveller is not None else []
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source)
 
 
 def spawn_viewer(rrd: Path) -> None:

@@ -67,8 +67,12 @@ def frame_camera(seq: Any, i: int, default_distance: float = DEFAULT_DISTANCE) -
     return intr, dist
 
 
-def canonical_image(rgb: np.ndarray, view: CanonicalView, intr: Intrinsics | None, distance: float) -> np.ndarray:
-    """uint8 RGB of any size -> the model's canonical ``(H, W, 3)`` view (60 deg camera if ``intr`` is None)."""
+def canonical_image(
+    rgb: np.ndarray, view: CanonicalView, intr: Intrinsics | None, distance: float, roll_deg: float = 0.0
+) -> np.ndarray:
+    """uint8 RGB of any size -> the model's canonical ``(H, W, 3)`` view (60 deg camera if ``intr`` is None).
+
+    ``roll_deg``: the camera's roll about its optical axis, levelled in the same resampling."""
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:
         rgb = np.repeat(rgb[..., None], 3, axis=2)
@@ -84,7 +88,7 @@ def canonical_image(rgb: np.ndarray, view: CanonicalView, intr: Intrinsics | Non
         else intr
     )
     try:
-        return view.warp(rgb, intr, distance)
+        return view.warp(rgb, intr, distance, roll_deg)
     except LayoutError as e:
         raise InputError(str(e)) from None
 

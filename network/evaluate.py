@@ -33,6 +33,7 @@ def evaluate_sequences(
     read_depth: bool = True,
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
+    roll: float | str | None = None,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -41,13 +42,15 @@ def evaluate_sequences(
     ``flip`` averages each frame with its mirror image (`network.infer.Predictor`); ``read_depth``
     False keeps the top views' rack depth as decoded when the model could read it from back edges;
     ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
-    ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off).
+    ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off);
+    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: the camera is level).
     """
     scorer = FrameScorer()
     slots_right = 0
     total = sum(s.num_frames if max_frames is None else min(s.num_frames, max_frames) for s in sequences)
     bar = tqdm(total=total, desc=f"evaluate ({mode})", unit="frame", disable=not progress, leave=False)
     frames = 0
+    rolls: list[float] = []
     for seq in sequences:
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
@@ -62,6 +65,7 @@ def evaluate_sequences(
             read_depth=read_depth,
             whole_sequence=whole_sequence,
             fuse_tau=fuse_tau,
+            roll=roll,
         )
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
@@ -70,6 +74,8 @@ def evaluate_sequences(
             slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
             frames += 1
             bar.update(1)
+        if pred.leveller is not None:
+            rolls.extend(pred.leveller.rolls)
     bar.close()
     return {
         **scorer.result(),
@@ -80,6 +86,8 @@ def evaluate_sequences(
         "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "fuse_frames": fuse_tau,
+        "roll": roll,
+        "rolls": rolls,  # the roll levelled in each frame (degrees); [] when the camera was taken as level
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

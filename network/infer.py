@@ -28,6 +28,7 @@ from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_ten
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
+from network.roll import RollLeveller, check_roll
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -96,6 +97,11 @@ class Predictor:
     ``whole_sequence`` the later ones too), shifted by the camera motion the images show and weighted by
     ``exp(-frames apart / fuse_tau)`` (`network.fusion`); 0 (the default) leaves every frame alone. The depth heads
     read each frame's own outputs; the fused logits are what the frame's outputs then carry.
+
+    ``roll``: the camera's roll about its optical axis (degrees, the image content turned
+    counter-clockwise), levelled in the canonical warp: a number if known, ``"auto"`` to read it
+    from the frames (`network.roll.RollLeveller`; ``self.leveller.rolls`` lists each frame's), None
+    (the default) for a level camera.
     """
 
     def __init__(
@@ -109,6 +115,7 @@ class Predictor:
         box_inputs: bool = False,
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
+        roll: float | str | None = None,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -126,6 +133,9 @@ class Predictor:
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         self.whole_sequence = bool(whole_sequence)
+        self.roll = check_roll(roll)  #: degrees, "auto" or None (level)
+        #: the camera's roll, known or read from the frames (None: the camera is taken as level)
+        self.leveller = None if self.roll is None or self.roll == 0 else RollLeveller(self.roll)
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
@@ -144,7 +154,8 @@ class Predictor:
 
     def preprocess(self, rgb: np.ndarray, i: int = 0) -> torch.Tensor:
         intr, dist = self.camera(i)
-        img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist)
+        roll = 0.0 if self.leveller is None else self.leveller.roll(i, rgb)
+        img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist, roll)
         return to_tensor(img)[None].to(self.device)
 
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:

@@ -15,6 +15,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from network.fusion import add_fuse_option, check_tau
+from network.roll import add_roll_option, check_roll
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -53,6 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-depth-read", action="store_true", help="with --checkpoint: " + NO_DEPTH_READ_HELP)
     add_fuse_option(p, "with --checkpoint: ")
+    add_roll_option(p, "with --checkpoint: ")
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
@@ -198,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
         if args.threads < 1:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
         check_tau(args.fuse_frames, "--fuse-frames")
+        check_roll(args.roll, "--roll")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
     results = []
@@ -216,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
                     rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
                     read_depth=not args.no_depth_read,
                     fuse_tau=args.fuse_frames,
+                    roll=args.roll,
                     progress=False,
                     source=str(args.checkpoint),
                 )

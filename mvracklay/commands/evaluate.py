@@ -16,6 +16,7 @@ from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
+from network.roll import add_roll_option, describe_rolls, resolve_roll
 from network.train import open_data
 
 NAME = "evaluate"
@@ -42,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     add_fuse_option(p)
+    add_roll_option(p)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
@@ -60,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
+    roll = resolve_roll(args.roll, level=True)
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
@@ -78,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
         fuse_tau=fuse_tau,
+        roll=roll,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
@@ -90,12 +94,16 @@ def run(args: argparse.Namespace) -> int:
         title += ", depths from the whole sequence"
     if fuse_tau > 0:
         title += f", neighbouring frames fused (tau {fuse_tau:g})"
+    if roll != 0:
+        title += ", camera roll read from the frames" if roll == "auto" else f", camera roll {roll:g} deg levelled"
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))
     print()
     print(format_table(res["all"], title + " -- all cells"))
     print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
+    if roll == "auto":
+        print(describe_rolls(res["rolls"]))
     if args.json:
         out = {
             "checkpoint": str(args.checkpoint),

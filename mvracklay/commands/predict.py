@@ -25,6 +25,7 @@ from network.distributed import single_process_device
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
+from network.roll import add_roll_option, check_roll, describe_rolls, resolve_roll
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -60,6 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     add_fuse_option(p)
+    add_roll_option(p)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
+    check_roll(args.roll, "--roll")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -107,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
         fuse_tau=fuse_tau,
+        roll=args.roll,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -129,6 +133,7 @@ def predict_folder(
     read_depth: bool = True,
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
+    roll: float | str | None = None,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -140,6 +145,8 @@ def predict_folder(
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
     itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
     ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
+    ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: 0 for a generated sequence (its
+    camera is level), else read from the frames.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -179,6 +186,7 @@ def predict_folder(
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
+    roll = resolve_roll(roll, level=meta is not None)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(
         model,
@@ -188,6 +196,7 @@ def predict_folder(
         read_depth=read_depth,
         whole_sequence=whole_sequence,
         fuse_tau=fuse_tau,
+        roll=roll,
     )
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
 
@@ -206,4 +215,6 @@ def predict_folder(
     if pred.reads_depth and progress:
         said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
         print(f"rack depth read from the boards' back edges: {said}")
+    if roll == "auto" and progress and pred.leveller is not None:
+        print(describe_rolls(pred.leveller.rolls))
     return seq.num_frames

@@ -9,6 +9,7 @@ from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
 from network.fusion import add_fuse_option
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
+from network.roll import add_roll_option, describe_rolls
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -18,7 +19,8 @@ DESCRIPTION = (
     "(a layout folder for 'mvracklay reconstruct'), OUT/warehouse.json, OUT/warehouse.glb and "
     "OUT/warehouse.rrd; then print the free space per shelf. INPUT is a WareSynth sequence folder, any folder "
     "of ordered PNG/JPEG images (natural name order, all the same size) or a video file. The camera should "
-    "move sideways along one rack row at a roughly constant distance, facing the racks, without turning. "
+    "move sideways along one rack row at a roughly constant distance, facing the racks, without turning; "
+    "a camera rolled about its optical axis (mounted askew) is levelled, its roll read from the frames (--roll). "
     "Intrinsics: --camera JSON, else the sequence's meta.json, else the default camera (60 deg horizontal "
     "field of view, principal point at the centre) at the frame size. No ground truth is needed. A failed run "
     "leaves OUT as it was."
@@ -49,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     add_fuse_option(p)
+    add_roll_option(p)
     p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
     p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
@@ -83,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
         fuse_tau=args.fuse_frames,
+        roll=args.roll,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,
@@ -105,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     t = res.seconds
     rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
     print(f"speed: {rate} (wall, this machine)")
+    if res.roll_source == "read":
+        print(describe_rolls(res.rolls))
     print(format_table(res.free_space))
     print("wrote " + ", ".join(str(p) for p in res.paths.values()))
     if args.spawn:

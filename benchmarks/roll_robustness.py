@@ -1,0 +1,83 @@
+#!/usr/bin/env python3
+"""What a rolled camera costs, and what reading its roll (`--roll auto`) gives back: Table I on turned frames.
+
+    .venv/bin/python benchmarks/roll_robustness.py weights/mvracklay-disc-4.pt data/heldout128 --rolls 0 2 5
+
+Every frame of the dataset is turned by the roll (degrees, counter-clockwise about the principal
+point, as a camera rolled the other way would see it; the corners the turn uncovers take the
+canonical fill colour, where a real camera would see more of the scene) and run through the whole
+pipeline of ``mvracklay evaluate`` (windowed, depth heads, columns in view), once taking the camera
+as level and once reading its roll from the frames (`network.roll`); ``--known`` adds a row with
+the true roll given. The roll read is compared with the truth, frame by frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from PIL import Image
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts.canonical import FILL_RGB  # noqa: E402
+from network.checkpoint import load_model  # noqa: E402
+from network.evaluate import evaluate_sequences  # noqa: E402
+from network.train import open_data  # noqa: E402
+
+
+class Turned:
+    """A sequence whose frames are turned ``deg`` degrees counter-clockwise about the principal point."""
+
+    def __init__(self, seq: Any, deg: float) -> None:
+        self._seq, self._deg = seq, float(deg)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._seq, name)
+
+    def rgb(self, i: int) -> np.ndarray:
+        rgb = self._seq.rgb(i)
+        if not self._deg:
+            return rgb
+        intr = self._seq.intrinsics
+        im = Image.fromarray(rgb).rotate(self._deg, Image.BILINEAR, center=(intr.cx, intr.cy), fillcolor=FILL_RGB)
+        return np.asarray(im)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", type=Path)
+    ap.add_argument("data", type=Path, help="a dataset with ground truth")
+    ap.add_argument("--rolls", type=float, nargs="+", default=[0.0, 2.0, 5.0], help="camera rolls to simulate")
+    ap.add_argument("--known", action="store_true", help="also a row with the true roll given")
+    ap.add_argument("--sequences", type=int, default=0, help="the first N sequences (0 = all)")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    model, _ = load_model(args.checkpoint)
+    seqs = open_data(args.data).sequences()
+    seqs = seqs[: args.sequences] if args.sequences else seqs
+
+    print(f"{args.checkpoint} on {args.data} ({len(seqs)} sequences): mIoU, columns in view, windowed")
+    print(f"{'roll':>5s} {'levelled by':>12s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}"
+          f" {'roll read: mean / p95 / max error':>34s}")  # fmt: skip
+    for deg in args.rolls:
+        for how, roll in [("none", None), ("read", "auto")] + ([("truth", deg)] if args.known else []):
+            res = evaluate_sequences(model, [Turned(s, deg) for s in seqs], progress=False, roll=roll)
+            r = res["visible"]
+            cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
+            err = np.abs(np.asarray(res["rolls"]) - deg) if roll == "auto" else None
+            said = "" if err is None else f"{err.mean():.2f} / {np.percentile(err, 95):.2f} / {err.max():.2f} deg"
+            print(
+                f"{deg:5g} {how:>12s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f} {said:>34s}",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,188 @@
+"""A rolled camera: levelled in the canonical warp, its roll read from rack images (`network.roll`)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from layouts import Intrinsics, LayoutError
+from layouts.canonical import FILL_RGB, CanonicalView
+from layouts.errors import InputError
+from mvracklay.cli import main
+from network import roll as roll_mod
+from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll
+from waresynth.dataset import open_dataset
+
+VIEW = CanonicalView(96, 96, 3.0)
+
+
+def _pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Front-plane stripes: red changes every 0.25 m along X, green every 0.2 m along Y."""
+    r = np.where(np.floor(x / 0.25) % 2 == 0, 220, 30)
+    g = np.where(np.floor(y / 0.2) % 2 == 0, 200, 40)
+    return np.stack(np.broadcast_arrays(r, g, np.full_like(r, 90)), -1).astype(np.uint8)
+
+
+def _rolled_render(intr: Intrinsics, distance: float, roll_deg: float) -> np.ndarray:
+    """What a camera rolled ``roll_deg`` (content turned counter-clockwise) sees of the stripes."""
+    u = (np.arange(intr.width) + 0.5 - intr.cx) / intr.fx
+    v = (np.arange(intr.height) + 0.5 - intr.cy) / intr.fy
+    xr, yr = np.meshgrid(u, v)
+    c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    x, y = c * xr - s * yr, s * xr + c * yr  # the level camera's coordinates of each rolled pixel
+    return _pattern(x * distance, y * distance)
+
+
+def _canonical_truth(view: CanonicalView) -> tuple[np.ndarray, np.ndarray]:
+    m = view.metres_per_pixel
+    x = (np.arange(view.width) + 0.5 - view.width / 2) * m
+    y = (np.arange(view.height) + 0.5 - view.height / 2) * m
+    far_x = np.abs(x / 0.25 - np.round(x / 0.25)) * 0.25 > 1.5 * m
+    far_y = np.abs(y / 0.2 - np.round(y / 0.2)) * 0.2 > 1.5 * m
+    return _pattern(x[None, :], y[:, None]), far_y[:, None] & far_x[None, :]
+
+
+@pytest.mark.parametrize(
+    "intr, roll",
+    [
+        (Intrinsics.from_fov(160, 160, 70.0), 7.0),
+        (Intrinsics.from_fov(200, 150, 75.0), -12.0),
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 4.0),  # off-centre principal point, non-square pixels
+    ],
+)
+def test_a_rolled_camera_is_levelled_onto_the_canonical_pixels(intr, roll):
+    got = VIEW.warp(_rolled_render(intr, 2.6, roll), intr, 2.6, roll_deg=roll)
+    want, far = _canonical_truth(VIEW)
+    valid = VIEW.valid_mask(intr, 2.6, roll_deg=roll)
+    inner = valid & far
+    assert inner.sum() > 1000
+    assert np.abs(got[inner].astype(int) - want[inner].astype(int)).max() <= 2
+    assert (got[~valid] == FILL_RGB).all()
+    # the same image warped as if level puts the stripes elsewhere
+    level = VIEW.warp(_rolled_render(intr, 2.6, roll), intr, 2.6)
+    assert np.abs(level[inner].astype(int) - want[inner].astype(int)).max() > 100
+
+
+def test_roll_zero_is_the_separable_warp_and_bad_rolls_are_refused():
+    intr = Intrinsics.from_fov(128, 96, 60.0)
+    img = np.random.default_rng(0).integers(0, 256, (96, 128, 3), dtype=np.uint8)
+    assert np.array_equal(VIEW.warp(img, intr, 2.6, roll_deg=0.0), VIEW.warp(img, intr, 2.6))
+    for bad in (float("nan"), 50.0, True, "3"):
+        with pytest.raises(LayoutError, match="roll"):
+            VIEW.warp(img, intr, 2.6, roll_deg=bad)
+
+
+def _frames(tiny_dataset: Path, n: int = 4) -> tuple[list[np.ndarray], Intrinsics]:
+    seq = open_dataset(tiny_dataset).sequences()[0]
+    return [seq.rgb(i) for i in range(n)], seq.intrinsics
+
+
+def _turn(rgb: np.ndarray, deg: float, intr: Intrinsics) -> np.ndarray:
+    """``rgb`` as a camera rolled ``deg`` would show it (PIL turns counter-clockwise; the corners get the fill)."""
+    im = Image.fromarray(rgb).rotate(deg, resample=Image.BILINEAR, center=(intr.cx, intr.cy), fillcolor=FILL_RGB)
+    return np.asarray(im)
+
+
+def test_pil_turn_matches_the_rolled_warp(tiny_dataset):
+    """The benchmark's rolled frames (a PIL turn) are what the warp's roll convention undoes."""
+    (rgb, *_), intr = _frames(tiny_dataset, 1)
+    view = CanonicalView(64, 64, 3.0)
+    level = view.warp(rgb, intr, 2.6).astype(int)
+    back = view.warp(_turn(rgb, 6.0, intr), intr, 2.6, roll_deg=6.0).astype(int)
+    wrong = view.warp(_turn(rgb, 6.0, intr), intr, 2.6, roll_deg=-6.0).astype(int)
+    inside = view.valid_mask(intr, 2.6, roll_deg=6.0)
+    inside[:8], inside[-8:], inside[:, :8], inside[:, -8:] = False, False, False, False
+    assert np.median(np.abs(back - level)[inside]) <= 3
+    assert np.abs(back - level)[inside].mean() < 0.5 * np.abs(wrong - level)[inside].mean()
+
+
+@pytest.mark.parametrize("deg", [-9.0, -2.5, 0.0, 1.0, 4.0])
+def test_the_roll_of_a_rendered_rack_frame_is_read(tiny_dataset, deg):
+    frames, intr = _frames(tiny_dataset)
+    got = []
+    for rgb in frames:
+        roll, strength = estimate_roll(_turn(rgb, deg, intr) if deg else rgb)
+        assert abs(roll - deg) < 1.0, (roll, deg)  # one 128x128 frame; a sequence averages its frames
+        assert strength > 2.0
+        got.append(roll)
+    assert abs(np.mean(got) - deg) < 0.6
+
+
+def test_no_edges_reads_level_with_no_strength():
+    got, strength = estimate_roll(np.full((64, 80, 3), 90, np.uint8))
+    assert got == 0.0 and strength == 0.0
+    with pytest.raises(InputError, match="uint8"):
+        estimate_roll(np.zeros((64, 80, 3), np.float32))
+    with pytest.raises(InputError, match="max_deg"):
+        estimate_roll(np.zeros((64, 80, 3), np.uint8), max_deg=60)
+
+
+def test_leveller_follows_the_frames_and_reads_each_once(tiny_dataset, monkeypatch):
+    frames, intr = _frames(tiny_dataset)
+    calls = []
+    real = roll_mod.estimate_roll
+
+    def counted(rgb, max_deg, prior_deg=0.0):
+        calls.append(prior_deg)
+        return real(rgb, max_deg, prior_deg)
+
+    monkeypatch.setattr(roll_mod, "estimate_roll", counted)
+    lev = RollLeveller("auto")
+    turned = [_turn(f, 3.0, intr) for f in frames]
+    got = [lev.roll(i, f) for i, f in enumerate(turned)]
+    assert lev.roll(len(turned) - 1, turned[-1]) == got[-1]  # asked again: not read again
+    assert (
+        len(calls) == len(turned) and calls[0] == 0.0 and abs(calls[-1] - 3.0) < 0.5
+    )  # read levelled by the roll so far
+    assert all(abs(g - 3.0) < 0.5 for g in got) and lev.rolls == got
+    fixed = RollLeveller(-2.0)
+    assert [fixed.roll(i, f) for i, f in enumerate(frames)] == [-2.0] * len(frames)
+    assert len(calls) == len(turned)  # a known roll reads nothing
+
+
+def test_roll_arguments_are_checked():
+    assert check_roll("auto") == "auto" and check_roll("2.5") == 2.5 and check_roll(None) is None
+    assert resolve_roll(None, level=True) == 0.0 and resolve_roll(None, level=False) == "auto"
+    assert resolve_roll("-3", level=True) == -3.0
+    for bad, msg in (("abc", "'auto' or a number"), (60, "within"), (float("inf"), "within"), (True, "number")):
+        with pytest.raises(InputError, match=msg):
+            check_roll(bad, "--roll")
+    with pytest.raises(InputError, match="tau"):
+        RollLeveller("auto", tau=0)
+
+
+def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_dataset, tiny_checkpoint, tmp_path):
+    seq_dir = tiny_dataset / "seq_00000"
+    frames, intr = _frames(tiny_dataset, 5)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, f in enumerate(frames):
+        Image.fromarray(_turn(f, 4.0, intr)).save(folder / f"f{i}.png")
+    base = ["--checkpoint", str(tiny_checkpoint), "--quiet", "--no-rrd", "--threads", "1"]
+    assert main(["run", str(folder), "--out", str(tmp_path / "a"), *base]) == 0
+    meta = json.loads((tmp_path / "a" / "warehouse.json").read_text())["meta"]
+    assert meta["camera_roll_source"] == "read" and abs(meta["camera_roll_deg"] - 4.0) < 0.5
+    assert main(["run", str(seq_dir), "--out", str(tmp_path / "b"), "--max-frames", "3", *base]) == 0
+    meta = json.loads((tmp_path / "b" / "warehouse.json").read_text())["meta"]
+    assert meta["camera_roll_source"] == "level" and meta["camera_roll_deg"] == 0.0
+    assert main(["run", str(seq_dir), "--out", str(tmp_path / "c"), "--max-frames", "3", "--roll", "1.5", *base]) == 0
+    meta = json.loads((tmp_path / "c" / "warehouse.json").read_text())["meta"]
+    assert meta["camera_roll_source"] == "given" and meta["camera_roll_deg"] == 1.5
+
+
+def test_a_bad_roll_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+    seq_dir = tiny_dataset / "seq_00000"
+    for cmd in (
+        ["run", str(seq_dir), "--out", str(tmp_path / "r")],
+        ["predict", str(seq_dir), "--out", str(tmp_path / "p")],
+        ["evaluate", "--data", str(tiny_dataset)],
+    ):
+        assert main([*cmd, "--checkpoint", str(tiny_checkpoint), "--roll", "sideways"]) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--roll" in err[0] and "sideways" in err[0]
+        assert not (tmp_path / "r").exists() and not (tmp_path / "p").exists()
