@@ -7,8 +7,8 @@ Every frame of the dataset is turned by the roll (degrees, counter-clockwise abo
 point, as a camera rolled the other way would see it; the corners the turn uncovers take the
 canonical fill colour, where a real camera would see more of the scene) and run through the whole
 pipeline of ``mvracklay evaluate`` (windowed, depth heads, columns in view), once taking the camera
-as level and once reading its roll from the frames (`network.roll`); ``--known`` adds a row with
-the true roll given. The roll read is compared with the truth, frame by frame.
+as level and once reading its roll from the frames (`network.roll`); ``--levelled-by truth`` adds a
+row with the true roll given (what the turn's lost corners cost alone). The roll read is compared with the truth, frame by frame.
 """
 
 from __future__ import annotations
@@ -53,7 +53,13 @@ def main() -> int:
     ap.add_argument("checkpoint", type=Path)
     ap.add_argument("data", type=Path, help="a dataset with ground truth")
     ap.add_argument("--rolls", type=float, nargs="+", default=[0.0, 2.0, 5.0], help="camera rolls to simulate")
-    ap.add_argument("--known", action="store_true", help="also a row with the true roll given")
+    ap.add_argument(
+        "--levelled-by",
+        nargs="+",
+        choices=["none", "read", "truth"],
+        default=["none", "read"],
+        help="none: the camera taken as level; read: --roll auto; truth: the true roll given",
+    )
     ap.add_argument("--sequences", type=int, default=0, help="the first N sequences (0 = all)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
@@ -66,7 +72,8 @@ def main() -> int:
     print(f"{'roll':>5s} {'levelled by':>12s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}"
           f" {'roll read: mean / p95 / max error':>34s}")  # fmt: skip
     for deg in args.rolls:
-        for how, roll in [("none", None), ("read", "auto")] + ([("truth", deg)] if args.known else []):
+        for how in args.levelled_by:
+            roll = {"none": None, "read": "auto", "truth": deg}[how]
             res = evaluate_sequences(model, [Turned(s, deg) for s in seqs], progress=False, roll=roll)
             r = res["visible"]
             cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
