@@ -13,7 +13,7 @@ front plane (points behind it are scaled as perspective scales them).
 A camera rolled about its optical axis by ``roll_deg`` (the image content turned that many degrees
 counter-clockwise as displayed, e.g. a camera mounted a little askew) is levelled in the same
 resampling: the level camera's normalised coordinates are turned by the roll before they are
-mapped to source pixels, so the map is no longer separable but still one bilinear pass.
+mapped to source pixels, so the map is no longer separable but still one bilinear (affine) pass.
 
 Coordinates are continuous pixel coordinates (pixel k spans ``[k, k+1)``, centre ``k + 0.5``),
 as in `layouts.camera.Intrinsics`. Canonical pixels outside the source image take ``fill``.
@@ -110,9 +110,26 @@ class CanonicalView:
             rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.BILINEAR, reducing_gap=None))
             intr = intr.scaled(w, h)
         if roll:
-            return _bilinear(rgb, *self.rolled_coords(intr, distance, roll))
+            return self._rolled_warp(rgb, intr, distance, roll)
         u, v = self.source_coords(intr, distance)
         return _bilinear_separable(rgb, u, v)
+
+    def _rolled_warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float) -> np.ndarray:
+        """The map of `rolled_coords` is affine in the canonical pixel: one bilinear PIL transform (C, ~1.5 ms at 256x256).
+
+        PIL's affine map takes continuous coordinates (pixel centres at k + 0.5), as here, and fills
+        the pixels whose centre falls outside the source, as the separable warp does.
+        """
+        c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+        k = self.metres_per_pixel / distance  # normalised units per canonical pixel
+        w2, h2 = self.width / 2, self.height / 2
+        a, b = intr.fx * c * k, intr.fx * s * k
+        d, e = -intr.fy * s * k, intr.fy * c * k
+        coeffs = (a, b, intr.cx - a * w2 - b * h2, d, e, intr.cy - d * w2 - e * h2)
+        img = Image.fromarray(rgb).transform(
+            (self.width, self.height), Image.AFFINE, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
+        )
+        return np.asarray(img)
 
     def valid_mask(self, intr: Intrinsics, distance: float, roll_deg: float = 0.0) -> np.ndarray:
         """bool ``(height, width)``: canonical pixels whose centre falls inside the source image."""
@@ -160,18 +177,4 @@ def _bilinear_separable(rgb: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.nda
     out = rows[:, c0] * (1 - wc)[None, :, None] + rows[:, c1] * wc[None, :, None]
     out[~rin] = FILL_RGB
     out[:, ~cin] = FILL_RGB
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
-
-
-def _bilinear(rgb: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear samples of ``rgb`` at continuous coordinates ``u, v`` (any equal shapes); outside -> fill."""
-    h0, w0 = rgb.shape[:2]
-    r0, r1, wr, rin = _axis_weights(v, h0)
-    c0, c1, wc, cin = _axis_weights(u, w0)
-    src = rgb.astype(np.float32)
-    wr, wc = wr[..., None], wc[..., None]
-    top = src[r0, c0] * (1 - wc) + src[r0, c1] * wc
-    bottom = src[r1, c0] * (1 - wc) + src[r1, c1] * wc
-    out = top * (1 - wr) + bottom * wr
-    out[~(rin & cin)] = FILL_RGB
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
