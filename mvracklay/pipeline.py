@@ -38,7 +38,7 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
-from network.roll import check_roll, resolve_roll
+from network.roll import check_roll, resolve_roll, roll_warning
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -384,6 +384,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         shutil.rmtree(stage, ignore_errors=True)
         raise
     rolls = list(pred.leveller.rolls) if pred.leveller is not None else []
+    if roll_source == "read" and roll_warning(rolls):
+        warnings.append(roll_warning(rolls))
+        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source)
 
 

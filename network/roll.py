@@ -195,3 +195,13 @@ def describe_rolls(rolls: list[float]) -> str:
         return "camera roll: no frames"
     r = np.asarray(rolls)
     return f"camera roll read from the frames: {np.median(r):+.1f} deg (frames {r.min():+.1f} to {r.max():+.1f})"
+
+
+def roll_warning(rolls: list[float], max_deg: float = SEARCH_DEG) -> str:
+    """A warning when the rolls read reach the search's limit (the camera may be rolled further); "" otherwise."""
+    if rolls and max(abs(r) for r in rolls) >= max_deg - 0.05:
+        return (
+            f"the camera roll read reaches the limit of the search (+-{max_deg:g} deg): the camera may be rolled "
+            "further or the frames show few straight edges; pass --roll DEG if you know it"
+        )
+    return ""

@@ -15,7 +15,7 @@ from layouts.canonical import FILL_RGB, CanonicalView
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network import roll as roll_mod
-from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll
+from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll, roll_warning
 from waresynth.dataset import open_dataset
 
 VIEW = CanonicalView(96, 96, 3.0)
@@ -154,6 +154,8 @@ def test_roll_arguments_are_checked():
             check_roll(bad, "--roll")
     with pytest.raises(InputError, match="tau"):
         RollLeveller("auto", tau=0)
+    assert roll_warning([0.5, -2.0]) == "" and roll_warning([]) == ""
+    assert "limit" in roll_warning([3.0, 15.0]) and "limit" in roll_warning([-14.99])
 
 
 def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_dataset, tiny_checkpoint, tmp_path):

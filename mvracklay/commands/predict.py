@@ -25,7 +25,7 @@ from network.distributed import single_process_device
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
-from network.roll import add_roll_option, check_roll, describe_rolls, resolve_roll
+from network.roll import add_roll_option, check_roll, describe_rolls, resolve_roll, roll_warning
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -215,6 +215,9 @@ def predict_folder(
     if pred.reads_depth and progress:
         said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
         print(f"rack depth read from the boards' back edges: {said}")
-    if roll == "auto" and progress and pred.leveller is not None:
-        print(describe_rolls(pred.leveller.rolls))
+    if roll == "auto" and pred.leveller is not None:
+        if progress:
+            print(describe_rolls(pred.leveller.rolls))
+        if roll_warning(pred.leveller.rolls):
+            print(f"mvracklay predict: warning: {roll_warning(pred.leveller.rolls)}", file=sys.stderr)
     return seq.num_frames
