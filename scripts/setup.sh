@@ -20,6 +20,14 @@ if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
 stamp=.venv/.mvracklay-installed
+# A .venv moved with its folder keeps the old place in its entry points ("cannot execute: required file
+# not found") and its editable install: install the project again.
+if [ -f "$stamp" ] && [ -f .venv/bin/mvracklay ]; then
+    case "$(head -1 .venv/bin/mvracklay)" in
+        "#!$PWD/.venv/"*) ;;
+        *) echo "setup: .venv was made in another folder; reinstalling the project"; rm -f "$stamp" ;;
+    esac
+fi
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -nt "$stamp" ]; then
     echo "setup: installing the project into .venv (first run takes a few minutes)"
     .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v '^WARNING: Location' || true
