@@ -20,13 +20,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from layouts.canonical import FILL_RGB  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.evaluate import evaluate_sequences  # noqa: E402
+from network.roll import turn_frame  # noqa: E402
 from network.train import open_data  # noqa: E402
 
 
@@ -44,8 +43,7 @@ class Turned:
         if not self._deg:
             return rgb
         intr = self._seq.intrinsics
-        im = Image.fromarray(rgb).rotate(self._deg, Image.BILINEAR, center=(intr.cx, intr.cy), fillcolor=FILL_RGB)
-        return np.asarray(im)
+        return turn_frame(rgb, self._deg, intr.cx, intr.cy)
 
 
 def main() -> int:

@@ -29,7 +29,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
-from layouts.canonical import MAX_ROLL_DEG
+from layouts.canonical import FILL_RGB, MAX_ROLL_DEG
 from layouts.errors import InputError
 
 #: the largest roll `estimate_roll` looks for by default (degrees)
@@ -41,6 +41,18 @@ READ_WIDTH = 320
 _BIN_DEG = 0.1
 _SMOOTH_DEG = 0.5
 _STRONG_QUANTILE = 80.0
+
+
+def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.ndarray:
+    """``rgb`` as a camera rolled ``roll_deg`` would show it: turned counter-clockwise about ``(cx, cy)``.
+
+    The corners the turn uncovers take the canonical fill colour (a real camera would see more of
+    the scene there). For robustness checks of the levelling (`benchmarks/roll_robustness.py`).
+    """
+    im = Image.fromarray(np.ascontiguousarray(rgb)).rotate(
+        float(roll_deg), resample=Image.BILINEAR, center=(float(cx), float(cy)), fillcolor=FILL_RGB
+    )
+    return np.asarray(im)
 
 
 def check_roll(roll: object, name: str = "roll") -> float | str | None:

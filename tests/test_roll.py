@@ -15,7 +15,7 @@ from layouts.canonical import FILL_RGB, CanonicalView
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network import roll as roll_mod
-from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll, roll_warning
+from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll, roll_warning, turn_frame
 from waresynth.dataset import open_dataset
 
 VIEW = CanonicalView(96, 96, 3.0)
@@ -83,13 +83,11 @@ def _frames(tiny_dataset: Path, n: int = 4) -> tuple[list[np.ndarray], Intrinsic
 
 
 def _turn(rgb: np.ndarray, deg: float, intr: Intrinsics) -> np.ndarray:
-    """``rgb`` as a camera rolled ``deg`` would show it (PIL turns counter-clockwise; the corners get the fill)."""
-    im = Image.fromarray(rgb).rotate(deg, resample=Image.BILINEAR, center=(intr.cx, intr.cy), fillcolor=FILL_RGB)
-    return np.asarray(im)
+    return turn_frame(rgb, deg, intr.cx, intr.cy)
 
 
-def test_pil_turn_matches_the_rolled_warp(tiny_dataset):
-    """The benchmark's rolled frames (a PIL turn) are what the warp's roll convention undoes."""
+def test_turned_frames_are_what_the_rolled_warp_levels(tiny_dataset):
+    """`turn_frame` (the benchmarks' rolled camera) turns the way the warp's roll convention undoes."""
     (rgb, *_), intr = _frames(tiny_dataset, 1)
     view = CanonicalView(64, 64, 3.0)
     level = view.warp(rgb, intr, 2.6).astype(int)
@@ -188,3 +186,23 @@ def test_a_bad_roll_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--roll" in err[0] and "sideways" in err[0]
         assert not (tmp_path / "r").exists() and not (tmp_path / "p").exists()
+
+
+def test_turn_dataset_writes_a_turned_copy_and_leaves_the_source_alone(tiny_dataset, tmp_path):
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "turn_dataset.py"
+    src_png = sorted((tiny_dataset / "seq_00000" / "rgb").glob("*.png"))[0]
+    before = src_png.read_bytes()
+    dst = tmp_path / "turned"
+    run = [sys.executable, str(script), str(tiny_dataset), str(dst), "--roll", "3"]
+    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
+    assert src_png.read_bytes() == before  # the hard-linked copy never wrote through
+    seq = open_dataset(dst).sequences()[0]
+    orig = open_dataset(tiny_dataset).sequences()[0]
+    assert np.array_equal(seq.rgb(0), _turn(orig.rgb(0), 3.0, orig.intrinsics))
+    assert np.array_equal(seq.layouts(0).top, orig.layouts(0).top)
+    assert json.loads((dst / "TURNED.json").read_text())["roll_deg"] == 3.0
+    again = subprocess.run(run, capture_output=True, text=True)
+    assert again.returncode != 0 and "exists" in again.stderr
