@@ -46,7 +46,7 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
         "window": lambda f: pred.window(f),
         "window-recompute": lambda f: pred.window(f, recompute=True),
         "stream-flip": lambda f: Predictor(
-            pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau, roll=pred.roll
+            pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau, roll=pred.roll, pitch=pred.pitch
         ).stream(f),
     }[mode]
     for _ in run(frames[:warmup]):
@@ -110,7 +110,7 @@ def main() -> int:
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
-        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll)
+        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)

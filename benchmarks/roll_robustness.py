@@ -8,7 +8,9 @@ point, as a camera rolled the other way would see it; the corners the turn uncov
 canonical fill colour, where a real camera would see more of the scene) and run through the whole
 pipeline of ``mvracklay evaluate`` (windowed, depth heads, columns in view), once taking the camera
 as level and once reading its roll from the frames (`network.roll`); ``--levelled-by truth`` adds a
-row with the true roll given (what the turn's lost corners cost alone). The roll read is compared with the truth, frame by frame.
+row with the true roll given (what the turn's lost corners cost alone). The roll read is compared
+with the truth, frame by frame. ``--axis pitch`` / ``yaw`` tilts the camera up / turns it right
+instead (`network.roll.tilt_frame`, a homography); a pitch can be given (``truth``), neither is read.
 """
 
 from __future__ import annotations
@@ -25,15 +27,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
 from network.evaluate import evaluate_sequences  # noqa: E402
-from network.roll import turn_frame  # noqa: E402
+from network.roll import tilt_frame, turn_frame  # noqa: E402
 from network.train import open_data  # noqa: E402
 
 
 class Turned:
-    """A sequence whose frames are turned ``deg`` degrees counter-clockwise about the principal point."""
+    """A sequence whose frames are seen by a camera rolled / pitched / yawed ``deg`` degrees (``axis``)."""
 
-    def __init__(self, seq: Any, deg: float) -> None:
-        self._seq, self._deg = seq, float(deg)
+    def __init__(self, seq: Any, deg: float, axis: str = "roll") -> None:
+        self._seq, self._deg, self._axis = seq, float(deg), axis
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._seq, name)
@@ -43,14 +45,22 @@ class Turned:
         if not self._deg:
             return rgb
         intr = self._seq.intrinsics
-        return turn_frame(rgb, self._deg, intr.cx, intr.cy)
+        if self._axis == "roll":
+            return turn_frame(rgb, self._deg, intr.cx, intr.cy)
+        return tilt_frame(rgb, intr, **{f"{self._axis}_deg": self._deg})
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path)
     ap.add_argument("data", type=Path, help="a dataset with ground truth")
-    ap.add_argument("--rolls", type=float, nargs="+", default=[0.0, 2.0, 5.0], help="camera rolls to simulate")
+    ap.add_argument("--rolls", type=float, nargs="+", default=[0.0, 2.0, 5.0], help="camera angles to simulate")
+    ap.add_argument(
+        "--axis",
+        choices=["roll", "pitch", "yaw"],
+        default="roll",
+        help="roll (about the optical axis), pitch (tilted up) or yaw (turned right); only a roll is read",
+    )
     ap.add_argument(
         "--levelled-by",
         nargs="+",
@@ -66,13 +76,19 @@ def main() -> int:
     seqs = open_data(args.data).sequences()
     seqs = seqs[: args.sequences] if args.sequences else seqs
 
-    print(f"{args.checkpoint} on {args.data} ({len(seqs)} sequences): mIoU, columns in view, windowed")
+    print(
+        f"{args.checkpoint} on {args.data} ({len(seqs)} sequences, camera {args.axis}): mIoU, columns in view, windowed"
+    )
     print(f"{'roll':>5s} {'levelled by':>12s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}"
           f" {'roll read: mean / p95 / max error':>34s}")  # fmt: skip
     for deg in args.rolls:
         for how in args.levelled_by:
-            roll = {"none": None, "read": "auto", "truth": deg}[how]
-            res = evaluate_sequences(model, [Turned(s, deg) for s in seqs], progress=False, roll=roll)
+            if args.axis != "roll" and how != "none" and not (args.axis == "pitch" and how == "truth"):
+                continue  # only a roll is read; only a roll or a pitch can be given
+            roll = {"none": None, "read": "auto", "truth": deg}[how] if args.axis == "roll" else None
+            pitch = deg if args.axis == "pitch" and how == "truth" else 0.0
+            turned = [Turned(s, deg, args.axis) for s in seqs]
+            res = evaluate_sequences(model, turned, progress=False, roll=roll, pitch=pitch)
             r = res["visible"]
             cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
             err = np.abs(np.asarray(res["rolls"]) - deg) if roll == "auto" else None

@@ -11,9 +11,10 @@ offset from the optical axis on the front plane: a separable, per-axis affine ma
 front plane (points behind it are scaled as perspective scales them).
 
 A camera rolled about its optical axis by ``roll_deg`` (the image content turned that many degrees
-counter-clockwise as displayed, e.g. a camera mounted a little askew) is levelled in the same
-resampling: the level camera's normalised coordinates are turned by the roll before they are
-mapped to source pixels, so the map is no longer separable but still one bilinear (affine) pass.
+counter-clockwise as displayed, e.g. a camera mounted a little askew) or pitched by ``pitch_deg``
+(its optical axis tilted up) is levelled in the same resampling: the level camera's rays are turned
+into the rotated camera's before they are mapped to source pixels, so the map is no longer separable
+but still one bilinear pass (affine for a roll, a homography with a pitch).
 
 Coordinates are continuous pixel coordinates (pixel k spans ``[k, k+1)``, centre ``k + 0.5``),
 as in `layouts.camera.Intrinsics`. Canonical pixels outside the source image take ``fill``.
@@ -32,7 +33,7 @@ from layouts.errors import LayoutError
 
 #: fill colour for canonical pixels the camera does not see: the ImageNet mean (0 after normalising)
 FILL_RGB = (124, 116, 104)
-#: the largest camera roll levelled (degrees): beyond it a shelf board is no longer the image's horizontal
+#: the largest camera roll or pitch levelled (degrees)
 MAX_ROLL_DEG = 45.0
 
 
@@ -72,35 +73,54 @@ class CanonicalView:
         y = (np.arange(self.height) + 0.5 - self.height / 2) * m
         return intr.cx + intr.fx * x / distance, intr.cy + intr.fy * y / distance
 
-    def rolled_coords(self, intr: Intrinsics, distance: float, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
-        """Source coordinates ``u, v (height, width)`` of the canonical pixel centres for a camera rolled ``roll_deg``.
+    def rotated_coords(
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Source coordinates ``u, v (height, width)`` of the canonical pixel centres for a rolled / pitched camera."""
+        h = self.camera_homography(intr, distance, roll_deg, pitch_deg)
+        x, y = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
+        p = h @ np.stack([x.ravel(), y.ravel(), np.ones(x.size)])
+        return (p[0] / p[2]).reshape(x.shape), (p[1] / p[2]).reshape(x.shape)
 
-        A level camera's normalised point ``(x, y)`` (y down) appears in the rolled image at
-        ``(c x + s y, -s x + c y)`` with ``c, s = cos, sin(roll)``: the content turned counter-clockwise.
+    def camera_homography(
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+    ) -> np.ndarray:
+        """3x3 map of continuous canonical pixels (homogeneous) to the source pixels of a rotated camera.
+
+        A level camera's ray ``(x, y, 1)`` (normalised, y down) is, for the camera rotated by
+        ``R = Rx(pitch) Rz(roll)`` (roll: content turned counter-clockwise; pitch: optical axis tilted
+        up), the ray ``R^T (x, y, 1)`` in its own frame; a pure rotation, so the map is a homography
+        (affine when the pitch is 0).
         """
-        roll = _check_roll(roll_deg)
-        u, v = self.source_coords(intr, distance)
-        x = ((u - intr.cx) / intr.fx)[None, :]
-        y = ((v - intr.cy) / intr.fy)[:, None]
-        c, s = math.cos(math.radians(roll)), math.sin(math.radians(roll))
-        return intr.cx + intr.fx * (c * x + s * y), intr.cy + intr.fy * (-s * x + c * y)
+        _check_distance(distance)
+        roll, pitch = math.radians(_check_angle(roll_deg, "roll")), math.radians(_check_angle(pitch_deg, "pitch"))
+        c, s = math.cos(roll), math.sin(roll)
+        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        c, s = math.cos(pitch), math.sin(pitch)
+        rx = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+        k = self.metres_per_pixel / distance  # normalised units per canonical pixel
+        to_ray = np.array([[k, 0.0, -k * self.width / 2], [0.0, k, -k * self.height / 2], [0.0, 0.0, 1.0]])
+        cam = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
+        return cam @ (rx @ rz).T @ to_ray
 
     def source_scale(self, intr: Intrinsics, distance: float) -> float:
         """Source pixels per canonical pixel (the larger axis): > 1 means the source is finer."""
         _check_distance(distance)
         return max(intr.fx, intr.fy) * self.metres_per_pixel / distance
 
-    def warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float = 0.0) -> np.ndarray:
+    def warp(
+        self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+    ) -> np.ndarray:
         """uint8 ``(H0, W0, 3)`` image of camera ``intr`` -> uint8 canonical ``(height, width, 3)``.
 
         Bilinear; a source much finer than the canonical grid is first downsized with an
-        antialiasing filter, so no aliasing whatever the input resolution. ``roll_deg``: the
-        camera's roll (see the module), levelled in the same pass.
+        antialiasing filter, so no aliasing whatever the input resolution. ``roll_deg`` /
+        ``pitch_deg``: the camera's rotation (see the module), levelled in the same pass.
         """
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise LayoutError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
-        roll = _check_roll(roll_deg)
+        turned = _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch")
         if rgb.shape[:2] != (intr.height, intr.width):
             intr = intr.scaled(rgb.shape[1], rgb.shape[0])
         s = self.source_scale(intr, distance)
@@ -109,32 +129,34 @@ class CanonicalView:
             h = max(1, round(intr.height / s))
             rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.BILINEAR, reducing_gap=None))
             intr = intr.scaled(w, h)
-        if roll:
-            return self._rolled_warp(rgb, intr, distance, roll)
+        if turned:
+            return self._turned_warp(rgb, intr, distance, roll_deg, pitch_deg)
         u, v = self.source_coords(intr, distance)
         return _bilinear_separable(rgb, u, v)
 
-    def _rolled_warp(self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float) -> np.ndarray:
-        """The map of `rolled_coords` is affine in the canonical pixel: one bilinear PIL transform (C, ~1.5 ms at 256x256).
+    def _turned_warp(
+        self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float
+    ) -> np.ndarray:
+        """`camera_homography` as one bilinear PIL transform (C; ~1.5 ms at 256x256).
 
-        PIL's affine map takes continuous coordinates (pixel centres at k + 0.5), as here, and fills
-        the pixels whose centre falls outside the source, as the separable warp does.
+        PIL's maps take continuous coordinates (pixel centres at k + 0.5), as here, and fill the
+        pixels whose centre falls outside the source, as the separable warp does.
         """
-        c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
-        k = self.metres_per_pixel / distance  # normalised units per canonical pixel
-        w2, h2 = self.width / 2, self.height / 2
-        a, b = intr.fx * c * k, intr.fx * s * k
-        d, e = -intr.fy * s * k, intr.fy * c * k
-        coeffs = (a, b, intr.cx - a * w2 - b * h2, d, e, intr.cy - d * w2 - e * h2)
+        h = self.camera_homography(intr, distance, roll_deg, pitch_deg)
+        h = h / h[2, 2]
+        kind = Image.AFFINE if pitch_deg == 0 else Image.PERSPECTIVE
+        coeffs = tuple(float(c) for c in h.ravel()[: 6 if kind == Image.AFFINE else 8])
         img = Image.fromarray(rgb).transform(
-            (self.width, self.height), Image.AFFINE, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
+            (self.width, self.height), kind, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
         )
         return np.asarray(img)
 
-    def valid_mask(self, intr: Intrinsics, distance: float, roll_deg: float = 0.0) -> np.ndarray:
+    def valid_mask(
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+    ) -> np.ndarray:
         """bool ``(height, width)``: canonical pixels whose centre falls inside the source image."""
-        if _check_roll(roll_deg):
-            u, v = self.rolled_coords(intr, distance, roll_deg)
+        if _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch"):
+            u, v = self.rotated_coords(intr, distance, roll_deg, pitch_deg)
             return (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
         u, v = self.source_coords(intr, distance)
         return ((v >= 0) & (v < intr.height))[:, None] & ((u >= 0) & (u < intr.width))[None, :]
@@ -149,14 +171,14 @@ def _check_distance(distance: float) -> None:
         raise LayoutError(f"distance must be a positive finite number of metres, got {distance!r}")
 
 
-def _check_roll(roll_deg: float) -> float:
+def _check_angle(deg: float, name: str) -> float:
     if (
-        isinstance(roll_deg, bool)
-        or not isinstance(roll_deg, (int, float, np.floating))
-        or not (math.isfinite(roll_deg) and abs(roll_deg) <= MAX_ROLL_DEG)
+        isinstance(deg, bool)
+        or not isinstance(deg, (int, float, np.floating))
+        or not (math.isfinite(deg) and abs(deg) <= MAX_ROLL_DEG)
     ):
-        raise LayoutError(f"roll must be a finite number of degrees within +-{MAX_ROLL_DEG:g}, got {roll_deg!r}")
-    return float(roll_deg)
+        raise LayoutError(f"{name} must be a finite number of degrees within +-{MAX_ROLL_DEG:g}, got {deg!r}")
+    return float(deg)
 
 
 def _axis_weights(coords: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
-from network.roll import check_roll, resolve_roll, roll_warning
+from network.roll import check_pitch, check_roll, resolve_roll, roll_warning
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -69,6 +69,7 @@ class RunConfig:
     fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
     #: the camera's roll (degrees or "auto", `network.roll`); None = 0 for a generated sequence, else "auto"
     roll: float | str | None = None
+    pitch: float = 0.0  #: the camera's known tilt (degrees, optical axis up > 0), levelled (`network.roll`)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -90,6 +91,7 @@ class RunConfig:
             check_rack_depth(self.rack_depth)
         check_tau(self.fuse_tau, "--fuse-frames")
         check_roll(self.roll, "--roll")
+        check_pitch(self.pitch, "--pitch")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -285,6 +287,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             whole_sequence=cfg.whole_sequence,
             fuse_tau=cfg.fuse_tau,
             roll=roll,
+            pitch=check_pitch(cfg.pitch, "--pitch"),
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
@@ -354,6 +357,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             # the camera roll levelled before the network (`network.roll`): the median over the frames
             "camera_roll_deg": float(np.median(pred.leveller.rolls)) if pred.leveller and pred.leveller.rolls else 0.0,
             "camera_roll_source": roll_source,
+            "camera_pitch_deg": pred.pitch,
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",

@@ -68,11 +68,17 @@ def frame_camera(seq: Any, i: int, default_distance: float = DEFAULT_DISTANCE) -
 
 
 def canonical_image(
-    rgb: np.ndarray, view: CanonicalView, intr: Intrinsics | None, distance: float, roll_deg: float = 0.0
+    rgb: np.ndarray,
+    view: CanonicalView,
+    intr: Intrinsics | None,
+    distance: float,
+    roll_deg: float = 0.0,
+    pitch_deg: float = 0.0,
 ) -> np.ndarray:
     """uint8 RGB of any size -> the model's canonical ``(H, W, 3)`` view (60 deg camera if ``intr`` is None).
 
-    ``roll_deg``: the camera's roll about its optical axis, levelled in the same resampling."""
+    ``roll_deg`` / ``pitch_deg``: the camera's roll about its optical axis and the tilt of that axis
+    (up > 0), levelled in the same resampling (`layouts.canonical`)."""
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:
         rgb = np.repeat(rgb[..., None], 3, axis=2)
@@ -88,7 +94,7 @@ def canonical_image(
         else intr
     )
     try:
-        return view.warp(rgb, intr, distance, roll_deg)
+        return view.warp(rgb, intr, distance, roll_deg, pitch_deg)
     except LayoutError as e:
         raise InputError(str(e)) from None
 

@@ -34,6 +34,7 @@ def evaluate_sequences(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
+    pitch: float = 0.0,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -43,7 +44,8 @@ def evaluate_sequences(
     False keeps the top views' rack depth as decoded when the model could read it from back edges;
     ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
     ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off);
-    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: the camera is level).
+    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: the camera is level),
+    ``pitch`` a known tilt (degrees, up > 0).
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -66,6 +68,7 @@ def evaluate_sequences(
             whole_sequence=whole_sequence,
             fuse_tau=fuse_tau,
             roll=roll,
+            pitch=pitch,
         )
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
@@ -87,6 +90,7 @@ def evaluate_sequences(
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "fuse_frames": fuse_tau,
         "roll": roll,
+        "pitch": pitch,
         "rolls": rolls,  # the roll levelled in each frame (degrees); [] when the camera was taken as level
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),

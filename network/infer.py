@@ -28,7 +28,7 @@ from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_ten
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
-from network.roll import RollLeveller, check_roll
+from network.roll import RollLeveller, check_pitch, check_roll
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -101,7 +101,8 @@ class Predictor:
     ``roll``: the camera's roll about its optical axis (degrees, the image content turned
     counter-clockwise), levelled in the canonical warp: a number if known, ``"auto"`` to read it
     from the frames (`network.roll.RollLeveller`; ``self.leveller.rolls`` lists each frame's), None
-    (the default) for a level camera.
+    (the default) for a level camera. ``pitch``: the known tilt of the optical axis (degrees, up > 0),
+    levelled the same way (it is not read from the frames).
     """
 
     def __init__(
@@ -116,6 +117,7 @@ class Predictor:
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
+        pitch: float = 0.0,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -136,6 +138,7 @@ class Predictor:
         self.roll = check_roll(roll)  #: degrees, "auto" or None (level)
         #: the camera's roll, known or read from the frames (None: the camera is taken as level)
         self.leveller = None if self.roll is None or self.roll == 0 else RollLeveller(self.roll)
+        self.pitch = check_pitch(pitch)  #: degrees the optical axis is tilted up (known, e.g. from the mount)
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
@@ -155,7 +158,7 @@ class Predictor:
     def preprocess(self, rgb: np.ndarray, i: int = 0) -> torch.Tensor:
         intr, dist = self.camera(i)
         roll = 0.0 if self.leveller is None else self.leveller.roll(i, rgb)
-        img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist, roll)
+        img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist, roll, self.pitch)
         return to_tensor(img)[None].to(self.device)
 
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:

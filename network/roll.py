@@ -29,6 +29,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from layouts import Intrinsics
 from layouts.canonical import FILL_RGB, MAX_ROLL_DEG
 from layouts.errors import InputError
 
@@ -43,6 +44,26 @@ _SMOOTH_DEG = 0.5
 _STRONG_QUANTILE = 80.0
 
 
+def tilt_frame(rgb: np.ndarray, intr: Intrinsics, pitch_deg: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
+    """``rgb`` (a level camera ``intr``'s) as the same camera tilted up ``pitch_deg`` / turned right ``yaw_deg`` shows it.
+
+    A pure rotation, so one homography ``K R K^-1`` from the tilted camera's pixels to the level
+    one's (``R = Ry(yaw) Rx(pitch)``); the uncovered parts take the canonical fill colour. For
+    robustness checks (`benchmarks/roll_robustness.py --axis`).
+    """
+    t, y = math.radians(float(pitch_deg)), math.radians(float(yaw_deg))
+    k = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(t), -math.sin(t)], [0.0, math.sin(t), math.cos(t)]])
+    ry = np.array([[math.cos(y), 0.0, math.sin(y)], [0.0, 1.0, 0.0], [-math.sin(y), 0.0, math.cos(y)]])
+    h = k @ ry @ rx @ np.linalg.inv(k)
+    coeffs = tuple(float(c) for c in (h / h[2, 2]).ravel()[:8])
+    size = (rgb.shape[1], rgb.shape[0])
+    im = Image.fromarray(np.ascontiguousarray(rgb)).transform(
+        size, Image.PERSPECTIVE, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
+    )
+    return np.asarray(im)
+
+
 def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.ndarray:
     """``rgb`` as a camera rolled ``roll_deg`` would show it: turned counter-clockwise about ``(cx, cy)``.
 
@@ -53,6 +74,20 @@ def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.nda
         float(roll_deg), resample=Image.BILINEAR, center=(float(cx), float(cy)), fillcolor=FILL_RGB
     )
     return np.asarray(im)
+
+
+def check_pitch(pitch: object, name: str = "pitch") -> float:
+    """A known camera pitch (degrees, optical axis tilted up > 0) as a float; else an InputError naming ``name``."""
+    if isinstance(pitch, str):
+        try:
+            pitch = float(pitch)
+        except ValueError:
+            raise InputError(f"{name} must be a number of degrees, got {pitch!r}") from None
+    if isinstance(pitch, bool) or not isinstance(pitch, (int, float, np.floating)):
+        raise InputError(f"{name} must be a number of degrees, got {pitch!r}")
+    if not (math.isfinite(pitch) and abs(pitch) <= MAX_ROLL_DEG):
+        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {pitch!r}")
+    return float(pitch)
 
 
 def check_roll(roll: object, name: str = "roll") -> float | str | None:
@@ -188,9 +223,16 @@ ROLL_HELP = (
 )
 
 
+PITCH_HELP = (
+    "the camera's known pitch in degrees (optical axis tilted up > 0, down < 0; e.g. from its mount or an IMU), "
+    "levelled before the network; not read from the frames. Default 0"
+)
+
+
 def add_roll_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--roll auto|DEG`` on a command (None unless given: `resolve_roll` picks the source's default)."""
+    """``--roll auto|DEG`` (None unless given: `resolve_roll` picks the source's default) and ``--pitch DEG``."""
     p.add_argument("--roll", default=None, metavar="auto|DEG", help=prefix + ROLL_HELP)
+    p.add_argument("--pitch", default=0.0, metavar="DEG", help=prefix + PITCH_HELP)
 
 
 def resolve_roll(roll: object, level: bool, name: str = "--roll") -> float | str:

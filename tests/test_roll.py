@@ -15,7 +15,16 @@ from layouts.canonical import FILL_RGB, CanonicalView
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network import roll as roll_mod
-from network.roll import RollLeveller, check_roll, estimate_roll, resolve_roll, roll_warning, turn_frame
+from network.roll import (
+    RollLeveller,
+    check_pitch,
+    check_roll,
+    estimate_roll,
+    resolve_roll,
+    roll_warning,
+    tilt_frame,
+    turn_frame,
+)
 from waresynth.dataset import open_dataset
 
 VIEW = CanonicalView(96, 96, 3.0)
@@ -28,14 +37,17 @@ def _pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(r, g, np.full_like(r, 90)), -1).astype(np.uint8)
 
 
-def _rolled_render(intr: Intrinsics, distance: float, roll_deg: float) -> np.ndarray:
-    """What a camera rolled ``roll_deg`` (content turned counter-clockwise) sees of the stripes."""
+def _rolled_render(intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float = 0.0) -> np.ndarray:
+    """What a camera rolled ``roll_deg`` (content turned counter-clockwise) and pitched ``pitch_deg`` (tilted
+    up) sees of the stripes on the front plane ``distance`` ahead of it."""
     u = (np.arange(intr.width) + 0.5 - intr.cx) / intr.fx
     v = (np.arange(intr.height) + 0.5 - intr.cy) / intr.fy
     xr, yr = np.meshgrid(u, v)
     c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
-    x, y = c * xr - s * yr, s * xr + c * yr  # the level camera's coordinates of each rolled pixel
-    return _pattern(x * distance, y * distance)
+    x, y = c * xr - s * yr, s * xr + c * yr  # turned back about the optical axis
+    c, s = math.cos(math.radians(pitch_deg)), math.sin(math.radians(pitch_deg))
+    y, z = c * y - s, s * y + c  # the ray (x, y, 1) tilted up: the level camera's ray
+    return _pattern(x / z * distance, y / z * distance)
 
 
 def _canonical_truth(view: CanonicalView) -> tuple[np.ndarray, np.ndarray]:
@@ -48,23 +60,26 @@ def _canonical_truth(view: CanonicalView) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize(
-    "intr, roll",
+    "intr, roll, pitch",
     [
-        (Intrinsics.from_fov(160, 160, 70.0), 7.0),
-        (Intrinsics.from_fov(200, 150, 75.0), -12.0),
-        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 4.0),  # off-centre principal point, non-square pixels
+        (Intrinsics.from_fov(160, 160, 70.0), 7.0, 0.0),
+        (Intrinsics.from_fov(200, 150, 75.0), -12.0, 0.0),
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 4.0, 0.0),  # off-centre principal point, non-square pixels
+        (Intrinsics.from_fov(160, 160, 70.0), 0.0, 6.0),  # tilted up: a homography
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), -3.0, -5.0),
     ],
 )
-def test_a_rolled_camera_is_levelled_onto_the_canonical_pixels(intr, roll):
-    got = VIEW.warp(_rolled_render(intr, 2.6, roll), intr, 2.6, roll_deg=roll)
+def test_a_rolled_or_pitched_camera_is_levelled_onto_the_canonical_pixels(intr, roll, pitch):
+    img = _rolled_render(intr, 2.6, roll, pitch)
+    got = VIEW.warp(img, intr, 2.6, roll_deg=roll, pitch_deg=pitch)
     want, far = _canonical_truth(VIEW)
-    valid = VIEW.valid_mask(intr, 2.6, roll_deg=roll)
+    valid = VIEW.valid_mask(intr, 2.6, roll_deg=roll, pitch_deg=pitch)
     inner = valid & far
     assert inner.sum() > 1000
     assert np.abs(got[inner].astype(int) - want[inner].astype(int)).max() <= 2
     assert (got[~valid] == FILL_RGB).all()
     # the same image warped as if level puts the stripes elsewhere
-    level = VIEW.warp(_rolled_render(intr, 2.6, roll), intr, 2.6)
+    level = VIEW.warp(img, intr, 2.6)
     assert np.abs(level[inner].astype(int) - want[inner].astype(int)).max() > 100
 
 
@@ -97,6 +112,22 @@ def test_turned_frames_are_what_the_rolled_warp_levels(tiny_dataset):
     inside[:8], inside[-8:], inside[:, :8], inside[:, -8:] = False, False, False, False
     assert np.median(np.abs(back - level)[inside]) <= 3
     assert np.abs(back - level)[inside].mean() < 0.5 * np.abs(wrong - level)[inside].mean()
+
+
+def test_tilted_frames_are_what_the_pitched_warp_levels(tiny_dataset):
+    """`tilt_frame` (the benchmark's pitched camera) tilts the way the warp's pitch convention undoes."""
+    (rgb, *_), intr = _frames(tiny_dataset, 1)
+    view = CanonicalView(64, 64, 3.0)
+    level = view.warp(rgb, intr, 2.6).astype(int)
+    tilted = tilt_frame(rgb, intr, pitch_deg=6.0)
+    back = view.warp(tilted, intr, 2.6, pitch_deg=6.0).astype(int)
+    wrong = view.warp(tilted, intr, 2.6, pitch_deg=-6.0).astype(int)
+    inside = view.valid_mask(intr, 2.6, pitch_deg=6.0) & view.valid_mask(intr, 2.6, pitch_deg=-6.0)
+    inside[:8], inside[-8:], inside[:, :8], inside[:, -8:] = False, False, False, False
+    assert inside.sum() > 1000
+    assert np.median(np.abs(back - level)[inside]) <= 3
+    assert np.abs(back - level)[inside].mean() < 0.5 * np.abs(wrong - level)[inside].mean()
+    assert (tilt_frame(rgb, intr) == rgb).mean() > 0.99  # no tilt: the frame itself
 
 
 @pytest.mark.parametrize("deg", [-9.0, -2.5, 0.0, 1.0, 4.0])
@@ -150,6 +181,10 @@ def test_roll_arguments_are_checked():
     for bad, msg in (("abc", "'auto' or a number"), (60, "within"), (float("inf"), "within"), (True, "number")):
         with pytest.raises(InputError, match=msg):
             check_roll(bad, "--roll")
+    assert check_pitch("-4.5") == -4.5 and check_pitch(3) == 3.0
+    for bad in ("auto", 50, float("nan"), None):
+        with pytest.raises(InputError, match="--pitch"):
+            check_pitch(bad, "--pitch")
     with pytest.raises(InputError, match="tau"):
         RollLeveller("auto", tau=0)
     assert roll_warning([0.5, -2.0]) == "" and roll_warning([]) == ""
@@ -170,21 +205,24 @@ def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_
     assert main(["run", str(seq_dir), "--out", str(tmp_path / "b"), "--max-frames", "3", *base]) == 0
     meta = json.loads((tmp_path / "b" / "warehouse.json").read_text())["meta"]
     assert meta["camera_roll_source"] == "level" and meta["camera_roll_deg"] == 0.0
-    assert main(["run", str(seq_dir), "--out", str(tmp_path / "c"), "--max-frames", "3", "--roll", "1.5", *base]) == 0
+    c = ["run", str(seq_dir), "--out", str(tmp_path / "c"), "--max-frames", "3", "--roll", "1.5", "--pitch", "-2"]
+    assert main([*c, *base]) == 0
     meta = json.loads((tmp_path / "c" / "warehouse.json").read_text())["meta"]
     assert meta["camera_roll_source"] == "given" and meta["camera_roll_deg"] == 1.5
+    assert meta["camera_pitch_deg"] == -2.0
 
 
-def test_a_bad_roll_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+def test_a_bad_roll_or_pitch_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
     seq_dir = tiny_dataset / "seq_00000"
     for cmd in (
         ["run", str(seq_dir), "--out", str(tmp_path / "r")],
         ["predict", str(seq_dir), "--out", str(tmp_path / "p")],
         ["evaluate", "--data", str(tiny_dataset)],
     ):
-        assert main([*cmd, "--checkpoint", str(tiny_checkpoint), "--roll", "sideways"]) != 0
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "--roll" in err[0] and "sideways" in err[0]
+        for opt in ("--roll", "--pitch"):
+            assert main([*cmd, "--checkpoint", str(tiny_checkpoint), opt, "sideways"]) != 0
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and opt in err[0] and "sideways" in err[0]
         assert not (tmp_path / "r").exists() and not (tmp_path / "p").exists()
 
 

@@ -15,7 +15,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from network.fusion import add_fuse_option, check_tau
-from network.roll import add_roll_option, check_roll
+from network.roll import add_roll_option, check_pitch, check_roll
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -201,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
         check_tau(args.fuse_frames, "--fuse-frames")
         check_roll(args.roll, "--roll")
+        check_pitch(args.pitch, "--pitch")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
     results = []
@@ -220,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
                     read_depth=not args.no_depth_read,
                     fuse_tau=args.fuse_frames,
                     roll=args.roll,
+                    pitch=check_pitch(args.pitch, "--pitch"),
                     progress=False,
                     source=str(args.checkpoint),
                 )

@@ -16,7 +16,7 @@ from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, describe_rolls, resolve_roll
+from network.roll import add_roll_option, check_pitch, describe_rolls, resolve_roll
 from network.train import open_data
 
 NAME = "evaluate"
@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     roll = resolve_roll(args.roll, level=True)
+    pitch = check_pitch(args.pitch, "--pitch")
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
@@ -82,6 +83,7 @@ def run(args: argparse.Namespace) -> int:
         whole_sequence=args.whole_sequence,
         fuse_tau=fuse_tau,
         roll=roll,
+        pitch=pitch,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
@@ -94,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
         title += ", depths from the whole sequence"
     if fuse_tau > 0:
         title += f", neighbouring frames fused (tau {fuse_tau:g})"
+    if pitch:
+        title += f", camera pitch {pitch:g} deg levelled"
     if roll != 0:
         title += ", camera roll read from the frames" if roll == "auto" else f", camera roll {roll:g} deg levelled"
     if args.true_anchors:

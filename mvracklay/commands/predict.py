@@ -25,7 +25,7 @@ from network.distributed import single_process_device
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
-from network.roll import add_roll_option, check_roll, describe_rolls, resolve_roll, roll_warning
+from network.roll import add_roll_option, check_pitch, check_roll, describe_rolls, resolve_roll, roll_warning
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     check_roll(args.roll, "--roll")
+    pitch = check_pitch(args.pitch, "--pitch")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -111,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
         whole_sequence=args.whole_sequence,
         fuse_tau=fuse_tau,
         roll=args.roll,
+        pitch=pitch,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -134,6 +136,7 @@ def predict_folder(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
+    pitch: float = 0.0,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -146,7 +149,7 @@ def predict_folder(
     itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
     ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
     ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: 0 for a generated sequence (its
-    camera is level), else read from the frames.
+    camera is level), else read from the frames; ``pitch``: the camera's known tilt (degrees, up > 0).
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -197,6 +200,7 @@ def predict_folder(
         whole_sequence=whole_sequence,
         fuse_tau=fuse_tau,
         roll=roll,
+        pitch=pitch,
     )
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
 

@@ -87,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         whole_sequence=args.whole_sequence,
         fuse_tau=args.fuse_frames,
         roll=args.roll,
+        pitch=args.pitch,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,
