@@ -2,7 +2,7 @@
 
 The network is trained on a level camera (the generator's camera never rolls), and a small roll
 costs a lot: on the held-out 128x128 scenes, 2 degrees take 5.3 points of top rack mIoU and 7.2
-of top box, 5 degrees 24 and 30 (docs/network.md, *A rolled camera*). A rack row is full of
+of top box, 5 degrees 24 and 30 (docs/network.md, *A rolled or pitched camera*). A rack row is full of
 straight edges that are horizontal or vertical in a level image (the boards' fronts, the
 uprights, the boxes' front faces), so the roll is the angle that turns the image's strong edges
 back onto the axes.
