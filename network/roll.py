@@ -76,34 +76,30 @@ def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.nda
     return np.asarray(im)
 
 
+def _degrees(value: object, name: str, want: str) -> float:
+    """``value`` (a number or its text) as a float within +-MAX_ROLL_DEG; else an InputError naming ``name``."""
+    if isinstance(value, str):
+        try:
+            value = float(value)
+        except ValueError:
+            raise InputError(f"{name} must be {want}, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
+        raise InputError(f"{name} must be {want}, got {value!r}")
+    if not (math.isfinite(value) and abs(value) <= MAX_ROLL_DEG):
+        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {value!r}")
+    return float(value)
+
+
 def check_pitch(pitch: object, name: str = "pitch") -> float:
     """A known camera pitch (degrees, optical axis tilted up > 0) as a float; else an InputError naming ``name``."""
-    if isinstance(pitch, str):
-        try:
-            pitch = float(pitch)
-        except ValueError:
-            raise InputError(f"{name} must be a number of degrees, got {pitch!r}") from None
-    if isinstance(pitch, bool) or not isinstance(pitch, (int, float, np.floating)):
-        raise InputError(f"{name} must be a number of degrees, got {pitch!r}")
-    if not (math.isfinite(pitch) and abs(pitch) <= MAX_ROLL_DEG):
-        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {pitch!r}")
-    return float(pitch)
+    return _degrees(pitch, name, "a number of degrees")
 
 
 def check_roll(roll: object, name: str = "roll") -> float | str | None:
     """``None`` / ``"auto"`` / a finite number of degrees within +-MAX_ROLL_DEG (as a float); else an InputError."""
     if roll is None or roll == "auto":
         return roll  # type: ignore[return-value]
-    if isinstance(roll, str):
-        try:
-            roll = float(roll)
-        except ValueError:
-            raise InputError(f"{name} must be 'auto' or a number of degrees, got {roll!r}") from None
-    if isinstance(roll, bool) or not isinstance(roll, (int, float, np.floating)):
-        raise InputError(f"{name} must be 'auto' or a number of degrees, got {roll!r}")
-    if not (math.isfinite(roll) and abs(roll) <= MAX_ROLL_DEG):
-        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {roll!r}")
-    return float(roll)
+    return _degrees(roll, name, "'auto' or a number of degrees")
 
 
 def _grey(rgb: np.ndarray) -> np.ndarray:
