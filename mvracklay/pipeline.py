@@ -287,7 +287,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             whole_sequence=cfg.whole_sequence,
             fuse_tau=cfg.fuse_tau,
             roll=roll,
-            pitch=check_pitch(cfg.pitch, "--pitch"),
+            pitch=cfg.pitch,  # checked by cfg.validate()
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
@@ -345,6 +345,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             seconds["rerun"] = t_log
 
         t1 = time.perf_counter()
+        rolls = list(pred.leveller.rolls) if pred.leveller is not None else []
         meta = {
             "input": str(source.path),
             "input_kind": source.kind,
@@ -355,7 +356,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
             # the camera roll levelled before the network (`network.roll`): the median over the frames
-            "camera_roll_deg": float(np.median(pred.leveller.rolls)) if pred.leveller and pred.leveller.rolls else 0.0,
+            "camera_roll_deg": float(np.median(rolls)) if rolls else 0.0,
             "camera_roll_source": roll_source,
             "camera_pitch_deg": pred.pitch,
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
@@ -387,10 +388,10 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
-    rolls = list(pred.leveller.rolls) if pred.leveller is not None else []
-    if roll_source == "read" and roll_warning(rolls):
-        warnings.append(roll_warning(rolls))
-        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
+    said = roll_warning(rolls) if roll_source == "read" else ""
+    if said:
+        warnings.append(said)
+        print(f"mvracklay run: warning: {said}", file=sys.stderr)
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source)
 
 

@@ -192,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     model = record = None
+    pitch = check_pitch(args.pitch, "--pitch")
     if args.checkpoint:
         import torch
 
@@ -201,7 +202,6 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
         check_tau(args.fuse_frames, "--fuse-frames")
         check_roll(args.roll, "--roll")
-        check_pitch(args.pitch, "--pitch")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
     results = []
@@ -221,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
                     read_depth=not args.no_depth_read,
                     fuse_tau=args.fuse_frames,
                     roll=args.roll,
-                    pitch=check_pitch(args.pitch, "--pitch"),
+                    pitch=pitch,
                     progress=False,
                     source=str(args.checkpoint),
                 )

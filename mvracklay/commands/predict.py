@@ -222,6 +222,7 @@ def predict_folder(
     if roll == "auto" and pred.leveller is not None:
         if progress:
             print(describe_rolls(pred.leveller.rolls))
-        if roll_warning(pred.leveller.rolls):
-            print(f"mvracklay predict: warning: {roll_warning(pred.leveller.rolls)}", file=sys.stderr)
+        said = roll_warning(pred.leveller.rolls)
+        if said:
+            print(f"mvracklay predict: warning: {said}", file=sys.stderr)
     return seq.num_frames
