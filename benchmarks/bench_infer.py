@@ -46,7 +46,7 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
         "window": lambda f: pred.window(f),
         "window-recompute": lambda f: pred.window(f, recompute=True),
         "stream-flip": lambda f: Predictor(
-            pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau, roll=pred.roll, pitch=pred.pitch
+            pred.model, pred.camera, flip=True, fuse_tau=pred.fuse_tau, roll=pred.roll, pitch=pred.pitch, yaw=pred.yaw
         ).stream(f),
     }[mode]
     for _ in run(frames[:warmup]):
@@ -102,15 +102,18 @@ def main() -> int:
         base, cfg = None, ModelConfig(variant=args.variant)
     rng = np.random.default_rng(0)
     rows = []
+    camera = "".join(
+        f", camera {w} {v}" for w, v in (("roll", args.roll), ("pitch", args.pitch), ("yaw", args.yaw)) if v
+    )
     print(
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
-        f"{f', camera roll {args.roll}' if args.roll else ''}"
+        f"{camera}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
-        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch)
+        pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch, yaw=args.yaw)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)

@@ -8,9 +8,9 @@ point, as a camera rolled the other way would see it; the corners the turn uncov
 canonical fill colour, where a real camera would see more of the scene) and run through the whole
 pipeline of ``mvracklay evaluate`` (windowed, depth heads, columns in view), once taking the camera
 as level and once reading its roll from the frames (`network.roll`); ``--levelled-by truth`` adds a
-row with the true roll given (what the turn's lost corners cost alone). The roll read is compared
-with the truth, frame by frame. ``--axis pitch`` / ``yaw`` tilts the camera up / turns it right
-instead (`network.roll.tilt_frame`, a homography); a pitch can be given (``truth``), neither is read.
+row with the true roll given (what the turn's lost corners cost alone), ``read-all`` one with the
+roll, pitch and yaw all read. The angle read is compared with the truth, frame by frame. ``--axis pitch`` / ``yaw`` tilts the camera up / turns it right
+instead (`network.roll.tilt_frame`, a homography), read with ``--pitch auto`` / ``--yaw auto``.
 """
 
 from __future__ import annotations
@@ -59,14 +59,15 @@ def main() -> int:
         "--axis",
         choices=["roll", "pitch", "yaw"],
         default="roll",
-        help="roll (about the optical axis), pitch (tilted up) or yaw (turned right); only a roll is read",
+        help="roll (about the optical axis), pitch (tilted up) or yaw (turned right)",
     )
     ap.add_argument(
         "--levelled-by",
         nargs="+",
-        choices=["none", "read", "truth"],
+        choices=["none", "read", "read-all", "truth"],
         default=["none", "read"],
-        help="none: the camera taken as level; read: --roll auto; truth: the true roll given",
+        help="none: the camera taken as level; read: --roll (--pitch, --yaw) auto; read-all: roll, pitch and yaw "
+        "all read; truth: the true angle given",
     )
     ap.add_argument("--sequences", type=int, default=0, help="the first N sequences (0 = all)")
     ap.add_argument("--threads", type=int, default=2)
@@ -79,19 +80,21 @@ def main() -> int:
     print(
         f"{args.checkpoint} on {args.data} ({len(seqs)} sequences, camera {args.axis}): mIoU, columns in view, windowed"
     )
-    print(f"{'roll':>5s} {'levelled by':>12s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}"
-          f" {'roll read: mean / p95 / max error':>34s}")  # fmt: skip
+    print(f"{args.axis:>5s} {'levelled by':>12s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}"
+          f" {'read: mean / p95 / max error':>34s}")  # fmt: skip
     for deg in args.rolls:
         for how in args.levelled_by:
-            if args.axis != "roll" and how != "none" and not (args.axis == "pitch" and how == "truth"):
-                continue  # only a roll is read; only a roll or a pitch can be given
-            roll = {"none": None, "read": "auto", "truth": deg}[how] if args.axis == "roll" else None
-            pitch = deg if args.axis == "pitch" and how == "truth" else 0.0
+            if how == "read-all":
+                given = {"roll": "auto", "pitch": "auto", "yaw": "auto"}
+            else:
+                angle = {"none": None if args.axis == "roll" else 0.0, "read": "auto", "truth": deg}[how]
+                given = {"roll": None, "pitch": 0.0, "yaw": 0.0} | {args.axis: angle}
             turned = [Turned(s, deg, args.axis) for s in seqs]
-            res = evaluate_sequences(model, turned, progress=False, roll=roll, pitch=pitch)
+            res = evaluate_sequences(model, turned, progress=False, **given)
             r = res["visible"]
             cells = [100 * r[v][c]["miou"] for v in ("top", "front") for c in ("rack", "box")]
-            err = np.abs(np.asarray(res["rolls"]) - deg) if roll == "auto" else None
+            read = res[{"roll": "rolls", "pitch": "pitches", "yaw": "yaws"}[args.axis]]
+            err = np.abs(np.asarray(read) - deg) if how.startswith("read") else None
             said = "" if err is None else f"{err.mean():.2f} / {np.percentile(err, 95):.2f} / {err.max():.2f} deg"
             print(
                 f"{deg:5g} {how:>12s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f} {said:>34s}",

@@ -11,10 +11,11 @@ offset from the optical axis on the front plane: a separable, per-axis affine ma
 front plane (points behind it are scaled as perspective scales them).
 
 A camera rolled about its optical axis by ``roll_deg`` (the image content turned that many degrees
-counter-clockwise as displayed, e.g. a camera mounted a little askew) or pitched by ``pitch_deg``
-(its optical axis tilted up) is levelled in the same resampling: the level camera's rays are turned
-into the rotated camera's before they are mapped to source pixels, so the map is no longer separable
-but still one bilinear pass (affine for a roll, a homography with a pitch).
+counter-clockwise as displayed, e.g. a camera mounted a little askew), pitched by ``pitch_deg``
+(its optical axis tilted up) or yawed by ``yaw_deg`` (turned right, no longer square to the rack
+front) is levelled in the same resampling: the level camera's rays are turned into the rotated
+camera's before they are mapped to source pixels, so the map is no longer separable but still one
+bilinear pass (affine for a roll, a homography with a pitch or a yaw).
 
 Coordinates are continuous pixel coordinates (pixel k spans ``[k, k+1)``, centre ``k + 0.5``),
 as in `layouts.camera.Intrinsics`. Canonical pixels outside the source image take ``fill``.
@@ -74,34 +75,27 @@ class CanonicalView:
         return intr.cx + intr.fx * x / distance, intr.cy + intr.fy * y / distance
 
     def rotated_coords(
-        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0, yaw_deg: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Source coordinates ``u, v (height, width)`` of the canonical pixel centres for a rolled / pitched camera."""
-        h = self.camera_homography(intr, distance, roll_deg, pitch_deg)
+        """Source coordinates ``u, v (height, width)`` of the canonical pixel centres for a rotated camera."""
+        h = self.camera_homography(intr, distance, roll_deg, pitch_deg, yaw_deg)
         x, y = np.meshgrid(np.arange(self.width) + 0.5, np.arange(self.height) + 0.5)
         p = h @ np.stack([x.ravel(), y.ravel(), np.ones(x.size)])
         return (p[0] / p[2]).reshape(x.shape), (p[1] / p[2]).reshape(x.shape)
 
     def camera_homography(
-        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0, yaw_deg: float = 0.0
     ) -> np.ndarray:
         """3x3 map of continuous canonical pixels (homogeneous) to the source pixels of a rotated camera.
 
         A level camera's ray ``(x, y, 1)`` (normalised, y down) is, for the camera rotated by
-        ``R = Rx(pitch) Rz(roll)`` (roll: content turned counter-clockwise; pitch: optical axis tilted
-        up), the ray ``R^T (x, y, 1)`` in its own frame; a pure rotation, so the map is a homography
-        (affine when the pitch is 0).
+        `camera_rotation` ``R``, the ray ``R^T (x, y, 1)`` in its own frame; a pure rotation, so the
+        map is a homography (affine when the pitch and the yaw are 0).
         """
         _check_distance(distance)
-        roll, pitch = math.radians(_check_angle(roll_deg, "roll")), math.radians(_check_angle(pitch_deg, "pitch"))
-        c, s = math.cos(roll), math.sin(roll)
-        rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        c, s = math.cos(pitch), math.sin(pitch)
-        rx = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
         k = self.metres_per_pixel / distance  # normalised units per canonical pixel
         to_ray = np.array([[k, 0.0, -k * self.width / 2], [0.0, k, -k * self.height / 2], [0.0, 0.0, 1.0]])
-        cam = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
-        return cam @ (rx @ rz).T @ to_ray
+        return intr.matrix @ camera_rotation(roll_deg, pitch_deg, yaw_deg).T @ to_ray
 
     def source_scale(self, intr: Intrinsics, distance: float) -> float:
         """Source pixels per canonical pixel (the larger axis): > 1 means the source is finer."""
@@ -109,18 +103,24 @@ class CanonicalView:
         return max(intr.fx, intr.fy) * self.metres_per_pixel / distance
 
     def warp(
-        self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+        self,
+        rgb: np.ndarray,
+        intr: Intrinsics,
+        distance: float,
+        roll_deg: float = 0.0,
+        pitch_deg: float = 0.0,
+        yaw_deg: float = 0.0,
     ) -> np.ndarray:
         """uint8 ``(H0, W0, 3)`` image of camera ``intr`` -> uint8 canonical ``(height, width, 3)``.
 
         Bilinear; a source much finer than the canonical grid is first downsized with an
         antialiasing filter, so no aliasing whatever the input resolution. ``roll_deg`` /
-        ``pitch_deg``: the camera's rotation (see the module), levelled in the same pass.
+        ``pitch_deg`` / ``yaw_deg``: the camera's rotation (see the module), levelled in the same pass.
         """
         rgb = np.asarray(rgb)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
             raise LayoutError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
-        turned = _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch")
+        turned = _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch") or _check_angle(yaw_deg, "yaw")
         if rgb.shape[:2] != (intr.height, intr.width):
             intr = intr.scaled(rgb.shape[1], rgb.shape[0])
         s = self.source_scale(intr, distance)
@@ -130,21 +130,21 @@ class CanonicalView:
             rgb = np.asarray(Image.fromarray(rgb).resize((w, h), Image.BILINEAR, reducing_gap=None))
             intr = intr.scaled(w, h)
         if turned:
-            return self._turned_warp(rgb, intr, distance, roll_deg, pitch_deg)
+            return self._turned_warp(rgb, intr, distance, roll_deg, pitch_deg, yaw_deg)
         u, v = self.source_coords(intr, distance)
         return _bilinear_separable(rgb, u, v)
 
     def _turned_warp(
-        self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float
+        self, rgb: np.ndarray, intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float, yaw_deg: float
     ) -> np.ndarray:
         """`camera_homography` as one bilinear PIL transform (C; ~1.5 ms at 256x256).
 
         PIL's maps take continuous coordinates (pixel centres at k + 0.5), as here, and fill the
         pixels whose centre falls outside the source, as the separable warp does.
         """
-        h = self.camera_homography(intr, distance, roll_deg, pitch_deg)
+        h = self.camera_homography(intr, distance, roll_deg, pitch_deg, yaw_deg)
         h = h / h[2, 2]
-        kind = Image.AFFINE if pitch_deg == 0 else Image.PERSPECTIVE
+        kind = Image.AFFINE if pitch_deg == 0 and yaw_deg == 0 else Image.PERSPECTIVE
         coeffs = tuple(float(c) for c in h.ravel()[: 6 if kind == Image.AFFINE else 8])
         img = Image.fromarray(rgb).transform(
             (self.width, self.height), kind, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
@@ -152,14 +152,30 @@ class CanonicalView:
         return np.asarray(img)
 
     def valid_mask(
-        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0
+        self, intr: Intrinsics, distance: float, roll_deg: float = 0.0, pitch_deg: float = 0.0, yaw_deg: float = 0.0
     ) -> np.ndarray:
         """bool ``(height, width)``: canonical pixels whose centre falls inside the source image."""
-        if _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch"):
-            u, v = self.rotated_coords(intr, distance, roll_deg, pitch_deg)
+        if _check_angle(roll_deg, "roll") or _check_angle(pitch_deg, "pitch") or _check_angle(yaw_deg, "yaw"):
+            u, v = self.rotated_coords(intr, distance, roll_deg, pitch_deg, yaw_deg)
             return (u >= 0) & (u < intr.width) & (v >= 0) & (v < intr.height)
         u, v = self.source_coords(intr, distance)
         return ((v >= 0) & (v < intr.height))[:, None] & ((u >= 0) & (u < intr.width))[None, :]
+
+
+def camera_rotation(roll_deg: float = 0.0, pitch_deg: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
+    """3x3 rotation of a turned camera's frame in the level camera's (x right, y down, z ahead).
+
+    ``R = Ry(yaw) Rx(pitch) Rz(roll)``: rolled about its optical axis (image content turned
+    counter-clockwise as displayed), then tilted up, then turned right; a level camera's ray ``d``
+    is the ray ``R^T d`` of the turned camera.
+    """
+    r, t, y = (
+        math.radians(_check_angle(a, n)) for a, n in ((roll_deg, "roll"), (pitch_deg, "pitch"), (yaw_deg, "yaw"))
+    )
+    rz = np.array([[math.cos(r), -math.sin(r), 0.0], [math.sin(r), math.cos(r), 0.0], [0.0, 0.0, 1.0]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(t), -math.sin(t)], [0.0, math.sin(t), math.cos(t)]])
+    ry = np.array([[math.cos(y), 0.0, math.sin(y)], [0.0, 1.0, 0.0], [-math.sin(y), 0.0, math.cos(y)]])
+    return ry @ rx @ rz
 
 
 def _check_distance(distance: float) -> None:

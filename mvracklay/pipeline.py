@@ -38,7 +38,7 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
-from network.roll import check_pitch, check_roll, resolve_roll, roll_warning
+from network.roll import angle_warnings, check_roll, check_tilt, resolve_roll
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -69,7 +69,8 @@ class RunConfig:
     fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
     #: the camera's roll (degrees or "auto", `network.roll`); None = 0 for a generated sequence, else "auto"
     roll: float | str | None = None
-    pitch: float = 0.0  #: the camera's known tilt (degrees, optical axis up > 0), levelled (`network.roll`)
+    pitch: float | str = 0.0  #: the camera's tilt (degrees, optical axis up > 0, or "auto"), levelled
+    yaw: float | str = 0.0  #: the camera's turn (degrees, right > 0, or "auto"), levelled (`network.roll`)
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -91,7 +92,8 @@ class RunConfig:
             check_rack_depth(self.rack_depth)
         check_tau(self.fuse_tau, "--fuse-frames")
         check_roll(self.roll, "--roll")
-        check_pitch(self.pitch, "--pitch")
+        check_tilt(self.pitch, "--pitch")
+        check_tilt(self.yaw, "--yaw")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -114,6 +116,7 @@ class RunResult:
     seconds: dict[str, float] = field(default_factory=dict)
     rolls: list[float] = field(default_factory=list)  #: the roll levelled in each frame (degrees; [] = level)
     roll_source: str = "level"  #: "level" (taken as level), "given" or "read" (from the frames)
+    angles_read: dict[str, list[float]] = field(default_factory=dict)  #: roll / pitch / yaw read, frame by frame
 
     @property
     def paths(self) -> dict[str, Path]:
@@ -270,7 +273,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     seconds["load"] = time.perf_counter() - t0
 
     roll = resolve_roll(cfg.roll, level=source.kind == "sequence")  # a generated sequence's camera is level
-    roll_source = "read" if roll == "auto" else "given" if roll else "level"
+    roll_source = _angle_source(roll)
     stage = staging_dir(out)
     rec = None
     try:
@@ -288,6 +291,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             fuse_tau=cfg.fuse_tau,
             roll=roll,
             pitch=cfg.pitch,  # checked by cfg.validate()
+            yaw=cfg.yaw,
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
@@ -345,7 +349,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             seconds["rerun"] = t_log
 
         t1 = time.perf_counter()
-        rolls = list(pred.leveller.rolls) if pred.leveller is not None else []
+        lev = pred.leveller
+        rolls = list(lev.rolls) if lev is not None else []
+        read = lev.read_angles() if lev is not None else {}
         meta = {
             "input": str(source.path),
             "input_kind": source.kind,
@@ -355,10 +361,13 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "flip_average": cfg.flip,
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
-            # the camera roll levelled before the network (`network.roll`): the median over the frames
-            "camera_roll_deg": float(np.median(rolls)) if rolls else 0.0,
+            # the camera's rotation levelled before the network (`network.roll`): the median over the frames
+            "camera_roll_deg": _median(rolls),
             "camera_roll_source": roll_source,
-            "camera_pitch_deg": pred.pitch,
+            "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
+            "camera_pitch_source": _angle_source(pred.pitch),
+            "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
+            "camera_yaw_source": _angle_source(pred.yaw),
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
@@ -388,11 +397,19 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
-    said = roll_warning(rolls) if roll_source == "read" else ""
-    if said:
+    for said in angle_warnings(read):
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
-    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source)
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source, read)
+
+
+def _median(angles: list[float]) -> float:
+    return float(np.median(angles)) if angles else 0.0
+
+
+def _angle_source(given: float | str) -> str:
+    """How a camera angle was known: "read" (from the frames), "given" or "level" (taken as 0)."""
+    return "read" if given == "auto" else "given" if given else "level"
 
 
 def spawn_viewer(rrd: Path) -> None:

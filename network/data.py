@@ -67,6 +67,13 @@ def frame_camera(seq: Any, i: int, default_distance: float = DEFAULT_DISTANCE) -
     return intr, dist
 
 
+def image_intrinsics(intr: Intrinsics | None, width: int, height: int) -> Intrinsics:
+    """The intrinsics of a ``width x height`` image: ``intr`` scaled to it, or a 60 deg camera if None."""
+    if intr is None:
+        return Intrinsics.from_fov(width, height, 60.0)
+    return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
+
+
 def canonical_image(
     rgb: np.ndarray,
     view: CanonicalView,
@@ -74,27 +81,21 @@ def canonical_image(
     distance: float,
     roll_deg: float = 0.0,
     pitch_deg: float = 0.0,
+    yaw_deg: float = 0.0,
 ) -> np.ndarray:
     """uint8 RGB of any size -> the model's canonical ``(H, W, 3)`` view (60 deg camera if ``intr`` is None).
 
-    ``roll_deg`` / ``pitch_deg``: the camera's roll about its optical axis and the tilt of that axis
-    (up > 0), levelled in the same resampling (`layouts.canonical`)."""
+    ``roll_deg`` / ``pitch_deg`` / ``yaw_deg``: the camera's roll about its optical axis, the tilt of
+    that axis (up > 0) and its turn (right > 0), levelled in the same resampling (`layouts.canonical`)."""
     rgb = np.asarray(rgb)
     if rgb.ndim == 2:
         rgb = np.repeat(rgb[..., None], 3, axis=2)
     if rgb.ndim != 3 or rgb.shape[2] not in (3, 4) or rgb.dtype != np.uint8:
         raise InputError(f"image must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
     rgb = np.ascontiguousarray(rgb[..., :3])
-    h, w = rgb.shape[:2]
-    intr = (
-        Intrinsics.from_fov(w, h, 60.0)
-        if intr is None
-        else intr.scaled(w, h)
-        if (intr.width, intr.height) != (w, h)
-        else intr
-    )
+    intr = image_intrinsics(intr, rgb.shape[1], rgb.shape[0])
     try:
-        return view.warp(rgb, intr, distance, roll_deg, pitch_deg)
+        return view.warp(rgb, intr, distance, roll_deg, pitch_deg, yaw_deg)
     except LayoutError as e:
         raise InputError(str(e)) from None
 

@@ -34,7 +34,8 @@ def evaluate_sequences(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
-    pitch: float = 0.0,
+    pitch: float | str = 0.0,
+    yaw: float | str = 0.0,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -45,7 +46,7 @@ def evaluate_sequences(
     ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
     ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off);
     ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: the camera is level),
-    ``pitch`` a known tilt (degrees, up > 0).
+    ``pitch`` / ``yaw`` a tilt (degrees, up > 0) / turn (degrees, right > 0), given or ``"auto"``.
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -53,6 +54,8 @@ def evaluate_sequences(
     bar = tqdm(total=total, desc=f"evaluate ({mode})", unit="frame", disable=not progress, leave=False)
     frames = 0
     rolls: list[float] = []
+    pitches: list[float] = []
+    yaws: list[float] = []
     for seq in sequences:
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
@@ -69,6 +72,7 @@ def evaluate_sequences(
             fuse_tau=fuse_tau,
             roll=roll,
             pitch=pitch,
+            yaw=yaw,
         )
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
             gt = seq.layouts(i)
@@ -79,6 +83,8 @@ def evaluate_sequences(
             bar.update(1)
         if pred.leveller is not None:
             rolls.extend(pred.leveller.rolls)
+            pitches.extend(pred.leveller.pitches)
+            yaws.extend(pred.leveller.yaws)
     bar.close()
     return {
         **scorer.result(),
@@ -91,7 +97,11 @@ def evaluate_sequences(
         "fuse_frames": fuse_tau,
         "roll": roll,
         "pitch": pitch,
-        "rolls": rolls,  # the roll levelled in each frame (degrees); [] when the camera was taken as level
+        "yaw": yaw,
+        # the angles levelled in each frame (degrees); [] when the camera was taken as level
+        "rolls": rolls,
+        "pitches": pitches,
+        "yaws": yaws,
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }

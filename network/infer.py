@@ -24,11 +24,11 @@ from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
 from network.calibrate import apply_box_offset
-from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, to_tensor
+from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, image_intrinsics, to_tensor
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
-from network.roll import RollLeveller, check_pitch, check_roll
+from network.roll import CameraLeveller, check_roll, check_tilt
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -100,9 +100,9 @@ class Predictor:
 
     ``roll``: the camera's roll about its optical axis (degrees, the image content turned
     counter-clockwise), levelled in the canonical warp: a number if known, ``"auto"`` to read it
-    from the frames (`network.roll.RollLeveller`; ``self.leveller.rolls`` lists each frame's), None
-    (the default) for a level camera. ``pitch``: the known tilt of the optical axis (degrees, up > 0),
-    levelled the same way (it is not read from the frames).
+    from the frames (`network.roll.CameraLeveller`; ``self.leveller.rolls`` lists each frame's), None
+    (the default) for a level camera. ``pitch`` (optical axis tilted up > 0) and ``yaw`` (turned
+    right > 0): the same, 0 by default; reading them (``"auto"``) needs the intrinsics.
     """
 
     def __init__(
@@ -117,7 +117,8 @@ class Predictor:
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
-        pitch: float = 0.0,
+        pitch: float | str = 0.0,
+        yaw: float | str = 0.0,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -136,9 +137,11 @@ class Predictor:
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         self.whole_sequence = bool(whole_sequence)
         self.roll = check_roll(roll)  #: degrees, "auto" or None (level)
-        #: the camera's roll, known or read from the frames (None: the camera is taken as level)
-        self.leveller = None if self.roll is None or self.roll == 0 else RollLeveller(self.roll)
-        self.pitch = check_pitch(pitch)  #: degrees the optical axis is tilted up (known, e.g. from the mount)
+        self.pitch = check_tilt(pitch, "pitch")  #: degrees the optical axis is tilted up, or "auto"
+        self.yaw = check_tilt(yaw, "yaw")  #: degrees the camera is turned right, or "auto"
+        #: the camera's rotation, known or read from the frames (None: the camera is taken as level)
+        turned = (self.roll or 0.0, self.pitch, self.yaw)
+        self.leveller = CameraLeveller(*turned) if any(a != 0 for a in turned) else None
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
@@ -157,8 +160,12 @@ class Predictor:
 
     def preprocess(self, rgb: np.ndarray, i: int = 0) -> torch.Tensor:
         intr, dist = self.camera(i)
-        roll = 0.0 if self.leveller is None else self.leveller.roll(i, rgb)
-        img = canonical_image(np.asarray(rgb), self.cfg.view, intr, dist, roll, self.pitch)
+        rgb = np.asarray(rgb)
+        if self.leveller is None:
+            img = canonical_image(rgb, self.cfg.view, intr, dist)
+        else:
+            angles = self.leveller.angles(i, rgb, image_intrinsics(intr, rgb.shape[1], rgb.shape[0]))
+            img = canonical_image(rgb, self.cfg.view, intr, dist, *angles)
         return to_tensor(img)[None].to(self.device)
 
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:

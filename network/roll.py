@@ -1,4 +1,4 @@
-"""The camera's roll read from the images, so footage from an askew camera is levelled before the network.
+"""The camera's roll (and pitch and yaw) read from the images, so footage from an askew camera is levelled first.
 
 The network is trained on a level camera (the generator's camera never rolls), and a small roll
 costs a lot: on the held-out 128x128 scenes, 2 degrees take 5.3 points of top rack mIoU and 7.2
@@ -14,10 +14,22 @@ within ``max_deg``. Edges resampled at a slant bias their gradients toward the p
 second reading is the residual, and the two add up (0.3 degrees or better on 95 % of the
 held-out frames at 256x256).
 
-`RollLeveller` carries a roll over a sequence: each frame is read after levelling it by the
+`CameraLeveller` carries a roll over a sequence: each frame is read after levelling it by the
 roll so far (that levelling is the second reading's), and the readings are averaged with
 weights decaying over ``tau`` frames, so a camera whose roll drifts slowly is followed and one
 frame with few edges cannot tip it.
+
+A pitch or a yaw does not turn the edges uniformly: lines along the row (the boards' and boxes'
+front edges) converge toward a vanishing point when the camera is turned away from square to the
+rack front, so near-horizontal edges slope in proportion to their height in the image,
+``dy/dx = -tan(yaw) * y`` (normalised coordinates, to first order), and the vertical ones
+(uprights, box sides) lean in proportion to their column when the camera is tilted,
+``dx/dy = tan(pitch) * x``. `estimate_tilt` levels the image by the angles so far (the same
+homography as the canonical warp), fits those two lines through the strong near-horizontal and
+near-vertical gradients (magnitude-weighted, Tukey-reweighted against the edges that run in depth,
+which converge elsewhere), reads the roll as above, and repeats once. It needs the intrinsics (the
+slopes are in normalised coordinates), so it runs where the camera is known; `CameraLeveller`
+carries all three angles over a sequence, each known or read.
 """
 
 from __future__ import annotations
@@ -28,14 +40,28 @@ import math
 import numpy as np
 from PIL import Image
 from scipy import ndimage
+from skimage.measure import label
 
 from layouts import Intrinsics
-from layouts.canonical import FILL_RGB, MAX_ROLL_DEG
+from layouts.canonical import FILL_RGB, MAX_ROLL_DEG, camera_rotation
 from layouts.errors import InputError
 
 #: the largest roll `estimate_roll` looks for by default (degrees)
 SEARCH_DEG = 15.0
-#: frames over which `RollLeveller` averages its readings (weights exp(-frames ago / TAU))
+#: a camera's rotation, in the order every (roll, pitch, yaw) triple takes
+ANGLES = ("roll", "pitch", "yaw")
+#: the largest pitch or yaw `estimate_tilt` reads (degrees)
+TILT_SEARCH_DEG = 10.0
+#: near-horizontal / near-vertical edges within this many degrees of the axis are fitted for a pitch / yaw
+_SLOPE_WINDOW_DEG = 6.0
+#: the smallest residual scale of the slope fits (normalised slope, ~0.2 deg)
+_MIN_SLOPE_SCALE = 0.003
+#: edge segments shorter than this many pixels are not fitted; edge pixels are above this gradient quantile
+_MIN_SEGMENT = 8
+_SEGMENT_QUANTILE = 70.0
+#: a smoothed Sobel magnitude below this (grey levels x 8 per pixel) is resampling noise, not an edge
+_MIN_GRADIENT = 1.0
+#: frames over which `CameraLeveller` averages its readings (weights exp(-frames ago / TAU))
 TAU = 10.0
 #: images are read at most this many pixels wide (angles do not depend on the scale)
 READ_WIDTH = 320
@@ -48,14 +74,11 @@ def tilt_frame(rgb: np.ndarray, intr: Intrinsics, pitch_deg: float = 0.0, yaw_de
     """``rgb`` (a level camera ``intr``'s) as the same camera tilted up ``pitch_deg`` / turned right ``yaw_deg`` shows it.
 
     A pure rotation, so one homography ``K R K^-1`` from the tilted camera's pixels to the level
-    one's (``R = Ry(yaw) Rx(pitch)``); the uncovered parts take the canonical fill colour. For
+    one's (``R = Ry(yaw) Rx(pitch)``, `layouts.canonical.camera_rotation`); the uncovered parts take the canonical fill colour. For
     robustness checks (`benchmarks/roll_robustness.py --axis`).
     """
-    t, y = math.radians(float(pitch_deg)), math.radians(float(yaw_deg))
-    k = np.array([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]])
-    rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(t), -math.sin(t)], [0.0, math.sin(t), math.cos(t)]])
-    ry = np.array([[math.cos(y), 0.0, math.sin(y)], [0.0, 1.0, 0.0], [-math.sin(y), 0.0, math.cos(y)]])
-    h = k @ ry @ rx @ np.linalg.inv(k)
+    k = intr.matrix
+    h = k @ camera_rotation(0.0, float(pitch_deg), float(yaw_deg)) @ np.linalg.inv(k)
     coeffs = tuple(float(c) for c in (h / h[2, 2]).ravel()[:8])
     size = (rgb.shape[1], rgb.shape[0])
     im = Image.fromarray(np.ascontiguousarray(rgb)).transform(
@@ -90,9 +113,11 @@ def _degrees(value: object, name: str, want: str) -> float:
     return float(value)
 
 
-def check_pitch(pitch: object, name: str = "pitch") -> float:
-    """A known camera pitch (degrees, optical axis tilted up > 0) as a float; else an InputError naming ``name``."""
-    return _degrees(pitch, name, "a number of degrees")
+def check_tilt(angle: object, name: str = "pitch") -> float | str:
+    """A camera pitch or yaw: ``"auto"`` (read from the frames) or a number of degrees within +-MAX_ROLL_DEG."""
+    if angle == "auto":
+        return "auto"
+    return _degrees(angle, name, "'auto' or a number of degrees")
 
 
 def check_roll(roll: object, name: str = "roll") -> float | str | None:
@@ -115,17 +140,22 @@ def _grey(rgb: np.ndarray) -> np.ndarray:
     return np.asarray(img, np.float32)
 
 
-def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
-    """One reading: (roll in degrees, peak strength over the histogram's mean; 0 = nothing to read)."""
+def _gradients(grey: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The strongest fifth of the smoothed Sobel gradients inside ``valid``: (gx, gy, magnitude, their mask); None if flat."""
     g = ndimage.gaussian_filter(grey, 1.0)
     gx, gy = ndimage.sobel(g, 1), ndimage.sobel(g, 0)
-    mag = np.hypot(gx, gy)[valid]
-    if mag.size < 16 or not mag.max() > 0:
-        return 0.0, 0.0
-    strong = mag >= np.percentile(mag, _STRONG_QUANTILE)
-    mag = mag[strong]
+    mag = np.hypot(gx, gy)
+    inside = mag[valid]
+    if inside.size < 16 or not inside.max() > _MIN_GRADIENT:
+        return None
+    strong = valid & (mag >= np.percentile(inside, _STRONG_QUANTILE))
+    return gx[strong], gy[strong], mag[strong], strong
+
+
+def _orientation_peak(gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, max_deg: float) -> tuple[float, float]:
+    """The roll the gradients show (degrees) and the histogram peak's strength (over its mean)."""
     # folded orientation in [-45, 45): 0 for a horizontal or vertical edge
-    a = (np.degrees(np.arctan2(gy[valid][strong], gx[valid][strong])) + 45.0) % 90.0 - 45.0
+    a = (np.degrees(np.arctan2(gy, gx)) + 45.0) % 90.0 - 45.0
     nb = round(90.0 / _BIN_DEG)
     hist, edges = np.histogram(a, bins=nb, range=(-45.0, 45.0), weights=mag)
     hist = ndimage.gaussian_filter1d(hist, _SMOOTH_DEG / _BIN_DEG, mode="wrap")
@@ -138,6 +168,107 @@ def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, f
     strength = float(y1 / max(hist.mean(), 1e-12))
     # gradients (image y down) turn clockwise when the content turns counter-clockwise as displayed
     return -float(peak), strength
+
+
+def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
+    """One reading: (roll in degrees, peak strength over the histogram's mean; 0 = nothing to read)."""
+    grads = _gradients(grey, valid)
+    if grads is None:
+        return 0.0, 0.0
+    return _orientation_peak(*grads[:3], max_deg)
+
+
+def _line_fit(s: np.ndarray, x: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
+    """Robust weighted fit ``s = a + b x`` (Tukey's biweight): (a, b, b's inverse variance; 0 = too few points)."""
+    if s.size < 3:
+        return 0.0, 0.0, 0.0
+    a = b = 0.0
+    ww, sigma = w, 1.0
+    for it in range(6):
+        r = s - a - b * x
+        sigma = max(1.4826 * float(np.median(np.abs(r))), _MIN_SLOPE_SCALE) if it else 1.0  # first: plain LS
+        ww = w * np.clip(1.0 - (r / (4.0 * sigma)) ** 2, 0.0, None) ** 2
+        sw = np.sqrt(ww)
+        (a, b), *_ = np.linalg.lstsq(np.stack([sw, sw * x], 1), sw * s, rcond=None)
+    if not ww.sum() > 0:
+        return 0.0, 0.0, 0.0
+    spread = float((ww * (x - np.average(x, weights=ww)) ** 2).sum() / ww.sum())
+    return float(a), float(b), float(np.count_nonzero(ww)) * spread / sigma**2
+
+
+def _edge_segments(
+    along: np.ndarray, across: np.ndarray, valid: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Straight near-horizontal edges from the gradients ``along`` (x) and ``across`` (y) them.
+
+    Edge pixels are the strong ``across`` maxima along each column (sub-pixel by a parabola); they
+    are linked into 8-connected segments (one gradient sign each), and each segment's line is
+    fitted to its pixel positions, so a rendered edge's staircase (exactly level gradients between
+    its steps) still gives its true slope. Returns each segment's mean column, mean row, slope
+    (rows per column) and length in columns; segments shorter than _MIN_SEGMENT or not straight are dropped.
+    """
+    mag = np.abs(across)
+    above, below = np.roll(mag, 1, 0), np.roll(mag, -1, 0)
+    peak = valid & (mag >= threshold) & (mag >= above) & (mag > below) & (np.abs(along) < mag)
+    lab = label(peak & (across > 0), connectivity=2)
+    neg = label(peak & (across < 0), connectivity=2)
+    lab = np.where(neg > 0, neg + lab.max(), lab)
+    rows, cols = np.nonzero(lab)
+    empty = np.zeros(0)
+    if rows.size == 0:
+        return empty, empty, empty, empty
+    ids = lab[rows, cols]
+    y0, y1, y2 = above[rows, cols], mag[rows, cols], below[rows, cols]
+    den = y0 - 2.0 * y1 + y2
+    r = rows + np.clip(0.5 * (y0 - y2) / np.where(den < 0, den, -np.inf), -0.5, 0.5)
+    n = int(lab.max()) + 1
+    w = np.bincount(ids, y1, n)
+    mx = np.bincount(ids, y1 * cols, n) / np.maximum(w, 1e-12)
+    my = np.bincount(ids, y1 * r, n) / np.maximum(w, 1e-12)
+    dx, dy = cols - mx[ids], r - my[ids]
+    slope = np.bincount(ids, y1 * dx * dy, n) / np.maximum(np.bincount(ids, y1 * dx * dx, n), 1e-12)
+    misfit = np.bincount(ids, y1 * (dy - slope[ids] * dx) ** 2, n) / np.maximum(w, 1e-12)
+    span = np.bincount(ids, None, n)  # one peak per column and sign: the pixel count is about the length
+    keep = (span >= _MIN_SEGMENT) & (misfit < 0.5)
+    keep[0] = False
+    return mx[keep], my[keep], slope[keep], span[keep].astype(float)
+
+
+def _level(grey: np.ndarray, intr: Intrinsics, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``grey`` as the same camera turned level (`layouts.canonical.camera_rotation`), and the mask it covers
+    (eroded past the reach of the gradients' smoothing, so the uncovered border reads as no edge)."""
+    k = intr.matrix
+    h = k @ camera_rotation(*(float(a) for a in angles)).T @ np.linalg.inv(k)
+    coeffs = tuple(float(c) for c in (h / h[2, 2]).ravel()[:8])
+    size = grey.shape[::-1]
+    levelled = Image.fromarray(grey).transform(size, Image.PERSPECTIVE, coeffs, resample=Image.BILINEAR)
+    inside = Image.fromarray(np.full(grey.shape, 255, np.uint8)).transform(size, Image.PERSPECTIVE, coeffs)
+    return np.asarray(levelled, np.float32), ndimage.binary_erosion(np.asarray(inside) > 0, iterations=5)
+
+
+def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """One reading of a nearly level image: (roll, pitch, yaw) residuals in degrees and their strengths."""
+    grads = _gradients(grey, valid)
+    if grads is None:
+        return np.zeros(3), np.zeros(3)
+    roll, roll_strength = _orientation_peak(*grads[:3], max_deg)
+    g = ndimage.gaussian_filter(grey, 1.0)
+    gx, gy = ndimage.sobel(g, 1), ndimage.sobel(g, 0)
+    threshold = float(np.percentile(np.hypot(gx, gy)[valid], _SEGMENT_QUANTILE))
+    t = math.tan(math.radians(roll))
+    window = math.tan(math.radians(_SLOPE_WINDOW_DEG))
+    # near-horizontal edges: normalised slope dy/dx (the roll's share taken out) against their height y
+    _, row, sh, length = _edge_segments(gx, gy, valid, threshold)
+    y, sh = (row + 0.5 - intr.cy) / intr.fy, sh * intr.fx / intr.fy + t
+    # near-vertical edges, transposed: dx/dy against their column x
+    _, col, sv, vlength = _edge_segments(gy.T, gx.T, valid.T, threshold)
+    x, sv = (col + 0.5 - intr.cx) / intr.fx, sv * intr.fy / intr.fx - t
+    h, v = np.abs(sh) < window, np.abs(sv) < window
+    # a segment's slope is known to ~1 / length^1.5: weigh by length^3
+    _, yaw_slope, yaw_strength = _line_fit(sh[h], y[h], length[h] ** 3)
+    _, pitch_slope, pitch_strength = _line_fit(sv[v], x[v], vlength[v] ** 3)
+    angles = np.array([roll, math.degrees(math.atan(pitch_slope)), -math.degrees(math.atan(yaw_slope))])
+    return angles, np.array([roll_strength, pitch_strength, yaw_strength])
 
 
 def _turned(grey: np.ndarray, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
@@ -170,46 +301,110 @@ def estimate_roll(rgb: np.ndarray, max_deg: float = SEARCH_DEG, prior_deg: float
     return float(np.clip(roll + residual, -max_deg, max_deg)), strength
 
 
-class RollLeveller:
-    """The roll for each frame of a sequence: known (a number of degrees) or read from the images (``"auto"``).
+def estimate_tilt(
+    rgb: np.ndarray,
+    intr: Intrinsics,
+    prior: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    read: tuple[bool, bool, bool] = (True, True, True),
+    max_deg: float = SEARCH_DEG,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (roll, pitch, yaw) of one uint8 RGB image of camera ``intr`` (degrees) and each one's strength.
 
-    ``roll(i, rgb)`` returns frame ``i``'s roll in degrees; with ``"auto"`` each new frame is read
-    (levelled by the roll so far first) and the readings are averaged with weights
-    ``strength * exp(-frames ago / tau)``. Asking again for the last frame returns its roll
-    without reading it twice. ``rolls`` lists the rolls given, frame by frame.
+    ``prior``: the angles known so far (the sequence's): the image is levelled by them and read
+    once, instead of read, levelled and read again. ``read``: which angles to read; the others stay
+    at the prior. The strengths weigh readings against each other: the roll's is its histogram
+    peak over the mean, a pitch's or yaw's the inverse variance of its slope (0 = nothing to read).
+    Pitch and yaw are read within +-TILT_SEARCH_DEG.
+    """
+    if not (isinstance(max_deg, (int, float)) and 0 < max_deg < 45):
+        raise InputError(f"max_deg must be a number of degrees in (0, 45), got {max_deg!r}")
+    grey = _grey(rgb)
+    intr = intr.scaled(grey.shape[1], grey.shape[0])
+    angles = np.asarray(prior, float).copy()
+    if angles.shape != (3,):
+        raise InputError(f"prior must be (roll, pitch, yaw) in degrees, got {prior!r}")
+    mask = np.asarray(read, bool)
+    limits = np.array([max_deg, TILT_SEARCH_DEG, TILT_SEARCH_DEG])
+    strengths = np.zeros(3)
+    for _ in range(1 if angles.any() else 2):
+        levelled, valid = _level(grey, intr, angles)
+        step, strengths = _read_tilt(levelled, valid, intr, max_deg)
+        angles = np.where(mask, np.clip(angles + step, -limits, limits), angles)
+    return angles, np.where(mask, strengths, 0.0)
+
+
+class CameraLeveller:
+    """The camera's roll, pitch and yaw for each frame of a sequence, each known (degrees) or read (``"auto"``).
+
+    ``angles(i, rgb, intr)`` returns frame ``i``'s (roll, pitch, yaw); each angle read from the
+    frames is averaged over the readings so far with weights ``strength * exp(-frames ago / tau)``
+    (each new frame read after levelling it by the angles so far). Asking again for the last frame
+    returns its angles without reading it twice. A roll alone is read without the intrinsics
+    (`estimate_roll`); a pitch or a yaw needs them (`estimate_tilt`). ``rolls`` / ``pitches`` /
+    ``yaws`` list the angles given, frame by frame.
     """
 
-    def __init__(self, roll: float | str, tau: float = TAU, max_deg: float = SEARCH_DEG) -> None:
+    def __init__(
+        self,
+        roll: float | str = 0.0,
+        pitch: float | str = 0.0,
+        yaw: float | str = 0.0,
+        tau: float = TAU,
+        max_deg: float = SEARCH_DEG,
+    ) -> None:
         roll = check_roll(roll)
         if roll is None:
             raise InputError("roll must be 'auto' or a number of degrees, got None")
+        given = (roll, check_tilt(pitch, "pitch"), check_tilt(yaw, "yaw"))
         if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau > 0):
             raise InputError(f"tau must be a positive number of frames, got {tau!r}")
-        self.auto = roll == "auto"
-        self.fixed = 0.0 if self.auto else float(roll)
+        self.read = np.array([a == "auto" for a in given])  #: which of (roll, pitch, yaw) are read
+        self.fixed = np.array([0.0 if a == "auto" else float(a) for a in given])
+        self.auto = bool(self.read[0])  #: the roll is read
         self.decay = math.exp(-1.0 / tau)
         self.max_deg = max_deg
-        self._sum = 0.0
-        self._weight = 0.0
-        self._last: tuple[int, float] | None = None
+        self._sum = np.zeros(3)
+        self._weight = np.zeros(3)
+        self._last: tuple[int, tuple[float, float, float]] | None = None
         self.rolls: list[float] = []
+        self.pitches: list[float] = []
+        self.yaws: list[float] = []
 
     @property
-    def current(self) -> float:
-        """The roll so far (degrees; 0 before any reading)."""
-        return self._sum / self._weight if self._weight > 0 else self.fixed
+    def current(self) -> np.ndarray:
+        """(roll, pitch, yaw) so far (degrees; what is read is 0 before any reading)."""
+        read = self.read & (self._weight > 0)
+        return np.where(read, self._sum / np.where(read, self._weight, 1.0), self.fixed)
 
-    def roll(self, i: int, rgb: np.ndarray) -> float:
+    def angles(self, i: int, rgb: np.ndarray, intr: Intrinsics | None = None) -> tuple[float, float, float]:
         if self._last is not None and self._last[0] == i:
             return self._last[1]
-        if self.auto:
-            reading, strength = estimate_roll(rgb, self.max_deg, prior_deg=self.current)
-            self._sum = self.decay * self._sum + strength * reading
-            self._weight = self.decay * self._weight + strength
-        r = self.current
-        self._last = (i, r)
+        if self.read.any():
+            now = self.current
+            if self.read[1:].any():
+                if intr is None:
+                    raise InputError("reading a camera's pitch or yaw needs its intrinsics")
+                reading, strength = estimate_tilt(rgb, intr, tuple(now), tuple(self.read), self.max_deg)
+            else:
+                roll, s = estimate_roll(rgb, self.max_deg, prior_deg=float(now[0]))
+                reading, strength = np.array([roll, 0.0, 0.0]), np.array([s, 0.0, 0.0])
+            self._sum = np.where(self.read, self.decay * self._sum + strength * reading, 0.0)
+            self._weight = np.where(self.read, self.decay * self._weight + strength, 0.0)
+        r, p, y = (float(a) for a in self.current)
+        self._last = (i, (r, p, y))
         self.rolls.append(r)
-        return r
+        self.pitches.append(p)
+        self.yaws.append(y)
+        return r, p, y
+
+    def read_angles(self) -> dict[str, list[float]]:
+        """The angles read from the frames, by name (``{"roll": [...]}``), frame by frame."""
+        lists = (self.rolls, self.pitches, self.yaws)
+        return {w: list(v) for w, v, r in zip(ANGLES, lists, self.read) if r}
+
+    def roll(self, i: int, rgb: np.ndarray) -> float:
+        """Frame ``i``'s roll alone (a leveller that reads no pitch or yaw)."""
+        return self.angles(i, rgb)[0]
 
 
 ROLL_HELP = (
@@ -220,15 +415,24 @@ ROLL_HELP = (
 
 
 PITCH_HELP = (
-    "the camera's known pitch in degrees (optical axis tilted up > 0, down < 0; e.g. from its mount or an IMU), "
-    "levelled before the network; not read from the frames. Default 0"
+    "the camera's pitch, levelled before the network: a number of degrees (optical axis tilted up > 0, down < 0; "
+    "e.g. from its mount or an IMU), or 'auto' to read it from the frames (the uprights' lean across the image; "
+    "needs the intrinsics, noisier than the roll: give it if known). Default 0"
+)
+
+
+YAW_HELP = (
+    "the camera's yaw, levelled before the network: a number of degrees (turned right > 0, away from square to "
+    "the rack front; e.g. from its mount), or 'auto' to read it from the frames (the boards' convergence; needs "
+    "the intrinsics, noisier than the roll: give it if known). Default 0"
 )
 
 
 def add_roll_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--roll auto|DEG`` (None unless given: `resolve_roll` picks the source's default) and ``--pitch DEG``."""
+    """``--roll auto|DEG`` (None unless given: `resolve_roll` picks the source's default), ``--pitch`` and ``--yaw``."""
     p.add_argument("--roll", default=None, metavar="auto|DEG", help=prefix + ROLL_HELP)
-    p.add_argument("--pitch", default=0.0, metavar="DEG", help=prefix + PITCH_HELP)
+    p.add_argument("--pitch", default=0.0, metavar="auto|DEG", help=prefix + PITCH_HELP)
+    p.add_argument("--yaw", default=0.0, metavar="auto|DEG", help=prefix + YAW_HELP)
 
 
 def resolve_roll(roll: object, level: bool, name: str = "--roll") -> float | str:
@@ -239,19 +443,30 @@ def resolve_roll(roll: object, level: bool, name: str = "--roll") -> float | str
     return roll
 
 
-def describe_rolls(rolls: list[float]) -> str:
-    """One line on the rolls a `RollLeveller` gave, e.g. for a command's summary."""
+def describe_rolls(rolls: list[float], what: str = "roll") -> str:
+    """One line on the angles (rolls by default) a `CameraLeveller` read, e.g. for a command's summary."""
     if not rolls:
-        return "camera roll: no frames"
+        return f"camera {what}: no frames"
     r = np.asarray(rolls)
-    return f"camera roll read from the frames: {np.median(r):+.1f} deg (frames {r.min():+.1f} to {r.max():+.1f})"
+    return f"camera {what} read from the frames: {np.median(r):+.1f} deg (frames {r.min():+.1f} to {r.max():+.1f})"
 
 
-def roll_warning(rolls: list[float], max_deg: float = SEARCH_DEG) -> str:
-    """A warning when the rolls read reach the search's limit (the camera may be rolled further); "" otherwise."""
+def describe_angles(read: dict[str, list[float]]) -> list[str]:
+    """One line per angle read from the frames (``{"roll": [...], ...}``, as `CameraLeveller.read_angles`)."""
+    return [describe_rolls(v, w) for w, v in read.items()]
+
+
+def roll_warning(rolls: list[float], max_deg: float = SEARCH_DEG, what: str = "roll") -> str:
+    """A warning when the angles read reach the search's limit (the camera may be turned further); "" otherwise."""
     if rolls and max(abs(r) for r in rolls) >= max_deg - 0.05:
         return (
-            f"the camera roll read reaches the limit of the search (+-{max_deg:g} deg): the camera may be rolled "
-            "further or the frames show few straight edges; pass --roll DEG if you know it"
+            f"the camera {what} read reaches the limit of the search (+-{max_deg:g} deg): the camera may be turned "
+            f"further or the frames show few straight edges; pass --{what} DEG if you know it"
         )
     return ""
+
+
+def angle_warnings(read: dict[str, list[float]], max_deg: float = SEARCH_DEG) -> list[str]:
+    """`roll_warning` for each angle read (a pitch's and a yaw's limit is TILT_SEARCH_DEG)."""
+    said = [roll_warning(v, max_deg if w == "roll" else TILT_SEARCH_DEG, w) for w, v in read.items()]
+    return [w for w in said if w]

@@ -1,4 +1,4 @@
-"""A rolled camera: levelled in the canonical warp, its roll read from rack images (`network.roll`)."""
+"""A rolled, pitched or yawed camera: levelled in the canonical warp, its angles read from rack images (`network.roll`)."""
 
 from __future__ import annotations
 
@@ -16,10 +16,12 @@ from layouts.errors import InputError
 from mvracklay.cli import main
 from network import roll as roll_mod
 from network.roll import (
-    RollLeveller,
-    check_pitch,
+    CameraLeveller,
+    angle_warnings,
     check_roll,
+    check_tilt,
     estimate_roll,
+    estimate_tilt,
     resolve_roll,
     roll_warning,
     tilt_frame,
@@ -37,16 +39,20 @@ def _pattern(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(r, g, np.full_like(r, 90)), -1).astype(np.uint8)
 
 
-def _rolled_render(intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float = 0.0) -> np.ndarray:
-    """What a camera rolled ``roll_deg`` (content turned counter-clockwise) and pitched ``pitch_deg`` (tilted
-    up) sees of the stripes on the front plane ``distance`` ahead of it."""
+def _rolled_render(
+    intr: Intrinsics, distance: float, roll_deg: float, pitch_deg: float = 0.0, yaw_deg: float = 0.0
+) -> np.ndarray:
+    """What a camera rolled ``roll_deg`` (content turned counter-clockwise), pitched ``pitch_deg`` (tilted
+    up) and yawed ``yaw_deg`` (turned right) sees of the stripes on the front plane ``distance`` ahead of it."""
     u = (np.arange(intr.width) + 0.5 - intr.cx) / intr.fx
     v = (np.arange(intr.height) + 0.5 - intr.cy) / intr.fy
     xr, yr = np.meshgrid(u, v)
     c, s = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
     x, y = c * xr - s * yr, s * xr + c * yr  # turned back about the optical axis
     c, s = math.cos(math.radians(pitch_deg)), math.sin(math.radians(pitch_deg))
-    y, z = c * y - s, s * y + c  # the ray (x, y, 1) tilted up: the level camera's ray
+    y, z = c * y - s, s * y + c  # the ray (x, y, 1) tilted up
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    x, z = c * x + s * z, c * z - s * x  # then turned right: the level camera's ray
     return _pattern(x / z * distance, y / z * distance)
 
 
@@ -60,20 +66,22 @@ def _canonical_truth(view: CanonicalView) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize(
-    "intr, roll, pitch",
+    "intr, roll, pitch, yaw",
     [
-        (Intrinsics.from_fov(160, 160, 70.0), 7.0, 0.0),
-        (Intrinsics.from_fov(200, 150, 75.0), -12.0, 0.0),
-        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 4.0, 0.0),  # off-centre principal point, non-square pixels
-        (Intrinsics.from_fov(160, 160, 70.0), 0.0, 6.0),  # tilted up: a homography
-        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), -3.0, -5.0),
+        (Intrinsics.from_fov(160, 160, 70.0), 7.0, 0.0, 0.0),
+        (Intrinsics.from_fov(200, 150, 75.0), -12.0, 0.0, 0.0),
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 4.0, 0.0, 0.0),  # off-centre, non-square pixels
+        (Intrinsics.from_fov(160, 160, 70.0), 0.0, 6.0, 0.0),  # tilted up: a homography
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), -3.0, -5.0, 0.0),
+        (Intrinsics.from_fov(160, 160, 70.0), 0.0, 0.0, 8.0),  # turned right
+        (Intrinsics(300.0, 330.0, 150.0, 110.0, 320, 240), 2.0, 4.0, -6.0),  # all three
     ],
 )
-def test_a_rolled_or_pitched_camera_is_levelled_onto_the_canonical_pixels(intr, roll, pitch):
-    img = _rolled_render(intr, 2.6, roll, pitch)
-    got = VIEW.warp(img, intr, 2.6, roll_deg=roll, pitch_deg=pitch)
+def test_a_rotated_camera_is_levelled_onto_the_canonical_pixels(intr, roll, pitch, yaw):
+    img = _rolled_render(intr, 2.6, roll, pitch, yaw)
+    got = VIEW.warp(img, intr, 2.6, roll_deg=roll, pitch_deg=pitch, yaw_deg=yaw)
     want, far = _canonical_truth(VIEW)
-    valid = VIEW.valid_mask(intr, 2.6, roll_deg=roll, pitch_deg=pitch)
+    valid = VIEW.valid_mask(intr, 2.6, roll_deg=roll, pitch_deg=pitch, yaw_deg=yaw)
     inner = valid & far
     assert inner.sum() > 1000
     assert np.abs(got[inner].astype(int) - want[inner].astype(int)).max() <= 2
@@ -114,15 +122,16 @@ def test_turned_frames_are_what_the_rolled_warp_levels(tiny_dataset):
     assert np.abs(back - level)[inside].mean() < 0.5 * np.abs(wrong - level)[inside].mean()
 
 
-def test_tilted_frames_are_what_the_pitched_warp_levels(tiny_dataset):
-    """`tilt_frame` (the benchmark's pitched camera) tilts the way the warp's pitch convention undoes."""
+@pytest.mark.parametrize("axis", ["pitch", "yaw"])
+def test_tilted_frames_are_what_the_pitched_or_yawed_warp_levels(tiny_dataset, axis):
+    """`tilt_frame` (the benchmark's pitched / yawed camera) turns the way the warp's convention undoes."""
     (rgb, *_), intr = _frames(tiny_dataset, 1)
     view = CanonicalView(64, 64, 3.0)
     level = view.warp(rgb, intr, 2.6).astype(int)
-    tilted = tilt_frame(rgb, intr, pitch_deg=6.0)
-    back = view.warp(tilted, intr, 2.6, pitch_deg=6.0).astype(int)
-    wrong = view.warp(tilted, intr, 2.6, pitch_deg=-6.0).astype(int)
-    inside = view.valid_mask(intr, 2.6, pitch_deg=6.0) & view.valid_mask(intr, 2.6, pitch_deg=-6.0)
+    tilted = tilt_frame(rgb, intr, **{f"{axis}_deg": 6.0})
+    back = view.warp(tilted, intr, 2.6, **{f"{axis}_deg": 6.0}).astype(int)
+    wrong = view.warp(tilted, intr, 2.6, **{f"{axis}_deg": -6.0}).astype(int)
+    inside = view.valid_mask(intr, 2.6, **{f"{axis}_deg": 6.0}) & view.valid_mask(intr, 2.6, **{f"{axis}_deg": -6.0})
     inside[:8], inside[-8:], inside[:, :8], inside[:, -8:] = False, False, False, False
     assert inside.sum() > 1000
     assert np.median(np.abs(back - level)[inside]) <= 3
@@ -161,7 +170,7 @@ def test_leveller_follows_the_frames_and_reads_each_once(tiny_dataset, monkeypat
         return real(rgb, max_deg, prior_deg)
 
     monkeypatch.setattr(roll_mod, "estimate_roll", counted)
-    lev = RollLeveller("auto")
+    lev = CameraLeveller("auto")
     turned = [_turn(f, 3.0, intr) for f in frames]
     got = [lev.roll(i, f) for i, f in enumerate(turned)]
     assert lev.roll(len(turned) - 1, turned[-1]) == got[-1]  # asked again: not read again
@@ -169,9 +178,67 @@ def test_leveller_follows_the_frames_and_reads_each_once(tiny_dataset, monkeypat
         len(calls) == len(turned) and calls[0] == 0.0 and abs(calls[-1] - 3.0) < 0.5
     )  # read levelled by the roll so far
     assert all(abs(g - 3.0) < 0.5 for g in got) and lev.rolls == got
-    fixed = RollLeveller(-2.0)
+    fixed = CameraLeveller(-2.0)
     assert [fixed.roll(i, f) for i, f in enumerate(frames)] == [-2.0] * len(frames)
     assert len(calls) == len(turned)  # a known roll reads nothing
+
+
+@pytest.mark.parametrize("roll, pitch, yaw", [(0.0, 0.0, 3.0), (0.0, 4.0, -3.0), (2.0, -3.0, 5.0)])
+def test_the_yaw_of_a_stepped_edge_is_read_from_its_position_not_its_gradients(roll, pitch, yaw):
+    """Stripes rendered without antialiasing: their edges are staircases whose gradients are exactly
+    level between the steps, so only fitting each edge's pixel positions reads the convergence."""
+    intr = Intrinsics.from_fov(128, 128, 60.0)
+    img = _rolled_render(intr, 2.7, roll, pitch, yaw)
+    got, strength = estimate_tilt(img, intr, read=(False, False, True))
+    assert abs(got[2] - yaw) < 0.3 and got[0] == 0.0 and got[1] == 0.0  # only the yaw is read
+    assert strength[2] > 0 and strength[0] == strength[1] == 0.0
+
+
+@pytest.mark.parametrize("pitch, yaw", [(0.0, 0.0), (0.0, 4.0), (0.0, -4.0), (4.0, 0.0), (-4.0, 0.0), (3.0, -3.0)])
+def test_the_pitch_and_yaw_of_rendered_rack_frames_are_read_over_a_sequence(tiny_dataset, pitch, yaw):
+    seqs = open_dataset(tiny_dataset).sequences()[:2]  # the third shows its uprights only near the centre
+    for seq in seqs:
+        intr = seq.intrinsics
+        lev = CameraLeveller("auto", "auto", "auto")
+        for i in range(seq.num_frames):
+            got = lev.angles(i, tilt_frame(seq.rgb(i), intr, pitch, yaw), intr)
+        assert abs(got[0]) < 0.5 and abs(got[1] - pitch) < 1.0 and abs(got[2] - yaw) < 1.0, (seq.name, got)
+        assert set(lev.read_angles()) == {"roll", "pitch", "yaw"} and len(lev.yaws) == seq.num_frames
+
+
+def test_the_leveller_reads_only_what_is_not_given(tiny_dataset, monkeypatch):
+    frames, intr = _frames(tiny_dataset)
+    priors = []
+    real = roll_mod.estimate_tilt
+
+    def counted(rgb, intr, prior, read, max_deg):
+        priors.append((prior, read))
+        return real(rgb, intr, prior, read, max_deg)
+
+    monkeypatch.setattr(roll_mod, "estimate_tilt", counted)
+    lev = CameraLeveller(1.5, -2.0, "auto")
+    got = [lev.angles(i, tilt_frame(f, intr, yaw_deg=4.0), intr) for i, f in enumerate(frames)]
+    assert all(g[:2] == (1.5, -2.0) for g in got) and abs(got[-1][2] - 4.0) < 1.5
+    assert len(priors) == len(frames) and all(r == (False, False, True) for _, r in priors)
+    assert priors[0][0] == (1.5, -2.0, 0.0) and priors[-1][0][2] == got[-2][2]  # levelled by the yaw so far
+    assert lev.read_angles() == {"yaw": [g[2] for g in got]}
+    assert lev.angles(len(frames) - 1, frames[-1], intr) == got[-1] and len(priors) == len(frames)
+    with pytest.raises(InputError, match="intrinsics"):
+        CameraLeveller(0.0, "auto").angles(0, frames[0])
+    fixed = CameraLeveller(0.0, 3.0, -1.0)
+    assert [fixed.angles(i, f) for i, f in enumerate(frames)] == [(0.0, 3.0, -1.0)] * len(frames)
+    assert fixed.read_angles() == {} and len(priors) == len(frames)  # known angles read nothing
+
+
+def test_a_flat_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_about():
+    intr = Intrinsics.from_fov(80, 64, 60.0)
+    got, strength = estimate_tilt(np.full((64, 80, 3), 90, np.uint8), intr, prior=(0.0, 1.0, 2.0))
+    assert got.tolist() == [0.0, 1.0, 2.0] and strength.tolist() == [0.0, 0.0, 0.0]
+    with pytest.raises(InputError, match="prior"):
+        estimate_tilt(np.full((64, 80, 3), 90, np.uint8), intr, prior=(0.0, 1.0))
+    assert angle_warnings({"roll": [1.0], "yaw": [2.0, -3.0]}) == []
+    said = angle_warnings({"roll": [1.0], "yaw": [2.0, 10.0]})
+    assert len(said) == 1 and "yaw" in said[0] and "--yaw DEG" in said[0]
 
 
 def test_roll_arguments_are_checked():
@@ -181,12 +248,12 @@ def test_roll_arguments_are_checked():
     for bad, msg in (("abc", "'auto' or a number"), (60, "within"), (float("inf"), "within"), (True, "number")):
         with pytest.raises(InputError, match=msg):
             check_roll(bad, "--roll")
-    assert check_pitch("-4.5") == -4.5 and check_pitch(3) == 3.0
-    for bad in ("auto", 50, float("nan"), None):
-        with pytest.raises(InputError, match="--pitch"):
-            check_pitch(bad, "--pitch")
+    assert check_tilt("-4.5") == -4.5 and check_tilt(3) == 3.0 and check_tilt("auto") == "auto"
+    for bad in ("level", 50, float("nan"), None):
+        with pytest.raises(InputError, match="--yaw"):
+            check_tilt(bad, "--yaw")
     with pytest.raises(InputError, match="tau"):
-        RollLeveller("auto", tau=0)
+        CameraLeveller("auto", tau=0)
     assert roll_warning([0.5, -2.0]) == "" and roll_warning([]) == ""
     assert "limit" in roll_warning([3.0, 15.0]) and "limit" in roll_warning([-14.99])
 
@@ -209,17 +276,34 @@ def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_
     assert main([*c, *base]) == 0
     meta = json.loads((tmp_path / "c" / "warehouse.json").read_text())["meta"]
     assert meta["camera_roll_source"] == "given" and meta["camera_roll_deg"] == 1.5
-    assert meta["camera_pitch_deg"] == -2.0
+    assert meta["camera_pitch_deg"] == -2.0 and meta["camera_pitch_source"] == "given"
+    assert meta["camera_yaw_source"] == "level" and meta["camera_yaw_deg"] == 0.0
 
 
-def test_a_bad_roll_or_pitch_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+def test_run_reads_the_yaw_of_image_footage_when_asked(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+    seq = open_dataset(tiny_dataset).sequences()[0]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(seq.num_frames):
+        Image.fromarray(tilt_frame(seq.rgb(i), seq.intrinsics, yaw_deg=-4.0)).save(folder / f"f{i}.png")
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps(seq.intrinsics.to_dict()))
+    args = ["run", str(folder), "--out", str(tmp_path / "a"), "--camera", str(cam), "--yaw", "auto", "--roll", "0"]
+    assert main([*args, "--checkpoint", str(tiny_checkpoint), "--quiet", "--no-rrd", "--threads", "1"]) == 0
+    meta = json.loads((tmp_path / "a" / "warehouse.json").read_text())["meta"]
+    assert meta["camera_yaw_source"] == "read" and abs(meta["camera_yaw_deg"] + 4.0) < 1.0
+    assert meta["camera_roll_source"] == "level" and meta["camera_pitch_source"] == "level"
+    assert "camera yaw read from the frames" in capsys.readouterr().out
+
+
+def test_a_bad_roll_pitch_or_yaw_option_fails_in_one_line(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
     seq_dir = tiny_dataset / "seq_00000"
     for cmd in (
         ["run", str(seq_dir), "--out", str(tmp_path / "r")],
         ["predict", str(seq_dir), "--out", str(tmp_path / "p")],
         ["evaluate", "--data", str(tiny_dataset)],
     ):
-        for opt in ("--roll", "--pitch"):
+        for opt in ("--roll", "--pitch", "--yaw"):
             assert main([*cmd, "--checkpoint", str(tiny_checkpoint), opt, "sideways"]) != 0
             err = capsys.readouterr().err.strip().splitlines()
             assert len(err) == 1 and opt in err[0] and "sideways" in err[0]

@@ -15,7 +15,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from network.fusion import add_fuse_option, check_tau
-from network.roll import add_roll_option, check_pitch, check_roll
+from network.roll import add_roll_option, check_roll, check_tilt
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -192,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     model = record = None
-    pitch = check_pitch(args.pitch, "--pitch")
+    pitch = check_tilt(args.pitch, "--pitch")
+    yaw = check_tilt(args.yaw, "--yaw")
     if args.checkpoint:
         import torch
 
@@ -222,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
                     fuse_tau=args.fuse_frames,
                     roll=args.roll,
                     pitch=pitch,
+                    yaw=yaw,
                     progress=False,
                     source=str(args.checkpoint),
                 )

@@ -16,7 +16,7 @@ from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, check_pitch, describe_rolls, resolve_roll
+from network.roll import add_roll_option, check_tilt, describe_angles, resolve_roll
 from network.train import open_data
 
 NAME = "evaluate"
@@ -63,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     roll = resolve_roll(args.roll, level=True)
-    pitch = check_pitch(args.pitch, "--pitch")
+    pitch = check_tilt(args.pitch, "--pitch")
+    yaw = check_tilt(args.yaw, "--yaw")
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         fuse_tau=fuse_tau,
         roll=roll,
         pitch=pitch,
+        yaw=yaw,
     )
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
@@ -96,18 +98,18 @@ def run(args: argparse.Namespace) -> int:
         title += ", depths from the whole sequence"
     if fuse_tau > 0:
         title += f", neighbouring frames fused (tau {fuse_tau:g})"
-    if pitch:
-        title += f", camera pitch {pitch:g} deg levelled"
-    if roll != 0:
-        title += ", camera roll read from the frames" if roll == "auto" else f", camera roll {roll:g} deg levelled"
+    for what, given in (("roll", roll), ("pitch", pitch), ("yaw", yaw)):
+        if given != 0:
+            title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
     if args.true_anchors:
         title += ", ground-truth shelf boards"
     print(format_table(res["visible"], title + " -- columns in view"))
     print()
     print(format_table(res["all"], title + " -- all cells"))
     print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
-    if roll == "auto":
-        print(describe_rolls(res["rolls"]))
+    lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
+    for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
+        print(line)
     if args.json:
         out = {
             "checkpoint": str(args.checkpoint),

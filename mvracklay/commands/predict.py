@@ -25,7 +25,7 @@ from network.distributed import single_process_device
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
-from network.roll import add_roll_option, check_pitch, check_roll, describe_rolls, resolve_roll, roll_warning
+from network.roll import add_roll_option, angle_warnings, check_roll, check_tilt, describe_angles, resolve_roll
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -87,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     check_roll(args.roll, "--roll")
-    pitch = check_pitch(args.pitch, "--pitch")
+    pitch = check_tilt(args.pitch, "--pitch")
+    yaw = check_tilt(args.yaw, "--yaw")
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -113,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         fuse_tau=fuse_tau,
         roll=args.roll,
         pitch=pitch,
+        yaw=yaw,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -136,7 +138,8 @@ def predict_folder(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
-    pitch: float = 0.0,
+    pitch: float | str = 0.0,
+    yaw: float | str = 0.0,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -149,7 +152,8 @@ def predict_folder(
     itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
     ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
     ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: 0 for a generated sequence (its
-    camera is level), else read from the frames; ``pitch``: the camera's known tilt (degrees, up > 0).
+    camera is level), else read from the frames; ``pitch`` / ``yaw``: the camera's tilt (up > 0) / turn
+    (right > 0), degrees or "auto", 0 by default.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -201,6 +205,7 @@ def predict_folder(
         fuse_tau=fuse_tau,
         roll=roll,
         pitch=pitch,
+        yaw=yaw,
     )
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
 
@@ -219,10 +224,9 @@ def predict_folder(
     if pred.reads_depth and progress:
         said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
         print(f"rack depth read from the boards' back edges: {said}")
-    if roll == "auto" and pred.leveller is not None:
-        if progress:
-            print(describe_rolls(pred.leveller.rolls))
-        said = roll_warning(pred.leveller.rolls)
-        if said:
-            print(f"mvracklay predict: warning: {said}", file=sys.stderr)
+    read = pred.leveller.read_angles() if pred.leveller is not None else {}
+    for line in describe_angles(read) if progress else []:
+        print(line)
+    for said in angle_warnings(read):
+        print(f"mvracklay predict: warning: {said}", file=sys.stderr)
     return seq.num_frames

@@ -9,7 +9,7 @@ from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
 from network.fusion import add_fuse_option
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, describe_rolls
+from network.roll import add_roll_option, describe_angles
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -88,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         fuse_tau=args.fuse_frames,
         roll=args.roll,
         pitch=args.pitch,
+        yaw=args.yaw,
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,
@@ -110,8 +111,8 @@ def run(args: argparse.Namespace) -> int:
     t = res.seconds
     rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
     print(f"speed: {rate} (wall, this machine)")
-    if res.roll_source == "read":
-        print(describe_rolls(res.rolls))
+    for line in describe_angles(res.angles_read):
+        print(line)
     print(format_table(res.free_space))
     print("wrote " + ", ".join(str(p) for p in res.paths.values()))
     if args.spawn:
