@@ -1,15 +1,17 @@
 #!/usr/bin/env python3
-"""A copy of a generated dataset as a rolled camera would have filmed it: every RGB frame turned.
+"""A copy of a generated dataset as a rolled, pitched or yawed camera would have filmed it: every RGB frame turned.
 
     .venv/bin/python benchmarks/turn_dataset.py data/heldout128 data/heldout128-roll5 --roll 5
     mvracklay eval-reconstruction data/heldout128-roll5 --checkpoint weights/mvracklay-disc-4.pt --noisy --roll auto
+    .venv/bin/python benchmarks/turn_dataset.py data/heldout128 data/heldout128-yaw3 --yaw 3
 
-Every ``SEQ/rgb/*.png`` is turned ``--roll`` degrees counter-clockwise about the principal point
-(`network.roll.turn_frame`: the uncovered corners take the canonical fill colour); everything else
-(layouts, depth, semantics, cuboids, records) is hard-linked, or copied where links fail, unchanged.
-``TURNED.json`` at the root says what was done. The copy's records still describe a level camera, so
-the commands take it as level unless given ``--roll auto`` or ``--roll DEG``. Refuses to write into a
-folder that exists.
+Every ``SEQ/rgb/*.png`` is seen by the camera tilted up ``--pitch`` and turned right ``--yaw`` degrees
+(`network.roll.tilt_frame`, a homography), then rolled ``--roll`` degrees counter-clockwise about the
+principal point (`network.roll.turn_frame`); the uncovered parts take the canonical fill colour.
+Everything else (layouts, depth, semantics, cuboids, records) is hard-linked, or copied where links
+fail, unchanged. ``TURNED.json`` at the root says what was done. The copy's records still describe a
+level camera, so the commands take it as level unless given ``--roll`` / ``--pitch`` / ``--yaw``
+(``auto`` or degrees). Refuses to write into a folder that exists.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from network.roll import check_roll, turn_frame  # noqa: E402
+from network.roll import check_roll, check_tilt, tilt_frame, turn_frame  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 
@@ -42,11 +44,17 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("src", type=Path, help="a generated dataset folder")
     ap.add_argument("dst", type=Path, help="the folder to write (must not exist)")
-    ap.add_argument("--roll", required=True, help="degrees, counter-clockwise as displayed")
+    ap.add_argument("--roll", default="0", help="degrees, counter-clockwise as displayed")
+    ap.add_argument("--pitch", default="0", help="degrees, the optical axis tilted up")
+    ap.add_argument("--yaw", default="0", help="degrees, the camera turned right")
     args = ap.parse_args()
     roll = check_roll(args.roll, "--roll")
-    if not isinstance(roll, float):
-        ap.error("--roll must be a number of degrees")
+    pitch, yaw = check_tilt(args.pitch, "--pitch"), check_tilt(args.yaw, "--yaw")
+    for name, v in (("--roll", roll), ("--pitch", pitch), ("--yaw", yaw)):
+        if not isinstance(v, float):
+            ap.error(f"{name} must be a number of degrees")
+    if not (roll or pitch or yaw):
+        ap.error("give --roll, --pitch or --yaw (degrees): a copy turned by nothing is the source")
     if args.dst.exists():
         ap.error(f"{args.dst}: exists; give a new folder")
     seqs = open_dataset(args.src).sequences()  # validates the source
@@ -62,11 +70,18 @@ def main() -> int:
                 with Image.open(path) as im:
                     rgb = np.asarray(im.convert("RGB"))
                 path.unlink()  # a hard link: never write through it into the source
-                Image.fromarray(turn_frame(rgb, roll, intr.cx, intr.cy)).save(path)
+                if pitch or yaw:
+                    rgb = tilt_frame(rgb, intr, pitch, yaw)
+                if roll:
+                    rgb = turn_frame(rgb, roll, intr.cx, intr.cy)
+                Image.fromarray(rgb).save(path)
                 bar.update(1)
-    (tmp / "TURNED.json").write_text(json.dumps({"source": str(args.src), "roll_deg": roll}, indent=2) + "\n")
+    said = {"source": str(args.src), "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw}
+    (tmp / "TURNED.json").write_text(json.dumps(said, indent=2) + "\n")
     tmp.rename(args.dst)
-    print(f"wrote {args.dst}: {len(seqs)} sequences, {frames} frames turned {roll:g} deg")
+    print(
+        f"wrote {args.dst}: {len(seqs)} sequences, {frames} frames, roll {roll:g} / pitch {pitch:g} / yaw {yaw:g} deg"
+    )
     return 0
 
 

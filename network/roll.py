@@ -140,10 +140,16 @@ def _grey(rgb: np.ndarray) -> np.ndarray:
     return np.asarray(img, np.float32)
 
 
-def _gradients(grey: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """The strongest fifth of the smoothed Sobel gradients inside ``valid``: (gx, gy, magnitude, their mask); None if flat."""
+def _sobel(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sobel gradients (x, y) of ``grey`` after a Gaussian of 1 pixel."""
     g = ndimage.gaussian_filter(grey, 1.0)
-    gx, gy = ndimage.sobel(g, 1), ndimage.sobel(g, 0)
+    return ndimage.sobel(g, 1), ndimage.sobel(g, 0)
+
+
+def _gradients(
+    gx: np.ndarray, gy: np.ndarray, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The strongest fifth of the gradients inside ``valid``: (gx, gy, magnitude, their mask); None if flat."""
     mag = np.hypot(gx, gy)
     inside = mag[valid]
     if inside.size < 16 or not inside.max() > _MIN_GRADIENT:
@@ -172,7 +178,7 @@ def _orientation_peak(gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, max_deg: 
 
 def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
     """One reading: (roll in degrees, peak strength over the histogram's mean; 0 = nothing to read)."""
-    grads = _gradients(grey, valid)
+    grads = _gradients(*_sobel(grey), valid)
     if grads is None:
         return 0.0, 0.0
     return _orientation_peak(*grads[:3], max_deg)
@@ -248,12 +254,11 @@ def _level(grey: np.ndarray, intr: Intrinsics, angles: np.ndarray) -> tuple[np.n
 
 def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """One reading of a nearly level image: (roll, pitch, yaw) residuals in degrees and their strengths."""
-    grads = _gradients(grey, valid)
+    gx, gy = _sobel(grey)
+    grads = _gradients(gx, gy, valid)
     if grads is None:
         return np.zeros(3), np.zeros(3)
     roll, roll_strength = _orientation_peak(*grads[:3], max_deg)
-    g = ndimage.gaussian_filter(grey, 1.0)
-    gx, gy = ndimage.sobel(g, 1), ndimage.sobel(g, 0)
     threshold = float(np.percentile(np.hypot(gx, gy)[valid], _SEGMENT_QUANTILE))
     t = math.tan(math.radians(roll))
     window = math.tan(math.radians(_SLOPE_WINDOW_DEG))

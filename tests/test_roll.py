@@ -328,3 +328,9 @@ def test_turn_dataset_writes_a_turned_copy_and_leaves_the_source_alone(tiny_data
     assert json.loads((dst / "TURNED.json").read_text())["roll_deg"] == 3.0
     again = subprocess.run(run, capture_output=True, text=True)
     assert again.returncode != 0 and "exists" in again.stderr
+    yawed = subprocess.run([*run[:3], str(tmp_path / "yawed"), "--yaw", "2"], capture_output=True, text=True)
+    assert yawed.returncode == 0, yawed.stderr
+    seq = open_dataset(tmp_path / "yawed").sequences()[0]
+    assert np.array_equal(seq.rgb(0), tilt_frame(orig.rgb(0), orig.intrinsics, yaw_deg=2.0))
+    nothing = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
+    assert nothing.returncode != 0 and "--yaw" in nothing.stderr and not (tmp_path / "none").exists()
