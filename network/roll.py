@@ -59,10 +59,17 @@ _MIN_SLOPE_SCALE = 0.003
 #: edge segments shorter than this many pixels are not fitted; edge pixels are above this gradient quantile
 _MIN_SEGMENT = 8
 _SEGMENT_QUANTILE = 70.0
+#: the consensus of the slope fits: within this normalised slope (~0.5 deg) of a line through two of the
+#: heaviest points, at least this far apart (normalised)
+_CONSENSUS_TOL = 0.008
+_CONSENSUS_POINTS = 60
+_CONSENSUS_SPAN = 0.05
 #: a smoothed Sobel magnitude below this (grey levels x 8 per pixel) is resampling noise, not an edge
 _MIN_GRADIENT = 1.0
-#: frames over which `CameraLeveller` averages its readings (weights exp(-frames ago / TAU))
+#: frames over which `CameraLeveller` averages its roll readings (weights exp(-frames ago / TAU))
 TAU = 10.0
+#: the same for pitch and yaw: a mount's, steadier than a roll and read less surely from one frame
+TILT_TAU = 30.0
 #: images are read at most this many pixels wide (angles do not depend on the scale)
 READ_WIDTH = 320
 _BIN_DEG = 0.1
@@ -202,6 +209,29 @@ def _line_fit(s: np.ndarray, x: np.ndarray, w: np.ndarray) -> tuple[float, float
     return float(a), float(b), float(np.count_nonzero(ww)) * spread / sigma**2
 
 
+def _consensus_fit(s: np.ndarray, x: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
+    """`_line_fit` over the largest consensus: the line through two points that the most weight lies within
+    _CONSENSUS_TOL of (pairs among the _CONSENSUS_POINTS heaviest points), refitted on those points.
+
+    A frame's edges are few (tens of segments) and a yawed box's edges converge elsewhere, so a
+    least-squares start is pulled off; the consensus keeps only the edges that agree.
+    """
+    if s.size < 3:
+        return 0.0, 0.0, 0.0
+    top = np.argsort(-w, kind="stable")[:_CONSENSUS_POINTS]
+    i, j = np.triu_indices(top.size, 1)
+    i, j = top[i], top[j]
+    apart = np.abs(x[j] - x[i]) > _CONSENSUS_SPAN
+    if not apart.any():
+        return _line_fit(s, x, w)
+    i, j = i[apart], j[apart]
+    b = (s[j] - s[i]) / (x[j] - x[i])
+    a = s[i] - b * x[i]
+    inside = np.abs(s[None, :] - a[:, None] - b[:, None] * x[None, :]) < _CONSENSUS_TOL
+    best = inside[int(np.argmax(inside @ w))]
+    return _line_fit(s[best], x[best], w[best])
+
+
 def _edge_segments(
     along: np.ndarray, across: np.ndarray, valid: np.ndarray, threshold: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -269,9 +299,9 @@ def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: f
     _, col, sv, vlength = _edge_segments(gy.T, gx.T, valid.T, threshold)
     x, sv = (col + 0.5 - intr.cx) / intr.fx, sv * intr.fy / intr.fx - t
     h, v = np.abs(sh) < window, np.abs(sv) < window
-    # a segment's slope is known to ~1 / length^1.5: weigh by length^3
-    _, yaw_slope, yaw_strength = _line_fit(sh[h], y[h], length[h] ** 3)
-    _, pitch_slope, pitch_strength = _line_fit(sv[v], x[v], vlength[v] ** 3)
+    # weighed by length (a longer segment's slope is surer, but one long box edge must not outvote the boards)
+    _, yaw_slope, yaw_strength = _consensus_fit(sh[h], y[h], length[h])
+    _, pitch_slope, pitch_strength = _consensus_fit(sv[v], x[v], vlength[v])
     angles = np.array([roll, math.degrees(math.atan(pitch_slope)), -math.degrees(math.atan(yaw_slope))])
     return angles, np.array([roll_strength, pitch_strength, yaw_strength])
 
@@ -343,7 +373,8 @@ class CameraLeveller:
 
     ``angles(i, rgb, intr)`` returns frame ``i``'s (roll, pitch, yaw); each angle read from the
     frames is averaged over the readings so far with weights ``strength * exp(-frames ago / tau)``
-    (each new frame read after levelling it by the angles so far). Asking again for the last frame
+    (``tilt_tau`` for pitch and yaw: a mount's angles, steadier than a roll and read less surely from
+    one frame; each new frame read after levelling it by the angles so far). Asking again for the last frame
     returns its angles without reading it twice. A roll alone is read without the intrinsics
     (`estimate_roll`); a pitch or a yaw needs them (`estimate_tilt`). ``rolls`` / ``pitches`` /
     ``yaws`` list the angles given, frame by frame.
@@ -356,17 +387,19 @@ class CameraLeveller:
         yaw: float | str = 0.0,
         tau: float = TAU,
         max_deg: float = SEARCH_DEG,
+        tilt_tau: float = TILT_TAU,
     ) -> None:
         roll = check_roll(roll)
         if roll is None:
             raise InputError("roll must be 'auto' or a number of degrees, got None")
         given = (roll, check_tilt(pitch, "pitch"), check_tilt(yaw, "yaw"))
-        if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau > 0):
-            raise InputError(f"tau must be a positive number of frames, got {tau!r}")
+        for name, t in (("tau", tau), ("tilt_tau", tilt_tau)):
+            if not (isinstance(t, (int, float)) and math.isfinite(t) and t > 0):
+                raise InputError(f"{name} must be a positive number of frames, got {t!r}")
         self.read = np.array([a == "auto" for a in given])  #: which of (roll, pitch, yaw) are read
         self.fixed = np.array([0.0 if a == "auto" else float(a) for a in given])
         self.auto = bool(self.read[0])  #: the roll is read
-        self.decay = math.exp(-1.0 / tau)
+        self.decay = np.exp(-1.0 / np.array([tau, tilt_tau, tilt_tau], float))
         self.max_deg = max_deg
         self._sum = np.zeros(3)
         self._weight = np.zeros(3)
