@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from network.roll import check_roll, check_tilt, tilt_frame, turn_frame  # noqa: E402
+from network.roll import check_angle, tilt_frame, turn_frame  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 
@@ -48,8 +48,7 @@ def main() -> int:
     ap.add_argument("--pitch", default="0", help="degrees, the optical axis tilted up")
     ap.add_argument("--yaw", default="0", help="degrees, the camera turned right")
     args = ap.parse_args()
-    roll = check_roll(args.roll, "--roll")
-    pitch, yaw = check_tilt(args.pitch, "--pitch"), check_tilt(args.yaw, "--yaw")
+    roll, pitch, yaw = (check_angle(getattr(args, n), f"--{n}") for n in ("roll", "pitch", "yaw"))
     for name, v in (("--roll", roll), ("--pitch", pitch), ("--yaw", yaw)):
         if not isinstance(v, float):
             ap.error(f"{name} must be a number of degrees")

@@ -38,7 +38,7 @@ from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
-from network.roll import angle_warnings, check_roll, check_tilt, resolve_roll
+from network.roll import angle_warnings, check_angle, resolve_angles
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -67,10 +67,11 @@ class RunConfig:
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
     fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
-    #: the camera's roll (degrees or "auto", `network.roll`); None = 0 for a generated sequence, else "auto"
+    #: the camera's roll, pitch (optical axis up > 0) and yaw (turned right > 0), levelled (`network.roll`):
+    #: degrees or "auto"; None = 0 for a generated sequence, else "auto"
     roll: float | str | None = None
-    pitch: float | str = 0.0  #: the camera's tilt (degrees, optical axis up > 0, or "auto"), levelled
-    yaw: float | str = 0.0  #: the camera's turn (degrees, right > 0, or "auto"), levelled (`network.roll`)
+    pitch: float | str | None = None
+    yaw: float | str | None = None
     rrd: bool = True
     rgb: bool = True
     map_every: int = 1
@@ -91,9 +92,8 @@ class RunConfig:
         if self.rack_depth is not None:
             check_rack_depth(self.rack_depth)
         check_tau(self.fuse_tau, "--fuse-frames")
-        check_roll(self.roll, "--roll")
-        check_tilt(self.pitch, "--pitch")
-        check_tilt(self.yaw, "--yaw")
+        for name in ("roll", "pitch", "yaw"):
+            check_angle(getattr(self, name), f"--{name}")
         if self.map_every < 1:
             raise InputError(f"--map-every must be >= 1, got {self.map_every}")
         if not 0 <= self.board_thickness < 1:
@@ -272,7 +272,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
-    roll = resolve_roll(cfg.roll, level=source.kind == "sequence")  # a generated sequence's camera is level
+    # a generated sequence's camera is level
+    roll, pitch, yaw = resolve_angles(cfg.roll, cfg.pitch, cfg.yaw, level=source.kind == "sequence")
     roll_source = _angle_source(roll)
     stage = staging_dir(out)
     rec = None
@@ -290,8 +291,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             whole_sequence=cfg.whole_sequence,
             fuse_tau=cfg.fuse_tau,
             roll=roll,
-            pitch=cfg.pitch,  # checked by cfg.validate()
-            yaw=cfg.yaw,
+            pitch=pitch,
+            yaw=yaw,
         )
         depth = float("nan")
         # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)

@@ -28,7 +28,7 @@ from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, image_
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
-from network.roll import CameraLeveller, check_roll, check_tilt
+from network.roll import CameraLeveller, check_angle
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -117,8 +117,8 @@ class Predictor:
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
-        pitch: float | str = 0.0,
-        yaw: float | str = 0.0,
+        pitch: float | str | None = None,
+        yaw: float | str | None = None,
     ) -> None:
         self.model = model.eval()
         self.cfg = model.cfg
@@ -136,11 +136,11 @@ class Predictor:
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         self.whole_sequence = bool(whole_sequence)
-        self.roll = check_roll(roll)  #: degrees, "auto" or None (level)
-        self.pitch = check_tilt(pitch, "pitch")  #: degrees the optical axis is tilted up, or "auto"
-        self.yaw = check_tilt(yaw, "yaw")  #: degrees the camera is turned right, or "auto"
+        self.roll = check_angle(roll, "roll")  #: degrees, "auto" or None (level)
+        self.pitch = check_angle(pitch, "pitch")  #: degrees the optical axis is tilted up, "auto" or None (level)
+        self.yaw = check_angle(yaw, "yaw")  #: degrees the camera is turned right, "auto" or None (level)
         #: the camera's rotation, known or read from the frames (None: the camera is taken as level)
-        turned = (self.roll or 0.0, self.pitch, self.yaw)
+        turned = (self.roll or 0.0, self.pitch or 0.0, self.yaw or 0.0)
         self.leveller = CameraLeveller(*turned) if any(a != 0 for a in turned) else None
         #: the direct pass's motion signatures and canonical images not yet used
         self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()

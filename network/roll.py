@@ -2,7 +2,7 @@
 
 The network is trained on a level camera (the generator's camera never rolls), and a small roll
 costs a lot: on the held-out 128x128 scenes, 2 degrees take 5.3 points of top rack mIoU and 7.2
-of top box, 5 degrees 24 and 30 (docs/network.md, *A rolled or pitched camera*). A rack row is full of
+of top box, 5 degrees 24 and 30 (docs/network.md, *A rotated camera*). A rack row is full of
 straight edges that are horizontal or vertical in a level image (the boards' fronts, the
 uprights, the boxes' front faces), so the roll is the angle that turns the image's strong edges
 back onto the axes.
@@ -120,18 +120,12 @@ def _degrees(value: object, name: str, want: str) -> float:
     return float(value)
 
 
-def check_tilt(angle: object, name: str = "pitch") -> float | str:
-    """A camera pitch or yaw: ``"auto"`` (read from the frames) or a number of degrees within +-MAX_ROLL_DEG."""
-    if angle == "auto":
-        return "auto"
+def check_angle(angle: object, name: str = "roll") -> float | str | None:
+    """A camera roll, pitch or yaw: None (the source's default, `resolve_angles`), ``"auto"`` (read from
+    the frames) or a finite number of degrees within +-MAX_ROLL_DEG (as a float); else an InputError naming ``name``."""
+    if angle is None or angle == "auto":
+        return angle  # type: ignore[return-value]
     return _degrees(angle, name, "'auto' or a number of degrees")
-
-
-def check_roll(roll: object, name: str = "roll") -> float | str | None:
-    """``None`` / ``"auto"`` / a finite number of degrees within +-MAX_ROLL_DEG (as a float); else an InputError."""
-    if roll is None or roll == "auto":
-        return roll  # type: ignore[return-value]
-    return _degrees(roll, name, "'auto' or a number of degrees")
 
 
 def _grey(rgb: np.ndarray) -> np.ndarray:
@@ -389,10 +383,9 @@ class CameraLeveller:
         max_deg: float = SEARCH_DEG,
         tilt_tau: float = TILT_TAU,
     ) -> None:
-        roll = check_roll(roll)
-        if roll is None:
-            raise InputError("roll must be 'auto' or a number of degrees, got None")
-        given = (roll, check_tilt(pitch, "pitch"), check_tilt(yaw, "yaw"))
+        given = tuple(check_angle(a, n) for a, n in zip((roll, pitch, yaw), ANGLES))
+        if None in given:
+            raise InputError(f"(roll, pitch, yaw) must each be 'auto' or a number of degrees, got {given}")
         for name, t in (("tau", tau), ("tilt_tau", tilt_tau)):
             if not (isinstance(t, (int, float)) and math.isfinite(t) and t > 0):
                 raise InputError(f"{name} must be a positive number of frames, got {t!r}")
@@ -448,37 +441,42 @@ class CameraLeveller:
 ROLL_HELP = (
     "the camera's roll about its optical axis, levelled before the network: 'auto' reads it from the frames "
     "(the edges of boards, uprights and boxes), a number gives it in degrees (the image turned counter-clockwise), "
-    "0 takes the camera as level. Default: 0 for a generated sequence (its camera is level), auto for other footage"
+    "0 takes the camera as level. Default (as for --pitch and --yaw): 0 for a generated sequence (its camera is "
+    "level), auto for other footage"
 )
 
 
 PITCH_HELP = (
-    "the camera's pitch, levelled before the network: a number of degrees (optical axis tilted up > 0, down < 0; "
-    "e.g. from its mount or an IMU), or 'auto' to read it from the frames (the uprights' lean across the image; "
-    "needs the intrinsics, noisier than the roll: give it if known). Default 0"
+    "the camera's pitch, levelled before the network: 'auto' reads it from the frames (the uprights' lean "
+    "across the image), a number gives it in degrees (optical axis tilted up > 0; e.g. from the mount or an "
+    "IMU), 0 takes it as level. Default as --roll"
 )
 
 
 YAW_HELP = (
-    "the camera's yaw, levelled before the network: a number of degrees (turned right > 0, away from square to "
-    "the rack front; e.g. from its mount), or 'auto' to read it from the frames (the boards' convergence; needs "
-    "the intrinsics, noisier than the roll: give it if known). Default 0"
+    "the camera's yaw, levelled before the network: 'auto' reads it from the frames (the boards' convergence), "
+    "a number gives it in degrees (turned right > 0, away from square to the racks; e.g. from the mount), 0 "
+    "takes it as level. Default as --roll"
 )
 
 
 def add_roll_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--roll auto|DEG`` (None unless given: `resolve_roll` picks the source's default), ``--pitch`` and ``--yaw``."""
+    """``--roll``, ``--pitch``, ``--yaw`` (``auto|DEG``; None unless given: `resolve_angles` picks the source's default)."""
     p.add_argument("--roll", default=None, metavar="auto|DEG", help=prefix + ROLL_HELP)
-    p.add_argument("--pitch", default=0.0, metavar="auto|DEG", help=prefix + PITCH_HELP)
-    p.add_argument("--yaw", default=0.0, metavar="auto|DEG", help=prefix + YAW_HELP)
+    p.add_argument("--pitch", default=None, metavar="auto|DEG", help=prefix + PITCH_HELP)
+    p.add_argument("--yaw", default=None, metavar="auto|DEG", help=prefix + YAW_HELP)
 
 
-def resolve_roll(roll: object, level: bool, name: str = "--roll") -> float | str:
-    """The roll to use: ``roll`` if given, else 0 for a source whose camera is known to be ``level``, else "auto"."""
-    roll = check_roll(roll, name)
-    if roll is None:
-        return 0.0 if level else "auto"
-    return roll
+def resolve_angles(
+    roll: object, pitch: object, yaw: object, level: bool, prefix: str = "--"
+) -> tuple[float | str, float | str, float | str]:
+    """The (roll, pitch, yaw) to use: each as given, else 0 for a source whose camera is known to be
+    ``level`` (a generated sequence), else ``"auto"`` (read from the frames)."""
+    out = []
+    for name, angle in zip(ANGLES, (roll, pitch, yaw)):
+        angle = check_angle(angle, prefix + name)
+        out.append((0.0 if level else "auto") if angle is None else angle)
+    return out[0], out[1], out[2]
 
 
 def describe_rolls(rolls: list[float], what: str = "roll") -> str:

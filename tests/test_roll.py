@@ -18,11 +18,10 @@ from network import roll as roll_mod
 from network.roll import (
     CameraLeveller,
     angle_warnings,
-    check_roll,
-    check_tilt,
+    check_angle,
     estimate_roll,
     estimate_tilt,
-    resolve_roll,
+    resolve_angles,
     roll_warning,
     tilt_frame,
     turn_frame,
@@ -242,16 +241,18 @@ def test_a_flat_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_about():
 
 
 def test_roll_arguments_are_checked():
-    assert check_roll("auto") == "auto" and check_roll("2.5") == 2.5 and check_roll(None) is None
-    assert resolve_roll(None, level=True) == 0.0 and resolve_roll(None, level=False) == "auto"
-    assert resolve_roll("-3", level=True) == -3.0
+    assert check_angle("auto") == "auto" and check_angle("2.5") == 2.5 and check_angle(None) is None
+    assert resolve_angles(None, None, None, level=True) == (0.0, 0.0, 0.0)
+    assert resolve_angles(None, None, None, level=False) == ("auto", "auto", "auto")
+    assert resolve_angles("-3", "auto", 1, level=True) == (-3.0, "auto", 1.0)
+    with pytest.raises(InputError, match="--pitch"):
+        resolve_angles(None, "up", None, level=True)
     for bad, msg in (("abc", "'auto' or a number"), (60, "within"), (float("inf"), "within"), (True, "number")):
         with pytest.raises(InputError, match=msg):
-            check_roll(bad, "--roll")
-    assert check_tilt("-4.5") == -4.5 and check_tilt(3) == 3.0 and check_tilt("auto") == "auto"
-    for bad in ("level", 50, float("nan"), None):
+            check_angle(bad, "--roll")
+    for bad in ("level", 50, float("nan"), True):
         with pytest.raises(InputError, match="--yaw"):
-            check_tilt(bad, "--yaw")
+            check_angle(bad, "--yaw")
     with pytest.raises(InputError, match="tau"):
         CameraLeveller("auto", tau=0)
     assert roll_warning([0.5, -2.0]) == "" and roll_warning([]) == ""
@@ -269,6 +270,8 @@ def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_
     assert main(["run", str(folder), "--out", str(tmp_path / "a"), *base]) == 0
     meta = json.loads((tmp_path / "a" / "warehouse.json").read_text())["meta"]
     assert meta["camera_roll_source"] == "read" and abs(meta["camera_roll_deg"] - 4.0) < 0.5
+    assert meta["camera_pitch_source"] == meta["camera_yaw_source"] == "read"  # footage: all three read
+    assert abs(meta["camera_pitch_deg"]) < 2.0 and abs(meta["camera_yaw_deg"]) < 1.5
     assert main(["run", str(seq_dir), "--out", str(tmp_path / "b"), "--max-frames", "3", *base]) == 0
     meta = json.loads((tmp_path / "b" / "warehouse.json").read_text())["meta"]
     assert meta["camera_roll_source"] == "level" and meta["camera_roll_deg"] == 0.0
@@ -280,7 +283,7 @@ def test_run_reads_the_roll_of_image_footage_and_takes_a_sequence_as_level(tiny_
     assert meta["camera_yaw_source"] == "level" and meta["camera_yaw_deg"] == 0.0
 
 
-def test_run_reads_the_yaw_of_image_footage_when_asked(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+def test_run_reads_the_yaw_of_image_footage(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
     seq = open_dataset(tiny_dataset).sequences()[0]
     folder = tmp_path / "frames"
     folder.mkdir()
@@ -288,7 +291,7 @@ def test_run_reads_the_yaw_of_image_footage_when_asked(tiny_dataset, tiny_checkp
         Image.fromarray(tilt_frame(seq.rgb(i), seq.intrinsics, yaw_deg=-4.0)).save(folder / f"f{i}.png")
     cam = tmp_path / "camera.json"
     cam.write_text(json.dumps(seq.intrinsics.to_dict()))
-    args = ["run", str(folder), "--out", str(tmp_path / "a"), "--camera", str(cam), "--yaw", "auto", "--roll", "0"]
+    args = ["run", str(folder), "--out", str(tmp_path / "a"), "--camera", str(cam), "--roll", "0", "--pitch", "0"]
     assert main([*args, "--checkpoint", str(tiny_checkpoint), "--quiet", "--no-rrd", "--threads", "1"]) == 0
     meta = json.loads((tmp_path / "a" / "warehouse.json").read_text())["meta"]
     assert meta["camera_yaw_source"] == "read" and abs(meta["camera_yaw_deg"] + 4.0) < 1.0

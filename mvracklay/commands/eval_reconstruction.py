@@ -15,7 +15,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from network.fusion import add_fuse_option, check_tau
-from network.roll import add_roll_option, check_roll, check_tilt
+from network.roll import add_roll_option, resolve_angles
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher
@@ -192,8 +192,7 @@ def run(args: argparse.Namespace) -> int:
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     model = record = None
-    pitch = check_tilt(args.pitch, "--pitch")
-    yaw = check_tilt(args.yaw, "--yaw")
+    resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # checked before anything runs
     if args.checkpoint:
         import torch
 
@@ -202,7 +201,6 @@ def run(args: argparse.Namespace) -> int:
         if args.threads < 1:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
         check_tau(args.fuse_frames, "--fuse-frames")
-        check_roll(args.roll, "--roll")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
     results = []
@@ -222,8 +220,8 @@ def run(args: argparse.Namespace) -> int:
                     read_depth=not args.no_depth_read,
                     fuse_tau=args.fuse_frames,
                     roll=args.roll,
-                    pitch=pitch,
-                    yaw=yaw,
+                    pitch=args.pitch,
+                    yaw=args.yaw,
                     progress=False,
                     source=str(args.checkpoint),
                 )

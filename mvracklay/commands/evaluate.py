@@ -16,7 +16,7 @@ from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, check_tilt, describe_angles, resolve_roll
+from network.roll import add_roll_option, describe_angles, resolve_angles
 from network.train import open_data
 
 NAME = "evaluate"
@@ -62,9 +62,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
-    roll = resolve_roll(args.roll, level=True)
-    pitch = check_tilt(args.pitch, "--pitch")
-    yaw = check_tilt(args.yaw, "--yaw")
+    roll, pitch, yaw = resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # a generated camera is level
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))

@@ -25,7 +25,7 @@ from network.distributed import single_process_device
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
-from network.roll import add_roll_option, angle_warnings, check_roll, check_tilt, describe_angles, resolve_roll
+from network.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -86,9 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
-    check_roll(args.roll, "--roll")
-    pitch = check_tilt(args.pitch, "--pitch")
-    yaw = check_tilt(args.yaw, "--yaw")
+    resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # checked before the model loads
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -113,8 +111,8 @@ def run(args: argparse.Namespace) -> int:
         whole_sequence=args.whole_sequence,
         fuse_tau=fuse_tau,
         roll=args.roll,
-        pitch=pitch,
-        yaw=yaw,
+        pitch=args.pitch,
+        yaw=args.yaw,
         progress=not args.quiet,
         source=str(args.checkpoint),
     )
@@ -138,8 +136,8 @@ def predict_folder(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
-    pitch: float | str = 0.0,
-    yaw: float | str = 0.0,
+    pitch: float | str | None = None,
+    yaw: float | str | None = None,
     progress: bool = True,
     source: str = "checkpoint",
 ) -> int:
@@ -153,7 +151,7 @@ def predict_folder(
     ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
     ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: 0 for a generated sequence (its
     camera is level), else read from the frames; ``pitch`` / ``yaw``: the camera's tilt (up > 0) / turn
-    (right > 0), degrees or "auto", 0 by default.
+    (right > 0), the same.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -193,7 +191,7 @@ def predict_folder(
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
-    roll = resolve_roll(roll, level=meta is not None)
+    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, level=meta is not None)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(
         model,
