@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import replace
+from itertools import islice
 from typing import Any
 
 import numpy as np
@@ -28,7 +29,7 @@ from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, image_
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
-from network.roll import CameraLeveller, check_angle
+from network.roll import PRIME_FRAMES, CameraLeveller, check_angle
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -168,8 +169,23 @@ class Predictor:
             img = canonical_image(rgb, self.cfg.view, intr, dist, *angles)
         return to_tensor(img)[None].to(self.device)
 
+    def _primed(self, frames: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
+        """``frames`` as they come; when a pitch or yaw is read, the leveller first reads the first few
+        (`network.roll.CameraLeveller.prime`), so the first frames are not levelled by a guess."""
+        lev = self.leveller
+        if lev is None or not lev.read[1:].any():
+            yield from frames
+            return
+        it = iter(frames)
+        head = [np.asarray(rgb) for rgb in islice(it, PRIME_FRAMES)]
+        lev.prime(
+            [(rgb, image_intrinsics(self.camera(i)[0], rgb.shape[1], rgb.shape[0])) for i, rgb in enumerate(head)]
+        )
+        yield from head
+        yield from it
+
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
-        for i, rgb in enumerate(frames):
+        for i, rgb in enumerate(self._primed(frames)):
             x = self.preprocess(rgb, i)
             if self._tracks_motion:
                 self._motion.append((motion_signature(x), x))

@@ -229,6 +229,38 @@ def test_the_leveller_reads_only_what_is_not_given(tiny_dataset, monkeypatch):
     assert fixed.read_angles() == {} and len(priors) == len(frames)  # known angles read nothing
 
 
+def test_the_predictor_reads_the_start_ahead_when_it_reads_a_yaw(tiny_dataset, tiny_checkpoint, monkeypatch):
+    from network.checkpoint import load_model
+    from network.infer import Predictor
+
+    seq = open_dataset(tiny_dataset).sequences()[1]
+    intr = seq.intrinsics
+    frames = [tilt_frame(seq.rgb(i), intr, yaw_deg=4.0) for i in range(seq.num_frames)]
+    calls = []
+    real = roll_mod.estimate_tilt
+
+    def counted(rgb, intr, prior, read, max_deg):
+        calls.append(prior[2])
+        return real(rgb, intr, prior, read, max_deg)
+
+    monkeypatch.setattr(roll_mod, "estimate_tilt", counted)
+    model, _ = load_model(tiny_checkpoint)
+    pred = Predictor(model, lambda i: (intr, 2.7), roll=0.0, pitch=0.0, yaw="auto")
+    outs = list(pred.stream(frames))
+    n = len(frames)
+    assert len(outs) == n and n <= roll_mod.PRIME_FRAMES
+    assert len(calls) == 2 * n and calls[0] == 0.0  # all read ahead, then each read again as it comes
+    assert abs(calls[n] - 4.0) < 1.0  # the first frame is levelled by what the start showed
+    assert len(pred.leveller.yaws) == n and abs(pred.leveller.yaws[0] - 4.0) < 1.0
+    rolls = []
+    real_roll = roll_mod.estimate_roll
+    monkeypatch.setattr(
+        roll_mod, "estimate_roll", lambda rgb, m, prior_deg: rolls.append(1) or real_roll(rgb, m, prior_deg)
+    )
+    list(Predictor(model, lambda i: (intr, 2.7), roll="auto", pitch=0.0, yaw=0.0).stream(frames))
+    assert len(rolls) == n  # a roll alone is read frame by frame, nothing ahead
+
+
 def test_a_flat_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_about():
     intr = Intrinsics.from_fov(80, 64, 60.0)
     got, strength = estimate_tilt(np.full((64, 80, 3), 90, np.uint8), intr, prior=(0.0, 1.0, 2.0))
