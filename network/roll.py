@@ -25,11 +25,14 @@ rack front, so near-horizontal edges slope in proportion to their height in the 
 ``dy/dx = -tan(yaw) * y`` (normalised coordinates, to first order), and the vertical ones
 (uprights, box sides) lean in proportion to their column when the camera is tilted,
 ``dx/dy = tan(pitch) * x``. `estimate_tilt` levels the image by the angles so far (the same
-homography as the canonical warp), fits those two lines through the strong near-horizontal and
-near-vertical gradients (magnitude-weighted, Tukey-reweighted against the edges that run in depth,
-which converge elsewhere), reads the roll as above, and repeats once. It needs the intrinsics (the
-slopes are in normalised coordinates), so it runs where the camera is known; `CameraLeveller`
-carries all three angles over a sequence, each known or read.
+homography as the canonical warp), finds its straight edge segments (`_edge_segments`: fitted to
+their pixels' positions, since a rendered edge's staircase has exactly level gradients between its
+steps), fits those two lines through the segments' slopes by consensus (`_consensus_fit`: boxes
+standing yawed on their shelves have edges that converge elsewhere), reads the roll as above, and
+repeats once. It needs the intrinsics (the slopes are in normalised coordinates). `CameraLeveller`
+carries all three angles over a sequence, each known or read; a pitch or yaw is averaged over more
+frames than a roll, and read ahead over the first frames (`CameraLeveller.prime`), since a yaw read
+wrong moves the levelled frame along the row.
 """
 
 from __future__ import annotations
