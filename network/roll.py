@@ -67,6 +67,9 @@ _SEGMENT_QUANTILE = 70.0
 _CONSENSUS_TOL = 0.008
 _CONSENSUS_POINTS = 60
 _CONSENSUS_SPAN = 0.05
+#: a frame whose orientation histogram peaks less than this over its mean shows no axis-aligned structure
+#: (rack frames: 4 or more on the held-out sets; noise or blobs: ~1.1): its pitch and yaw are not read
+_MIN_STRUCTURE = 2.0
 #: a smoothed Sobel magnitude below this (grey levels x 8 per pixel) is resampling noise, not an edge
 _MIN_GRADIENT = 1.0
 #: frames over which `CameraLeveller` averages its roll readings (weights exp(-frames ago / TAU))
@@ -288,6 +291,8 @@ def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: f
     if grads is None:
         return np.zeros(3), np.zeros(3)
     roll, roll_strength = _orientation_peak(*grads[:3], max_deg)
+    if roll_strength < _MIN_STRUCTURE:
+        return np.zeros(3), np.zeros(3)  # no preferred edge orientation: not a view of racks, nothing to read
     threshold = float(np.percentile(np.hypot(gx, gy)[valid], _SEGMENT_QUANTILE))
     t = math.tan(math.radians(roll))
     window = math.tan(math.radians(_SLOPE_WINDOW_DEG))
@@ -446,6 +451,7 @@ class CameraLeveller:
             reading, strength = estimate_tilt(rgb, intr, tuple(now), tuple(self.read), self.max_deg)
         else:
             roll, s = estimate_roll(rgb, self.max_deg, prior_deg=float(now[0]))
+            s = s if s >= _MIN_STRUCTURE else 0.0  # no structure, as `estimate_tilt` judges it: nothing read
             reading, strength = np.array([roll, 0.0, 0.0]), np.array([s, 0.0, 0.0])
         self._sum = np.where(self.read, self.decay * self._sum + strength * reading, 0.0)
         self._weight = np.where(self.read, self.decay * self._weight + strength, 0.0)

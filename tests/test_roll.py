@@ -261,12 +261,19 @@ def test_the_predictor_reads_the_start_ahead_when_it_reads_a_yaw(tiny_dataset, t
     assert len(rolls) == n  # a roll alone is read frame by frame, nothing ahead
 
 
-def test_a_flat_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_about():
+def test_a_flat_or_noisy_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_about():
     intr = Intrinsics.from_fov(80, 64, 60.0)
     got, strength = estimate_tilt(np.full((64, 80, 3), 90, np.uint8), intr, prior=(0.0, 1.0, 2.0))
     assert got.tolist() == [0.0, 1.0, 2.0] and strength.tolist() == [0.0, 0.0, 0.0]
     with pytest.raises(InputError, match="prior"):
         estimate_tilt(np.full((64, 80, 3), 90, np.uint8), intr, prior=(0.0, 1.0))
+    rng = np.random.default_rng(0)
+    for img in (rng.integers(0, 256, (64, 80, 3), dtype=np.uint8), np.full((64, 80, 3), 90, np.uint8)):
+        lev = CameraLeveller("auto", "auto", "auto")
+        lev.prime([(img, intr)] * 3)
+        assert lev.angles(0, img, intr) == (0.0, 0.0, 0.0)  # noise has edges but no structure: nothing read
+        alone = CameraLeveller("auto")
+        assert alone.angles(0, img) == (0.0, 0.0, 0.0)
     assert angle_warnings({"roll": [1.0], "yaw": [2.0, -3.0]}) == []
     said = angle_warnings({"roll": [1.0], "yaw": [2.0, 10.0]})
     assert len(said) == 1 and "yaw" in said[0] and "--yaw DEG" in said[0]
