@@ -27,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
 from network.evaluate import evaluate_sequences  # noqa: E402
-from network.roll import tilt_frame, turn_frame  # noqa: E402
+from network.roll import ANGLES, tilt_frame, turn_frame  # noqa: E402
 from network.train import open_data  # noqa: E402
 
 
@@ -57,7 +57,7 @@ def main() -> int:
     ap.add_argument("--rolls", type=float, nargs="+", default=[0.0, 2.0, 5.0], help="camera angles to simulate")
     ap.add_argument(
         "--axis",
-        choices=["roll", "pitch", "yaw"],
+        choices=ANGLES,
         default="roll",
         help="roll (about the optical axis), pitch (tilted up) or yaw (turned right)",
     )

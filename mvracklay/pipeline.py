@@ -114,8 +114,6 @@ class RunResult:
     intrinsics_source: str
     warnings: list[str] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
-    rolls: list[float] = field(default_factory=list)  #: the roll levelled in each frame (degrees; [] = level)
-    roll_source: str = "level"  #: "level" (taken as level), "given" or "read" (from the frames)
     angles_read: dict[str, list[float]] = field(default_factory=dict)  #: roll / pitch / yaw read, frame by frame
 
     @property
@@ -274,7 +272,6 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
 
     # a generated sequence's camera is level
     roll, pitch, yaw = resolve_angles(cfg.roll, cfg.pitch, cfg.yaw, level=source.kind == "sequence")
-    roll_source = _angle_source(roll)
     stage = staging_dir(out)
     rec = None
     try:
@@ -351,7 +348,6 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
 
         t1 = time.perf_counter()
         lev = pred.leveller
-        rolls = list(lev.rolls) if lev is not None else []
         read = lev.read_angles() if lev is not None else {}
         meta = {
             "input": str(source.path),
@@ -363,8 +359,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
             # the camera's rotation levelled before the network (`network.roll`): the median over the frames
-            "camera_roll_deg": _median(rolls),
-            "camera_roll_source": roll_source,
+            "camera_roll_deg": _median(lev.rolls if lev is not None else []),
+            "camera_roll_source": _angle_source(pred.roll or 0.0),
             "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
             "camera_pitch_source": _angle_source(pred.pitch),
             "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
@@ -401,10 +397,11 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     for said in angle_warnings(read):
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
-    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, rolls, roll_source, read)
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read)
 
 
 def _median(angles: list[float]) -> float:
+    """The median angle over the frames (degrees; 0 when none was levelled)."""
     return float(np.median(angles)) if angles else 0.0
 
 

@@ -94,12 +94,13 @@ def tilt_frame(rgb: np.ndarray, intr: Intrinsics, pitch_deg: float = 0.0, yaw_de
     """
     k = intr.matrix
     h = k @ camera_rotation(0.0, float(pitch_deg), float(yaw_deg)) @ np.linalg.inv(k)
+    return np.asarray(_perspective(Image.fromarray(np.ascontiguousarray(rgb)), h, FILL_RGB))
+
+
+def _perspective(img: Image.Image, h: np.ndarray, fill: object = 0, resample: int = Image.BILINEAR) -> Image.Image:
+    """``img`` resampled (same size) by the homography ``h`` from output to input pixels."""
     coeffs = tuple(float(c) for c in (h / h[2, 2]).ravel()[:8])
-    size = (rgb.shape[1], rgb.shape[0])
-    im = Image.fromarray(np.ascontiguousarray(rgb)).transform(
-        size, Image.PERSPECTIVE, coeffs, resample=Image.BILINEAR, fillcolor=FILL_RGB
-    )
-    return np.asarray(im)
+    return img.transform(img.size, Image.PERSPECTIVE, coeffs, resample=resample, fillcolor=fill)
 
 
 def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.ndarray:
@@ -156,15 +157,14 @@ def _sobel(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _gradients(
-    gx: np.ndarray, gy: np.ndarray, valid: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """The strongest fifth of the gradients inside ``valid``: (gx, gy, magnitude, their mask); None if flat."""
-    mag = np.hypot(gx, gy)
+    gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, valid: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The strongest fifth of the gradients (magnitude ``mag``) inside ``valid``: (gx, gy, mag); None if flat."""
     inside = mag[valid]
     if inside.size < 16 or not inside.max() > _MIN_GRADIENT:
         return None
     strong = valid & (mag >= np.percentile(inside, _STRONG_QUANTILE))
-    return gx[strong], gy[strong], mag[strong], strong
+    return gx[strong], gy[strong], mag[strong]
 
 
 def _orientation_peak(gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, max_deg: float) -> tuple[float, float]:
@@ -187,10 +187,11 @@ def _orientation_peak(gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, max_deg: 
 
 def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
     """One reading: (roll in degrees, peak strength over the histogram's mean; 0 = nothing to read)."""
-    grads = _gradients(*_sobel(grey), valid)
+    gx, gy = _sobel(grey)
+    grads = _gradients(gx, gy, np.hypot(gx, gy), valid)
     if grads is None:
         return 0.0, 0.0
-    return _orientation_peak(*grads[:3], max_deg)
+    return _orientation_peak(*grads, max_deg)
 
 
 def _line_fit(s: np.ndarray, x: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
@@ -277,23 +278,22 @@ def _level(grey: np.ndarray, intr: Intrinsics, angles: np.ndarray) -> tuple[np.n
     (eroded past the reach of the gradients' smoothing, so the uncovered border reads as no edge)."""
     k = intr.matrix
     h = k @ camera_rotation(*(float(a) for a in angles)).T @ np.linalg.inv(k)
-    coeffs = tuple(float(c) for c in (h / h[2, 2]).ravel()[:8])
-    size = grey.shape[::-1]
-    levelled = Image.fromarray(grey).transform(size, Image.PERSPECTIVE, coeffs, resample=Image.BILINEAR)
-    inside = Image.fromarray(np.full(grey.shape, 255, np.uint8)).transform(size, Image.PERSPECTIVE, coeffs)
-    return np.asarray(levelled, np.float32), ndimage.binary_erosion(np.asarray(inside) > 0, iterations=5)
+    levelled = _perspective(Image.fromarray(grey), h)
+    inside = np.asarray(_perspective(Image.fromarray(np.full(grey.shape, 255, np.uint8)), h, 0, Image.NEAREST)) > 0
+    return np.asarray(levelled, np.float32), ndimage.binary_erosion(inside, iterations=5)
 
 
 def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """One reading of a nearly level image: (roll, pitch, yaw) residuals in degrees and their strengths."""
     gx, gy = _sobel(grey)
-    grads = _gradients(gx, gy, valid)
+    mag = np.hypot(gx, gy)
+    grads = _gradients(gx, gy, mag, valid)
     if grads is None:
         return np.zeros(3), np.zeros(3)
-    roll, roll_strength = _orientation_peak(*grads[:3], max_deg)
+    roll, roll_strength = _orientation_peak(*grads, max_deg)
     if roll_strength < _MIN_STRUCTURE:
         return np.zeros(3), np.zeros(3)  # no preferred edge orientation: not a view of racks, nothing to read
-    threshold = float(np.percentile(np.hypot(gx, gy)[valid], _SEGMENT_QUANTILE))
+    threshold = float(np.percentile(mag[valid], _SEGMENT_QUANTILE))
     t = math.tan(math.radians(roll))
     window = math.tan(math.radians(_SLOPE_WINDOW_DEG))
     # near-horizontal edges: normalised slope dy/dx (the roll's share taken out) against their height y
@@ -401,7 +401,6 @@ class CameraLeveller:
                 raise InputError(f"{name} must be a positive number of frames, got {t!r}")
         self.read = np.array([a == "auto" for a in given])  #: which of (roll, pitch, yaw) are read
         self.fixed = np.array([0.0 if a == "auto" else float(a) for a in given])
-        self.auto = bool(self.read[0])  #: the roll is read
         self.decay = np.exp(-1.0 / np.array([tau, tilt_tau, tilt_tau], float))
         self.max_deg = max_deg
         self._sum = np.zeros(3)
@@ -460,10 +459,6 @@ class CameraLeveller:
         """The angles read from the frames, by name (``{"roll": [...]}``), frame by frame."""
         lists = (self.rolls, self.pitches, self.yaws)
         return {w: list(v) for w, v, r in zip(ANGLES, lists, self.read) if r}
-
-    def roll(self, i: int, rgb: np.ndarray) -> float:
-        """Frame ``i``'s roll alone (a leveller that reads no pitch or yaw)."""
-        return self.angles(i, rgb)[0]
 
 
 ROLL_HELP = (

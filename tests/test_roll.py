@@ -171,14 +171,14 @@ def test_leveller_follows_the_frames_and_reads_each_once(tiny_dataset, monkeypat
     monkeypatch.setattr(roll_mod, "estimate_roll", counted)
     lev = CameraLeveller("auto")
     turned = [_turn(f, 3.0, intr) for f in frames]
-    got = [lev.roll(i, f) for i, f in enumerate(turned)]
-    assert lev.roll(len(turned) - 1, turned[-1]) == got[-1]  # asked again: not read again
+    got = [lev.angles(i, f)[0] for i, f in enumerate(turned)]
+    assert lev.angles(len(turned) - 1, turned[-1])[0] == got[-1]  # asked again: not read again
     assert (
         len(calls) == len(turned) and calls[0] == 0.0 and abs(calls[-1] - 3.0) < 0.5
     )  # read levelled by the roll so far
     assert all(abs(g - 3.0) < 0.5 for g in got) and lev.rolls == got
     fixed = CameraLeveller(-2.0)
-    assert [fixed.roll(i, f) for i, f in enumerate(frames)] == [-2.0] * len(frames)
+    assert [fixed.angles(i, f)[0] for i, f in enumerate(frames)] == [-2.0] * len(frames)
     assert len(calls) == len(turned)  # a known roll reads nothing
 
 
