@@ -99,7 +99,7 @@ def main() -> int:
         for i in range(seq.num_frames):
             rec = seq.frame(i)
             cam_x, cam_z = float(rec["camera_position"][0]), float(rec["camera_position"][2])
-            now = seen_stacks(stacks, seq.depth(i), seq.instance(i), cam_z)
+            now = seen_stacks(stacks, seq.level_depth(i), seq.instance(i), cam_z)
             sofar |= now
             if i % args.every:
                 continue

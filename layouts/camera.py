@@ -67,6 +67,18 @@ class Intrinsics:
         z = p[:, 2]
         return np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1)
 
+    def level_depth(self, depth: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """A rotated camera's Z-depth image ``(H, W)`` (metres, 0 = no hit) as distances along the level
+        camera's axis (world Z from the camera): what a level camera's depth compares with planes of
+        constant Z. ``rotation``: the camera's frame in the level one's (`layouts.canonical.camera_rotation`)."""
+        depth = np.asarray(depth, np.float32)
+        if depth.shape != (self.height, self.width):
+            raise LayoutError(f"depth image {depth.shape} does not match the camera's {self.height}x{self.width}")
+        r = np.asarray(rotation, np.float64)[2]
+        x = (np.arange(self.width) + 0.5 - self.cx) / self.fx
+        y = (np.arange(self.height) + 0.5 - self.cy) / self.fy
+        return depth * (r[0] * x[None, :] + r[1] * y[:, None] + r[2]).astype(np.float32)
+
     def visible_columns(self, spec: LayoutSpec, distance: float) -> np.ndarray:
         """Boolean ``(D,)``: layout columns whose centre is in view at ``distance`` metres ahead.
 

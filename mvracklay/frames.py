@@ -23,6 +23,7 @@ from PIL import Image
 from layouts import Intrinsics
 from layouts.errors import InputError
 from layouts.fileio import load_json
+from waresynth.config import camera_angles
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
@@ -60,8 +61,8 @@ class FrameSource:
     """An ordered, validated source of RGB frames.
 
     ``kind`` is ``sequence`` (WareSynth folder), ``images`` or ``video``; ``num_frames`` is None
-    when a video container does not say. ``intrinsics`` and ``records`` (per-frame camera records)
-    are known only for a WareSynth sequence.
+    when a video container does not say. ``intrinsics``, ``records`` (per-frame camera records) and
+    ``camera_angles`` are known only for a WareSynth sequence.
     """
 
     kind: str
@@ -71,6 +72,8 @@ class FrameSource:
     num_frames: int | None
     intrinsics: Intrinsics | None = None
     records: list[dict[str, Any]] | None = None
+    #: the camera's recorded rotation (roll, pitch, yaw) in degrees: a WareSynth sequence's; None for footage
+    camera_angles: tuple[float, float, float] | None = None
     image_paths: list[Path] = field(default_factory=list, repr=False)
 
     def frames(self, max_frames: int | None = None) -> Iterator[np.ndarray]:
@@ -122,6 +125,7 @@ def _sequence(folder: Path) -> FrameSource:
         src.intrinsics = (
             intr if (intr.width, intr.height) == (src.width, src.height) else intr.scaled(src.width, src.height)
         )
+    src.camera_angles = camera_angles(meta.get("camera"), str(meta_path))
     frames = meta.get("frames")
     if isinstance(frames, list) and all(isinstance(f, dict) for f in frames):
         src.records = frames

@@ -270,8 +270,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
-    # a generated sequence's camera is level
-    roll, pitch, yaw = resolve_angles(cfg.roll, cfg.pitch, cfg.yaw, level=source.kind == "sequence")
+    # a generated sequence's camera rotation is recorded; footage's is read from the frames
+    roll, pitch, yaw = resolve_angles(cfg.roll, cfg.pitch, cfg.yaw, source.camera_angles)
     stage = staging_dir(out)
     rec = None
     try:

@@ -67,6 +67,13 @@ def frame_camera(seq: Any, i: int, default_distance: float = DEFAULT_DISTANCE) -
     return intr, dist
 
 
+def sequence_angles(seq: Any) -> tuple[float, float, float]:
+    """A generated sequence's camera rotation (roll, pitch, yaw) in degrees, as recorded
+    (`waresynth.dataset.Sequence.camera_angles`); (0, 0, 0) for one that records none."""
+    angles = getattr(seq, "camera_angles", None)
+    return (0.0, 0.0, 0.0) if angles is None else (float(angles[0]), float(angles[1]), float(angles[2]))
+
+
 def image_intrinsics(intr: Intrinsics | None, width: int, height: int) -> Intrinsics:
     """The intrinsics of a ``width x height`` image: ``intr`` scaled to it, or a 60 deg camera if None."""
     if intr is None:
@@ -269,7 +276,8 @@ class WindowDataset(torch.utils.data.Dataset):
 
     def _frame(self, seq: SequenceLike, i: int) -> dict[str, np.ndarray]:
         intr, dist = frame_camera(seq, i)
-        img = canonical_image(seq.rgb(i), self.view, intr, dist)
+        # a rotated camera is levelled by its recorded rotation: the layouts are the level camera's
+        img = canonical_image(seq.rgb(i), self.view, intr, dist, *sequence_angles(seq))
         lay = seq.layouts(i)
         d = self.spec.size
         anchors, rows = board_rows(seq, i, self.view, self.spec.num_slots)
@@ -330,7 +338,7 @@ class WindowDataset(torch.utils.data.Dataset):
         from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map
 
         seq = self.sequences[si]
-        for name in ("depth", "instance", "scene"):
+        for name in ("level_depth", "instance", "scene"):
             if not callable(getattr(seq, name, None)):
                 raise InputError(f"{seq.name}: --seen-weight needs the generator's depth, instance and scene files")
         if si not in self._stacks:
@@ -349,7 +357,7 @@ class WindowDataset(torch.utils.data.Dataset):
                     k for k, st in enumerate(stacks)
                     if st["level"] in levels and abs(st["x"] - cam_x) < spec.x_extent / 2 + st["hx"]
                 ]  # fmt: skip
-                seen |= seen_stacks(stacks, seq.depth(i), seq.instance(i), cam_z, near)
+                seen |= seen_stacks(stacks, seq.level_depth(i), seq.instance(i), cam_z, near)
                 done.add(i)
             out[t] = stack_column_map(stacks, dict.fromkeys(seen, 1.0), spec, levels, cam_x)
         return out

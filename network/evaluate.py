@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
-from network.data import SequenceLike, board_rows, check_spec_compatible
+from network.data import SequenceLike, board_rows, check_spec_compatible, sequence_angles
 from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera
 from network.model import MVRackLay
 
@@ -34,8 +34,8 @@ def evaluate_sequences(
     whole_sequence: bool = False,
     fuse_tau: float = 0.0,
     roll: float | str | None = None,
-    pitch: float | str = 0.0,
-    yaw: float | str = 0.0,
+    pitch: float | str | None = None,
+    yaw: float | str | None = None,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -45,8 +45,9 @@ def evaluate_sequences(
     False keeps the top views' rack depth as decoded when the model could read it from back edges;
     ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
     ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off);
-    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: the camera is level),
-    ``pitch`` / ``yaw`` a tilt (degrees, up > 0) / turn (degrees, right > 0), given or ``"auto"``.
+    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: each sequence's
+    recorded roll, 0 for a level camera), ``pitch`` / ``yaw`` a tilt (degrees, up > 0) / turn (degrees,
+    right > 0), the same.
     """
     scorer = FrameScorer()
     slots_right = 0
@@ -62,7 +63,7 @@ def evaluate_sequences(
         anchors = (
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
-        pred = Predictor(
+        pred = Predictor(  # angles None: the sequence's recorded ones (`network.infer.SequenceCamera`)
             model,
             sequence_camera(seq),
             anchors,
@@ -95,10 +96,13 @@ def evaluate_sequences(
         "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "fuse_frames": fuse_tau,
+        # as asked: degrees, "auto", or None for each sequence's recorded angle
         "roll": roll,
         "pitch": pitch,
         "yaw": yaw,
-        # the angles levelled in each frame (degrees); [] when the camera was taken as level
+        # the sequences' recorded camera rotations (degrees), in order
+        "recorded_angles": [list(sequence_angles(seq)) for seq in sequences],
+        # the angles levelled in each frame (degrees); [] when every camera was taken as level
         "rolls": rolls,
         "pitches": pitches,
         "yaws": yaws,

@@ -25,6 +25,7 @@ from network.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, ra
 from network.infer import Predictor, sequence_camera
 from network.model import MVRackLay
 from network.uprights import UprightHead, pool_columns
+from waresynth.dataset import require_level_camera
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
 UPRIGHT_ROWS = 0.15
@@ -50,6 +51,7 @@ def upright_targets(seq: Any, i: int, view: CanonicalView, rack_depth: float) ->
     least `UPRIGHT_ROWS` of its rows inside the image), and ``(W,)`` which columns lie inside the image."""
     from waresynth.visibility import upright_faces
 
+    require_level_camera(seq, "fitting the upright head")  # its masks are sampled as a level camera's
     intr, distance = frame_camera(seq, i)
     if intr is None:
         raise InputError(f"{getattr(seq, 'name', 'sequence')}: fitting the upright head needs the camera intrinsics")

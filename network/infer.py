@@ -25,7 +25,14 @@ from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
 from network.calibrate import apply_box_offset
-from network.data import DEFAULT_DISTANCE, canonical_image, frame_camera, image_intrinsics, to_tensor
+from network.data import (
+    DEFAULT_DISTANCE,
+    canonical_image,
+    frame_camera,
+    image_intrinsics,
+    sequence_angles,
+    to_tensor,
+)
 from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.model import MVRackLay, board_peaks, head_outputs
 from network.motion import camera_shift, motion_signature
@@ -57,9 +64,23 @@ def fixed_camera(intrinsics: Intrinsics | None = None, distance: float = DEFAULT
     return lambda i: (intrinsics, distance)
 
 
-def sequence_camera(seq: Any, default_distance: float = DEFAULT_DISTANCE) -> CameraFn:
-    """A sequence's own intrinsics and per-frame distances (`network.data.frame_camera`)."""
-    return lambda i: frame_camera(seq, i, default_distance)
+class SequenceCamera:
+    """A sequence's own intrinsics and per-frame distances (`network.data.frame_camera`), called per
+    frame like any `CameraFn`, and its recorded camera rotation ``angles`` (`network.data.sequence_angles`),
+    which a `Predictor` levels unless told otherwise."""
+
+    def __init__(self, seq: Any, default_distance: float = DEFAULT_DISTANCE) -> None:
+        self.seq = seq
+        self.default_distance = default_distance
+        self.angles = sequence_angles(seq)
+
+    def __call__(self, i: int) -> tuple[Intrinsics | None, float]:
+        return frame_camera(self.seq, i, self.default_distance)
+
+
+def sequence_camera(seq: Any, default_distance: float = DEFAULT_DISTANCE) -> SequenceCamera:
+    """A sequence's own intrinsics, per-frame distances and recorded rotation (`SequenceCamera`)."""
+    return SequenceCamera(seq, default_distance)
 
 
 class Predictor:
@@ -102,8 +123,9 @@ class Predictor:
     ``roll``: the camera's roll about its optical axis (degrees, the image content turned
     counter-clockwise), levelled in the canonical warp: a number if known, ``"auto"`` to read it
     from the frames (`network.roll.CameraLeveller`; ``self.leveller.rolls`` lists each frame's), None
-    (the default) for a level camera. ``pitch`` (optical axis tilted up > 0) and ``yaw`` (turned
-    right > 0): the same, 0 by default; reading them (``"auto"``) needs the intrinsics.
+    (the default) for the camera's recorded roll (a generated sequence's, `SequenceCamera`), else a
+    level camera. ``pitch`` (optical axis tilted up > 0) and ``yaw`` (turned right > 0): the same;
+    reading them (``"auto"``) needs the intrinsics.
     """
 
     def __init__(
@@ -137,6 +159,9 @@ class Predictor:
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         self.whole_sequence = bool(whole_sequence)
+        # an angle not given is the camera's recorded one (a generated sequence's, `SequenceCamera`), else 0
+        recorded = getattr(self.camera, "angles", (0.0, 0.0, 0.0))
+        roll, pitch, yaw = ((a if a is not None else r or None) for a, r in zip((roll, pitch, yaw), recorded))
         self.roll = check_angle(roll, "roll")  #: degrees, "auto" or None (level)
         self.pitch = check_angle(pitch, "pitch")  #: degrees the optical axis is tilted up, "auto" or None (level)
         self.yaw = check_angle(yaw, "yaw")  #: degrees the camera is turned right, "auto" or None (level)

@@ -464,8 +464,8 @@ class CameraLeveller:
 ROLL_HELP = (
     "the camera's roll about its optical axis, levelled before the network: 'auto' reads it from the frames "
     "(the edges of boards, uprights and boxes), a number gives it in degrees (the image turned counter-clockwise), "
-    "0 takes the camera as level. Default (as for --pitch and --yaw): 0 for a generated sequence (its camera is "
-    "level), auto for other footage"
+    "0 takes the camera as level. Default (as for --pitch and --yaw): a generated sequence's recorded angle (0 "
+    "unless its config turned the camera), auto for other footage"
 )
 
 
@@ -491,14 +491,15 @@ def add_roll_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
 
 
 def resolve_angles(
-    roll: object, pitch: object, yaw: object, level: bool, prefix: str = "--"
+    roll: object, pitch: object, yaw: object, recorded: tuple[float, float, float] | None, prefix: str = "--"
 ) -> tuple[float | str, float | str, float | str]:
-    """The (roll, pitch, yaw) to use: each as given, else 0 for a source whose camera is known to be
-    ``level`` (a generated sequence), else ``"auto"`` (read from the frames)."""
+    """The (roll, pitch, yaw) to use: each as given, else the ``recorded`` one for a source whose camera
+    rotation is known (a generated sequence's, `network.data.sequence_angles`; 0 for a level camera), else
+    ``"auto"`` (read from the frames). ``recorded`` None: footage, whose camera nothing records."""
     out = []
-    for name, angle in zip(ANGLES, (roll, pitch, yaw)):
+    for k, (name, angle) in enumerate(zip(ANGLES, (roll, pitch, yaw))):
         angle = check_angle(angle, prefix + name)
-        out.append((0.0 if level else "auto") if angle is None else angle)
+        out.append(angle if angle is not None else "auto" if recorded is None else float(recorded[k]))
     return out[0], out[1], out[2]
 
 

@@ -281,11 +281,11 @@ def test_a_flat_or_noisy_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_ab
 
 def test_roll_arguments_are_checked():
     assert check_angle("auto") == "auto" and check_angle("2.5") == 2.5 and check_angle(None) is None
-    assert resolve_angles(None, None, None, level=True) == (0.0, 0.0, 0.0)
-    assert resolve_angles(None, None, None, level=False) == ("auto", "auto", "auto")
-    assert resolve_angles("-3", "auto", 1, level=True) == (-3.0, "auto", 1.0)
+    assert resolve_angles(None, None, None, (0.0, 0.0, 0.0)) == (0.0, 0.0, 0.0)
+    assert resolve_angles(None, None, None, None) == ("auto", "auto", "auto")
+    assert resolve_angles("-3", "auto", 1, (0.0, 0.0, 0.0)) == (-3.0, "auto", 1.0)
     with pytest.raises(InputError, match="--pitch"):
-        resolve_angles(None, "up", None, level=True)
+        resolve_angles(None, "up", None, (0.0, 0.0, 0.0))
     for bad, msg in (("abc", "'auto' or a number"), (60, "within"), (float("inf"), "within"), (True, "number")):
         with pytest.raises(InputError, match=msg):
             check_angle(bad, "--roll")

@@ -16,10 +16,12 @@ from typing import Any
 import numpy as np
 
 from layouts.camera import Intrinsics
+from layouts.canonical import camera_rotation
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.spec import LayoutSpec
+from waresynth.config import camera_angles
 from waresynth.imageio import read_png
 
 SPLITS = ("train", "val", "test")
@@ -36,6 +38,19 @@ def check_sequence_name(name: Any, source: str | os.PathLike) -> str:
     if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
         raise InputError(f"{source}: sequence name {name!r} is not a plain folder name inside the dataset, refused")
     return name
+
+
+def require_level_camera(seq: Any, what: str) -> None:
+    """A one-line refusal when ``what`` (something that reads a generated frame's depth or semantic images
+    as a level camera's) is asked of a sequence whose camera was turned."""
+    angles = tuple(getattr(seq, "camera_angles", None) or (0.0, 0.0, 0.0))
+    if any(angles):
+        name = getattr(seq, "root", getattr(seq, "name", "sequence"))
+        raise InputError(
+            f"{name}: {what} needs a level camera's images, but this camera is turned (roll / pitch / yaw "
+            f"{angles[0]:g} / {angles[1]:g} / {angles[2]:g} deg); use data generated with camera.roll_deg, "
+            "pitch_deg and yaw_deg at [0, 0]"
+        )
 
 
 class Sequence:
@@ -68,6 +83,11 @@ class Sequence:
     def num_frames(self) -> int:
         return len(self.meta["frames"])
 
+    @cached_property
+    def camera_angles(self) -> tuple[float, float, float]:
+        """The camera's (roll, pitch, yaw) in degrees, as generated; (0, 0, 0) for a level camera."""
+        return camera_angles(self.meta.get("camera"), str(self.root / "meta.json"))
+
     def __len__(self) -> int:
         return self.num_frames
 
@@ -97,6 +117,14 @@ class Sequence:
     def depth(self, i: int) -> np.ndarray:
         """float32 (H, W) Z depth in metres; 0 where no surface was hit."""
         return read_png(self.depth_path(i), np.uint16).astype(np.float32) / np.float32(1000.0)
+
+    def level_depth(self, i: int) -> np.ndarray:
+        """float32 (H, W): each pixel's surface as far ahead as a level camera measures it (world Z from
+        the camera, metres; 0 where nothing was hit). `depth` itself for a level camera."""
+        depth = self.depth(i)
+        if not any(self.camera_angles):
+            return depth
+        return self.intrinsics.level_depth(depth, camera_rotation(*self.camera_angles))
 
     def semantic(self, i: int) -> np.ndarray:
         """uint8 (H, W) ids of `waresynth.semantics`."""

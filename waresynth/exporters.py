@@ -51,6 +51,7 @@ from layouts.fileio import (
     load_npy,
 )
 from layouts.spec import LayoutSpec
+from waresynth.config import CAMERA_ANGLE_KEYS, camera_angles
 from waresynth.dataset import check_frame_index
 
 EXPORT_FORMATS: tuple[str, ...] = ("coco", "yolo", "racklay")
@@ -353,6 +354,7 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
             records.append({"name": seq.name, "split": seq.split, "first": index, "frames": seq.num_frames})
             cameras[seq.name] = {
                 "intrinsics": seq.intrinsics.to_dict(),
+                **dict(zip(CAMERA_ANGLE_KEYS, seq.camera_angles)),
                 "board_ys": seq.visible_board_ys(),
                 "frames": [seq.frame(k) for k in range(seq.num_frames)],
             }
@@ -578,6 +580,7 @@ class ExportSequence:
         self._cam = cameras or {}
         src = f"{export.root / RACKLAY_CAMERAS} ({record.name})"
         self.intrinsics = Intrinsics.from_dict(self._cam.get("intrinsics"), src)
+        self.camera_angles = camera_angles(self._cam, src)  #: (roll, pitch, yaw) degrees, as generated
 
     def __repr__(self) -> str:
         return f"ExportSequence({self.name!r}, split={self.split!r}, frames={self.num_frames})"

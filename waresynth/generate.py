@@ -27,7 +27,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
-from waresynth.config import load_config
+from waresynth.config import CAMERA_ANGLE_KEYS, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
@@ -130,7 +130,12 @@ def write_sequence(
         "image_size": [intr.width, intr.height],
         "intrinsics": intr.to_dict(),
         "step": float(scene.camera.step),
-        "camera": {"height": scene.camera.height, "distance": distance, "hfov_deg": cfg["camera"]["hfov_deg"]},
+        "camera": {
+            "height": scene.camera.height,
+            "distance": distance,
+            "hfov_deg": cfg["camera"]["hfov_deg"],
+            **dict(zip(CAMERA_ANGLE_KEYS, scene.camera.angles)),
+        },
         "rack_mid_z": float(scene.rack_mid_z),
         "visible_levels": scene.visible_levels,
         "background": scene.background,
@@ -242,6 +247,10 @@ def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
     if not isinstance(old, dict) or old.get("format") != DATASET_FORMAT:
         return f"{mpath}: not a WareSynth manifest"
     manifest = json.loads(json.dumps(manifest))
+    cam = old.get("config", {}).get("camera") if isinstance(old.get("config"), dict) else None
+    if isinstance(cam, dict):  # written before the camera could rotate: it was level
+        for k in CAMERA_ANGLE_KEYS:
+            cam.setdefault(k, [0.0, 0.0])
     if old != manifest:
         diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
         return f"{root}: holds a different WareSynth dataset ({', '.join(diff)} differ)"

@@ -92,7 +92,7 @@ RENDERER_USED = False
 
 
 class Renderer:
-    """Renders one scene from any camera position (a pure translation facing +Z)."""
+    """Renders one scene from any camera position, the camera rotated as ``scene.camera`` says."""
 
     def __init__(
         self, scene: Scene, intrinsics: Intrinsics, nthreads: int = 1, exact: bool = False, noise_seed: int = 0
@@ -166,15 +166,23 @@ class Renderer:
 
         cx, cy, fx, fy = intrinsics.cx, intrinsics.cy, intrinsics.fx, intrinsics.fy
 
-        def directions(us: np.ndarray, vs: np.ndarray) -> np.ndarray:
+        # Rays are cast in the world: a camera ray d is the world ray R d (R = I for a level camera,
+        # whose rays and images are then exactly those of the unrotated renderer).
+        rot = scene.camera.rotation
+        level = bool(np.array_equal(rot, np.eye(3)))
+
+        def directions(us: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             u, vv = np.meshgrid(us + 0.5, vs + 0.5)
             d = np.stack([(u - cx) / fx, (vv - cy) / fy, np.ones_like(u)], -1)
-            return (d / np.linalg.norm(d, axis=-1, keepdims=True)).astype(np.float32)
+            d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            return (d if level else d @ rot.T).astype(np.float32), d[..., 2].astype(np.float32)
 
-        self.dirs = directions(np.arange(w), np.arange(h))  # (H, W, 3)
+        self.dirs, forward = directions(np.arange(w), np.arange(h))  # (H, W, 3) world, (H, W) along the axis
         self.dflat = [np.ascontiguousarray(self.dirs[..., k]).reshape(-1) for k in range(3)]
+        #: per pixel, the Z depth (along the optical axis) of a unit of ray length
+        self.depth_per_t = self.dflat[2] if level else np.ascontiguousarray(forward).reshape(-1)
         if self.block:
-            self.cdirs = directions(np.arange(0, w + 1, 2), np.arange(0, h + 1, 2))  # (H/2+1, W/2+1, 3)
+            self.cdirs = directions(np.arange(0, w + 1, 2), np.arange(0, h + 1, 2))[0]  # (H/2+1, W/2+1, 3)
         self.light = np.array(scene.light["position"], np.float32)
         # Sensor noise: each frame adds a random window of one Gaussian buffer per renderer.
         n_noise = 3 * w * h + 65536
@@ -344,7 +352,7 @@ class Renderer:
         t[miss] = 0.0
         dx, dy, dz = self.dflat
         # Cameras stay >= 0.2 m above the floor, so every hit is deeper than 0.5 mm (never 0).
-        z_mm = t * dz
+        z_mm = t * self.depth_per_t
         z_mm *= np.float32(1000.0)
         np.rint(z_mm, out=z_mm)
         np.clip(z_mm, 0, 65535, out=z_mm)

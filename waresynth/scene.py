@@ -16,8 +16,10 @@ from typing import Any
 import numpy as np
 
 from layouts.camera import Intrinsics
+from layouts.canonical import camera_rotation
 from layouts.errors import InputError
 from waresynth import semantics as sem
+from waresynth.config import CAMERA_ANGLE_KEYS
 
 #: Renderer texture patterns by name.
 PATTERNS: dict[str, int] = {
@@ -123,13 +125,31 @@ class Rack:
 
 @dataclass
 class Camera:
-    """A pure translation along X at fixed height and distance; positions are world (x, y, z)."""
+    """A translation along X at fixed height and distance; positions are world (x, y, z).
+
+    The camera keeps one rotation for the whole sequence: ``roll_deg`` about its optical axis,
+    ``pitch_deg`` (optical axis up > 0) and ``yaw_deg`` (turned right > 0), the convention of
+    `layouts.canonical.camera_rotation`; all 0 (the default) faces the racks square (+Z).
+    """
 
     intrinsics: Intrinsics
     height: float
     distance: float
     step: float
     positions: np.ndarray  #: (N, 3) float64
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+
+    @property
+    def angles(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) in degrees."""
+        return (self.roll_deg, self.pitch_deg, self.yaw_deg)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """3x3: the camera's frame in the world's (a camera ray ``d`` is the world ray ``R d``)."""
+        return camera_rotation(*self.angles)
 
 
 @dataclass
@@ -497,6 +517,9 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
         "shadow_strength": _u(rng, lc["shadow_strength"]),
     }
     sensor = {"noise_sigma": _u(rng, sc["noise_sigma"]), "gain": _u(rng, sc["gain"])}
+    # The camera's rotation is drawn last and only from a range that is not one value (`_u`), so a
+    # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
+    camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
     return Scene(
         row=row,
         racks=racks,

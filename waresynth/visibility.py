@@ -53,7 +53,10 @@ def seen_stacks(
     cam_z: float,
     candidates: list[int] | None = None,
 ) -> set[int]:
-    """Indices of the stacks (among ``candidates``, default all) whose visible pixels reach `SEEN` of their depth."""
+    """Indices of the stacks (among ``candidates``, default all) whose visible pixels reach `SEEN` of their depth.
+
+    ``depth``: metres along world Z from the camera (`waresynth.dataset.Sequence.level_depth`; a level
+    camera's Z-depth image)."""
     seen = set()
     ids = np.unique(instance)
     for k in range(len(stacks)) if candidates is None else candidates:
@@ -99,7 +102,7 @@ class SeenTracker:
     """Which stacks' depth a generated sequence has shown so far, frame by frame (frames in order)."""
 
     def __init__(self, seq: Any) -> None:
-        for name in ("depth", "instance", "scene"):
+        for name in ("level_depth", "instance", "scene"):
             if not callable(getattr(seq, name, None)):
                 raise InputError(f"{seq.name}: visibility needs the generator's depth, instance and scene files")
         self.seq = seq
@@ -110,7 +113,7 @@ class SeenTracker:
     def add(self, i: int) -> None:
         """Frame ``i`` (frames in order)."""
         cam_z = float(self.seq.frame(i)["camera_position"][2])
-        self.now = seen_stacks(self.stacks, self.seq.depth(i), self.seq.instance(i), cam_z)
+        self.now = seen_stacks(self.stacks, self.seq.level_depth(i), self.seq.instance(i), cam_z)
         self.sofar |= self.now
 
     def labels(self, i: int) -> np.ndarray:

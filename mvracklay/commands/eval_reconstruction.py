@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     model = record = None
-    resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # checked before anything runs
+    resolve_angles(args.roll, args.pitch, args.yaw, None)  # checked before anything runs
     if args.checkpoint:
         import torch
 

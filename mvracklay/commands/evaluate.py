@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from layouts.errors import InputError
@@ -16,7 +17,7 @@ from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, describe_angles, resolve_angles
+from network.roll import ANGLES, add_roll_option, check_angle, describe_angles
 from network.train import open_data
 
 NAME = "evaluate"
@@ -62,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
-    roll, pitch, yaw = resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # a generated camera is level
+    # an angle not given is each sequence's recorded one (0 for a level camera); checked here
+    roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((args.roll, args.pitch, args.yaw), ANGLES))
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
@@ -96,8 +98,13 @@ def run(args: argparse.Namespace) -> int:
         title += ", depths from the whole sequence"
     if fuse_tau > 0:
         title += f", neighbouring frames fused (tau {fuse_tau:g})"
-    for what, given in (("roll", roll), ("pitch", pitch), ("yaw", yaw)):
-        if given != 0:
+    recorded = np.asarray(res["recorded_angles"], float).reshape(-1, 3)
+    for k, (what, given) in enumerate(zip(ANGLES, (roll, pitch, yaw))):
+        if given is None and recorded[:, k].any():
+            lo, hi = recorded[:, k].min(), recorded[:, k].max()
+            span = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
+            title += f", camera {what} levelled as recorded ({span} deg)"
+        elif given not in (None, 0):
             title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
     if args.true_anchors:
         title += ", ground-truth shelf boards"

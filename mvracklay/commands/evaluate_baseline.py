@@ -11,7 +11,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from layouts.metrics import FrameScorer, format_table
 from mvracklay.baselines.depth_projection import depth_projection_layouts
-from waresynth.dataset import open_dataset
+from waresynth.dataset import open_dataset, require_level_camera
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -38,6 +38,7 @@ def evaluate_depth_projection(sequences, max_frames: int | None = None, progress
     frames = 0
     with tqdm(total=total, desc="depth projection", unit="frame", disable=not progress, leave=False) as bar:
         for seq in sequences:
+            require_level_camera(seq, "the depth-projection baseline")  # it back-projects a level camera's depth
             z_front = float(seq.scene()["row"]["z_front"])
             n = seq.num_frames if not max_frames else min(seq.num_frames, max_frames)
             for i in range(n):

@@ -26,6 +26,7 @@ from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
 from network.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
+from waresynth.config import camera_angles
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
-    resolve_angles(args.roll, args.pitch, args.yaw, level=True)  # checked before the model loads
+    resolve_angles(args.roll, args.pitch, args.yaw, None)  # checked before the model loads
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
         raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
     if args.rack_depth is not None:
@@ -149,9 +150,9 @@ def predict_folder(
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
     itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
     ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
-    ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: 0 for a generated sequence (its
-    camera is level), else read from the frames; ``pitch`` / ``yaw``: the camera's tilt (up > 0) / turn
-    (right > 0), the same.
+    ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: a generated sequence's
+    recorded roll (0 for a level camera), else read from the frames; ``pitch`` / ``yaw``: the camera's
+    tilt (up > 0) / turn (right > 0), the same.
     """
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
@@ -191,7 +192,10 @@ def predict_folder(
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
-    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, level=meta is not None)
+    recorded = None  # footage: read from the frames; a generated sequence: as it records (0 for a level camera)
+    if meta is not None:
+        recorded = camera_angles(meta.get("camera") if isinstance(meta, dict) else None, str(seq_dir / "meta.json"))
+    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, recorded)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(
         model,
