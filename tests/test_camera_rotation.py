@@ -154,10 +154,11 @@ def test_training_windows_are_levelled_by_the_recorded_rotation(turned_dataset):
 
 
 def test_the_rotation_is_the_default_for_generated_sequences_only(turned_dataset):
+    from tiny_net import tiny_config
+
     from network.infer import Predictor, sequence_camera
     from network.model import MVRackLay
     from network.roll import resolve_angles
-    from tiny_net import tiny_config
     from waresynth.dataset import open_dataset
 
     assert resolve_angles(None, None, None, (1.0, 0.0, 4.0)) == (1.0, 0.0, 4.0)
@@ -173,7 +174,7 @@ def test_the_rotation_is_the_default_for_generated_sequences_only(turned_dataset
     assert Predictor(model, sequence_camera(level)).leveller is None
 
 
-def test_commands_level_a_generated_sequence_by_its_record(turned_dataset, tiny_checkpoint, tmp_path):
+def test_commands_level_a_generated_sequence_by_its_record(turned_dataset, tiny_checkpoint, tmp_path, capsys):
     from mvracklay.cli import main
     from mvracklay.frames import open_source
 
@@ -184,8 +185,10 @@ def test_commands_level_a_generated_sequence_by_its_record(turned_dataset, tiny_
     res = json.loads(out.read_text())
     assert res["recorded_angles"] == [[0.0, 0.0, 4.0]] * 2 and res["yaw"] is None
     assert res["yaws"] == [4.0] * 10 and set(res["rolls"]) == {0.0}
+    assert "camera yaw levelled as recorded (4 deg)" in capsys.readouterr().out
     assert main([*args, "--json", str(out), "--quiet", "--threads", "1", "--yaw", "0"]) == 0
     assert json.loads(out.read_text())["yaws"] == []
+    assert "camera yaw taken as level (recorded 4 deg)" in capsys.readouterr().out
 
 
 def test_what_reads_depth_as_a_level_camera_refuses_a_turned_one(turned_dataset, capsys):
@@ -198,6 +201,18 @@ def test_what_reads_depth_as_a_level_camera_refuses_a_turned_one(turned_dataset,
     require_level_camera(open_dataset(turned_dataset[0]).sequences()[0], "the test")
     assert main(["evaluate-baseline", "--data", str(turned_dataset[1]), "--split", "all", "--quiet"]) != 0
     assert "depth-projection baseline needs a level camera's images" in capsys.readouterr().err
+
+
+def test_inspect_says_the_camera_is_turned(turned_dataset):
+    from waresynth.dataset import open_dataset
+    from waresynth.preview import format_summary, summarise
+
+    turned = summarise(open_dataset(turned_dataset[1]), max_frames=2, progress=False)
+    assert turned["camera_angles"] == {"roll": [0.0, 0.0], "pitch": [0.0, 0.0], "yaw": [4.0, 4.0]}
+    assert "turned: yaw 4 deg" in format_summary(turned)
+    assert "camera       turned" not in format_summary(
+        summarise(open_dataset(turned_dataset[0]), max_frames=2, progress=False)
+    )
 
 
 def test_a_racklay_export_carries_the_rotation(turned_dataset, tmp_path):

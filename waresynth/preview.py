@@ -21,6 +21,7 @@ from tqdm import tqdm
 from layouts.classes import BOX, CLASS_COLOURS, CLASS_NAMES, SHELF, colourise
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
+from waresynth.config import CAMERA_ANGLE_KEYS
 from waresynth.semantics import NUM_SEMANTIC, SEMANTIC_COLOURS, SEMANTIC_NAMES, colourise_semantic
 
 # ----------------------------------------------------------------------------- geometry
@@ -196,6 +197,9 @@ def render_sheet(seq: Any, index: int, dataset_name: str = "") -> Image.Image:
         f"{dataset_name + ' / ' if dataset_name else ''}{seq.name} ({seq.split})   frame {index} of {seq.num_frames}"
         f"   image {w}x{h}   camera ({cam_txt}) m   distance to rack front {_fmt_m(record.get('distance'))}"
     )
+    angles = getattr(seq, "camera_angles", None)
+    if angles and any(angles):
+        head += "   turned (roll / pitch / yaw) " + " / ".join(f"{a:g}" for a in angles) + " deg"
     draw.text((MARGIN, MARGIN), head, fill=_INK, font=f_head)
 
     # Row of image panels.
@@ -366,7 +370,15 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         },
         "visible_shelves_per_frame": _stats(visible_shelves),
         "boxes_per_shelf": _stats(counts),
+        # the cameras' rotations (degrees; each 0 for a level camera), one per sequence
+        "camera_angles": {
+            k.removesuffix("_deg"): _range([s.camera_angles[j] for s in seqs]) for j, k in enumerate(CAMERA_ANGLE_KEYS)
+        },
     }
+
+
+def _range(values: list[float]) -> list[float]:
+    return [min(values), max(values)] if values else [0.0, 0.0]
 
 
 def _stats(values: list[int]) -> dict[str, float]:
@@ -395,6 +407,12 @@ def format_summary(s: dict[str, Any]) -> str:
         f"layout spec  R={spec['num_slots']} slots, D={spec['size']} px, x {spec['x_extent']:.2f} m, "
         f"z {spec['z_extent']:.2f} m, h {spec['h_extent']:.2f} m"
     )
+    turned = {k: r for k, r in s.get("camera_angles", {}).items() if any(r)}
+    if turned:
+        lines.append(
+            "camera       turned: "
+            + ", ".join(f"{k} {r[0]:g}" + (f" to {r[1]:g}" if r[1] != r[0] else "") + " deg" for k, r in turned.items())
+        )
     lines.append(f"pixel fractions over {s['frames_measured']} frames (percent):")
     lines.append("  semantic   " + "  ".join(f"{k} {100 * v:.1f}" for k, v in s["semantic_fractions"].items()))
     for v, fr in s["layout_fractions"].items():

@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
             lo, hi = recorded[:, k].min(), recorded[:, k].max()
             span = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
             title += f", camera {what} levelled as recorded ({span} deg)"
+        elif given == 0 and recorded[:, k].any():
+            title += f", camera {what} taken as level (recorded {np.abs(recorded[:, k]).max():g} deg)"
         elif given not in (None, 0):
             title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
     if args.true_anchors:
