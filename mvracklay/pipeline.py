@@ -360,11 +360,11 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "fuse_frames": cfg.fuse_tau,
             # the camera's rotation levelled before the network (`network.roll`): the median over the frames
             "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-            "camera_roll_source": _angle_source(pred.roll or 0.0),
+            "camera_roll_source": _angle_source(pred.roll or 0.0, cfg.roll),
             "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
-            "camera_pitch_source": _angle_source(pred.pitch),
+            "camera_pitch_source": _angle_source(pred.pitch, cfg.pitch),
             "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
-            "camera_yaw_source": _angle_source(pred.yaw),
+            "camera_yaw_source": _angle_source(pred.yaw, cfg.yaw),
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
@@ -405,9 +405,14 @@ def _median(angles: list[float]) -> float:
     return float(np.median(angles)) if angles else 0.0
 
 
-def _angle_source(given: float | str) -> str:
-    """How a camera angle was known: "read" (from the frames), "given" or "level" (taken as 0)."""
-    return "read" if given == "auto" else "given" if given else "level"
+def _angle_source(used: float | str | None, asked: object) -> str:
+    """How a camera angle was known: "read" (from the frames), "given" (asked for), "recorded" (a
+    generated sequence's record) or "level" (taken as 0)."""
+    if used == "auto":
+        return "read"
+    if not used:
+        return "level"
+    return "recorded" if asked is None else "given"
 
 
 def spawn_viewer(rrd: Path) -> None:

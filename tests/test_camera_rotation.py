@@ -189,6 +189,11 @@ def test_commands_level_a_generated_sequence_by_its_record(turned_dataset, tiny_
     assert main([*args, "--json", str(out), "--quiet", "--threads", "1", "--yaw", "0"]) == 0
     assert json.loads(out.read_text())["yaws"] == []
     assert "camera yaw taken as level (recorded 4 deg)" in capsys.readouterr().out
+    base = ["--checkpoint", str(tiny_checkpoint), "--quiet", "--no-rrd", "--threads", "1", "--max-frames", "3"]
+    assert main(["run", str(turned_dataset[1] / "seq_00000"), "--out", str(tmp_path / "run"), *base]) == 0
+    meta = json.loads((tmp_path / "run" / "warehouse.json").read_text())["meta"]
+    assert (meta["camera_yaw_deg"], meta["camera_yaw_source"]) == (4.0, "recorded")
+    assert meta["camera_roll_source"] == meta["camera_pitch_source"] == "level"
 
 
 def test_what_reads_depth_as_a_level_camera_refuses_a_turned_one(turned_dataset, capsys):
