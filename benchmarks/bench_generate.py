@@ -5,6 +5,7 @@ and its share of meta.json/scene.json. Prints images/s (wall clock, including pr
 of the workers) and the peak resident memory of this process and of its largest worker.
 
     .venv/bin/python benchmarks/bench_generate.py --sequences 4 --frames 50 --workers 2
+    .venv/bin/python benchmarks/bench_generate.py ... --config turned.json   # a turned camera
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="keep the dataset here (default: a temporary folder)")
+    ap.add_argument("--config", type=Path, default=None, help="a generator config (e.g. a turned camera)")
     args = ap.parse_args()
 
     tmp = None
@@ -50,6 +52,7 @@ def main() -> int:
             image_size=(args.size, args.size),
             spec=LayoutSpec(size=args.layout_size),
             seed=args.seed,
+            config=args.config,
             workers=args.workers,
             overwrite=True,
             progress=False,
