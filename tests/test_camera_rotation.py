@@ -249,3 +249,23 @@ def test_area_sampled_copy_averages_the_double_size_render(turned_dataset, tmp_p
     assert got.camera_angles == (0.0, 0.0, 4.0)
     mismatch = subprocess.run([*run[:3], str(turned_dataset[0]), str(tmp_path / "bad")], capture_output=True, text=True)
     assert mismatch.returncode != 0 and "twice" in mismatch.stderr
+
+
+def test_the_roll_of_a_point_sampled_render_is_read():
+    """The renderer samples each pixel at its centre: a rolled edge is a staircase whose gradients are
+    level between its steps, which the orientation histogram alone reads as level (~0.4 of 5 degrees)."""
+    from network.roll import _orientation_peak, estimate_roll, estimate_tilt
+
+    intr = Intrinsics.from_fov(128, 128, 60.0)
+    rolls, tilt_rolls, histogram = [], [], []
+    for seed in range(4):
+        scene = build_scene(np.random.default_rng(seed), load_config(turned_config(roll=5.0)), intr, 3)
+        rgb = Renderer(scene, intr).render(scene.camera.positions[1], np.random.default_rng(0)).rgb
+        rolls.append(estimate_roll(rgb)[0])
+        tilt_rolls.append(estimate_tilt(rgb, intr)[0][0])
+        grey = rgb.astype(np.float32).mean(-1)
+        gy, gx = np.gradient(grey)
+        strong = np.hypot(gx, gy) > np.percentile(np.hypot(gx, gy), 80)
+        histogram.append(_orientation_peak(gx[strong], gy[strong], np.hypot(gx, gy)[strong], 15.0)[0])
+    assert abs(np.mean(histogram)) < 2.0  # what the edges' orientations alone say: the staircases look level
+    assert abs(np.mean(rolls) - 5.0) < 0.5 and abs(np.mean(tilt_rolls) - 5.0) < 0.8
