@@ -14,7 +14,6 @@ where links fail. Refuses to write into a folder that exists, or a pair of datas
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -25,14 +24,9 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from turn_dataset import _link_or_copy  # noqa: E402  (this script's folder is on the path)
+
 from waresynth.dataset import open_dataset  # noqa: E402
-
-
-def _link_or_copy(src: str, dst: str) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 def main() -> int:
