@@ -360,7 +360,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "fuse_frames": cfg.fuse_tau,
             # the camera's rotation levelled before the network (`network.roll`): the median over the frames
             "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-            "camera_roll_source": _angle_source(pred.roll or 0.0, cfg.roll),
+            "camera_roll_source": _angle_source(pred.roll, cfg.roll),
             "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
             "camera_pitch_source": _angle_source(pred.pitch, cfg.pitch),
             "camera_yaw_deg": _median(lev.yaws if lev is not None else []),

@@ -115,26 +115,21 @@ def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.nda
     return np.asarray(im)
 
 
-def _degrees(value: object, name: str, want: str) -> float:
-    """``value`` (a number or its text) as a float within +-MAX_ROLL_DEG; else an InputError naming ``name``."""
-    if isinstance(value, str):
-        try:
-            value = float(value)
-        except ValueError:
-            raise InputError(f"{name} must be {want}, got {value!r}") from None
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)):
-        raise InputError(f"{name} must be {want}, got {value!r}")
-    if not (math.isfinite(value) and abs(value) <= MAX_ROLL_DEG):
-        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {value!r}")
-    return float(value)
-
-
 def check_angle(angle: object, name: str = "roll") -> float | str | None:
     """A camera roll, pitch or yaw: None (the source's default, `resolve_angles`), ``"auto"`` (read from
     the frames) or a finite number of degrees within +-MAX_ROLL_DEG (as a float); else an InputError naming ``name``."""
     if angle is None or angle == "auto":
         return angle  # type: ignore[return-value]
-    return _degrees(angle, name, "'auto' or a number of degrees")
+    if isinstance(angle, str):
+        try:
+            angle = float(angle)
+        except ValueError:
+            raise InputError(f"{name} must be 'auto' or a number of degrees, got {angle!r}") from None
+    if isinstance(angle, bool) or not isinstance(angle, (int, float, np.floating)):
+        raise InputError(f"{name} must be 'auto' or a number of degrees, got {angle!r}")
+    if not (math.isfinite(angle) and abs(angle) <= MAX_ROLL_DEG):
+        raise InputError(f"{name} must be within +-{MAX_ROLL_DEG:g} degrees, got {angle!r}")
+    return float(angle)
 
 
 def _grey(rgb: np.ndarray) -> np.ndarray:
@@ -185,23 +180,34 @@ def _orientation_peak(gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, max_deg: 
     return -float(peak), strength
 
 
-def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
-    """One reading: (roll in degrees, peak strength over the histogram's mean; 0 = nothing to read).
+def _reading(
+    grey: np.ndarray, valid: np.ndarray, camera: tuple[float, ...], max_deg: float, gate: float = 0.0
+) -> tuple[float, float, tuple[float, ...], tuple[float, ...]] | None:
+    """One reading: (roll in degrees, the histogram peak's strength over its mean, the horizontal and the
+    vertical segment lines of `_segment_fits`); None when the image is flat or its peak is under ``gate``.
 
-    The histogram's roll, plus what the straight edges' positions show it missed (`_intercept_roll`;
-    square pixels about the image centre: no intrinsics needed)."""
+    The roll is the orientation histogram's plus what the straight edges' positions show it missed
+    (`_intercept_roll`). ``camera``: (fx, fy, cx, cy) in pixels."""
     gx, gy = _sobel(grey)
     mag = np.hypot(gx, gy)
     grads = _gradients(gx, gy, mag, valid)
     if grads is None:
-        return 0.0, 0.0
+        return None
     roll, strength = _orientation_peak(*grads, max_deg)
+    if strength < gate:
+        return None
+    hline, vline = _segment_fits(gx, gy, mag, valid, roll, camera)
+    return roll + _intercept_roll(hline, vline), strength, hline, vline
+
+
+def _read(grey: np.ndarray, valid: np.ndarray, max_deg: float) -> tuple[float, float]:
+    """One roll reading (degrees) and its strength (0 = nothing to read): square pixels about the image
+    centre, so no intrinsics are needed."""
     h, w = grey.shape
-    fits = _segment_fits(gx, gy, mag, valid, roll, (float(w), float(w), w / 2, h / 2))
-    if fits is not None:
-        (ah, _, _, ah_s), (av, _, _, av_s) = fits
-        roll = float(np.clip(roll + _intercept_roll(ah, ah_s, av, av_s), -max_deg, max_deg))
-    return roll, strength
+    got = _reading(grey, valid, (float(w), float(w), w / 2, h / 2), max_deg)
+    if got is None:
+        return 0.0, 0.0
+    return float(np.clip(got[0], -max_deg, max_deg)), got[1]
 
 
 def _line_fit(s: np.ndarray, x: np.ndarray, w: np.ndarray) -> tuple[float, float, float, float]:
@@ -297,35 +303,24 @@ def _level(grey: np.ndarray, intr: Intrinsics, angles: np.ndarray) -> tuple[np.n
 
 def _read_tilt(grey: np.ndarray, valid: np.ndarray, intr: Intrinsics, max_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """One reading of a nearly level image: (roll, pitch, yaw) residuals in degrees and their strengths."""
-    gx, gy = _sobel(grey)
-    mag = np.hypot(gx, gy)
-    grads = _gradients(gx, gy, mag, valid)
-    if grads is None:
+    # a frame without a preferred edge orientation is not a view of racks: nothing to read
+    got = _reading(grey, valid, (intr.fx, intr.fy, intr.cx, intr.cy), max_deg, _MIN_STRUCTURE)
+    if got is None:
         return np.zeros(3), np.zeros(3)
-    roll, roll_strength = _orientation_peak(*grads, max_deg)
-    if roll_strength < _MIN_STRUCTURE:
-        return np.zeros(3), np.zeros(3)  # no preferred edge orientation: not a view of racks, nothing to read
-    fits = _segment_fits(gx, gy, mag, valid, roll, (intr.fx, intr.fy, intr.cx, intr.cy))
-    if fits is None:
-        return np.array([roll, 0.0, 0.0]), np.array([roll_strength, 0.0, 0.0])
-    (ah, yaw_slope, yaw_strength, ah_s), (av, pitch_slope, pitch_strength, av_s) = fits
-    roll += _intercept_roll(ah, ah_s, av, av_s)
+    roll, roll_strength, (_, yaw_slope, yaw_strength, _), (_, pitch_slope, pitch_strength, _) = got
     angles = np.array([roll, math.degrees(math.atan(pitch_slope)), -math.degrees(math.atan(yaw_slope))])
     return angles, np.array([roll_strength, pitch_strength, yaw_strength])
 
 
 def _segment_fits(
     gx: np.ndarray, gy: np.ndarray, mag: np.ndarray, valid: np.ndarray, roll: float, camera: tuple[float, ...]
-) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """The straight edges' two consensus lines, `_consensus_fit` each: the near-horizontal segments' normalised
     slope against their height (intercept: the roll left after ``roll``; slope: the yaw) and the
     near-vertical ones' against their column (intercept: minus that roll; slope: the pitch).
     ``camera``: (fx, fy, cx, cy) in pixels."""
     fx, fy, cx, cy = camera
-    inside = mag[valid]
-    if inside.size < 16:
-        return None
-    threshold = float(np.percentile(inside, _SEGMENT_QUANTILE))
+    threshold = float(np.percentile(mag[valid], _SEGMENT_QUANTILE))
     t = math.tan(math.radians(roll))
     window = math.tan(math.radians(_SLOPE_WINDOW_DEG))
     # near-horizontal edges: normalised slope dy/dx (the roll's share taken out) against their height y
@@ -339,7 +334,7 @@ def _segment_fits(
     return _consensus_fit(sh[h], y[h], length[h]), _consensus_fit(sv[v], x[v], vlength[v])
 
 
-def _intercept_roll(ah: float, ah_s: float, av: float, av_s: float) -> float:
+def _intercept_roll(hline: tuple[float, ...], vline: tuple[float, ...]) -> float:
     """The roll (degrees) the segment lines' intercepts show, each weighed by its inverse variance.
 
     The orientation histogram reads a point-sampled edge (a staircase whose gradients are exactly
@@ -347,6 +342,7 @@ def _intercept_roll(ah: float, ah_s: float, av: float, av_s: float) -> float:
     rolled read 0.35. The segments' slopes, fitted to their pixels' positions, are not pulled so:
     their line's slope at the principal point (the intercept) is the roll the histogram missed.
     """
+    (ah, _, _, ah_s), (av, _, _, av_s) = hline, vline
     if not ah_s + av_s > 0:
         return 0.0
     return math.degrees(math.atan((-ah * ah_s + av * av_s) / (ah_s + av_s)))

@@ -167,20 +167,19 @@ class Renderer:
         cx, cy, fx, fy = intrinsics.cx, intrinsics.cy, intrinsics.fx, intrinsics.fy
 
         # Rays are cast in the world: a camera ray d is the world ray R d (R = I for a level camera,
-        # whose rays and images are then exactly those of the unrotated renderer).
+        # which leaves every ray exactly as it was).
         rot = scene.camera.rotation
-        level = bool(np.array_equal(rot, np.eye(3)))
 
         def directions(us: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             u, vv = np.meshgrid(us + 0.5, vs + 0.5)
             d = np.stack([(u - cx) / fx, (vv - cy) / fy, np.ones_like(u)], -1)
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
-            return (d if level else d @ rot.T).astype(np.float32), d[..., 2].astype(np.float32)
+            return (d @ rot.T).astype(np.float32), d[..., 2].astype(np.float32)
 
         self.dirs, forward = directions(np.arange(w), np.arange(h))  # (H, W, 3) world, (H, W) along the axis
         self.dflat = [np.ascontiguousarray(self.dirs[..., k]).reshape(-1) for k in range(3)]
         #: per pixel, the Z depth (along the optical axis) of a unit of ray length
-        self.depth_per_t = self.dflat[2] if level else np.ascontiguousarray(forward).reshape(-1)
+        self.depth_per_t = np.ascontiguousarray(forward).reshape(-1)
         if self.block:
             self.cdirs = directions(np.arange(0, w + 1, 2), np.arange(0, h + 1, 2))[0]  # (H/2+1, W/2+1, 3)
         self.light = np.array(scene.light["position"], np.float32)
