@@ -91,7 +91,13 @@ def write_sequence(
     scene_rng = np.random.default_rng(np.random.SeedSequence([seed, 0]))
     noise_rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
     scene = build_scene(scene_rng, cfg, intr, frames)
-    renderer = Renderer(scene, intr, nthreads=nthreads, noise_seed=int(noise_rng.integers(2**63)))
+    renderer = Renderer(
+        scene,
+        intr,
+        nthreads=nthreads,
+        noise_seed=int(noise_rng.integers(2**63)),
+        supersample=cfg["sensor"]["supersample"],
+    )
     for sub in ("rgb", "depth", "semantic", "instance"):
         (tmp / sub).mkdir(parents=True)
     folder = LayoutFolder.create(tmp / "layouts", spec)
@@ -247,10 +253,13 @@ def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
     if not isinstance(old, dict) or old.get("format") != DATASET_FORMAT:
         return f"{mpath}: not a WareSynth manifest"
     manifest = json.loads(json.dumps(manifest))
-    cam = old.get("config", {}).get("camera") if isinstance(old.get("config"), dict) else None
-    if isinstance(cam, dict):  # written before the camera could rotate: it was level
+    cfg = old.get("config") if isinstance(old.get("config"), dict) else {}
+    # Keys added since a dataset was written take the value that reproduces it.
+    if isinstance(cfg.get("camera"), dict):  # written before the camera could rotate: it was level
         for k in CAMERA_ANGLE_KEYS:
-            cam.setdefault(k, [0.0, 0.0])
+            cfg["camera"].setdefault(k, [0.0, 0.0])
+    if isinstance(cfg.get("sensor"), dict):  # written before pixels could be supersampled: one ray each
+        cfg["sensor"].setdefault("supersample", 1)
     if old != manifest:
         diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
         return f"{root}: holds a different WareSynth dataset ({', '.join(diff)} differ)"

@@ -370,6 +370,8 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         },
         "visible_shelves_per_frame": _stats(visible_shelves),
         "boxes_per_shelf": _stats(counts),
+        # rays per pixel side whose mean colour each pixel is (1: one ray at its centre)
+        "supersample": int(dataset.config.get("sensor", {}).get("supersample", 1)),
         # the cameras' rotations (degrees; each 0 for a level camera), one per sequence
         "camera_angles": {
             k.removesuffix("_deg"): _range([s.camera_angles[j] for s in seqs]) for j, k in enumerate(CAMERA_ANGLE_KEYS)
@@ -407,6 +409,9 @@ def format_summary(s: dict[str, Any]) -> str:
         f"layout spec  R={spec['num_slots']} slots, D={spec['size']} px, x {spec['x_extent']:.2f} m, "
         f"z {spec['z_extent']:.2f} m, h {spec['h_extent']:.2f} m"
     )
+    if s.get("supersample", 1) > 1:
+        k = s["supersample"]
+        lines.append(f"pixels       area-sampled: each the mean colour of {k} x {k} rays (sensor.supersample)")
     turned = {k: r for k, r in s.get("camera_angles", {}).items() if any(r)}
     if turned:
         lines.append(

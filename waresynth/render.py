@@ -95,14 +95,28 @@ class Renderer:
     """Renders one scene from any camera position, the camera rotated as ``scene.camera`` says."""
 
     def __init__(
-        self, scene: Scene, intrinsics: Intrinsics, nthreads: int = 1, exact: bool = False, noise_seed: int = 0
+        self,
+        scene: Scene,
+        intrinsics: Intrinsics,
+        nthreads: int = 1,
+        exact: bool = False,
+        noise_seed: int | None = 0,
+        supersample: int = 1,
     ):
         global RENDERER_USED
         RENDERER_USED = True
+        if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) or not 1 <= supersample <= 4:
+            raise ValueError(f"supersample must be an integer in [1, 4], got {supersample!r}")
         self.scene = scene
         self.intr = intrinsics
         self.nthreads = int(nthreads)
         w, h = intrinsics.width, intrinsics.height
+        self.supersample = int(supersample)
+        #: the renderer of the s x s sub-pixel grid whose means make the colours (None: one ray per pixel)
+        self._fine: Renderer | None = None
+        if self.supersample > 1:
+            s = self.supersample
+            self._fine = Renderer(scene, intrinsics.scaled(w * s, h * s), nthreads, exact, noise_seed=None)
         self.block = not exact and w % 2 == 0 and h % 2 == 0
         verts, tris, tri_part = cuboid_mesh(scene)
         self.n_tris = len(tris)
@@ -184,9 +198,11 @@ class Renderer:
             self.cdirs = directions(np.arange(0, w + 1, 2), np.arange(0, h + 1, 2))[0]  # (H/2+1, W/2+1, 3)
         self.light = np.array(scene.light["position"], np.float32)
         # Sensor noise: each frame adds a random window of one Gaussian buffer per renderer.
-        n_noise = 3 * w * h + 65536
-        sigma = np.float32(scene.sensor["noise_sigma"])
-        self._noise_buf = np.random.default_rng(noise_seed).standard_normal(n_noise, dtype=np.float32) * sigma
+        # (a sub-pixel renderer, noise_seed None, adds none: its means get the pixel's noise)
+        if noise_seed is not None:
+            n_noise = 3 * w * h + 65536
+            sigma = np.float32(scene.sensor["noise_sigma"])
+            self._noise_buf = np.random.default_rng(noise_seed).standard_normal(n_noise, dtype=np.float32) * sigma
 
     # ------------------------------------------------------------------ ray casting
     def _cast(self, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -234,7 +250,13 @@ class Renderer:
         return occ.numpy().astype(bool)
 
     def _trace(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Full-resolution t (H*W,) and prim (H*W,), plus the filled-block mask (H/2, W/2) or None."""
+        """Full-resolution t (H*W,; 0 where nothing is hit) and prim (H*W,), plus the filled-block mask
+        (H/2, W/2) or None."""
+        t, prim, agree = self._trace_rays(origin)
+        t[prim == self.n_tris] = 0.0
+        return t, prim, agree
+
+    def _trace_rays(self, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         h, w = self.intr.height, self.intr.width
         if not self.block:
             t, prim = self._cast(origin, self.dirs)
@@ -340,16 +362,15 @@ class Renderer:
         return cols
 
     def render(self, position: np.ndarray, rng: np.random.Generator) -> Frame:
-        """Render the view from world ``position`` (x, y, z); ``rng`` draws the sensor noise."""
+        """Render the view from world ``position`` (x, y, z); ``rng`` draws the sensor noise.
+
+        Depth, semantics and instances are sampled at the pixel centres; with ``supersample`` s > 1
+        each pixel's colour is the mean of an s x s grid of rays spread over its area, as a sensor
+        integrates light (sub-pixel edges instead of staircases), and the noise is added after.
+        """
         w, h = self.intr.width, self.intr.height
         origin = np.asarray(position, np.float32)
         t, prim, agree = self._trace(origin)
-        self._face = prim >> 1  # uint32 face ids (both triangles of a face share one)
-        prim = prim.astype(np.intp)  # one conversion for the many table look-ups below
-        self._prim_flat = prim
-        miss = prim == self.n_tris
-        t[miss] = 0.0
-        dx, dy, dz = self.dflat
         # Cameras stay >= 0.2 m above the floor, so every hit is deeper than 0.5 mm (never 0).
         z_mm = t * self.depth_per_t
         z_mm *= np.float32(1000.0)
@@ -358,7 +379,29 @@ class Renderer:
         depth_mm = z_mm.astype(np.uint16)
         semantic = np.take(self.t_sem, prim)
         instance = np.take(self.t_inst, prim)
+        if self._fine is None:
+            cols = self._radiance(origin, t, prim, agree)
+        else:
+            s, sub = self.supersample, self._fine._radiance(origin, *self._fine._trace(origin))
+            cols = [c.reshape(h, s, w, s).mean((1, 3), dtype=np.float32).reshape(-1) for c in sub]
+        noise = self._noise(rng)
+        rgb = np.empty((h * w, 3), np.uint8)
+        n_px = h * w
+        for k in range(3):
+            c = cols[k]
+            c += noise[k * n_px : (k + 1) * n_px]
+            np.clip(c, 0, 255, out=c)
+            rgb[:, k] = c
+        return Frame(rgb.reshape(h, w, 3), depth_mm.reshape(h, w), semantic.reshape(h, w), instance.reshape(h, w))
 
+    def _radiance(self, origin: np.ndarray, t: np.ndarray, prim: np.ndarray, agree) -> list[np.ndarray]:
+        """Colour channels (3 x (H*W,) float32, 8-bit levels + 0.5 for rounding, before noise) of the hits
+        ``t``, ``prim`` and block mask ``agree`` of `_trace`."""
+        self._face = prim >> 1  # uint32 face ids (both triangles of a face share one)
+        prim = prim.astype(np.intp)  # one conversion for the many table look-ups below
+        self._prim_flat = prim
+        miss = prim == self.n_tris
+        dx, dy, dz = self.dflat
         px, py, pz = origin[0] + t * dx, origin[1] + t * dy, origin[2] + t * dz
         nx, ny, nz = (np.take(n, prim) for n in self.t_n)
         cols = self._albedo(prim, px, py, pz)
@@ -386,16 +429,12 @@ class Renderer:
         spec[ndl <= 0] = 0.0
         spec += np.float32(0.5)  # rounds on the cast to uint8
         shade = np.float32(light["ambient"]) * gain + diffuse
-        noise = self._noise(rng)
-        rgb = np.empty((h * w, 3), np.uint8)
-        n_px = h * w
+        out = []
         for k in range(3):
             c = cols[k] * shade
             c += spec
-            c += noise[k * n_px : (k + 1) * n_px]
-            np.clip(c, 0, 255, out=c)
-            rgb[:, k] = c
-        return Frame(rgb.reshape(h, w, 3), depth_mm.reshape(h, w), semantic.reshape(h, w), instance.reshape(h, w))
+            out.append(c)
+        return out
 
     def _visibility(self, px, py, pz, ndl, agree, miss) -> np.ndarray:
         """Light visibility per pixel: 1 lit, 1 - shadow_strength in shadow.
