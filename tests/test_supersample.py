@@ -104,3 +104,22 @@ def test_a_yaw_reads_closer_on_supersampled_frames():
             reads[s].append(estimate_tilt(rgb, intr)[0][2])
     point, area = abs(np.mean(reads[1]) - 3.0), abs(np.mean(reads[2]) - 3.0)
     assert area < 0.5 and area < point - 0.5
+
+
+def test_generate_supersample_flag_sets_the_config_key(tmp_path, capsys):
+    from mvracklay.cli import main
+    from waresynth.dataset import open_dataset
+
+    cfg = tmp_path / "yaw.json"
+    cfg.write_text(json.dumps({"camera": {"yaw_deg": [2.0, 2.0]}}))
+    args = ["generate", str(tmp_path / "d"), "--sequences", "1", "--frames", "2", "--size", "32", "--no-progress"]
+    assert main([*args, "--config", str(cfg), "--supersample", "3"]) == 0
+    ds = open_dataset(tmp_path / "d")
+    assert ds.config["sensor"]["supersample"] == 3 and ds.config["camera"]["yaw_deg"] == [2.0, 2.0]
+    with pytest.raises(SystemExit):
+        main([*args, "--supersample", "5"])
+    assert "invalid choice: 5" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"sensor": {"gain": 50}}))
+    assert main([*args, "--config", str(bad), "--supersample", "2"]) == 2
+    assert f"{bad}: sensor.gain" in capsys.readouterr().err

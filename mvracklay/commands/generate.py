@@ -32,6 +32,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--config", metavar="FILE", type=Path, default=None, help="JSON config overriding waresynth/default_config.json"
     )
+    p.add_argument(
+        "--supersample",
+        metavar="S",
+        type=int,
+        choices=(1, 2, 3, 4),
+        default=None,
+        help="each pixel's colour the mean of S x S rays over its area, as a camera's sensor integrates light "
+        "(S^2 the rendering cost; depth and labels stay sampled at pixel centres); sets the config's "
+        "sensor.supersample (default: the config's, 1)",
+    )
     p.add_argument("--workers", metavar="W", type=int, default=1, help="worker processes (one sequence at a time each)")
     p.add_argument(
         "--format",
@@ -77,6 +87,12 @@ def run(args: argparse.Namespace) -> int:
         shard = parse_shard(args.shard)
         if args.format != "native":
             raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
+    config = args.config
+    if args.supersample is not None:
+        from waresynth.config import load_config
+
+        config = load_config(config)  # the file checked under its own name first
+        config["sensor"]["supersample"] = args.supersample
     spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
     root = generate_dataset(
         args.out,
@@ -85,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         image_size=(args.size, args.size),
         spec=spec,
         seed=args.seed,
-        config=args.config,
+        config=config,
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.no_progress,
