@@ -394,7 +394,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
-    for said in angle_warnings(read):
+    for said in angle_warnings(read, width=intr.width):
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read)

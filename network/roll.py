@@ -80,6 +80,9 @@ TILT_TAU = 30.0
 PRIME_FRAMES = 10
 #: images are read at most this many pixels wide (angles do not depend on the scale)
 READ_WIDTH = 320
+#: narrower frames read a pitch and a yaw unsurely (area-sampled held-out renders, level camera: the yaw
+#: read 0.35 deg off on average at 128x128, a bias per scene, 0.07 at 256x256; docs/network.md)
+SURE_READ_WIDTH = 256
 _BIN_DEG = 0.1
 _SMOOTH_DEG = 0.5
 _STRONG_QUANTILE = 80.0
@@ -564,7 +567,15 @@ def roll_warning(rolls: list[float], max_deg: float = SEARCH_DEG, what: str = "r
     return ""
 
 
-def angle_warnings(read: dict[str, list[float]], max_deg: float = SEARCH_DEG) -> list[str]:
-    """`roll_warning` for each angle read (a pitch's and a yaw's limit is TILT_SEARCH_DEG)."""
+def angle_warnings(read: dict[str, list[float]], max_deg: float = SEARCH_DEG, width: int | None = None) -> list[str]:
+    """`roll_warning` for each angle read (a pitch's and a yaw's limit is TILT_SEARCH_DEG), and, given the
+    frames' ``width`` in pixels, a warning when a pitch or a yaw was read from frames under SURE_READ_WIDTH."""
     said = [roll_warning(v, max_deg if w == "roll" else TILT_SEARCH_DEG, w) for w, v in read.items()]
+    tilt = [w for w in ("pitch", "yaw") if read.get(w)]
+    if width is not None and width < SURE_READ_WIDTH and tilt:
+        said.append(
+            f"the camera {' and '.join(tilt)} were read from frames {width} px wide; under {SURE_READ_WIDTH} px "
+            "such readings are unsure (128 px: ~0.35 deg of yaw, which moves the layouts along the row): "
+            f"pass {' and '.join('--' + w + ' DEG' for w in tilt)} if the mount's angles are known"
+        )
     return [w for w in said if w]

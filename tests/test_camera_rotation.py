@@ -228,29 +228,6 @@ def test_a_racklay_export_carries_the_rotation(turned_dataset, tmp_path):
     assert seqs[0].camera_angles == (0.0, 0.0, 4.0)
 
 
-def test_area_sampled_copy_averages_the_double_size_render(turned_dataset, tmp_path):
-    import subprocess
-    import sys
-
-    from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
-
-    kw = dict(num_sequences=2, frames=5, spec=LayoutSpec(size=32), seed=11, progress=False)
-    double = generate_dataset(tmp_path / "double", image_size=(192, 192), config=turned_config(yaw=4.0), **kw)
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "area_sampled.py"
-    src_png = turned_dataset[1] / "seq_00000" / "rgb" / "000000.png"
-    before = src_png.read_bytes()
-    run = [sys.executable, str(script), str(turned_dataset[1]), str(double), str(tmp_path / "aa")]
-    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
-    assert src_png.read_bytes() == before
-    got = open_dataset(tmp_path / "aa").sequences()[1]
-    big = open_dataset(double).sequences()[1].rgb(3).astype(float)
-    np.testing.assert_array_equal(got.rgb(3), np.rint(big.reshape(96, 2, 96, 2, 3).mean((1, 3))).astype(np.uint8))
-    assert got.camera_angles == (0.0, 0.0, 4.0)
-    mismatch = subprocess.run([*run[:3], str(turned_dataset[0]), str(tmp_path / "bad")], capture_output=True, text=True)
-    assert mismatch.returncode != 0 and "twice" in mismatch.stderr
-
-
 def test_the_roll_of_a_point_sampled_render_is_read():
     """The renderer samples each pixel at its centre: a rolled edge is a staircase whose gradients are
     level between its steps, which the orientation histogram alone reads as level (~0.4 of 5 degrees)."""

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
@@ -103,10 +104,17 @@ def test_image_folder_input(seq_dir: Path, checkpoint: Path, tmp_path: Path, cap
     for i, p in enumerate(sorted((seq_dir / "rgb").glob("*.png"))[:5]):
         (frames / f"img{i}.png").write_bytes(p.read_bytes())  # natural order: img2 before img10
     out = tmp_path / "o"
-    assert main(["run", str(frames), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet"]) == 0
+    argv = ["run", str(frames), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet"]
+    assert main(argv) == 0
     wmap = WarehouseMap.load(out / "warehouse.json")
     assert wmap.meta["input_kind"] == "images" and len(wmap.steps) == 5 and wmap.origin_world is None
-    assert "camera: default" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert "camera: default" in said.out
+    # footage's angles are read; from frames this small the pitch and yaw are unsure, and it says so
+    width = Image.open(frames / "img0.png").width
+    assert width < 256 and f"read from frames {width} px wide" in said.err
+    assert main([*argv, "--yaw", "0", "--pitch", "0"]) == 0
+    assert "px wide" not in capsys.readouterr().err
 
 
 def test_video_input(seq_dir: Path, checkpoint: Path, tmp_path: Path):

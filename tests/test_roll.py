@@ -277,6 +277,11 @@ def test_a_flat_or_noisy_image_reads_nothing_and_a_yaw_at_the_limit_is_warned_ab
     assert angle_warnings({"roll": [1.0], "yaw": [2.0, -3.0]}) == []
     said = angle_warnings({"roll": [1.0], "yaw": [2.0, 10.0]})
     assert len(said) == 1 and "yaw" in said[0] and "--yaw DEG" in said[0]
+    # frames too small to read a pitch or yaw surely: said once, naming what was read
+    assert angle_warnings({"roll": [1.0], "yaw": [2.0]}, width=256) == []
+    assert angle_warnings({"roll": [1.0]}, width=128) == []
+    said = angle_warnings({"pitch": [0.5], "yaw": [2.0]}, width=128)
+    assert len(said) == 1 and "128 px wide" in said[0] and "--pitch DEG and --yaw DEG" in said[0]
 
 
 def test_roll_arguments_are_checked():

@@ -229,6 +229,6 @@ def predict_folder(
     read = pred.leveller.read_angles() if pred.leveller is not None else {}
     for line in describe_angles(read) if progress else []:
         print(line)
-    for said in angle_warnings(read):
+    for said in angle_warnings(read, width=intr.width):
         print(f"mvracklay predict: warning: {said}", file=sys.stderr)
     return seq.num_frames
