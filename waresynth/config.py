@@ -100,6 +100,7 @@ _BOUNDS: dict[str, tuple[float, float, bool]] = {
     "sensor.noise_sigma": (0.0, 100.0, False),
     "sensor.gain": (0.1, 10.0, False),
     "sensor.supersample": (1, 4, True),
+    "sensor.motion_blur": (0.0, 1.0, False),
 }
 
 

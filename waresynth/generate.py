@@ -103,9 +103,11 @@ def write_sequence(
     folder = LayoutFolder.create(tmp / "layouts", spec)
     slots = frame_slots(scene, spec)
     distance = scene.camera.distance
+    # the camera's travel while the shutter is open (centred on the frame's position)
+    exposure = np.array([scene.sensor["motion_blur"] * scene.camera.step, 0.0, 0.0])
     records = []
     for i, pos in enumerate(scene.camera.positions):
-        fr = renderer.render(pos, noise_rng)
+        fr = renderer.render(pos, noise_rng, motion=exposure)
         fname = f"{i:06d}.png"
         write_png(tmp / "rgb" / fname, fr.rgb)
         write_png(tmp / "depth" / fname, fr.depth_mm)
@@ -141,6 +143,7 @@ def write_sequence(
             "distance": distance,
             "hfov_deg": cfg["camera"]["hfov_deg"],
             **dict(zip(CAMERA_ANGLE_KEYS, scene.camera.angles)),
+            "motion_blur": float(scene.sensor["motion_blur"]),
         },
         "rack_mid_z": float(scene.rack_mid_z),
         "visible_levels": scene.visible_levels,
@@ -258,8 +261,9 @@ def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
     if isinstance(cfg.get("camera"), dict):  # written before the camera could rotate: it was level
         for k in CAMERA_ANGLE_KEYS:
             cfg["camera"].setdefault(k, [0.0, 0.0])
-    if isinstance(cfg.get("sensor"), dict):  # written before pixels could be supersampled: one ray each
+    if isinstance(cfg.get("sensor"), dict):  # written before pixels could be supersampled or blurred
         cfg["sensor"].setdefault("supersample", 1)
+        cfg["sensor"].setdefault("motion_blur", [0.0, 0.0])
     if old != manifest:
         diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
         return f"{root}: holds a different WareSynth dataset ({', '.join(diff)} differ)"

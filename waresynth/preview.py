@@ -372,6 +372,8 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         "boxes_per_shelf": _stats(counts),
         # rays per pixel side whose mean colour each pixel is (1: one ray at its centre)
         "supersample": int(dataset.config.get("sensor", {}).get("supersample", 1)),
+        # the fraction of a step the shutter stays open, one per sequence (0: sharp)
+        "motion_blur": _range([float(s.meta.get("camera", {}).get("motion_blur", 0.0)) for s in seqs]),
         # the cameras' rotations (degrees; each 0 for a level camera), one per sequence
         "camera_angles": {
             k.removesuffix("_deg"): _range([s.camera_angles[j] for s in seqs]) for j, k in enumerate(CAMERA_ANGLE_KEYS)
@@ -412,6 +414,13 @@ def format_summary(s: dict[str, Any]) -> str:
     if s.get("supersample", 1) > 1:
         k = s["supersample"]
         lines.append(f"pixels       area-sampled: each the mean colour of {k} x {k} rays (sensor.supersample)")
+    blur = s.get("motion_blur", [0.0, 0.0])
+    if any(blur):
+        lines.append(
+            f"pixels       motion-blurred: the shutter open {blur[0]:.2f}"
+            + (f" to {blur[1]:.2f}" if blur[1] != blur[0] else "")
+            + " of a step (sensor.motion_blur)"
+        )
     turned = {k: r for k, r in s.get("camera_angles", {}).items() if any(r)}
     if turned:
         lines.append(

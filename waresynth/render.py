@@ -20,6 +20,7 @@ numpy.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,6 +90,8 @@ def _noise(x: np.ndarray, y: np.ndarray, z: np.ndarray, freq: float) -> np.ndarr
 #: Whether this process has built a renderer (and so may run Open3D/TBB threads): forking it is
 #: then unsafe, and the dataset writer starts its workers from a clean forkserver instead.
 RENDERER_USED = False
+#: the most views a motion-blurred frame averages (`Renderer.motion_samples`)
+MAX_MOTION_SAMPLES = 16
 
 
 class Renderer:
@@ -361,12 +364,15 @@ class Renderer:
                 ch[m] = np.where(lab, np.where(bars, 0.1, 0.93), ch[m]).astype(np.float32)
         return cols
 
-    def render(self, position: np.ndarray, rng: np.random.Generator) -> Frame:
+    def render(self, position: np.ndarray, rng: np.random.Generator, motion: np.ndarray | None = None) -> Frame:
         """Render the view from world ``position`` (x, y, z); ``rng`` draws the sensor noise.
 
         Depth, semantics and instances are sampled at the pixel centres; with ``supersample`` s > 1
         each pixel's colour is the mean of an s x s grid of rays spread over its area, as a sensor
         integrates light (sub-pixel edges instead of staircases), and the noise is added after.
+        ``motion`` (world metres, (3,)): the camera's travel while the shutter is open, centred on
+        ``position``; the colours are then the mean over views along it (`motion_samples`), the
+        labels stay ``position``'s.
         """
         w, h = self.intr.width, self.intr.height
         origin = np.asarray(position, np.float32)
@@ -379,11 +385,17 @@ class Renderer:
         depth_mm = z_mm.astype(np.uint16)
         semantic = np.take(self.t_sem, prim)
         instance = np.take(self.t_inst, prim)
-        if self._fine is None:
-            cols = self._radiance(origin, t, prim, agree)
+        k = self.motion_samples(motion)
+        if k == 1:
+            cols = self._colours(origin, (t, prim, agree))
         else:
-            s, sub = self.supersample, self._fine._radiance(origin, *self._fine._trace(origin))
-            cols = [c.reshape(h, s, w, s).mean((1, 3), dtype=np.float32).reshape(-1) for c in sub]
+            travel = np.asarray(motion, np.float32)
+            cols = self._colours(origin + travel * np.float32(0.5 / k - 0.5))
+            for j in range(1, k):
+                for c, more in zip(cols, self._colours(origin + travel * np.float32((j + 0.5) / k - 0.5))):
+                    c += more
+            for c in cols:
+                c *= np.float32(1.0 / k)
         noise = self._noise(rng)
         rgb = np.empty((h * w, 3), np.uint8)
         n_px = h * w
@@ -393,6 +405,26 @@ class Renderer:
             np.clip(c, 0, 255, out=c)
             rgb[:, k] = c
         return Frame(rgb.reshape(h, w, 3), depth_mm.reshape(h, w), semantic.reshape(h, w), instance.reshape(h, w))
+
+    def motion_samples(self, motion: np.ndarray | None) -> int:
+        """Views averaged for a camera travel ``motion`` during the exposure: enough that the rack front moves
+        at most a pixel between two (1 when the camera stands still), at most MAX_MOTION_SAMPLES."""
+        if motion is None:
+            return 1
+        travel = float(np.linalg.norm(np.asarray(motion, np.float64)))
+        if not np.isfinite(travel):
+            raise ValueError(f"motion must be a finite (3,) vector in metres, got {motion!r}")
+        pixels = travel * self.intr.fx / max(self.scene.camera.distance, 1e-6)
+        return 1 if travel == 0.0 else int(min(MAX_MOTION_SAMPLES, max(2, math.ceil(pixels) + 1)))
+
+    def _colours(self, origin: np.ndarray, traced: tuple | None = None) -> list[np.ndarray]:
+        """`_radiance` from ``origin`` (``traced``: its `_trace`, when known), over the sub-pixel grid when
+        supersampled."""
+        if self._fine is None:
+            return self._radiance(origin, *(traced if traced is not None else self._trace(origin)))
+        w, h, s = self.intr.width, self.intr.height, self.supersample
+        sub = self._fine._radiance(origin, *self._fine._trace(origin))
+        return [c.reshape(h, s, w, s).mean((1, 3), dtype=np.float32).reshape(-1) for c in sub]
 
     def _radiance(self, origin: np.ndarray, t: np.ndarray, prim: np.ndarray, agree) -> list[np.ndarray]:
         """Colour channels (3 x (H*W,) float32, 8-bit levels + 0.5 for rounding, before noise) of the hits

@@ -520,6 +520,8 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
     # The camera's rotation is drawn last and only from a range that is not one value (`_u`), so a
     # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
     camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
+    # The same for the motion blur: a sharp config draws nothing.
+    sensor["motion_blur"] = _u(rng, sc["motion_blur"])
     return Scene(
         row=row,
         racks=racks,

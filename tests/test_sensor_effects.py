@@ -1,4 +1,4 @@
-"""sensor.supersample: each pixel's colour the mean of s x s rays over its area; labels unchanged."""
+"""Sensor effects of the generator: sensor.supersample (area-sampled pixels) and sensor.motion_blur; labels unchanged."""
 
 from __future__ import annotations
 
@@ -65,6 +65,11 @@ def test_a_supersampled_dataset_keeps_the_default_labels_and_an_old_manifest_res
 
     assert "each the mean colour of 2 x 2 rays" in format_summary(summarise(aa, progress=False))
     assert "area-sampled" not in format_summary(summarise(plain, progress=False))
+    blur = generate_dataset(tmp_path / "blur", config={"sensor": {"motion_blur": [0.2, 0.6]}}, **kw)
+    drawn = [sq.meta["camera"]["motion_blur"] for sq in open_dataset(blur).sequences()]
+    assert all(0.2 <= b <= 0.6 for b in drawn) and drawn[0] != drawn[1]
+    said = format_summary(summarise(open_dataset(blur), progress=False))
+    assert f"motion-blurred: the shutter open {min(drawn):.2f} to {max(drawn):.2f} of a step" in said
     for a, b in zip(plain.sequences(), aa.sequences()):
         assert a.scene() == b.scene()
         for i in range(3):
@@ -76,7 +81,7 @@ def test_a_supersampled_dataset_keeps_the_default_labels_and_an_old_manifest_res
     old = tmp_path / "old"
     shutil.copytree(tmp_path / "plain", old)
     manifest = json.loads((old / "manifest.json").read_text())
-    del manifest["config"]["sensor"]["supersample"]
+    del manifest["config"]["sensor"]["supersample"], manifest["config"]["sensor"]["motion_blur"]
     (old / "manifest.json").write_text(json.dumps(manifest))
     shutil.rmtree(old / "seq_00001")
     generate_dataset(old, **kw)
@@ -123,3 +128,38 @@ def test_generate_supersample_flag_sets_the_config_key(tmp_path, capsys):
     bad.write_text(json.dumps({"sensor": {"gain": 50}}))
     assert main([*args, "--config", str(bad), "--supersample", "2"]) == 2
     assert f"{bad}: sensor.gain" in capsys.readouterr().err
+
+
+def test_motion_blur_smears_along_the_row_about_the_frames_position():
+    intr = Intrinsics.from_fov(128, 96, 60.0)
+    blurred = build_scene(
+        np.random.default_rng(1),
+        load_config({**QUIET, "sensor": {"noise_sigma": [0, 0], "motion_blur": [1.0, 1.0]}}),
+        intr,
+        3,
+    )
+    sharp = build_scene(np.random.default_rng(1), load_config(QUIET), intr, 3)
+    assert blurred.to_dict() == sharp.to_dict() and blurred.sensor["motion_blur"] == 1.0
+    assert sharp.sensor["motion_blur"] == 0.0
+    r = Renderer(blurred, intr)
+    travel = np.array([blurred.camera.step, 0.0, 0.0])
+    assert r.motion_samples(None) == 1 and r.motion_samples(np.zeros(3)) == 1
+    assert r.motion_samples(travel * 1e-4) == 2 and r.motion_samples(travel * 100) == 16
+    assert 4 <= r.motion_samples(travel) <= 8  # a step is ~3-7 pixels of the rack front here
+    pos = blurred.camera.positions[1]
+    a = r.render(pos, np.random.default_rng(0))
+    b = r.render(pos, np.random.default_rng(0), motion=travel)
+    for name in ("depth_mm", "semantic", "instance"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    ga, gb = (f.rgb.astype(float).mean(-1) for f in (a, b))
+
+    def grad(img, axis):
+        return np.abs(np.diff(img, axis=axis)).mean()
+
+    assert grad(gb, 1) < 0.85 * grad(ga, 1)  # smeared along the row (image x) ...
+    assert grad(gb, 0) > 0.85 * grad(ga, 0)  # ... much less across it
+    # centred on the frame's position: the sharp view fits best unshifted
+    err = {d: np.abs(np.roll(ga, d, 1) - gb)[:, 8:-8].mean() for d in range(-4, 5)}
+    assert min(err, key=err.get) == 0
+    with pytest.raises(InputError, match="sensor.motion_blur"):
+        load_config({"sensor": {"motion_blur": [0.0, 1.5]}})
