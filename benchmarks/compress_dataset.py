@@ -1,0 +1,70 @@
+#!/usr/bin/env python3
+"""A copy of a generated dataset whose RGB frames went through JPEG at ``--quality Q``, as footage from a
+compressing camera or a video file shows them (blocks, ringing at edges, smeared colour).
+
+    .venv/bin/python benchmarks/compress_dataset.py data/heldout128-ss2 data/heldout128-ss2-q50 --quality 50
+    mvracklay evaluate --checkpoint weights/mvracklay-disc-4.pt --data data/heldout128-ss2-q50 --split all
+
+Each ``SEQ/rgb/*.png`` is encoded as a baseline JPEG (Pillow, 4:2:0 chroma) and decoded again, and
+stored back as PNG so the copy stays a generated dataset; everything else (layouts, depth, semantics,
+records) is hard-linked from SRC, or copied where links fail. ``COMPRESSED.json`` at the root says
+what was done. Refuses to write into a folder that exists.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from turn_dataset import _link_or_copy  # noqa: E402  (this script's folder is on the path)
+
+from waresynth.dataset import open_dataset  # noqa: E402
+
+
+def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
+    """``rgb`` (uint8 H x W x 3) as a JPEG of ``quality`` decodes it."""
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="JPEG", quality=quality, subsampling=2)
+    buf.seek(0)
+    return np.asarray(Image.open(buf).convert("RGB"))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("src", type=Path, help="a generated dataset folder")
+    ap.add_argument("dst", type=Path, help="the folder to write (must not exist)")
+    ap.add_argument("--quality", type=int, required=True, help="JPEG quality, 1 (worst) to 95")
+    args = ap.parse_args()
+    if not 1 <= args.quality <= 95:
+        ap.error(f"--quality must be in [1, 95], got {args.quality}")
+    if args.dst.exists():
+        ap.error(f"{args.dst}: exists; give a new folder")
+    seqs = open_dataset(args.src).sequences()  # validates the source
+    tmp = args.dst.with_name(args.dst.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    shutil.copytree(args.src, tmp, copy_function=_link_or_copy)
+    with tqdm(total=sum(s.num_frames for s in seqs), desc=f"JPEG q{args.quality}", unit="frame") as bar:
+        for seq in seqs:
+            for i in range(seq.num_frames):
+                path = tmp / seq.root.relative_to(args.src) / "rgb" / f"{i:06d}.png"
+                path.unlink()  # a hard link: never write through it into the source
+                Image.fromarray(jpeg_round_trip(seq.rgb(i), args.quality)).save(path)
+                bar.update(1)
+    (tmp / "COMPRESSED.json").write_text(json.dumps({"source": str(args.src), "jpeg_quality": args.quality}) + "\n")
+    tmp.rename(args.dst)
+    print(f"wrote {args.dst}: {len(seqs)} sequences, frames through JPEG quality {args.quality}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
