@@ -15,18 +15,15 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
-import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
-from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from turn_dataset import _link_or_copy  # noqa: E402  (this script's folder is on the path)
+from rgb_copy import write_rgb_copy  # noqa: E402  (this script's folder is on the path)
 
 from waresynth.dataset import open_dataset  # noqa: E402
 
@@ -50,18 +47,15 @@ def main() -> int:
     if args.dst.exists():
         ap.error(f"{args.dst}: exists; give a new folder")
     seqs = open_dataset(args.src).sequences()  # validates the source
-    tmp = args.dst.with_name(args.dst.name + ".partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(args.src, tmp, copy_function=_link_or_copy)
-    with tqdm(total=sum(s.num_frames for s in seqs), desc=f"JPEG q{args.quality}", unit="frame") as bar:
-        for seq in seqs:
-            for i in range(seq.num_frames):
-                path = tmp / seq.root.relative_to(args.src) / "rgb" / f"{i:06d}.png"
-                path.unlink()  # a hard link: never write through it into the source
-                Image.fromarray(jpeg_round_trip(seq.rgb(i), args.quality)).save(path)
-                bar.update(1)
-    (tmp / "COMPRESSED.json").write_text(json.dumps({"source": str(args.src), "jpeg_quality": args.quality}) + "\n")
-    tmp.rename(args.dst)
+    said = {"source": str(args.src), "jpeg_quality": args.quality}
+    write_rgb_copy(
+        args.src,
+        args.dst,
+        seqs,
+        lambda rgb, _seq: jpeg_round_trip(rgb, args.quality),
+        f"JPEG q{args.quality}",
+        ("COMPRESSED.json", said),
+    )
     print(f"wrote {args.dst}: {len(seqs)} sequences, frames through JPEG quality {args.quality}")
     return 0
 

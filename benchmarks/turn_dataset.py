@@ -17,27 +17,17 @@ level camera, so the commands take it as level unless given ``--roll`` / ``--pit
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
-from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from rgb_copy import write_rgb_copy  # noqa: E402  (this script's folder is on the path)
+
 from network.roll import check_angle, tilt_frame, turn_frame  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
-
-
-def _link_or_copy(src: str, dst: str) -> None:
-    try:
-        os.link(src, dst)
-    except OSError:
-        shutil.copy2(src, dst)
 
 
 def main() -> int:
@@ -57,27 +47,16 @@ def main() -> int:
     if args.dst.exists():
         ap.error(f"{args.dst}: exists; give a new folder")
     seqs = open_dataset(args.src).sequences()  # validates the source
-    tmp = args.dst.with_name(args.dst.name + ".partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(args.src, tmp, copy_function=_link_or_copy)
-    frames = sum(s.num_frames for s in seqs)
-    with tqdm(total=frames, desc="turn", unit="frame") as bar:
-        for seq in seqs:
-            intr = seq.intrinsics
-            rgb_dir = tmp / seq.root.relative_to(args.src) / "rgb"
-            for path in sorted(rgb_dir.glob("*.png")):
-                with Image.open(path) as im:
-                    rgb = np.asarray(im.convert("RGB"))
-                path.unlink()  # a hard link: never write through it into the source
-                if pitch or yaw:
-                    rgb = tilt_frame(rgb, intr, pitch, yaw)
-                if roll:
-                    rgb = turn_frame(rgb, roll, intr.cx, intr.cy)
-                Image.fromarray(rgb).save(path)
-                bar.update(1)
+
+    def change(rgb: np.ndarray, seq) -> np.ndarray:
+        if pitch or yaw:
+            rgb = tilt_frame(rgb, seq.intrinsics, pitch, yaw)
+        if roll:
+            rgb = turn_frame(rgb, roll, seq.intrinsics.cx, seq.intrinsics.cy)
+        return rgb
+
     said = {"source": str(args.src), "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw}
-    (tmp / "TURNED.json").write_text(json.dumps(said, indent=2) + "\n")
-    tmp.rename(args.dst)
+    frames = write_rgb_copy(args.src, args.dst, seqs, change, "turn", ("TURNED.json", said))
     print(
         f"wrote {args.dst}: {len(seqs)} sequences, {frames} frames, roll {roll:g} / pitch {pitch:g} / yaw {yaw:g} deg"
     )
