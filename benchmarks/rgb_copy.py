@@ -30,11 +30,13 @@ def write_rgb_copy(
     change: Callable[[np.ndarray, object], np.ndarray],
     desc: str,
     record: tuple[str, dict],
+    finish: Callable[[Path], None] | None = None,
 ) -> int:
     """Copy dataset ``src`` (whose opened ``seqs`` are given) to ``dst`` with each ``SEQ/rgb/*.png`` replaced
     by ``change(rgb, seq)``; everything else hard-linked (copied where links fail). The copy is written
     under ``DST.partial`` and renamed when whole; ``record`` = (file name, what was done) is written at its
-    root. Returns the number of frames changed. ``dst`` must not exist (the caller says so to its user)."""
+    root; ``finish(copy_root)``, when given, runs last, before the rename (it must unlink a file
+    before writing it: every file but the frames is a hard link into ``src``). Returns the number of frames changed. ``dst`` must not exist (the caller says so to its user)."""
     tmp = dst.with_name(dst.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(src, tmp, copy_function=_link_or_copy)
@@ -48,6 +50,8 @@ def write_rgb_copy(
                 Image.fromarray(change(rgb, seq)).save(path)
                 frames += 1
                 bar.update(1)
+    if finish is not None:
+        finish(tmp)
     name, said = record
     (tmp / name).write_text(json.dumps(said, indent=2) + "\n")
     tmp.rename(dst)

@@ -4,7 +4,8 @@ Every source is validated when opened (one-line `InputError` naming the file and
 streams its frames as uint8 RGB arrays ``(H, W, 3)``: nothing holds a whole video in memory.
 Camera intrinsics come from the sequence's meta.json, a ``--camera`` JSON file, or the default
 camera (the generator's: 60 degree horizontal field of view, square pixels, principal point at the
-image centre) scaled to the frame size.
+image centre) scaled to the frame size. Where those intrinsics also give a lens's distortion
+(OpenCV's k1, k2, p1, p2, k3; `layouts.lens`), the frames are undistorted as they stream.
 """
 
 from __future__ import annotations
@@ -21,8 +22,10 @@ import numpy as np
 from PIL import Image
 
 from layouts import Intrinsics
-from layouts.errors import InputError
+from layouts.canonical import FILL_RGB
+from layouts.errors import InputError, LayoutError
 from layouts.fileio import load_json
+from layouts.lens import Lens, undistort_image
 from waresynth.config import camera_angles
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -74,10 +77,20 @@ class FrameSource:
     records: list[dict[str, Any]] | None = None
     #: the camera's recorded rotation (roll, pitch, yaw) in degrees: a WareSynth sequence's; None for footage
     camera_angles: tuple[float, float, float] | None = None
+    #: the lens distortion meta.json's intrinsics give (a WareSynth sequence's; None: a pinhole camera)
+    lens: Lens | None = None
     image_paths: list[Path] = field(default_factory=list, repr=False)
 
-    def frames(self, max_frames: int | None = None) -> Iterator[np.ndarray]:
-        """Stream the frames in order (at most ``max_frames``)."""
+    def frames(
+        self, max_frames: int | None = None, undistort: tuple[Intrinsics, Lens] | None = None
+    ) -> Iterator[np.ndarray]:
+        """Stream the frames in order (at most ``max_frames``); ``undistort=(intrinsics, lens)`` resamples
+        each to the pinhole camera's image (`layouts.lens.undistort_image`; unseen corners take the
+        canonical fill colour)."""
+        for rgb in self._raw_frames(max_frames):
+            yield rgb if undistort is None else undistort_image(rgb, undistort[0], undistort[1], FILL_RGB)
+
+    def _raw_frames(self, max_frames: int | None) -> Iterator[np.ndarray]:
         limit = max_frames if max_frames else None
         if self.kind == "video":
             yield from _video_frames(self.path, (self.width, self.height), limit)
@@ -125,6 +138,8 @@ def _sequence(folder: Path) -> FrameSource:
         src.intrinsics = (
             intr if (intr.width, intr.height) == (src.width, src.height) else intr.scaled(src.width, src.height)
         )
+        if isinstance(meta["intrinsics"], dict):
+            src.lens = _lens(meta["intrinsics"], str(meta_path))
     src.camera_angles = camera_angles(meta.get("camera"), str(meta_path))
     frames = meta.get("frames")
     if isinstance(frames, list) and all(isinstance(f, dict) for f in frames):
@@ -213,12 +228,7 @@ def default_intrinsics(width: int, height: int) -> Intrinsics:
     return Intrinsics.from_fov(width, height, DEFAULT_HFOV_DEG)
 
 
-def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
-    """Intrinsics from a ``--camera`` JSON file, scaled to the frame size.
-
-    The file holds ``layouts.Intrinsics`` fields (fx, fy, cx, cy in pixels; width, height of the
-    image they refer to, default the frame size), at the top level or under ``"intrinsics"``.
-    """
+def _camera_record(path: str | os.PathLike) -> dict[str, Any]:
     p = Path(path)
     if not p.is_file():
         raise InputError(f"--camera {p}: file not found")
@@ -227,9 +237,32 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
         d = d["intrinsics"]
     if not isinstance(d, dict):
         raise InputError(f"--camera {p}: want a JSON object with fx, fy, cx, cy (and width, height)")
-    d = {"width": width, "height": height, **d}
-    intr = Intrinsics.from_dict(d, f"--camera {p}")
+    return d
+
+
+def _lens(d: dict[str, Any], where: str) -> Lens | None:
+    try:
+        lens = Lens.from_dict(d, where)
+    except LayoutError as e:
+        raise InputError(str(e)) from None
+    return None if lens is None or lens.is_pinhole else lens
+
+
+def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
+    """Intrinsics from a ``--camera`` JSON file, scaled to the frame size.
+
+    The file holds ``layouts.Intrinsics`` fields (fx, fy, cx, cy in pixels; width, height of the
+    image they refer to, default the frame size), at the top level or under ``"intrinsics"``, and
+    optionally the lens's distortion beside them (k1, k2, p1, p2, k3, OpenCV's; `load_lens`).
+    """
+    d = {"width": width, "height": height, **_camera_record(path)}
+    intr = Intrinsics.from_dict(d, f"--camera {path}")
     return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
+
+
+def load_lens(path: str | os.PathLike) -> Lens | None:
+    """The lens distortion a ``--camera`` JSON file gives beside its intrinsics (None: none, a pinhole)."""
+    return _lens(_camera_record(path), f"--camera {path}")
 
 
 def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = None) -> tuple[Intrinsics, str]:
@@ -239,6 +272,12 @@ def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = N
     if source.intrinsics is not None:
         return source.intrinsics, f"{source.path / 'meta.json'}"
     return default_intrinsics(source.width, source.height), f"default ({DEFAULT_HFOV_DEG:g} deg horizontal FOV)"
+
+
+def resolve_lens(source: FrameSource, camera: str | os.PathLike | None = None) -> Lens | None:
+    """The lens to undistort the frames through: ``--camera``'s when given (None if it gives none), else the
+    sequence's meta.json's."""
+    return load_lens(camera) if camera is not None else source.lens
 
 
 def camera_mismatch(

@@ -33,7 +33,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from layouts.rackdepth import check_rack_depth
-from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics
+from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
@@ -250,6 +250,13 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     torch.set_num_threads(cfg.threads)
     model, record = load_model(ckpt)
     intr, intr_source = resolve_intrinsics(source, cfg.camera)
+    lens = resolve_lens(source, cfg.camera)
+    if lens is not None:
+        intr_source += (
+            ", frames undistorted through its lens ("
+            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
+            + ")"
+        )
     trained = trained_intrinsics(record, str(ckpt))
     if trained is not None:
         why = camera_mismatch(intr, trained)
@@ -296,7 +303,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         pending: deque[np.ndarray | None] = deque()
 
         def feed():
-            for rgb in source.frames(cfg.max_frames or None):
+            for rgb in source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None):
                 pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
                 yield rgb
                 if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads

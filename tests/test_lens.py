@@ -1,0 +1,128 @@
+"""Lens distortion (layouts.lens): the OpenCV model, images resampled through it, footage undistorted by `run`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from layouts.camera import Intrinsics
+from layouts.canonical import FILL_RGB
+from layouts.errors import InputError, LayoutError
+from layouts.lens import Lens, covering_intrinsics, distort_image, undistort_image
+from mvracklay.frames import load_lens, open_source, resolve_lens
+from waresynth.dataset import open_dataset
+
+INTR = Intrinsics(300.0, 280.0, 120.3, 131.7, 256, 240)
+BARREL = Lens(k1=-0.15, k2=0.03, p1=0.001, p2=-0.002)
+
+
+def test_the_model_is_opencvs():
+    x, y = np.array([0.3]), np.array([-0.2])
+    xd, yd = Lens(k1=-0.2, k2=0.05, k3=0.01).distort(x, y)
+    r2 = 0.13
+    radial = 1 - 0.2 * r2 + 0.05 * r2**2 + 0.01 * r2**3
+    assert np.allclose([xd[0], yd[0]], [0.3 * radial, -0.2 * radial])
+    xd, yd = Lens(p1=0.01, p2=-0.02).distort(x, y)
+    assert np.allclose(xd, 0.3 + 2 * 0.01 * 0.3 * -0.2 - 0.02 * (r2 + 2 * 0.09))
+    assert np.allclose(yd, -0.2 + 0.01 * (r2 + 2 * 0.04) + 2 * -0.02 * 0.3 * -0.2)
+
+
+@given(st.floats(-0.6, 0.6), st.floats(-0.45, 0.45), st.floats(-0.3, 0.1), st.floats(-0.05, 0.05))
+def test_undistort_inverts_distort(x, y, k1, p1):
+    lens = Lens(k1=k1, k2=0.02, p1=p1, p2=-p1 / 2)
+    xu, yu = lens.undistort(*lens.distort(np.array(x), np.array(y)))
+    assert abs(float(xu) - x) < 1e-6 and abs(float(yu) - y) < 1e-6
+
+
+def test_lens_checks_its_coefficients():
+    with pytest.raises(LayoutError, match="k1 must be a finite number"):
+        Lens(k1=float("nan"))
+    with pytest.raises(LayoutError, match="p2 = 5.0 is beyond"):
+        Lens(p2=5.0)
+    assert Lens.from_dict({"fx": 1.0}) is None and Lens.from_dict({"k2": 0.1}) == Lens(k2=0.1)
+    with pytest.raises(LayoutError, match="cam.json: lens k1"):
+        Lens.from_dict({"k1": "x"}, "cam.json")
+
+
+def _ramp(intr: Intrinsics) -> np.ndarray:
+    yy, xx = np.mgrid[0 : intr.height, 0 : intr.width]
+    return np.stack([xx, yy, yy], -1).astype(np.uint8)
+
+
+def test_undistorted_pixels_sample_where_the_lens_put_them():
+    out = undistort_image(_ramp(INTR), INTR, BARREL).astype(float)
+    yy, xx = np.mgrid[0 : INTR.height, 0 : INTR.width]
+    sx, sy = BARREL.distort((xx + 0.5 - INTR.cx) / INTR.fx, (yy + 0.5 - INTR.cy) / INTR.fy)
+    su, sv = sx * INTR.fx + INTR.cx - 0.5, sy * INTR.fy + INTR.cy - 0.5  # pixel index coordinates
+    inside = (su > 1) & (su < INTR.width - 2) & (sv > 1) & (sv < INTR.height - 2)
+    assert inside.mean() > 0.8
+    # bilinear on a ramp: exact up to the 8-bit rounding (0.5) and the tiles' bilinear map (< 0.15)
+    assert np.abs(out[..., 0] - su)[inside].max() < 0.65 and np.abs(out[..., 1] - sv)[inside].max() < 0.65
+    assert abs((out[..., 0] - su)[inside].mean()) < 0.05  # no half-pixel shift
+    img = _ramp(INTR)
+    assert np.array_equal(undistort_image(img, INTR, Lens()), img)
+
+
+def test_a_straight_board_bent_by_the_lens_is_straight_again():
+    img = np.full((INTR.height, INTR.width, 3), 200, np.uint8)
+    img[30:34] = 20  # a dark horizontal edge near the top, as a shelf board
+    bent = distort_image(img, INTR, BARREL, fill=(200, 200, 200))
+
+    def edge_rows(a: np.ndarray) -> np.ndarray:
+        dark = a[..., 0] < 110
+        return np.array([np.flatnonzero(dark[:, c]).mean() for c in range(20, INTR.width - 20, 10)])
+
+    assert np.ptp(edge_rows(bent)) >= 2.0  # the lens bends it by pixels
+    assert np.ptp(edge_rows(undistort_image(bent, INTR, BARREL))) < 0.6
+
+
+def test_covering_intrinsics_zoom_a_barrel_lens_until_no_fill_is_left():
+    pure = np.full((INTR.height, INTR.width, 3), 90, np.uint8)
+    cover = covering_intrinsics(INTR, BARREL)
+    assert cover.fx / INTR.fx == pytest.approx(cover.fy / INTR.fy) and cover.fx > INTR.fx * 1.02
+    assert (distort_image(pure, INTR, BARREL, fill=(0, 0, 0)) == 0).all(-1).any()  # unzoomed: fill at the border
+    assert not (distort_image(pure, INTR, BARREL, fill=(0, 0, 0), out=cover) == 0).all(-1).any()
+    assert covering_intrinsics(INTR, Lens(k1=0.1)) == INTR  # a pincushion sees inside its pinhole
+
+
+def test_run_undistorts_footage_through_the_camera_files_lens(tiny_dataset: Path, tmp_path: Path):
+    seq = tiny_dataset / "seq_00000"
+    src = open_source(seq)
+    intr = src.intrinsics
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({**intr.to_dict(), "k1": -0.2, "p1": 0.002}))
+    lens = load_lens(cam)
+    assert lens == Lens(k1=-0.2, p1=0.002) and resolve_lens(src, cam) == lens and resolve_lens(src) is None
+    raw = next(src.frames(1))
+    got = next(src.frames(1, undistort=(intr, lens)))
+    assert np.array_equal(got, undistort_image(raw, intr, lens, FILL_RGB)) and not np.array_equal(got, raw)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({**intr.to_dict(), "k1": 9}))
+    with pytest.raises(InputError, match="bad.json: lens k1 = 9 is beyond"):
+        load_lens(bad)
+
+
+def test_distorted_dataset_copy_records_the_lens_and_run_reads_it(tiny_dataset: Path, tmp_path: Path):
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "distort_dataset.py"
+    meta_src = (tiny_dataset / "seq_00000" / "meta.json").read_bytes()
+    run = [sys.executable, str(script), str(tiny_dataset), str(tmp_path / "k20"), "--k1", "-0.2"]
+    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
+    assert (tiny_dataset / "seq_00000" / "meta.json").read_bytes() == meta_src  # never written through
+    src, got = open_dataset(tiny_dataset).sequences()[0], open_dataset(tmp_path / "k20").sequences()[0]
+    zoomed = covering_intrinsics(src.intrinsics, Lens(k1=-0.2))
+    assert got.intrinsics == zoomed and got.meta["intrinsics"]["k1"] == -0.2
+    assert np.array_equal(got.rgb(2), distort_image(src.rgb(2), src.intrinsics, Lens(k1=-0.2), FILL_RGB, zoomed))
+    assert np.array_equal(got.layouts(2).top, src.layouts(2).top)
+    assert open_source(tmp_path / "k20" / "seq_00000").lens == Lens(k1=-0.2)  # run undistorts it unasked
+    back = subprocess.run([*run[:3], str(tmp_path / "k20u"), "--k1", "-0.2", "--undistort"], capture_output=True)
+    assert back.returncode == 0
+    assert "k1" not in json.loads((tmp_path / "k20u" / "seq_00000" / "meta.json").read_text())["intrinsics"]
+    none = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
+    assert none.returncode != 0 and "--k1" in none.stderr and not (tmp_path / "none").exists()
