@@ -13,7 +13,9 @@ records the zoomed intrinsics (`layouts.lens.covering_intrinsics`, the pinhole i
 cropped) with the lens's coefficients beside them. ``--undistort`` then resamples the distorted frame back to the pinhole image, as
 ``mvracklay run --camera`` does when the camera file gives the lens: what is left is the cost of the two
 resamplings and the lost corners. Everything else is hard-linked, unchanged. ``DISTORTED.json`` at the
-root says what was done. Refuses to write into a folder that exists.
+root says what was done. Refuses to write into a folder that exists. ``mvracklay evaluate`` scores the
+frames as stored (the copy measures what the distortion costs); ``run`` and ``predict`` undistort them
+through the lens meta.json records.
 """
 
 from __future__ import annotations

@@ -139,7 +139,7 @@ def _sequence(folder: Path) -> FrameSource:
             intr if (intr.width, intr.height) == (src.width, src.height) else intr.scaled(src.width, src.height)
         )
         if isinstance(meta["intrinsics"], dict):
-            src.lens = _lens(meta["intrinsics"], str(meta_path))
+            src.lens = lens_from_record(meta["intrinsics"], str(meta_path))
     src.camera_angles = camera_angles(meta.get("camera"), str(meta_path))
     frames = meta.get("frames")
     if isinstance(frames, list) and all(isinstance(f, dict) for f in frames):
@@ -240,7 +240,8 @@ def _camera_record(path: str | os.PathLike) -> dict[str, Any]:
     return d
 
 
-def _lens(d: dict[str, Any], where: str) -> Lens | None:
+def lens_from_record(d: dict[str, Any], where: str) -> Lens | None:
+    """The distortion an intrinsics record gives beside fx..cy (None: none, or all zero); bad values: `InputError`."""
     try:
         lens = Lens.from_dict(d, where)
     except LayoutError as e:
@@ -262,7 +263,7 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
 
 def load_lens(path: str | os.PathLike) -> Lens | None:
     """The lens distortion a ``--camera`` JSON file gives beside its intrinsics (None: none, a pinhole)."""
-    return _lens(_camera_record(path), f"--camera {path}")
+    return lens_from_record(_camera_record(path), f"--camera {path}")
 
 
 def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = None) -> tuple[Intrinsics, str]:

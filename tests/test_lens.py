@@ -126,3 +126,22 @@ def test_distorted_dataset_copy_records_the_lens_and_run_reads_it(tiny_dataset: 
     assert "k1" not in json.loads((tmp_path / "k20u" / "seq_00000" / "meta.json").read_text())["intrinsics"]
     none = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
     assert none.returncode != 0 and "--k1" in none.stderr and not (tmp_path / "none").exists()
+
+
+def test_predict_takes_the_lens_beside_its_intrinsics(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):
+    from mvracklay.cli import main
+    from mvracklay.commands.predict import _parse_intrinsics
+
+    seq = tiny_dataset / "seq_00000"
+    intr = open_source(seq).intrinsics
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"intrinsics": {**intr.to_dict(), "k1": -0.1}}))
+    assert _parse_intrinsics(str(cam), 128, 128) == (intr, Lens(k1=-0.1))
+    assert _parse_intrinsics("100,100,64,64", 128, 128)[1] is None
+    out = tmp_path / "lay"
+    argv = ["predict", str(seq), "--checkpoint", str(tiny_checkpoint), "--out", str(out), "--intrinsics", str(cam)]
+    assert main([*argv, "--threads", "1", "--quiet"]) == 0
+    assert len(list(out.glob("*.npz"))) == 8
+    cam.write_text(json.dumps({**intr.to_dict(), "k3": float("inf")}))
+    with pytest.raises(InputError, match="--intrinsics .*cam.json: lens k3 must be a finite number"):
+        _parse_intrinsics(str(cam), 128, 128)

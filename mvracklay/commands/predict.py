@@ -15,10 +15,13 @@ import torch
 from tqdm import tqdm
 
 from layouts import Intrinsics
+from layouts.canonical import FILL_RGB
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
+from layouts.lens import Lens, undistort_image
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
+from mvracklay.frames import lens_from_record
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
@@ -54,7 +57,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
-    p.add_argument("--intrinsics", help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them")
+    p.add_argument(
+        "--intrinsics",
+        help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them (and a lens's distortion "
+        "beside them, OpenCV's k1, k2, p1, p2, k3: every frame is then undistorted first)",
+    )
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
     )
@@ -70,17 +77,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
-def _parse_intrinsics(text: str, width: int, height: int) -> Intrinsics:
+def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
+    """``--intrinsics``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any)."""
     path = Path(text)
     if path.suffix == ".json" or path.is_file():
         d = load_json(path)
         d = d.get("intrinsics", d) if isinstance(d, dict) else d
-        return Intrinsics.from_dict(d, str(path))
+        intr = Intrinsics.from_dict(d, str(path))
+        return intr, lens_from_record(d, f"--intrinsics {path}")
     try:
         fx, fy, cx, cy = (float(v) for v in text.split(","))
     except ValueError:
         raise InputError(f"--intrinsics: want fx,fy,cx,cy or a JSON file, got {text!r}") from None
-    return Intrinsics(fx, fy, cx, cy, width, height)
+    return Intrinsics(fx, fy, cx, cy, width, height), None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -161,10 +170,13 @@ def predict_folder(
     else:
         seq = ImageFolderSequence(seq_dir)
     width, height = seq.image_size()
+    lens = None  # a lens's distortion, when the intrinsics give one: each frame is undistorted first
     if intrinsics:
-        intr = _parse_intrinsics(intrinsics, width, height)
+        intr, lens = _parse_intrinsics(intrinsics, width, height)
     elif isinstance(meta, dict) and "intrinsics" in meta:
         intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
+        if isinstance(meta["intrinsics"], dict):
+            lens = lens_from_record(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
     elif record.get("intrinsics"):
         intr = Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height)
     else:
@@ -213,7 +225,7 @@ def predict_folder(
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
         for i in range(seq.num_frames):
-            yield seq.rgb(i)
+            yield seq.rgb(i) if lens is None else undistort_image(seq.rgb(i), intr, lens, FILL_RGB)
             bar.update(1)
 
     depth = float("nan")
