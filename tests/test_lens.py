@@ -145,3 +145,13 @@ def test_predict_takes_the_lens_beside_its_intrinsics(tiny_dataset: Path, tiny_c
     cam.write_text(json.dumps({**intr.to_dict(), "k3": float("inf")}))
     with pytest.raises(InputError, match="--intrinsics .*cam.json: lens k3 must be a finite number"):
         _parse_intrinsics(str(cam), 128, 128)
+
+
+def test_bench_lens_prints_a_cost_per_frame_size():
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_lens.py"
+    done = subprocess.run([sys.executable, str(script), "--repeats", "1"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    lines = [line for line in done.stdout.splitlines() if "ms per frame" in line]
+    assert [line.split(":")[0] for line in lines] == ["256x256", "640x360", "1280x720", "1920x1080"]
+    bad = subprocess.run([sys.executable, str(script), "--repeats", "0"], capture_output=True, text=True)
+    assert bad.returncode != 0 and "--repeats" in bad.stderr
