@@ -15,7 +15,8 @@ cropped) with the lens's coefficients beside them. ``--undistort`` then resample
 resamplings and the lost corners. Everything else is hard-linked, unchanged. ``DISTORTED.json`` at the
 root says what was done. Refuses to write into a folder that exists. ``mvracklay evaluate`` scores the
 frames as stored (the copy measures what the distortion costs); ``run`` and ``predict`` undistort them
-through the lens meta.json records.
+through the lens meta.json records. ``--zoom-only`` writes the baseline: the same zoomed view through a
+pinhole (no distortion), so that what the narrower view costs is told apart from what the lens does.
 """
 
 from __future__ import annotations
@@ -44,7 +45,14 @@ def main() -> int:
     for k in LENS_KEYS:
         ap.add_argument(f"--{k}", type=float, default=0.0, help=f"the lens's {k} (OpenCV convention)")
     ap.add_argument("--undistort", action="store_true", help="resample each distorted frame back to the pinhole image")
+    ap.add_argument(
+        "--zoom-only",
+        action="store_true",
+        help="only crop to the view the lens's zoomed intrinsics give, with no distortion (the baseline)",
+    )
     args = ap.parse_args()
+    if args.undistort and args.zoom_only:
+        ap.error("--undistort and --zoom-only exclude each other")
     try:
         lens = Lens(**{k: getattr(args, k) for k in LENS_KEYS})
     except LayoutError as e:
@@ -58,19 +66,21 @@ def main() -> int:
     lens_intr = {seq.root: covering_intrinsics(seq.intrinsics, lens) for seq in seqs}
 
     def change(rgb: np.ndarray, seq) -> np.ndarray:
-        out = distort_image(rgb, seq.intrinsics, lens, FILL_RGB, out=lens_intr[seq.root])
+        out = distort_image(rgb, seq.intrinsics, Lens() if args.zoom_only else lens, FILL_RGB, out=lens_intr[seq.root])
         return undistort_image(out, lens_intr[seq.root], lens, FILL_RGB) if args.undistort else out
 
     def finish(root: Path) -> None:
         for seq in seqs:
             meta_path = root / seq.root.relative_to(args.src) / "meta.json"
             meta = load_json(meta_path)
-            meta["intrinsics"] = {**lens_intr[seq.root].to_dict(), **({} if args.undistort else lens.to_dict())}
+            distorted = not (args.undistort or args.zoom_only)
+            meta["intrinsics"] = {**lens_intr[seq.root].to_dict(), **(lens.to_dict() if distorted else {})}
             meta_path.unlink()  # a hard link: never write through it into the source
             atomic_write_json(meta_path, meta)
 
     zoom = sorted({round(lens_intr[s.root].fx / s.intrinsics.fx, 4) for s in seqs})
     said = {"source": str(args.src), "lens": lens.to_dict(), "focal_zoom": zoom, "undistorted": args.undistort}
+    said["zoom_only"] = args.zoom_only
     frames = write_rgb_copy(args.src, args.dst, seqs, change, "distort", ("DISTORTED.json", said), finish)
     print(f"wrote {args.dst}: {len(seqs)} sequences, {frames} frames, lens {lens.to_dict()}, focal zoom {zoom}")
     return 0

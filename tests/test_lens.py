@@ -124,6 +124,13 @@ def test_distorted_dataset_copy_records_the_lens_and_run_reads_it(tiny_dataset: 
     back = subprocess.run([*run[:3], str(tmp_path / "k20u"), "--k1", "-0.2", "--undistort"], capture_output=True)
     assert back.returncode == 0
     assert "k1" not in json.loads((tmp_path / "k20u" / "seq_00000" / "meta.json").read_text())["intrinsics"]
+    zoom = subprocess.run([*run[:3], str(tmp_path / "k20z"), "--k1", "-0.2", "--zoom-only"], capture_output=True)
+    assert zoom.returncode == 0
+    got = open_dataset(tmp_path / "k20z").sequences()[0]
+    assert got.intrinsics == zoomed and "k1" not in got.meta["intrinsics"]
+    assert np.array_equal(got.rgb(2), distort_image(src.rgb(2), src.intrinsics, Lens(), FILL_RGB, zoomed))
+    both = subprocess.run([*run, "--undistort", "--zoom-only"], capture_output=True, text=True)
+    assert both.returncode != 0 and "exclude" in both.stderr
     none = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
     assert none.returncode != 0 and "--k1" in none.stderr and not (tmp_path / "none").exists()
 
