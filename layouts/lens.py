@@ -25,6 +25,9 @@ from layouts.errors import LayoutError
 LENS_KEYS = ("k1", "k2", "p1", "p2", "k3")
 _LIMIT = 2.0
 """Largest magnitude accepted for a coefficient (OpenCV calibrations of ordinary lenses stay well inside)."""
+FRAME_MAX_WIDTH = 640
+"""`undistort_frame` shrinks wider frames to this first: the canonical view (at most 256 px) and the
+angle reading (at most 320 px) need no more, and the resampling costs per output pixel."""
 _TILE = 16
 """Output tile side (pixels) over which the resampling map is taken as bilinear (error far below a pixel)."""
 
@@ -183,3 +186,16 @@ def covering_intrinsics(intr: Intrinsics, lens: Lens) -> Intrinsics:
         lo, hi = (lo, mid) if fits(mid) else (mid, hi)
     s = hi
     return Intrinsics(intr.fx * s, intr.fy * s, intr.cx, intr.cy, intr.width, intr.height)
+
+
+def undistort_frame(
+    rgb: np.ndarray, intr: Intrinsics, lens: Lens, fill: tuple[int, int, int], max_width: int = FRAME_MAX_WIDTH
+) -> np.ndarray:
+    """`undistort_image` for the pipeline: a frame wider than ``max_width`` is first shrunk to it (antialiased,
+    aspect kept), so the result may be smaller than the frame; its intrinsics are ``intr`` scaled to it, as
+    every consumer derives them (`Intrinsics.scaled`)."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim == 3 and rgb.shape[1] > max_width:
+        h = max(1, round(rgb.shape[0] * max_width / rgb.shape[1]))
+        rgb = np.asarray(Image.fromarray(rgb).resize((max_width, h), Image.BILINEAR, reducing_gap=None))
+    return undistort_image(rgb, intr, lens, fill)

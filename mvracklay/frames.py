@@ -25,7 +25,7 @@ from layouts import Intrinsics
 from layouts.canonical import FILL_RGB
 from layouts.errors import InputError, LayoutError
 from layouts.fileio import load_json
-from layouts.lens import Lens, undistort_image
+from layouts.lens import Lens, undistort_frame
 from waresynth.config import camera_angles
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -85,10 +85,10 @@ class FrameSource:
         self, max_frames: int | None = None, undistort: tuple[Intrinsics, Lens] | None = None
     ) -> Iterator[np.ndarray]:
         """Stream the frames in order (at most ``max_frames``); ``undistort=(intrinsics, lens)`` resamples
-        each to the pinhole camera's image (`layouts.lens.undistort_image`; unseen corners take the
-        canonical fill colour)."""
+        each to the pinhole camera's image (`layouts.lens.undistort_frame`: frames wider than 640 px come
+        shrunk to 640; unseen corners take the canonical fill colour)."""
         for rgb in self._raw_frames(max_frames):
-            yield rgb if undistort is None else undistort_image(rgb, undistort[0], undistort[1], FILL_RGB)
+            yield rgb if undistort is None else undistort_frame(rgb, undistort[0], undistort[1], FILL_RGB)
 
     def _raw_frames(self, max_frames: int | None) -> Iterator[np.ndarray]:
         limit = max_frames if max_frames else None

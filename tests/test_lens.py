@@ -160,5 +160,21 @@ def test_bench_lens_prints_a_cost_per_frame_size():
     assert done.returncode == 0, done.stderr
     lines = [line for line in done.stdout.splitlines() if "ms per frame" in line]
     assert [line.split(":")[0] for line in lines] == ["256x256", "640x360", "1280x720", "1920x1080"]
+    assert "ms per frame, 640x360 out" in lines[-1]  # 1080p shrunk to 640 first
     bad = subprocess.run([sys.executable, str(script), "--repeats", "0"], capture_output=True, text=True)
     assert bad.returncode != 0 and "--repeats" in bad.stderr
+
+
+def test_undistort_frame_shrinks_wide_footage_first():
+    from PIL import Image
+
+    from layouts.lens import FRAME_MAX_WIDTH, undistort_frame
+
+    wide = Intrinsics.from_fov(1280, 720, 60.0)
+    rgb = np.random.default_rng(1).integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    got = undistort_frame(rgb, wide, BARREL, FILL_RGB)
+    assert got.shape == (360, FRAME_MAX_WIDTH, 3)
+    small = np.asarray(Image.fromarray(rgb).resize((640, 360), Image.BILINEAR, reducing_gap=None))
+    assert np.array_equal(got, undistort_image(small, wide.scaled(640, 360), BARREL, FILL_RGB))
+    img = _ramp(INTR)
+    assert np.array_equal(undistort_frame(img, INTR, BARREL, FILL_RGB), undistort_image(img, INTR, BARREL, FILL_RGB))

@@ -19,7 +19,7 @@ from layouts.canonical import FILL_RGB
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
-from layouts.lens import Lens, undistort_image
+from layouts.lens import Lens, undistort_frame
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
 from mvracklay.frames import lens_from_record
 from network.checkpoint import load_model
@@ -225,7 +225,7 @@ def predict_folder(
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
         for i in range(seq.num_frames):
-            yield seq.rgb(i) if lens is None else undistort_image(seq.rgb(i), intr, lens, FILL_RGB)
+            yield seq.rgb(i) if lens is None else undistort_frame(seq.rgb(i), intr, lens, FILL_RGB)
             bar.update(1)
 
     depth = float("nan")
