@@ -16,7 +16,9 @@ resamplings and the lost corners. Everything else is hard-linked, unchanged. ``D
 root says what was done. Refuses to write into a folder that exists. ``mvracklay evaluate`` scores the
 frames as stored (the copy measures what the distortion costs); ``run`` and ``predict`` undistort them
 through the lens meta.json records. ``--zoom-only`` writes the baseline: the same zoomed view through a
-pinhole (no distortion), so that what the narrower view costs is told apart from what the lens does.
+pinhole (no distortion), so that what the lens does is told apart from what the narrower view does. The
+ground truth stays the source's, the unzoomed camera's (its shelf slots): compare the copies of one lens
+with each other, not with the source (a narrower camera's own cost wants renders, ``camera.hfov_deg``).
 """
 
 from __future__ import annotations
