@@ -301,3 +301,14 @@ def camera_mismatch(
     if max(abs(pp[0] - pp_t[0]), abs(pp[1] - pp_t[1])) > pp_tol:
         problems.append(f"principal point at ({pp[0]:.2f}, {pp[1]:.2f}) of the image vs ({pp_t[0]:.2f}, {pp_t[1]:.2f})")
     return "; ".join(problems) or None
+
+
+def camera_advice(intr: Intrinsics, trained: Intrinsics) -> str:
+    """What to do about a camera `camera_mismatch` flagged (measured in docs/network.md, *Lens distortion*)."""
+    narrow = math.tan(math.radians(trained.hfov_deg) / 2) / math.tan(math.radians(intr.hfov_deg) / 2)
+    if narrow > 1.0 + 1e-6:
+        return (
+            f"a narrower camera sees less of each rack from the same distance: stand it about {narrow:.2f}x "
+            f"further back, or train on data generated with camera.hfov_deg {intr.hfov_deg:.1f}"
+        )
+    return f"the model saw only its training camera: train on data generated with camera.hfov_deg {intr.hfov_deg:.1f}"

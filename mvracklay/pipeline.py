@@ -33,7 +33,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from layouts.rackdepth import check_rack_depth
-from mvracklay.frames import FrameSource, camera_mismatch, resolve_intrinsics, resolve_lens
+from mvracklay.frames import FrameSource, camera_advice, camera_mismatch, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
@@ -262,7 +262,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         why = camera_mismatch(intr, trained)
         if why:
             warnings.append(
-                f"camera ({intr_source}) differs from the one the model was trained with: {why}; layouts may be mis-scaled"
+                f"camera ({intr_source}) differs from the one the model was trained with: {why}; "
+                f"{camera_advice(intr, trained)}"
             )
             print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
     spec = model.cfg.spec

@@ -148,6 +148,7 @@ def test_camera_json_and_mismatch_warning(seq_dir: Path, checkpoint: Path, tmp_p
     assert main([*argv, "--quiet", "--no-rrd", "--max-frames", "2"]) == 0
     err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert len(err) == 1 and "horizontal FOV" in err[0] and "trained" in err[0]
+    assert "camera.hfov_deg 116.0" in err[0] and "further back" not in err[0]  # wider: no distance helps
     assert WarehouseMap.load(out / "warehouse.json").meta["intrinsics"]["fx"] == 40.0
 
 
@@ -160,3 +161,12 @@ def test_rerun_replaces_earlier_outputs_and_keeps_other_files(seq_dir: Path, che
     assert main([*base, "--max-frames", "2"]) == 0
     assert LayoutFolder(out / "layouts").indices() == [0, 1]
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_camera_advice_says_how_far_back_a_narrower_camera_stands():
+    from layouts import Intrinsics
+    from mvracklay.frames import camera_advice
+
+    trained = Intrinsics.from_fov(128, 128, 60.0)
+    said = camera_advice(Intrinsics.from_fov(640, 480, 51.4), trained)
+    assert "about 1.20x further back" in said and "camera.hfov_deg 51.4" in said

@@ -21,7 +21,7 @@ from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
-from mvracklay.frames import lens_from_record
+from mvracklay.frames import camera_advice, camera_mismatch, lens_from_record
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
@@ -183,10 +183,11 @@ def predict_folder(
         intr = Intrinsics.from_fov(width, height, 60.0)
     if record.get("intrinsics"):
         trained = Intrinsics.from_dict(record["intrinsics"], source)
-        if abs(trained.hfov_deg - intr.hfov_deg) > 2.0:
+        why = camera_mismatch(intr, trained)
+        if why:
             print(
-                f"mvracklay predict: warning: camera horizontal FOV {intr.hfov_deg:.1f} deg differs from the "
-                f"{trained.hfov_deg:.1f} deg the model was trained with; layouts may be mis-scaled",
+                f"mvracklay predict: warning: camera differs from the one the model was trained with: {why}; "
+                f"{camera_advice(intr, trained)}",
                 file=sys.stderr,
             )
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None
