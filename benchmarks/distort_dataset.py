@@ -10,8 +10,8 @@ the given Brown-Conrady coefficients (OpenCV's k1, k2, p1, p2, k3; `layouts.lens
 the lens's view the render does not cover (the corners, for a barrel lens: k1 < 0) take the canonical
 fill colour, unless the focal lengths are zoomed so that none is left: each sequence's meta.json
 records the zoomed intrinsics (`layouts.lens.covering_intrinsics`, the pinhole image's centre
-cropped) with the lens's coefficients beside them. ``--undistort`` then resamples the distorted frame back to the pinhole image, as
-``mvracklay run --camera`` does when the camera file gives the lens: what is left is the cost of the two
+cropped) with the lens's coefficients beside them. ``--undistort`` then resamples the distorted frame
+back to the pinhole image, as ``mvracklay run --camera`` does when the camera file gives the lens: what is left is the cost of the two
 resamplings and the lost corners. Everything else is hard-linked, unchanged. ``DISTORTED.json`` at the
 root says what was done. Refuses to write into a folder that exists. ``mvracklay evaluate`` scores the
 frames as stored (the copy measures what the distortion costs); ``run`` and ``predict`` undistort them
@@ -71,18 +71,19 @@ def main() -> int:
         out = distort_image(rgb, seq.intrinsics, Lens() if args.zoom_only else lens, FILL_RGB, out=lens_intr[seq.root])
         return undistort_image(out, lens_intr[seq.root], lens, FILL_RGB) if args.undistort else out
 
+    recorded_lens = {} if args.undistort or args.zoom_only else lens.to_dict()  # what the stored frames show
+
     def finish(root: Path) -> None:
         for seq in seqs:
             meta_path = root / seq.root.relative_to(args.src) / "meta.json"
             meta = load_json(meta_path)
-            distorted = not (args.undistort or args.zoom_only)
-            meta["intrinsics"] = {**lens_intr[seq.root].to_dict(), **(lens.to_dict() if distorted else {})}
+            meta["intrinsics"] = {**lens_intr[seq.root].to_dict(), **recorded_lens}
             meta_path.unlink()  # a hard link: never write through it into the source
             atomic_write_json(meta_path, meta)
 
     zoom = sorted({round(lens_intr[s.root].fx / s.intrinsics.fx, 4) for s in seqs})
-    said = {"source": str(args.src), "lens": lens.to_dict(), "focal_zoom": zoom, "undistorted": args.undistort}
-    said["zoom_only"] = args.zoom_only
+    said = {"source": str(args.src), "lens": lens.to_dict(), "focal_zoom": zoom}
+    said |= {"undistorted": args.undistort, "zoom_only": args.zoom_only}
     frames = write_rgb_copy(args.src, args.dst, seqs, change, "distort", ("DISTORTED.json", said), finish)
     print(f"wrote {args.dst}: {len(seqs)} sequences, {frames} frames, lens {lens.to_dict()}, focal zoom {zoom}")
     return 0

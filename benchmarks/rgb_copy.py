@@ -1,6 +1,7 @@
 """One way to write a copy of a generated dataset whose RGB frames were changed, the rest hard-linked.
 
-Used by ``turn_dataset.py`` (a turned camera) and ``compress_dataset.py`` (a compressing camera).
+Used by ``turn_dataset.py`` (a turned camera), ``compress_dataset.py`` (a compressing camera) and
+``distort_dataset.py`` (a lens).
 """
 
 from __future__ import annotations
@@ -36,7 +37,8 @@ def write_rgb_copy(
     by ``change(rgb, seq)``; everything else hard-linked (copied where links fail). The copy is written
     under ``DST.partial`` and renamed when whole; ``record`` = (file name, what was done) is written at its
     root; ``finish(copy_root)``, when given, runs last, before the rename (it must unlink a file
-    before writing it: every file but the frames is a hard link into ``src``). Returns the number of frames changed. ``dst`` must not exist (the caller says so to its user)."""
+    before writing it: every file but the frames is a hard link into ``src``). Returns the number of
+    frames changed. ``dst`` must not exist (the caller says so to its user)."""
     tmp = dst.with_name(dst.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(src, tmp, copy_function=_link_or_copy)

@@ -68,24 +68,25 @@ class Lens:
     def is_pinhole(self) -> bool:
         return not any(getattr(self, k) for k in LENS_KEYS)
 
-    def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Normalised pinhole coordinates -> where the lens images them (normalised)."""
+    def _terms(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The radial factor and the tangential offsets at normalised pinhole coordinates ``x, y``."""
         r2 = x * x + y * y
         radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
-        return xd, yd
+        dx = 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        dy = self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+        return radial, dx, dy
+
+    def distort(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised pinhole coordinates -> where the lens images them (normalised)."""
+        radial, dx, dy = self._terms(x, y)
+        return x * radial + dx, y * radial + dy
 
     def undistort(self, xd: np.ndarray, yd: np.ndarray, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
         """The inverse of `distort` by fixed-point iteration (OpenCV's method; converges for ordinary lenses)."""
         x, y = np.array(xd, dtype=np.float64), np.array(yd, dtype=np.float64)
         for _ in range(iterations):
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
-            dx = 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
-            dy = self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
-            x = (xd - dx) / radial
-            y = (yd - dy) / radial
+            radial, dx, dy = self._terms(x, y)
+            x, y = (xd - dx) / radial, (yd - dy) / radial
         return x, y
 
 
@@ -176,6 +177,8 @@ def covering_intrinsics(intr: Intrinsics, lens: Lens) -> Intrinsics:
         su, sv = x * intr.fx + intr.cx, y * intr.fy + intr.cy
         return bool(np.all((su >= 0) & (su <= intr.width) & (sv >= 0) & (sv <= intr.height)))
 
+    if fits(1.0):
+        return intr
     lo, hi = 1.0, 1.0
     while not fits(hi):
         lo, hi = hi, hi * 1.25
