@@ -281,14 +281,33 @@ def resolve_lens(source: FrameSource, camera: str | os.PathLike | None = None) -
     return load_lens(camera) if camera is not None else source.lens
 
 
+def nearest_trained_camera(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None) -> Intrinsics:
+    """The training camera nearest ``intr``: ``trained`` itself, or, for a model trained on fields of view
+    drawn from ``hfov_range`` ([low, high] degrees, a checkpoint record's ``hfov_range_deg``), the one
+    at ``intr``'s field of view clamped into that range (same image size and principal point)."""
+    ok = (
+        isinstance(hfov_range, (list, tuple))
+        and len(hfov_range) == 2
+        and all(isinstance(v, (int, float)) and math.isfinite(v) and 1.0 <= v <= 170.0 for v in hfov_range)
+        and hfov_range[0] <= hfov_range[1]
+    )
+    if not ok:
+        return trained
+    fov = min(max(intr.hfov_deg, float(hfov_range[0])), float(hfov_range[1]))
+    f = (trained.width / 2) / math.tan(math.radians(fov) / 2)
+    return Intrinsics(fx=f, fy=f, cx=trained.cx, cy=trained.cy, width=trained.width, height=trained.height)
+
+
 def camera_mismatch(
-    intr: Intrinsics, trained: Intrinsics, fov_tol_deg: float = 2.0, pp_tol: float = 0.02
+    intr: Intrinsics, trained: Intrinsics, fov_tol_deg: float = 2.0, pp_tol: float = 0.02, hfov_range: Any = None
 ) -> str | None:
     """Why ``intr`` differs from the training camera (None when it matches within tolerance).
 
     Images are resized to the model's input, so only the fields of view and the principal point
-    relative to the image size matter.
+    relative to the image size matter. A model trained on a range of fields of view (``hfov_range``)
+    is compared with its training camera nearest ``intr`` (`nearest_trained_camera`).
     """
+    trained = nearest_trained_camera(intr, trained, hfov_range)
     problems = []
     if abs(intr.hfov_deg - trained.hfov_deg) > fov_tol_deg:
         problems.append(f"horizontal FOV {intr.hfov_deg:.1f} deg vs {trained.hfov_deg:.1f}")
@@ -303,12 +322,18 @@ def camera_mismatch(
     return "; ".join(problems) or None
 
 
-def camera_advice(intr: Intrinsics, trained: Intrinsics) -> str:
-    """What to do about a camera `camera_mismatch` flagged (measured in docs/network.md, *Lens distortion*)."""
+def camera_advice(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None) -> str:
+    """What to do about a camera `camera_mismatch` flagged (measured in docs/network.md, *Lens distortion*
+    and *Training on a range of cameras*)."""
+    trained = nearest_trained_camera(intr, trained, hfov_range)
     narrow = math.tan(math.radians(trained.hfov_deg) / 2) / math.tan(math.radians(intr.hfov_deg) / 2)
     if narrow > 1.0 + 1e-6:
         return (
             f"a narrower camera sees less of each rack from the same distance: stand it about {narrow:.2f}x "
-            f"further back, or train on data generated with camera.hfov_deg {intr.hfov_deg:.1f}"
+            f"further back, or train on data generated with camera.hfov_deg {intr.hfov_deg:.1f} (or a range "
+            "that holds it)"
         )
-    return f"the model saw only its training camera: train on data generated with camera.hfov_deg {intr.hfov_deg:.1f}"
+    return (
+        f"the model saw only its training cameras: train on data generated with camera.hfov_deg "
+        f"{intr.hfov_deg:.1f} (or a range that holds it)"
+    )

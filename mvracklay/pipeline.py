@@ -259,11 +259,12 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         )
     trained = trained_intrinsics(record, str(ckpt))
     if trained is not None:
-        why = camera_mismatch(intr, trained)
+        fov_range = record.get("hfov_range_deg")
+        why = camera_mismatch(intr, trained, hfov_range=fov_range)
         if why:
             warnings.append(
-                f"camera ({intr_source}) differs from the one the model was trained with: {why}; "
-                f"{camera_advice(intr, trained)}"
+                f"camera ({intr_source}) differs from the ones the model was trained with: {why}; "
+                f"{camera_advice(intr, trained, fov_range)}"
             )
             print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
     spec = model.cfg.spec

@@ -32,6 +32,7 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
+from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
@@ -180,6 +181,16 @@ def open_data(root: str | Path):
     return open_dataset(root)
 
 
+def _hfov_range(seqs: list[Any]) -> list[float] | None:
+    """The narrowest and widest horizontal field of view (degrees) of the training sequences' cameras
+    (None when a sequence has no intrinsics), so `run` can tell a camera the model has seen."""
+    fovs = [getattr(s, "intrinsics", None) for s in seqs]
+    if not fovs or any(f is None for f in fovs):
+        return None
+    vals = [f.hfov_deg for f in fovs]
+    return [float(min(vals)), float(max(vals))]
+
+
 def _nominal_distance(seqs: list[Any]) -> float | None:
     vals = []
     for s in seqs[:50]:
@@ -280,9 +291,14 @@ class Trainer:
         self.history: list[dict[str, Any]] = []
         first = train_seqs[0]
         intr = getattr(first, "intrinsics", None)
+        fov_range = _hfov_range(train_seqs)
+        if intr is not None and fov_range is not None and fov_range[1] - fov_range[0] > 0.01:
+            # cameras drawn from a range: the record's camera is the range's middle one
+            intr = Intrinsics.from_fov(intr.width, intr.height, (fov_range[0] + fov_range[1]) / 2)
         self.info = {
             "data": data_info or {},
             "intrinsics": intr.to_dict() if intr is not None else None,
+            "hfov_range_deg": fov_range,
             "nominal_distance": _nominal_distance(train_seqs),
             "train_frames": len(self.train_ds),
             "train_sequences": len(train_seqs),

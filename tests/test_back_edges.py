@@ -202,3 +202,36 @@ def test_fitting_needs_generated_ground_truth(tiny_checkpoint):
     with pytest.raises(InputError, match="photos: fitting the back-edge head needs a generated dataset"):
         cache_features(model, [Folder()], progress=False)
     assert replace(FitConfig(), epochs=3).epochs == 3
+
+
+def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_dataset, tmp_path):
+    """benchmarks/graft_heads.py: the network's tensors from NET, the heads' from HEADS, flags and fit records."""
+    import importlib.util
+    from pathlib import Path
+
+    from network.checkpoint import save_checkpoint
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "graft_heads.py"
+    spec = importlib.util.spec_from_file_location("graft_heads", script)
+    graft_heads = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(graft_heads)
+    heads = tmp_path / "heads.pt"
+    args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
+    assert main([*args, "--out", str(heads), "--threads", "1", "--quiet"]) == 0
+    # a "fine-tuned" network: the tiny one with every weight moved
+    payload, record = load_checkpoint(tiny_checkpoint)
+    moved = {k: (v + 0.01 if v.is_floating_point() else v) for k, v in payload["model"].items()}
+    net = tmp_path / "net.pt"
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    save_checkpoint(net, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": moved}, record)
+    out = tmp_path / "grafted.pt"
+    assert graft_heads.main([str(heads), str(net), str(out)]) == 0
+    got, rec = load_checkpoint(out)
+    h_payload, h_record = load_checkpoint(heads)
+    assert rec["model_config"]["back_edges"] is True and rec["back_edges"] == h_record["back_edges"]
+    assert rec["heads_grafted_from"] == str(heads)
+    assert all(torch.equal(got["model"][k], v) for k, v in moved.items())
+    back = [k for k in h_payload["model"] if k.startswith("back.")]
+    assert back and all(torch.equal(got["model"][k], h_payload["model"][k]) for k in back)
+    assert load_model(out)[0].back is not None
+    assert graft_heads.main([str(net), str(net), str(tmp_path / "none.pt")]) == 2  # no heads to copy

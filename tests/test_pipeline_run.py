@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +12,12 @@ import trimesh
 from PIL import Image
 
 from layouts.codecs import LayoutFolder
+from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from stitching.export_gltf import load_glb_cuboid_bounds
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
+from waresynth.dataset import open_dataset
 
 
 @pytest.fixture(scope="module")
@@ -170,3 +173,39 @@ def test_camera_advice_says_how_far_back_a_narrower_camera_stands():
     trained = Intrinsics.from_fov(128, 128, 60.0)
     said = camera_advice(Intrinsics.from_fov(640, 480, 51.4), trained)
     assert "about 1.20x further back" in said and "camera.hfov_deg 51.4" in said
+
+
+def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
+    from layouts import Intrinsics
+    from mvracklay.frames import camera_advice, camera_mismatch
+
+    mid = Intrinsics.from_fov(128, 128, 55.0)
+    inside, narrow = Intrinsics.from_fov(256, 256, 47.0), Intrinsics.from_fov(256, 256, 36.0)
+    assert camera_mismatch(inside, mid) is not None  # one camera: 8 degrees off
+    assert camera_mismatch(inside, mid, hfov_range=[45.0, 65.0]) is None  # within the trained range
+    why = camera_mismatch(narrow, mid, hfov_range=[45.0, 65.0])
+    assert why is not None and "36.0 deg vs 45.0" in why  # compared with the range's narrowest
+    # stand back by the tangent ratio to the range's narrowest camera, not to the middle one
+    said = camera_advice(narrow, mid, [45.0, 65.0])
+    assert f"about {math.tan(math.radians(22.5)) / math.tan(math.radians(18.0)):.2f}x further back" in said
+    assert camera_mismatch(inside, mid, hfov_range="wide") is not None  # a malformed record: the one camera
+
+
+def test_training_records_the_range_of_its_cameras(tmp_path: Path):
+    from network.train import _hfov_range
+    from waresynth.generate import generate_dataset
+
+    root = generate_dataset(
+        tmp_path / "d",
+        num_sequences=3,
+        frames=1,
+        image_size=(64, 48),
+        spec=LayoutSpec(size=32),
+        seed=3,
+        progress=False,
+        config={"camera": {"hfov_deg": [45, 65]}},
+    )
+    seqs = open_dataset(root).sequences()
+    lo, hi = _hfov_range(seqs)
+    fovs = sorted(json.loads(p.read_text())["camera"]["hfov_deg"] for p in root.glob("seq_*/meta.json"))
+    assert lo == pytest.approx(fovs[0]) and hi == pytest.approx(fovs[-1]) and 45 <= lo < hi <= 65

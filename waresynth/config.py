@@ -15,6 +15,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from layouts.canonical import MAX_ROLL_DEG
 from layouts.errors import InputError
 from layouts.fileio import load_json
@@ -102,6 +104,8 @@ _BOUNDS: dict[str, tuple[float, float, bool]] = {
     "sensor.supersample": (1, 4, True),
     "sensor.motion_blur": (0.0, 1.0, False),
 }
+#: keys that take one number or a [low, high] range drawn per sequence (the default's type is the number)
+_NUMBER_OR_RANGE = frozenset({"camera.hfov_deg"})
 
 
 def default_config() -> dict[str, Any]:
@@ -149,6 +153,8 @@ def _check_leaf(src: str, key: str, value: Any, default: Any) -> None:
     bounds = _bounds_for(key)
     lo, hi, integer = bounds if bounds else (-_INF, _INF, False)
     kind = "an integer" if integer else "a number"
+    if key in _NUMBER_OR_RANGE and isinstance(value, list):
+        default = [default, default]
     if isinstance(default, list):
         if not (isinstance(value, list) and len(value) == 2 and all(_is_num(x) for x in value)):
             raise InputError(f"{src}: {key} must be [low, high] ({kind} each), got {value!r}")
@@ -157,13 +163,27 @@ def _check_leaf(src: str, key: str, value: Any, default: Any) -> None:
         items = value
     else:
         if not _is_num(value):
-            raise InputError(f"{src}: {key} must be {kind}, got {value!r}")
+            either = " or [low, high]" if key in _NUMBER_OR_RANGE else ""
+            raise InputError(f"{src}: {key} must be {kind}{either}, got {value!r}")
         items = [value]
     for x in items:
         if integer and float(x) != int(x):
             raise InputError(f"{src}: {key} must be {kind}, got {value!r}")
         if not lo <= x <= hi:
             raise InputError(f"{src}: {key} must lie in [{lo:g}, {hi:g}], got {value!r}")
+
+
+def draw_hfov(cfg: dict[str, Any], seed: int) -> float:
+    """A sequence's horizontal field of view (degrees): ``camera.hfov_deg`` itself, or drawn uniformly from
+    its ``[low, high]`` range by the sequence seed's own stream (so the scene, the noise and every other
+    draw are those of a fixed camera with the same seed)."""
+    fov = cfg["camera"]["hfov_deg"]
+    if not isinstance(fov, list):
+        return float(fov)
+    lo, hi = float(fov[0]), float(fov[1])
+    if lo == hi:
+        return lo
+    return float(np.random.default_rng(np.random.SeedSequence([seed, 2])).uniform(lo, hi))
 
 
 def _merge(src: str, base: dict[str, Any], user: dict[str, Any], prefix: str = "") -> None:

@@ -27,7 +27,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
-from waresynth.config import CAMERA_ANGLE_KEYS, load_config
+from waresynth.config import CAMERA_ANGLE_KEYS, draw_hfov, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
@@ -87,7 +87,8 @@ def write_sequence(
     final, tmp = root / name, root / f".{name}.tmp"
     if tmp.exists():
         shutil.rmtree(tmp)
-    intr = Intrinsics.from_fov(image_size[0], image_size[1], cfg["camera"]["hfov_deg"])
+    hfov = draw_hfov(cfg, seed)
+    intr = Intrinsics.from_fov(image_size[0], image_size[1], hfov)
     scene_rng = np.random.default_rng(np.random.SeedSequence([seed, 0]))
     noise_rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
     scene = build_scene(scene_rng, cfg, intr, frames)
@@ -141,7 +142,7 @@ def write_sequence(
         "camera": {
             "height": scene.camera.height,
             "distance": distance,
-            "hfov_deg": cfg["camera"]["hfov_deg"],
+            "hfov_deg": hfov,
             **dict(zip(CAMERA_ANGLE_KEYS, scene.camera.angles)),
             "motion_blur": float(scene.sensor["motion_blur"]),
         },

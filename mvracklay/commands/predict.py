@@ -183,11 +183,12 @@ def predict_folder(
         intr = Intrinsics.from_fov(width, height, 60.0)
     if record.get("intrinsics"):
         trained = Intrinsics.from_dict(record["intrinsics"], source)
-        why = camera_mismatch(intr, trained)
+        fov_range = record.get("hfov_range_deg")
+        why = camera_mismatch(intr, trained, hfov_range=fov_range)
         if why:
             print(
-                f"mvracklay predict: warning: camera differs from the one the model was trained with: {why}; "
-                f"{camera_advice(intr, trained)}",
+                f"mvracklay predict: warning: camera differs from the ones the model was trained with: {why}; "
+                f"{camera_advice(intr, trained, fov_range)}",
                 file=sys.stderr,
             )
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None

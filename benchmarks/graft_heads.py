@@ -1,0 +1,92 @@
+#!/usr/bin/env python3
+"""A fine-tuned network with the depth heads of the file it was fine-tuned from, copied as they are.
+
+    .venv/bin/python benchmarks/graft_heads.py weights/mvracklay-disc-4.pt runs/fov/fovr/best.pt runs/fov/fovr/grafted.pt
+    mvracklay evaluate --checkpoint runs/fov/fovr/grafted.pt --data data/heldout128-ss2-fov51 --split all
+
+The back-edge, upright and box-depth heads are fitted with the network frozen (`mvracklay fit-*`), on
+the features of that network. After ``train --init-from HEADS`` has moved the network a little, those
+heads no longer match it exactly; refitting them costs hours at 256x256. This writes NET's weights and
+record with HEADS' head weights, head flags and fit records beside them (the box decision offsets stay
+NET's), so that ``evaluate`` measures what carrying the heads over without refitting costs. The record
+says where the heads came from (``heads_grafted_from``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts.errors import InputError  # noqa: E402
+from network.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
+from network.model import ModelConfig  # noqa: E402
+
+#: (model-config flag, state-dict prefix, record key) of each head fitted after training
+HEADS = (
+    ("back_edges", "back", "back_edges"),
+    ("uprights", "uprights", "uprights"),
+    ("box_depth", "box_depth", "box_depth"),
+)
+#: model-config flags that belong to the box-depth head
+BOX_OPTIONS = ("box_parallax", "box_row_profile")
+
+
+def graft(heads_path: Path, net_path: Path, out: Path) -> list[str]:
+    """Write ``out``; return the heads copied."""
+    h_payload, h_record = load_checkpoint(heads_path)
+    n_payload, n_record = load_checkpoint(net_path)
+    h_cfg = ModelConfig.from_dict(h_record.get("model_config"), f"{heads_path} (model_config)")
+    n_cfg = ModelConfig.from_dict(n_record.get("model_config"), f"{net_path} (model_config)")
+    for name in ("input_width", "input_height", "encoder_width", "hidden", "spec"):
+        if getattr(h_cfg, name) != getattr(n_cfg, name):
+            raise InputError(f"{net_path}: {name} differs from {heads_path}'s; the heads would not fit it")
+    state = dict(n_payload["model"])
+    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
+    record = {k: v for k, v in n_record.items() if k not in ("format", "format_version")}
+    flags, copied = {}, []
+    for flag, prefix, key in HEADS:
+        if not getattr(h_cfg, flag):
+            continue
+        state = {k: v for k, v in state.items() if not k.startswith(f"{prefix}.")}
+        state.update(
+            {
+                k: (v.to(dtype) if v.is_floating_point() else v)
+                for k, v in h_payload["model"].items()
+                if k.startswith(f"{prefix}.")
+            }
+        )
+        flags[flag] = True
+        record[key] = h_record.get(key)
+        copied.append(flag)
+    if not copied:
+        raise InputError(f"{heads_path}: has no depth heads to copy")
+    if h_cfg.box_depth:
+        flags.update({k: getattr(h_cfg, k) for k in BOX_OPTIONS})
+    record["model_config"] = replace(n_cfg, **flags).to_dict()
+    record["heads_grafted_from"] = str(heads_path)
+    payload = {k: v for k, v in n_payload.items() if k != "record_json"}
+    save_checkpoint(out, {**payload, "model": state}, record)
+    return copied
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("heads", type=Path, help="checkpoint with fitted depth heads (e.g. weights/mvracklay-disc-4.pt)")
+    ap.add_argument("net", type=Path, help="a network fine-tuned from it (train --init-from HEADS)")
+    ap.add_argument("out", type=Path, help="checkpoint to write")
+    args = ap.parse_args(argv)
+    try:
+        copied = graft(args.heads, args.net, args.out)
+    except InputError as e:
+        print(f"graft_heads: error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out}: {args.net.name}'s network with {', '.join(copied)} from {args.heads}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
