@@ -65,3 +65,16 @@ def test_generated_sequences_record_and_use_their_own_camera(tmp_path):
     assert (again / "seq_00001" / "rgb" / "000000.png").read_bytes() == (
         ranged / "seq_00001" / "rgb" / "000000.png"
     ).read_bytes()
+
+
+def test_inspect_reports_the_cameras_fields_of_view(tmp_path):
+    from waresynth.dataset import open_dataset
+    from waresynth.preview import format_summary, summarise
+
+    ranged = generate_dataset(tmp_path / "r", **SMALL, config={"camera": {"hfov_deg": [45, 65]}})
+    fovs = sorted(m["camera"]["hfov_deg"] for m in metas(ranged))
+    s = summarise(open_dataset(ranged), progress=False)
+    assert s["hfov_deg"] == pytest.approx([fovs[0], fovs[-1]])
+    assert f"camera       {fovs[0]:.1f} to {fovs[-1]:.1f} deg horizontal field of view" in format_summary(s)
+    fixed = summarise(open_dataset(generate_dataset(tmp_path / "f", **SMALL)), progress=False)
+    assert "camera       60.0 deg horizontal field of view" in format_summary(fixed)

@@ -374,6 +374,8 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         "supersample": int(dataset.config.get("sensor", {}).get("supersample", 1)),
         # the fraction of a step the shutter stays open, one per sequence (0: sharp)
         "motion_blur": _range([float(s.meta.get("camera", {}).get("motion_blur", 0.0)) for s in seqs]),
+        # the cameras' horizontal fields of view (degrees), one per sequence (camera.hfov_deg)
+        "hfov_deg": _range([float(s.intrinsics.hfov_deg) for s in seqs]),
         # the cameras' rotations (degrees; each 0 for a level camera), one per sequence
         "camera_angles": {
             k.removesuffix("_deg"): _range([s.camera_angles[j] for s in seqs]) for j, k in enumerate(CAMERA_ANGLE_KEYS)
@@ -421,6 +423,10 @@ def format_summary(s: dict[str, Any]) -> str:
             + (f" to {blur[1]:.2f}" if blur[1] != blur[0] else "")
             + " of a step (sensor.motion_blur)"
         )
+    fov = s.get("hfov_deg")
+    if fov:
+        span = f"{fov[0]:.1f}" + (f" to {fov[1]:.1f}" if fov[1] - fov[0] > 0.05 else "")
+        lines.append(f"camera       {span} deg horizontal field of view (camera.hfov_deg)")
     turned = {k: r for k, r in s.get("camera_angles", {}).items() if any(r)}
     if turned:
         lines.append(
