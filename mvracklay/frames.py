@@ -291,7 +291,7 @@ def nearest_trained_camera(intr: Intrinsics, trained: Intrinsics, hfov_range: An
         and all(isinstance(v, (int, float)) and math.isfinite(v) and 1.0 <= v <= 170.0 for v in hfov_range)
         and hfov_range[0] <= hfov_range[1]
     )
-    if not ok:
+    if not ok or hfov_range[1] - hfov_range[0] <= 0.01:  # no range: the one camera as recorded
         return trained
     fov = min(max(intr.hfov_deg, float(hfov_range[0])), float(hfov_range[1]))
     f = (trained.width / 2) / math.tan(math.radians(fov) / 2)

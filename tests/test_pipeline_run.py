@@ -189,6 +189,9 @@ def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
     said = camera_advice(narrow, mid, [45.0, 65.0])
     assert f"about {math.tan(math.radians(22.5)) / math.tan(math.radians(18.0)):.2f}x further back" in said
     assert camera_mismatch(inside, mid, hfov_range="wide") is not None  # a malformed record: the one camera
+    # one camera recorded as a range of nothing: taken as recorded (its own fy, not a square-pixel copy)
+    tall = Intrinsics(fx=110.0, fy=80.0, cx=64.0, cy=64.0, width=128, height=128)
+    assert camera_mismatch(tall, tall, hfov_range=[tall.hfov_deg, tall.hfov_deg]) is None
 
 
 def test_training_records_the_range_of_its_cameras(tmp_path: Path):
