@@ -14,7 +14,7 @@ import math
 import os
 import re
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -294,8 +294,7 @@ def nearest_trained_camera(intr: Intrinsics, trained: Intrinsics, hfov_range: An
     if not ok or hfov_range[1] - hfov_range[0] <= 0.01:  # no range: the one camera as recorded
         return trained
     fov = min(max(intr.hfov_deg, float(hfov_range[0])), float(hfov_range[1]))
-    f = (trained.width / 2) / math.tan(math.radians(fov) / 2)
-    return Intrinsics(fx=f, fy=f, cx=trained.cx, cy=trained.cy, width=trained.width, height=trained.height)
+    return replace(Intrinsics.from_fov(trained.width, trained.height, fov), cx=trained.cx, cy=trained.cy)
 
 
 def camera_mismatch(
@@ -337,3 +336,17 @@ def camera_advice(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None)
         f"the model saw only its training cameras: train on data generated with camera.hfov_deg "
         f"{intr.hfov_deg:.1f} (or a range that holds it)"
     )
+
+
+def camera_warning(intr: Intrinsics, record: dict[str, Any], source: str) -> str | None:
+    """How ``intr`` differs from the cameras a checkpoint (its ``record``, read from ``source``) was trained
+    with and what to do about it, as one clause ("differs from ...: why; advice"); None when it matches or
+    the record names no camera."""
+    if not record.get("intrinsics"):
+        return None
+    trained = Intrinsics.from_dict(record["intrinsics"], f"{source} (intrinsics)")
+    fov_range = record.get("hfov_range_deg")
+    why = camera_mismatch(intr, trained, hfov_range=fov_range)
+    if why is None:
+        return None
+    return f"differs from the ones the model was trained with: {why}; {camera_advice(intr, trained, fov_range)}"

@@ -22,7 +22,6 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -33,7 +32,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from layouts.rackdepth import check_rack_depth
-from mvracklay.frames import FrameSource, camera_advice, camera_mismatch, resolve_intrinsics, resolve_lens
+from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.fusion import check_tau
@@ -134,12 +133,6 @@ def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
     if not p.is_file():
         raise InputError(f"--checkpoint {p}: file not found")
     return p
-
-
-def trained_intrinsics(record: dict[str, Any], source: str) -> Intrinsics | None:
-    """The camera the model was trained with, from its checkpoint record (None when unrecorded)."""
-    d = record.get("intrinsics")
-    return Intrinsics.from_dict(d, f"{source} (intrinsics)") if isinstance(d, dict) else None
 
 
 def stitch_config(cfg: RunConfig) -> StitchConfig:
@@ -257,16 +250,10 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
             + ")"
         )
-    trained = trained_intrinsics(record, str(ckpt))
-    if trained is not None:
-        fov_range = record.get("hfov_range_deg")
-        why = camera_mismatch(intr, trained, hfov_range=fov_range)
-        if why:
-            warnings.append(
-                f"camera ({intr_source}) differs from the ones the model was trained with: {why}; "
-                f"{camera_advice(intr, trained, fov_range)}"
-            )
-            print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
+    differs = camera_warning(intr, record, str(ckpt))
+    if differs:
+        warnings.append(f"camera ({intr_source}) {differs}")
+        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
     spec = model.cfg.spec
     if cfg.layout_size and cfg.layout_size != spec.size:
         from dataclasses import replace

@@ -212,3 +212,11 @@ def test_training_records_the_range_of_its_cameras(tmp_path: Path):
     lo, hi = _hfov_range(seqs)
     fovs = sorted(json.loads(p.read_text())["camera"]["hfov_deg"] for p in root.glob("seq_*/meta.json"))
     assert lo == pytest.approx(fovs[0]) and hi == pytest.approx(fovs[-1]) and 45 <= lo < hi <= 65
+
+
+def test_predict_warns_about_a_camera_outside_the_trained_ones(seq_dir: Path, checkpoint: Path, tmp_path: Path, capsys):
+    argv = ["predict", str(seq_dir), "--checkpoint", str(checkpoint), "--out", str(tmp_path / "p"), "--quiet"]
+    assert main([*argv, "--threads", "1", "--intrinsics", "140,140,64,64"]) == 0  # 49 degrees, the model's 60
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert len(err) == 1 and err[0].startswith("mvracklay predict: warning: camera differs from the ones")
+    assert "horizontal FOV 49.1 deg vs 60.0" in err[0] and "further back" in err[0]

@@ -180,10 +180,7 @@ def draw_hfov(cfg: dict[str, Any], seed: int) -> float:
     fov = cfg["camera"]["hfov_deg"]
     if not isinstance(fov, list):
         return float(fov)
-    lo, hi = float(fov[0]), float(fov[1])
-    if lo == hi:
-        return lo
-    return float(np.random.default_rng(np.random.SeedSequence([seed, 2])).uniform(lo, hi))
+    return float(np.random.default_rng(np.random.SeedSequence([seed, 2])).uniform(float(fov[0]), float(fov[1])))
 
 
 def _merge(src: str, base: dict[str, Any], user: dict[str, Any], prefix: str = "") -> None:

@@ -21,7 +21,7 @@ from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
-from mvracklay.frames import camera_advice, camera_mismatch, lens_from_record
+from mvracklay.frames import camera_warning, lens_from_record
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
@@ -181,16 +181,9 @@ def predict_folder(
         intr = Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height)
     else:
         intr = Intrinsics.from_fov(width, height, 60.0)
-    if record.get("intrinsics"):
-        trained = Intrinsics.from_dict(record["intrinsics"], source)
-        fov_range = record.get("hfov_range_deg")
-        why = camera_mismatch(intr, trained, hfov_range=fov_range)
-        if why:
-            print(
-                f"mvracklay predict: warning: camera differs from the ones the model was trained with: {why}; "
-                f"{camera_advice(intr, trained, fov_range)}",
-                file=sys.stderr,
-            )
+    differs = camera_warning(intr, record, source)
+    if differs:
+        print(f"mvracklay predict: warning: camera {differs}", file=sys.stderr)
     frames_meta = meta.get("frames") if isinstance(meta, dict) else None
     nominal = record.get("nominal_distance")
     nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
