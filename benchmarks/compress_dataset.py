@@ -14,26 +14,15 @@ what was done. Refuses to write into a folder that exists.
 from __future__ import annotations
 
 import argparse
-import io
 import sys
 from pathlib import Path
-
-import numpy as np
-from PIL import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rgb_copy import write_rgb_copy  # noqa: E402  (this script's folder is on the path)
 
+from network.data import jpeg_round_trip  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
-
-
-def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
-    """``rgb`` (uint8 H x W x 3) as a JPEG of ``quality`` decodes it."""
-    buf = io.BytesIO()
-    Image.fromarray(rgb).save(buf, format="JPEG", quality=quality, subsampling=2)
-    buf.seek(0)
-    return np.asarray(Image.open(buf).convert("RGB"))
 
 
 def main() -> int:

@@ -9,11 +9,13 @@ of its slots' board edges) and the row head's target (a Gaussian bump at every v
 A window ending at frame t holds frames ``t-T+1 .. t``; before the sequence start the first
 frame is repeated, as the reference implementation does. Augmentation is consistent over a
 window: one colour jitter for all its frames and one horizontal flip of images, layouts,
-visible columns and camera X together; anchors get a small jitter of their own.
+visible columns and camera X together; anchors get a small jitter of their own; optionally
+(``jpeg``) the window's frames pass through JPEG at one quality, as a compressing camera gives them.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import re
 from pathlib import Path
@@ -219,6 +221,8 @@ class WindowDataset(torch.utils.data.Dataset):
         max_stride: int = 1,
         seen_weight: float = 0.0,
         prefix: int = 0,
+        jpeg: float = 0.0,
+        jpeg_quality: tuple[int, int] = (30, 95),
     ) -> None:
         if not sequences:
             raise InputError("no sequences to read (is the split empty?)")
@@ -240,6 +244,15 @@ class WindowDataset(torch.utils.data.Dataset):
             raise InputError(f"prefix must be an integer >= 0, got {prefix!r}")
         #: frames before each window's ``seq_len`` (same stride): the memory's warm-up in long-window training
         self.prefix = prefix
+        if not (isinstance(jpeg, (int, float)) and 0.0 <= jpeg <= 1.0):
+            raise InputError(f"jpeg must be a probability in [0, 1], got {jpeg!r}")
+        lo, hi = jpeg_quality
+        if not (isinstance(lo, int) and isinstance(hi, int) and 1 <= lo <= hi <= 95):
+            raise InputError(f"jpeg_quality must be two integers 1 <= low <= high <= 95, got {jpeg_quality!r}")
+        #: with augment, the share of windows whose frames pass through JPEG (one quality per window, drawn
+        #: from ``jpeg_quality``) before the canonical warp, as a compressing camera or a video file gives them
+        self.jpeg = float(jpeg)
+        self.jpeg_quality = (lo, hi)
         self._stacks: dict[int, list[dict[str, Any]]] = {}
         self.epoch = 0
         self.index: list[tuple[int, int]] = []
@@ -274,10 +287,11 @@ class WindowDataset(torch.utils.data.Dataset):
         stride = max(1, min(stride, (n_frames - 1) // span))
         return min(n_frames - 1, max(t, span * stride)), stride
 
-    def _frame(self, seq: SequenceLike, i: int) -> dict[str, np.ndarray]:
+    def _frame(self, seq: SequenceLike, i: int, quality: int | None = None) -> dict[str, np.ndarray]:
         intr, dist = frame_camera(seq, i)
+        rgb = seq.rgb(i) if quality is None else jpeg_round_trip(seq.rgb(i), quality)
         # a rotated camera is levelled by its recorded rotation: the layouts are the level camera's
-        img = canonical_image(seq.rgb(i), self.view, intr, dist, *sequence_angles(seq))
+        img = canonical_image(rgb, self.view, intr, dist, *sequence_angles(seq))
         lay = seq.layouts(i)
         d = self.spec.size
         anchors, rows = board_rows(seq, i, self.view, self.spec.num_slots)
@@ -299,7 +313,8 @@ class WindowDataset(torch.utils.data.Dataset):
         if self.prefix:
             t, stride = self._long_window(seq.num_frames, t, stride)
         ids = self.frame_ids(t, stride)
-        frames = [self._frame(seq, i) for i in ids]
+        quality = self._jpeg_quality(idx)
+        frames = [self._frame(seq, i, quality) for i in ids]
         st = {k: np.stack([f[k] for f in frames]) for k in frames[0]}
         imgs = st["images"].astype(np.float32)
         top, front, vis, anchors = st["top"], st["front"], st["visible"], st["anchors"]
@@ -329,6 +344,18 @@ class WindowDataset(torch.utils.data.Dataset):
             "flipped": flipped,
             **extra,
         }
+
+    def _jpeg_quality(self, idx: int) -> int | None:
+        """The JPEG quality item ``idx``'s frames go through this epoch, or None (no compression).
+
+        Drawn from a stream of its own, so the windows, strides, jitter and flips are those of a run
+        without it (same seed)."""
+        if not self.augment or self.jpeg <= 0.0:
+            return None
+        rng = np.random.default_rng([self.seed, self.epoch, idx, 1])
+        if rng.random() >= self.jpeg:
+            return None
+        return int(rng.integers(self.jpeg_quality[0], self.jpeg_quality[1] + 1))
 
     def _seen_columns(self, si: int, ids: list[int]) -> np.ndarray:
         """float32 ``(T, R, D)``: 1 on the columns of each slot's stacks whose depth frames ``ids[:t+1]`` showed.
@@ -361,6 +388,15 @@ class WindowDataset(torch.utils.data.Dataset):
                 done.add(i)
             out[t] = stack_column_map(stacks, dict.fromkeys(seen, 1.0), spec, levels, cam_x)
         return out
+
+
+def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
+    """``rgb`` (uint8 H x W x 3) as a baseline JPEG of ``quality`` (Pillow, 4:2:0 chroma) decodes it."""
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8)).save(buf, format="JPEG", quality=quality, subsampling=2)
+    buf.seek(0)
+    with Image.open(buf) as im:
+        return np.asarray(im.convert("RGB"))
 
 
 def colour_jitter(imgs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

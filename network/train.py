@@ -112,6 +112,8 @@ class TrainConfig:
     augment: bool = True
     max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
     seen_weight: float = 0.0  #: extra top-view loss weight on stacks whose depth the window has shown (0 = off)
+    jpeg: float = 0.0  #: share of training windows whose frames pass through JPEG (0 = none)
+    jpeg_quality: tuple[int, int] = (30, 95)  #: the JPEG quality range those windows draw from
     prefix_frames: int = 0  #: sequence variants: frames before each window that warm the memory (no encoder gradients)
     precision: str = "fp32"  #: fp32, or bf16: forward passes under bf16 autocast (weights and optimiser stay fp32)
     seed: int = 0
@@ -152,6 +154,11 @@ class TrainConfig:
             if not math.isfinite(v) or v < 0:
                 flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
                 raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
+        if not math.isfinite(self.jpeg) or not 0.0 <= self.jpeg <= 1.0:
+            raise InputError(f"--jpeg must be a probability in [0, 1], got {self.jpeg}")
+        lo, hi = self.jpeg_quality
+        if not 1 <= lo <= hi <= 95:
+            raise InputError(f"--jpeg-quality needs two integers 1 <= LOW <= HIGH <= 95, got {lo} {hi}")
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
         if self.precision not in PRECISIONS:
@@ -278,6 +285,8 @@ class Trainer:
             max_stride=train_cfg.max_stride,
             seen_weight=train_cfg.seen_weight,
             prefix=train_cfg.prefix_frames,
+            jpeg=train_cfg.jpeg,
+            jpeg_quality=tuple(train_cfg.jpeg_quality),
         )
         self.val_seqs = val_seqs[: train_cfg.val_sequences or None]
         self.batch = max(1, train_cfg.frames_per_step // model_cfg.seq_len)

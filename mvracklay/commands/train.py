@@ -120,6 +120,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "0 = off (default %(default)s)",
     )
     g.add_argument(
+        "--jpeg",
+        type=float,
+        default=t.jpeg,
+        metavar="P",
+        help="share of training windows whose frames go through JPEG before the canonical warp, one quality per "
+        "window drawn from --jpeg-quality, as a compressing camera or a video file delivers them; drawn from a "
+        "stream of its own, so the windows, jitter and flips are those of the same run without it "
+        "(0 = off, default %(default)s)",
+    )
+    g.add_argument(
+        "--jpeg-quality",
+        type=int,
+        nargs=2,
+        default=list(t.jpeg_quality),
+        metavar=("LOW", "HIGH"),
+        help="the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
+    )
+    g.add_argument(
         "--prefix-frames",
         type=int,
         default=t.prefix_frames,
@@ -236,6 +254,8 @@ def run(args: argparse.Namespace) -> int:
         augment=not args.no_augment,
         max_stride=args.max_stride,
         seen_weight=args.seen_weight,
+        jpeg=args.jpeg,
+        jpeg_quality=tuple(args.jpeg_quality),
         prefix_frames=args.prefix_frames,
         precision=args.precision,
         seed=args.seed,
