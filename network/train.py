@@ -154,7 +154,7 @@ class TrainConfig:
             if not math.isfinite(v) or v < 0:
                 flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
                 raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
-        if not math.isfinite(self.jpeg) or not 0.0 <= self.jpeg <= 1.0:
+        if not 0.0 <= self.jpeg <= 1.0:  # NaN and infinities fail the range too
             raise InputError(f"--jpeg must be a probability in [0, 1], got {self.jpeg}")
         lo, hi = self.jpeg_quality
         if not 1 <= lo <= hi <= 95:
