@@ -244,11 +244,8 @@ class WindowDataset(torch.utils.data.Dataset):
             raise InputError(f"prefix must be an integer >= 0, got {prefix!r}")
         #: frames before each window's ``seq_len`` (same stride): the memory's warm-up in long-window training
         self.prefix = prefix
-        if not (isinstance(jpeg, (int, float)) and 0.0 <= jpeg <= 1.0):
-            raise InputError(f"jpeg must be a probability in [0, 1], got {jpeg!r}")
+        check_jpeg(jpeg, jpeg_quality)
         lo, hi = jpeg_quality
-        if not (isinstance(lo, int) and isinstance(hi, int) and 1 <= lo <= hi <= 95):
-            raise InputError(f"jpeg_quality must be two integers 1 <= low <= high <= 95, got {jpeg_quality!r}")
         #: with augment, the share of windows whose frames pass through JPEG (one quality per window, drawn
         #: from ``jpeg_quality``) before the canonical warp, as a compressing camera or a video file gives them
         self.jpeg = float(jpeg)
@@ -397,6 +394,48 @@ def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:
     buf.seek(0)
     with Image.open(buf) as im:
         return np.asarray(im.convert("RGB"))
+
+
+def check_jpeg(share: float, quality: tuple[int, int], flags: tuple[str, str] = ("jpeg", "jpeg_quality")) -> None:
+    """One line naming ``flags`` unless ``share`` is a probability and ``quality`` a range 1 <= LOW <= HIGH <= 95."""
+    if not (isinstance(share, (int, float)) and 0.0 <= share <= 1.0):  # NaN and infinities fail the range too
+        raise InputError(f"{flags[0]} must be a probability in [0, 1], got {share!r}")
+    lo, hi = quality
+    if not (isinstance(lo, int) and isinstance(hi, int) and 1 <= lo <= hi <= 95):
+        raise InputError(f"{flags[1]} needs two integers 1 <= LOW <= HIGH <= 95, got {lo!r} {hi!r}")
+
+
+class CompressedSequence:
+    """A sequence whose frames come through JPEG at one ``quality``, as a compressing camera delivers them;
+    everything else (ground truth, cameras, files) is the wrapped sequence's."""
+
+    def __init__(self, seq: Any, quality: int) -> None:
+        self._seq = seq
+        self.jpeg_quality = int(quality)
+
+    def rgb(self, i: int) -> np.ndarray:
+        return jpeg_round_trip(self._seq.rgb(i), self.jpeg_quality)
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "_seq":  # not set yet (copy / unpickle): no recursion
+            raise AttributeError(name)
+        return getattr(self._seq, name)
+
+
+def compress_share(seqs: list[Any], share: float, quality: tuple[int, int], seed: int) -> list[Any]:
+    """``seqs`` with a share ``share`` of them wrapped in `CompressedSequence`, each at one quality from
+    ``quality`` (LOW..HIGH): what the depth-head fits see with ``--jpeg``. Sequence k draws from its own
+    stream ``[seed, k, 1]``, so the draws do not depend on how many sequences follow."""
+    check_jpeg(share, quality)
+    if share <= 0.0:
+        return list(seqs)
+    out: list[Any] = []
+    for k, seq in enumerate(seqs):
+        rng = np.random.default_rng([seed, k, 1])
+        hit = rng.random() < share
+        q = int(rng.integers(quality[0], quality[1] + 1))
+        out.append(CompressedSequence(seq, q) if hit else seq)
+    return out
 
 
 def colour_jitter(imgs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -207,9 +207,17 @@ def model_key(model: MVRackLay) -> dict[str, Any]:
 
 def cache_key(model: MVRackLay | dict[str, Any], seqs: list[Any]) -> dict[str, Any]:
     """What a cache of head inputs depends on: the model's part (`model_key`, or the model to take it from)
-    and the training sequences (folders and frame counts), in order."""
+    and the training sequences (folders, frame counts and, for one seen through JPEG, its quality), in order."""
     base = model if isinstance(model, dict) else model_key(model)
-    return {**base, "sequences": [[str(Path(s.root).resolve()), int(s.num_frames)] for s in seqs]}
+    return {**base, "sequences": [sequence_key(s) for s in seqs]}
+
+
+def sequence_key(seq: Any) -> list[Any]:
+    """A sequence's part of `cache_key`: its folder and frame count, and its JPEG quality when compressed
+    (`network.data.CompressedSequence`; plain sequences keep the keys of caches made before it)."""
+    key: list[Any] = [str(Path(seq.root).resolve()), int(seq.num_frames)]
+    quality = getattr(seq, "jpeg_quality", None)
+    return key if quality is None else [*key, int(quality)]
 
 
 def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:

@@ -36,7 +36,7 @@ from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
-from network.data import WindowDataset
+from network.data import WindowDataset, check_jpeg
 from network.distributed import (
     DistEnv,
     ListSampler,
@@ -154,11 +154,7 @@ class TrainConfig:
             if not math.isfinite(v) or v < 0:
                 flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
                 raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
-        if not 0.0 <= self.jpeg <= 1.0:  # NaN and infinities fail the range too
-            raise InputError(f"--jpeg must be a probability in [0, 1], got {self.jpeg}")
-        lo, hi = self.jpeg_quality
-        if not 1 <= lo <= hi <= 95:
-            raise InputError(f"--jpeg-quality needs two integers 1 <= LOW <= HIGH <= 95, got {lo} {hi}")
+        check_jpeg(self.jpeg, tuple(self.jpeg_quality), ("--jpeg", "--jpeg-quality"))
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
         if self.precision not in PRECISIONS:

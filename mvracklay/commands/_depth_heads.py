@@ -29,6 +29,39 @@ def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
+    add_jpeg_arguments(p)
+
+
+def add_jpeg_arguments(p: argparse.ArgumentParser) -> None:
+    """``--jpeg P --jpeg-quality LOW HIGH``: fit a head on frames as a compressing camera delivers them."""
+    p.add_argument(
+        "--jpeg", type=float, default=0.0, metavar="P",
+        help="share of the training sequences whose frames go through JPEG, one quality per sequence drawn from "
+        "--jpeg-quality with --seed, as a compressing camera or a video file delivers them (--val stays as it is; "
+        "0 = off, default %(default)s)",
+    )  # fmt: skip
+    p.add_argument(
+        "--jpeg-quality", type=int, nargs=2, default=[30, 95], metavar=("LOW", "HIGH"),
+        help="the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
+    )  # fmt: skip
+
+
+def training_sequences(args: argparse.Namespace) -> list[Any]:
+    """The first ``--sequences`` of ``--data``, a ``--jpeg`` share of them compressed; one line if none."""
+    from network.data import check_jpeg, compress_share
+    from network.train import open_data
+
+    quality = (args.jpeg_quality[0], args.jpeg_quality[1])
+    check_jpeg(args.jpeg, quality, ("--jpeg", "--jpeg-quality"))
+    train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
+    if not train:
+        raise InputError(f"--data {' '.join(map(str, args.data))}: no sequences")
+    return compress_share(train, args.jpeg, quality, args.seed)
+
+
+def jpeg_record(args: argparse.Namespace) -> dict[str, Any]:
+    """What the checkpoint's record notes of ``--jpeg`` (nothing when off)."""
+    return {"jpeg": args.jpeg, "jpeg_quality": list(args.jpeg_quality)} if args.jpeg > 0 else {}
 
 
 def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source: str, flag: str, name: str) -> int:
@@ -47,12 +80,13 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
     model = model_from(payload, record, args.checkpoint)
-    train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
+    train = training_sequences(args)
     val = open_data(args.val).sequences(None) if args.val else []
     head, summary = fit(model, train, val, cfg, progress=not args.quiet)
     print_depth_errors(summary, source)
     out = args.out or args.checkpoint
-    info = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **summary}
+    info = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **jpeg_record(args)}
+    info.update(summary)
     save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:

@@ -9,6 +9,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from mvracklay.commands._depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 
 NAME = "fit-box-depth"
 HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
@@ -56,12 +57,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
+    add_jpeg_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.fit_boxdepth import FitConfig, box_head_config, fit_box_depth
-    from network.train import open_data
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -77,9 +78,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
     model = model_from(payload, record, args.checkpoint)
-    train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
-    if not train:
-        raise InputError(f"--data {' '.join(map(str, args.data))}: no sequences")
+    train = training_sequences(args)
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
@@ -97,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         + ", ".join(f"{v:.3f}" for v in summary["losses"])
     )
     out = args.out or args.checkpoint
-    info = {"data": [str(d) for d in args.data], **summary}
+    info = {"data": [str(d) for d in args.data], **jpeg_record(args), **summary}
     cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
