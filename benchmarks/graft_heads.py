@@ -9,7 +9,8 @@ the features of that network. After ``train --init-from HEADS`` has moved the ne
 heads no longer match it exactly; refitting them costs hours at 256x256. This writes NET's weights and
 record with HEADS' head weights, head flags and fit records beside them (the box decision offsets stay
 NET's), so that ``evaluate`` measures what carrying the heads over without refitting costs. The record
-says where the heads came from (``heads_grafted_from``).
+says where the heads came from (``heads_grafted_from``, ``heads_grafted``). ``--only FLAG ...`` copies
+some of the heads and leaves NET its own others (NET with refitted heads, one of them swapped back).
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ HEADS = (
 BOX_OPTIONS = ("box_parallax", "box_row_profile")
 
 
-def graft(heads_path: Path, net_path: Path, out: Path) -> list[str]:
-    """Write ``out``; return the heads copied."""
+def graft(heads_path: Path, net_path: Path, out: Path, only: tuple[str, ...] = ()) -> list[str]:
+    """Write ``out``; return the heads copied (those of ``only`` if given; NET keeps its other heads)."""
     h_payload, h_record = load_checkpoint(heads_path)
     n_payload, n_record = load_checkpoint(net_path)
     h_cfg = ModelConfig.from_dict(h_record.get("model_config"), f"{heads_path} (model_config)")
@@ -49,7 +50,7 @@ def graft(heads_path: Path, net_path: Path, out: Path) -> list[str]:
     record = {k: v for k, v in n_record.items() if k not in ("format", "format_version")}
     flags, copied = {}, []
     for flag, prefix, key in HEADS:
-        if not getattr(h_cfg, flag):
+        if not getattr(h_cfg, flag) or (only and flag not in only):
             continue
         state = {k: v for k, v in state.items() if not k.startswith(f"{prefix}.")}
         state.update(
@@ -63,11 +64,12 @@ def graft(heads_path: Path, net_path: Path, out: Path) -> list[str]:
         record[key] = h_record.get(key)
         copied.append(flag)
     if not copied:
-        raise InputError(f"{heads_path}: has no depth heads to copy")
-    if h_cfg.box_depth:
+        raise InputError(f"{heads_path}: has no depth heads to copy" + (f" of {', '.join(only)}" if only else ""))
+    if "box_depth" in copied:
         flags.update({k: getattr(h_cfg, k) for k in BOX_OPTIONS})
     record["model_config"] = replace(n_cfg, **flags).to_dict()
     record["heads_grafted_from"] = str(heads_path)
+    record["heads_grafted"] = copied
     payload = {k: v for k, v in n_payload.items() if k != "record_json"}
     save_checkpoint(out, {**payload, "model": state}, record)
     return copied
@@ -78,9 +80,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("heads", type=Path, help="checkpoint with fitted depth heads (e.g. weights/mvracklay-disc-4.pt)")
     ap.add_argument("net", type=Path, help="a network fine-tuned from it (train --init-from HEADS)")
     ap.add_argument("out", type=Path, help="checkpoint to write")
+    ap.add_argument(
+        "--only", nargs="+", choices=[h[0] for h in HEADS], default=[],
+        help="copy only these heads; NET keeps its own others (to measure which head a difference comes from)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     try:
-        copied = graft(args.heads, args.net, args.out)
+        copied = graft(args.heads, args.net, args.out, tuple(args.only))
     except InputError as e:
         print(f"graft_heads: error: {e}", file=sys.stderr)
         return 2

@@ -235,3 +235,8 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     assert back and all(torch.equal(got["model"][k], h_payload["model"][k]) for k in back)
     assert load_model(out)[0].back is not None
     assert graft_heads.main([str(net), str(net), str(tmp_path / "none.pt")]) == 2  # no heads to copy
+    # --only: some of the heads (here the one it has), or none when HEADS lacks those asked for
+    assert graft_heads.main([str(heads), str(net), str(tmp_path / "only.pt"), "--only", "back_edges"]) == 0
+    assert load_checkpoint(tmp_path / "only.pt")[1]["heads_grafted"] == ["back_edges"]
+    assert graft_heads.main([str(heads), str(net), str(tmp_path / "up.pt"), "--only", "uprights"]) == 2
+    assert not (tmp_path / "up.pt").exists()
