@@ -400,9 +400,12 @@ def check_jpeg(share: float, quality: tuple[int, int], flags: tuple[str, str] = 
     """One line naming ``flags`` unless ``share`` is a probability and ``quality`` a range 1 <= LOW <= HIGH <= 95."""
     if not (isinstance(share, (int, float)) and 0.0 <= share <= 1.0):  # NaN and infinities fail the range too
         raise InputError(f"{flags[0]} must be a probability in [0, 1], got {share!r}")
-    lo, hi = quality
+    try:
+        lo, hi = quality
+    except (TypeError, ValueError):
+        lo, hi = None, None  # not a pair: refused below with what was given
     if not (isinstance(lo, int) and isinstance(hi, int) and 1 <= lo <= hi <= 95):
-        raise InputError(f"{flags[1]} needs two integers 1 <= LOW <= HIGH <= 95, got {lo!r} {hi!r}")
+        raise InputError(f"{flags[1]} needs two integers 1 <= LOW <= HIGH <= 95, got {quality!r}")
 
 
 class CompressedSequence:

@@ -34,8 +34,9 @@ def test_the_share_and_qualities_are_drawn_per_sequence_from_the_seed(tiny_datas
     assert picked == [getattr(s, "jpeg_quality", None) for s in compress_share(seqs, 0.5, (30, 95), 0)]
     assert picked[:10] == [getattr(s, "jpeg_quality", None) for s in compress_share(seqs[:10], 0.5, (30, 95), 0)]
     assert picked != [getattr(s, "jpeg_quality", None) for s in compress_share(seqs, 0.5, (30, 95), 1)]
-    with pytest.raises(InputError, match="jpeg_quality"):
-        compress_share(seqs, 0.5, (90, 30), 0)
+    for bad in ((90, 30), (30,), 40):
+        with pytest.raises(InputError, match="jpeg_quality"):
+            compress_share(seqs, 0.5, bad, 0)
 
 
 def test_a_cache_key_names_the_quality_of_compressed_sequences_only(tiny_dataset):
