@@ -349,10 +349,7 @@ class WindowDataset(torch.utils.data.Dataset):
         without it (same seed)."""
         if not self.augment or self.jpeg <= 0.0:
             return None
-        rng = np.random.default_rng([self.seed, self.epoch, idx, 1])
-        if rng.random() >= self.jpeg:
-            return None
-        return int(rng.integers(self.jpeg_quality[0], self.jpeg_quality[1] + 1))
+        return draw_jpeg_quality(np.random.default_rng([self.seed, self.epoch, idx, 1]), self.jpeg, self.jpeg_quality)
 
     def _seen_columns(self, si: int, ids: list[int]) -> np.ndarray:
         """float32 ``(T, R, D)``: 1 on the columns of each slot's stacks whose depth frames ``ids[:t+1]`` showed.
@@ -434,11 +431,17 @@ def compress_share(seqs: list[Any], share: float, quality: tuple[int, int], seed
         return list(seqs)
     out: list[Any] = []
     for k, seq in enumerate(seqs):
-        rng = np.random.default_rng([seed, k, 1])
-        hit = rng.random() < share
-        q = int(rng.integers(quality[0], quality[1] + 1))
-        out.append(CompressedSequence(seq, q) if hit else seq)
+        q = draw_jpeg_quality(np.random.default_rng([seed, k, 1]), share, quality)
+        out.append(seq if q is None else CompressedSequence(seq, q))
     return out
+
+
+def draw_jpeg_quality(rng: np.random.Generator, share: float, quality: tuple[int, int]) -> int | None:
+    """With probability ``share`` a JPEG quality from ``quality`` (LOW..HIGH), else None: one item's draw
+    (a training window's, a fit's sequence's), from a stream of its own."""
+    if rng.random() >= share:
+        return None
+    return int(rng.integers(quality[0], quality[1] + 1))
 
 
 def colour_jitter(imgs: np.ndarray, rng: np.random.Generator) -> np.ndarray:

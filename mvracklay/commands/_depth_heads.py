@@ -51,7 +51,7 @@ def training_sequences(args: argparse.Namespace) -> list[Any]:
     from network.data import check_jpeg, compress_share
     from network.train import open_data
 
-    quality = (args.jpeg_quality[0], args.jpeg_quality[1])
+    quality = tuple(args.jpeg_quality)
     check_jpeg(args.jpeg, quality, ("--jpeg", "--jpeg-quality"))
     train = [s for root in args.data for s in open_data(root).sequences(None)][: args.sequences]
     if not train:
@@ -85,8 +85,8 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     head, summary = fit(model, train, val, cfg, progress=not args.quiet)
     print_depth_errors(summary, source)
     out = args.out or args.checkpoint
-    info = {"data": [str(d) for d in args.data], "val": str(args.val) if args.val else None, **jpeg_record(args)}
-    info.update(summary)
+    val_name = str(args.val) if args.val else None
+    info = {"data": [str(d) for d in args.data], "val": val_name, **jpeg_record(args), **summary}
     save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
