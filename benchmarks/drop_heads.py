@@ -21,10 +21,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from graft_heads import BOX_OPTIONS, HEADS  # noqa: E402
+from graft_heads import BOX_OPTIONS, HEADS, write_with_heads  # noqa: E402
 
 from layouts.errors import InputError  # noqa: E402
-from network.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
+from network.checkpoint import load_checkpoint  # noqa: E402
 from network.model import ModelConfig  # noqa: E402
 
 
@@ -47,10 +47,7 @@ def drop(path: Path, out: Path, heads: tuple[str, ...]) -> list[str]:
             record.pop(key, None)
     if "box_depth" in had:
         flags.update(dict.fromkeys(BOX_OPTIONS, False))
-    record["model_config"] = replace(cfg, **flags).to_dict()
-    record["heads_dropped"] = had
-    rest = {k: v for k, v in payload.items() if k != "record_json"}
-    save_checkpoint(out, {**rest, "model": state}, record)
+    write_with_heads(out, payload, state, record, replace(cfg, **flags), heads_dropped=had)
     return had
 
 

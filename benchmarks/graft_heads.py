@@ -19,6 +19,7 @@ import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -67,12 +68,19 @@ def graft(heads_path: Path, net_path: Path, out: Path, only: tuple[str, ...] = (
         raise InputError(f"{heads_path}: has no depth heads to copy" + (f" of {', '.join(only)}" if only else ""))
     if "box_depth" in copied:
         flags.update({k: getattr(h_cfg, k) for k in BOX_OPTIONS})
-    record["model_config"] = replace(n_cfg, **flags).to_dict()
-    record["heads_grafted_from"] = str(heads_path)
-    record["heads_grafted"] = copied
-    payload = {k: v for k, v in n_payload.items() if k != "record_json"}
-    save_checkpoint(out, {**payload, "model": state}, record)
+    write_with_heads(
+        out, n_payload, state, record, replace(n_cfg, **flags), heads_grafted_from=str(heads_path), heads_grafted=copied
+    )
     return copied
+
+
+def write_with_heads(
+    out: Path, payload: dict[str, Any], state: dict[str, Any], record: dict[str, Any], cfg: ModelConfig, **notes: Any
+) -> None:
+    """Write ``out``: ``payload`` with the model weights ``state`` and ``record`` with ``cfg`` (its head flags
+    changed) and ``notes`` (where the heads came from or went); shared with drop_heads.py."""
+    rest = {k: v for k, v in payload.items() if k != "record_json"}
+    save_checkpoint(out, {**rest, "model": state}, {**record, "model_config": cfg.to_dict(), **notes})
 
 
 def main(argv: list[str] | None = None) -> int:
