@@ -39,7 +39,6 @@ def drop(path: Path, out: Path, heads: tuple[str, ...]) -> list[str]:
         raise InputError(f"{path}: has none of the heads {', '.join(heads)}")
     state = dict(payload["model"])
     flags: dict[str, bool] = {}
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
     for flag, prefix, key in HEADS:
         if flag in had:
             state = {k: v for k, v in state.items() if not k.startswith(f"{prefix}.")}

@@ -48,7 +48,7 @@ def graft(heads_path: Path, net_path: Path, out: Path, only: tuple[str, ...] = (
             raise InputError(f"{net_path}: {name} differs from {heads_path}'s; the heads would not fit it")
     state = dict(n_payload["model"])
     dtype = next(v.dtype for v in state.values() if v.is_floating_point())
-    record = {k: v for k, v in n_record.items() if k not in ("format", "format_version")}
+    record = dict(n_record)
     flags, copied = {}, []
     for flag, prefix, key in HEADS:
         if not getattr(h_cfg, flag) or (only and flag not in only):
@@ -80,7 +80,8 @@ def write_with_heads(
     """Write ``out``: ``payload`` with the model weights ``state`` and ``record`` with ``cfg`` (its head flags
     changed) and ``notes`` (where the heads came from or went); shared with drop_heads.py."""
     rest = {k: v for k, v in payload.items() if k != "record_json"}
-    save_checkpoint(out, {**rest, "model": state}, {**record, "model_config": cfg.to_dict(), **notes})
+    kept = {k: v for k, v in record.items() if k not in ("format", "format_version")}  # save_checkpoint writes them
+    save_checkpoint(out, {**rest, "model": state}, {**kept, "model_config": cfg.to_dict(), **notes})
 
 
 def main(argv: list[str] | None = None) -> int:
