@@ -152,24 +152,60 @@ class Chain:
         return np.concatenate([np.asarray(getattr(c, name)) for c in self.parts])
 
 
+@dataclass(frozen=True)
+class FrameChoice:
+    """Which frames of each training sequence the cache pass streams and keeps: the first ``frames`` (None:
+    all), of which the slots of frames ``from_frame`` on are kept (the earlier ones only build the stream's
+    memory, the parallax history and what has been seen). Fewer frames per scene buy more scenes for the same
+    minutes, and the head is short of scenes rather than of frames (docs/network.md)."""
+
+    frames: int | None = None
+    from_frame: int = 0
+
+    def validate(self) -> None:
+        if self.frames is not None and (isinstance(self.frames, bool) or self.frames < 1):
+            raise InputError(f"--frames must be a positive integer, got {self.frames!r}")
+        if isinstance(self.from_frame, bool) or self.from_frame < 0:
+            raise InputError(f"--from-frame must be >= 0, got {self.from_frame!r}")
+        if self.frames is not None and self.from_frame >= self.frames:
+            raise InputError(f"--from-frame {self.from_frame} keeps no frame of the first --frames {self.frames}")
+
+    def streamed(self, seq: Any) -> int:
+        """How many frames of ``seq`` are streamed."""
+        return seq.num_frames if self.frames is None else min(self.frames, seq.num_frames)
+
+    def key(self) -> dict[str, Any]:
+        """Its part of `cache_key` (nothing for the default: caches made before it keep their keys)."""
+        return {} if self == FrameChoice() else {"frames": self.frames, "from_frame": self.from_frame}
+
+
 def cache_inputs(
-    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, progress: bool = True
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    progress: bool = True,
+    choice: FrameChoice = FrameChoice(),
 ) -> Cache:
-    """Streams every frame of ``seqs`` through ``model`` (it has the head) and memory-maps the head's inputs
-    and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and ``labels(i)`` (frames in order)."""
+    """Streams the frames of ``seqs`` ``choice`` names (all by default) through ``model`` (it has the head) and
+    memory-maps the head's inputs and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and
+    ``labels(i)`` (frames in order)."""
     r, d = model.cfg.spec.num_slots, model.cfg.spec.size
-    cap = sum(s.num_frames for s in seqs) * r  # an upper bound on the valid slots
+    total = sum(choice.streamed(s) for s in seqs)
+    cap = total * r  # an upper bound on the valid slots
     arrays: dict[str, np.ndarray] = {}
     n = 0
-    bar = tqdm(total=sum(s.num_frames for s in seqs), desc="box depth: cache", unit="frame", disable=not progress)
+    bar = tqdm(total=total, desc="box depth: cache", unit="frame", disable=not progress)
     for seq in seqs:
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
         pred = Predictor(model, camera, read_depth=False, box_inputs=True, fuse_tau=0)  # each frame's own layouts
-        for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(seq.num_frames))):
+        for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(choice.streamed(seq)))):
             bar.update(1)
             seen.add(i)
+            if i < choice.from_frame:
+                continue
             win, extra = frame_head_inputs(out, model.cfg.view, camera(i)[1])
             back, shown = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
             v = torch.isfinite(out["anchors"]).cpu().numpy()
@@ -205,11 +241,14 @@ def model_key(model: MVRackLay) -> dict[str, Any]:
     }
 
 
-def cache_key(model: MVRackLay | dict[str, Any], seqs: list[Any]) -> dict[str, Any]:
-    """What a cache of head inputs depends on: the model's part (`model_key`, or the model to take it from)
-    and the training sequences (folders, frame counts and, for one seen through JPEG, its quality), in order."""
+def cache_key(
+    model: MVRackLay | dict[str, Any], seqs: list[Any], choice: FrameChoice = FrameChoice()
+) -> dict[str, Any]:
+    """What a cache of head inputs depends on: the model's part (`model_key`, or the model to take it from),
+    the training sequences (folders, frame counts and, for one seen through JPEG, its quality), in order, and
+    which of their frames (`FrameChoice`)."""
     base = model if isinstance(model, dict) else model_key(model)
-    return {**base, "sequences": [sequence_key(s) for s in seqs]}
+    return {**base, "sequences": [sequence_key(s) for s in seqs], **choice.key()}
 
 
 def sequence_key(seq: Any) -> list[Any]:
@@ -286,7 +325,12 @@ def move_single_part(folder: Path) -> None:
 
 
 def kept_cache(
-    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, progress: bool = True
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    progress: bool = True,
+    choice: FrameChoice = FrameChoice(),
 ) -> tuple[Chain, int]:
     """``(chain, reused)``: the inputs of ``seqs`` kept in ``folder``, one part (`part_name`) per folder the
     sequences sit in, so a fit on more data reuses the parts already made. A part with a finished cache for
@@ -297,14 +341,14 @@ def kept_cache(
     base = model_key(model)  # the trunk's digest once, not per part
     for parent, group in by_folder(seqs):
         sub = folder / part_name(parent)
-        key = cache_key(base, group)
+        key = cache_key(base, group, choice)
         data = open_kept_cache(sub, key)
         if data is not None:
             parts.append(data)
             reused += 1
             continue
         sub.mkdir(parents=True, exist_ok=True)
-        data = cache_inputs(model, group, labels, sub, progress)
+        data = cache_inputs(model, group, labels, sub, progress, choice)
         for k in CACHE_FIELDS:
             a = getattr(data, k)
             if isinstance(a, np.memmap):
@@ -362,13 +406,16 @@ def fit_box_depth(
     parallax: bool = False,
     row_profile: bool = False,
     keep_cache: Path | None = None,
+    choice: FrameChoice = FrameChoice(),
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
     `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
-    (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made."""
+    (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
+    ``choice``: which frames of each sequence are streamed and kept (`FrameChoice`; all by default)."""
     cfg.validate()
+    choice.validate()
     if not train:
         raise InputError("no training sequences to fit the box-depth head on")
     t0 = time.perf_counter()
@@ -376,9 +423,9 @@ def fit_box_depth(
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
-            data, reused = Chain([cache_inputs(model, train, labels, Path(tmp), progress)]), 0
+            data, reused = Chain([cache_inputs(model, train, labels, Path(tmp), progress, choice)]), 0
         else:
-            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress)
+            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice)
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
@@ -389,6 +436,7 @@ def fit_box_depth(
         del data, first  # the memory maps closed before the temporary folder goes
     summary = {
         "train_sequences": len(train),
+        **choice.key(),
         "parallax": parallax,
         "row_profile": row_profile,
         "cache_parts": parts,

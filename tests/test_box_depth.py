@@ -20,6 +20,7 @@ from network.fit_boxdepth import (
     Cache,
     Chain,
     FitConfig,
+    FrameChoice,
     cache_inputs,
     column_targets,
     part_name,
@@ -447,6 +448,38 @@ def test_a_kept_cache_grows_by_one_part_per_data_folder(tiny_checkpoint, tiny_da
     assert "for 2 of 2 data folders" in capsys.readouterr().out and (old / "cache.json").is_file()
     d = load_checkpoint(tmp_path / "d.pt")[0]["model"]
     assert all(torch.equal(b[k], d[k]) for k in heads)
+
+
+def test_a_frame_choice_streams_the_first_frames_and_keeps_the_later_ones(
+    tiny_checkpoint, tiny_dataset, tmp_path, capsys
+):
+    """The first N frames stream as in a whole pass (the stream is causal), and --from-frame drops only the
+    slots of the frames before it; the choice keys a kept cache, is recorded, and is checked on one line."""
+    model = with_box_head(load_model(tiny_checkpoint)[0])
+    seq = open_dataset(tiny_dataset).sequences()[:1]
+    for name in ("all", "f3", "f3k1"):
+        (tmp_path / name).mkdir()
+    every = cache_inputs(model, seq, SeenTracker, tmp_path / "all", progress=False)
+    first = cache_inputs(model, seq, SeenTracker, tmp_path / "f3", progress=False, choice=FrameChoice(3))
+    later = cache_inputs(model, seq, SeenTracker, tmp_path / "f3k1", progress=False, choice=FrameChoice(3, 1))
+    assert 0 < len(later) < len(first) < len(every)
+    for k in ("win", "extra", "back", "shown"):
+        a, b, c = (np.asarray(getattr(x, k)) for x in (every, first, later))
+        np.testing.assert_array_equal(b, a[: len(b)])
+        np.testing.assert_array_equal(c, b[len(b) - len(c) :])
+    keep = tmp_path / "cache"
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1",
+            "--threads", "1", "--quiet", "--keep-cache", str(keep)]  # fmt: skip
+    assert main([*args, "--frames", "4", "--from-frame", "2", "--out", str(tmp_path / "a.pt")]) == 0
+    record = load_checkpoint(tmp_path / "a.pt")[1]["box_depth"]
+    assert (record["frames"], record["from_frame"]) == (4, 2)
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "b.pt")]) == 2  # every frame: another cache's inputs, refused
+    assert "another" in capsys.readouterr().err
+    for bad, word in ((["--frames", "0"], "--frames"), (["--frames", "2", "--from-frame", "2"], "--from-frame")):
+        assert main([*args, *bad, "--out", str(tmp_path / "c.pt")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and word in err
 
 
 def test_a_chain_of_caches_reads_as_their_concatenation():

@@ -47,6 +47,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the head also reads its window's rows through a learned profile over the rows, keeping where a box's "
         "top or side face lies along the height (pooling over rows alone discards it)",
     )  # fmt: skip
+    p.add_argument(
+        "--frames", type=int, metavar="N",
+        help="stream only the first N frames of each sequence (default: all): with fewer frames per scene the "
+        "same minutes cover more scenes, and the head is short of scenes rather than of frames",
+    )  # fmt: skip
+    p.add_argument(
+        "--from-frame", type=int, default=0, metavar="K",
+        help="keep the slots of frame K on (0-based); the earlier frames are streamed only to build the "
+        "model's memory and the parallax history (default %(default)s: every frame)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
     p.add_argument(
@@ -62,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FitConfig, box_head_config, fit_box_depth
+    from network.fit_boxdepth import FitConfig, FrameChoice, box_head_config, fit_box_depth
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -75,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--keep-cache {args.keep_cache}: not a folder")
     cfg = FitConfig(epochs=args.epochs, seed=args.seed)
     cfg.validate()
+    choice = FrameChoice(args.frames, args.from_frame)
+    choice.validate()
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
     model = model_from(payload, record, args.checkpoint)
@@ -82,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
-        row_profile=args.row_profile, keep_cache=args.keep_cache,
+        row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice,
     )  # fmt: skip
     print(
         (
