@@ -273,8 +273,8 @@ def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
         raise InputError(f"{path}: not a box-depth input cache record ({e})") from None
     if not same:
         raise InputError(
-            f"--keep-cache {folder}: holds the inputs of another checkpoint, head inputs or training sequences; "
-            "give another --keep-cache folder (or remove this one)"
+            f"--keep-cache {folder}: holds the inputs of another checkpoint, head inputs, training sequences or "
+            "choice of frames; give another --keep-cache folder (or remove this one)"
         )
     try:
         arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
