@@ -418,6 +418,9 @@ def fit_box_depth(
     choice.validate()
     if not train:
         raise InputError("no training sequences to fit the box-depth head on")
+    longest = max(choice.streamed(s) for s in train)
+    if choice.from_frame >= longest:
+        raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
     t0 = time.perf_counter()
     model = with_box_head(model, parallax, row_profile)
     with contextlib.ExitStack() as stack:

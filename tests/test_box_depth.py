@@ -476,7 +476,9 @@ def test_a_frame_choice_streams_the_first_frames_and_keeps_the_later_ones(
     capsys.readouterr()
     assert main([*args, "--out", str(tmp_path / "b.pt")]) == 2  # every frame: another cache's inputs, refused
     assert "another" in capsys.readouterr().err
-    for bad, word in ((["--frames", "0"], "--frames"), (["--frames", "2", "--from-frame", "2"], "--from-frame")):
+    too_late = ["--from-frame", "8"]  # the tiny sequences have 8 frames: none would be kept
+    for bad, word in ((["--frames", "0"], "--frames"), (["--frames", "2", "--from-frame", "2"], "--from-frame"),
+                      (too_late, "at most 8 frames")):  # fmt: skip
         assert main([*args, *bad, "--out", str(tmp_path / "c.pt")]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and word in err
