@@ -113,12 +113,16 @@ class ParallaxHistory:
         self.images: deque[torch.Tensor] = deque(maxlen=max(PARALLAX_BASELINES) + 1)
         self.steps: deque[float] = deque(maxlen=max(PARALLAX_BASELINES))
 
-    def add(self, image: torch.Tensor, step: float) -> torch.Tensor:
+    def keep(self, image: torch.Tensor, step: float) -> None:
         """``image`` ``(1, 3, H, W)`` canonical, ``step`` the camera's X motion (metres) since the frame
-        before -> ``(1, PARALLAX_CHANNELS, H/2, W/2)`` maps."""
+        before, into the history without making its maps."""
         if self.images:
             self.steps.append(float(step))
         self.images.append(image)
+
+    def add(self, image: torch.Tensor, step: float) -> torch.Tensor:
+        """`keep` the frame, then its ``(1, PARALLAX_CHANNELS, H/2, W/2)`` maps."""
+        self.keep(image, step)
         maps = []
         for b in PARALLAX_BASELINES:
             j = min(b, len(self.images) - 1)

@@ -200,7 +200,9 @@ def cache_inputs(
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
-        pred = Predictor(model, camera, read_depth=False, box_inputs=True, fuse_tau=0)  # each frame's own layouts
+        pred = Predictor(  # each frame's own layouts; no plane sweeps for the frames whose slots are not kept
+            model, camera, read_depth=False, box_inputs=True, box_inputs_from=choice.from_frame, fuse_tau=0
+        )
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(choice.streamed(seq)))):
             bar.update(1)
             seen.add(i)

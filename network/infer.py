@@ -21,6 +21,7 @@ import torch.nn.functional as F
 
 from layouts import VIEWS, Intrinsics, LayoutSpec
 from layouts.boxdepth import impose_box_backs
+from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
 from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
@@ -55,8 +56,9 @@ FLIP_HELP = (
 
 #: frame index -> (intrinsics or None for the default 60 deg camera, camera-to-rack distance in metres)
 CameraFn = Callable[[int], tuple[Intrinsics | None, float]]
-#: one frame's canonical image ``(1, 3, H, W)`` and its shelf anchors ``(1, R)`` (None: the row head's)
-Inputs = tuple[torch.Tensor, torch.Tensor | None]
+#: one frame's canonical image ``(1, 3, H, W)``, its shelf anchors ``(1, R)`` (None: the row head's) and the
+#: camera's step along the row since the frame before, ``(1,)`` metres (None: the model reads it where it needs it)
+Inputs = tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]
 
 
 def fixed_camera(intrinsics: Intrinsics | None = None, distance: float = DEFAULT_DISTANCE) -> CameraFn:
@@ -106,7 +108,12 @@ class Predictor:
     (metres behind the rack front per model column, NaN where none is known), which `frame_layouts`
     imposes on every predicted box once the rack depth is known. A head that also reads parallax
     (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
-    output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading.
+    output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading;
+    ``box_inputs_from`` then skips the maps of the frames before it (they still enter the history): a fit
+    that keeps none of their slots need not pay for their plane sweeps.
+
+    The camera's step along the row is read from the images once per frame (`network.motion.camera_shift`)
+    and given to the memory, the parallax and the readers alike.
 
     ``whole_sequence``: the rack depth and the box depths come from every frame of the sequence, not
     only the frames so far: the frames are all read first, then each frame's outputs are given with
@@ -137,6 +144,7 @@ class Predictor:
         rack_depth: float | None = None,
         read_depth: bool = True,
         box_inputs: bool = False,
+        box_inputs_from: int = 0,
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
@@ -156,8 +164,20 @@ class Predictor:
         self.reads_box_depth = bool(read_depth) and model.box_depth is not None
         #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
         self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
+        if not isinstance(box_inputs_from, int) or isinstance(box_inputs_from, bool) or box_inputs_from < 0:
+            raise InputError(f"box_inputs_from must be a frame index >= 0, got {box_inputs_from!r}")
+        if box_inputs_from and self.reads_box_depth:
+            raise InputError(
+                "box_inputs_from is for fitting the box-depth head: a reading head needs every frame's maps"
+            )
+        self.box_inputs_from = box_inputs_from
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
+        memory = model.memory
+        #: the camera's step is read once per frame in `_inputs`: something downstream needs it
+        self._reads_motion = (
+            self._tracks_motion or model.parallax is not None or (memory is not None and memory.view is not None)
+        )
         self.whole_sequence = bool(whole_sequence)
         # an angle not given is the camera's recorded one (a generated sequence's, `SequenceCamera`), else 0
         recorded = getattr(self.camera, "angles", (0.0, 0.0, 0.0))
@@ -168,8 +188,8 @@ class Predictor:
         #: the camera's rotation, known or read from the frames (None: the camera is taken as level)
         turned = (self.roll or 0.0, self.pitch or 0.0, self.yaw or 0.0)
         self.leveller = CameraLeveller(*turned) if any(a != 0 for a in turned) else None
-        #: the direct pass's motion signatures and canonical images not yet used
-        self._motion: deque[tuple[torch.Tensor, torch.Tensor]] = deque()
+        #: the direct pass's camera steps (metres) and canonical images not yet used
+        self._motion: deque[tuple[float, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -210,11 +230,17 @@ class Predictor:
         yield from it
 
     def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
+        prev: torch.Tensor | None = None
         for i, rgb in enumerate(self._primed(frames)):
             x = self.preprocess(rgb, i)
-            if self._tracks_motion:
-                self._motion.append((motion_signature(x), x))
-            yield x, self._anchors(i)
+            step = None
+            if self._reads_motion:
+                sig = motion_signature(x)
+                step = x.new_zeros(1) if prev is None else camera_shift(prev, sig, self.cfg.view)
+                prev = sig
+                if self._tracks_motion:
+                    self._motion.append((float(step[0]), x))
+            yield x, self._anchors(i), step
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
@@ -243,7 +269,6 @@ class Predictor:
         boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
         history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
         self._motion.clear()
-        prev: torch.Tensor | None = None
         held: list[tuple[dict[str, torch.Tensor], float, np.ndarray]] = []  # whole_sequence: (out, camera X, slots)
         for i, out in enumerate(outs):
             depth = self.rack_depth
@@ -257,16 +282,16 @@ class Predictor:
                 )
             out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
-                sig, x = self._motion.popleft()
-                step = 0.0 if prev is None else float(camera_shift(prev, sig, self.cfg.view)[0])
-                prev = sig
-                if history is not None:
+                step, x = self._motion.popleft()
+                if history is not None and i < self.box_inputs_from:
+                    history.keep(x, step)
+                elif history is not None:
                     maps = history.add(x, step)
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
                     out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
                 if self.fuse_tau > 0:
-                    cols = seen_columns(sig, out["top"].shape[-1]).to(out["top"].device)
+                    cols = seen_columns(motion_signature(x), out["top"].shape[-1]).to(out["top"].device)
                     if fusion is not None:
                         out.update(fusion.add({v: out[v] for v in VIEWS}, step, cols))
                     else:
@@ -315,9 +340,9 @@ class Predictor:
         mirrored: deque[Inputs] = deque()  # the mirrored pass's next input, queued once the direct pass is done
 
         def direct() -> Iterator[Inputs]:
-            for x, a in self._inputs(frames):
-                mirrored.append((x.flip(-1), a))
-                yield x, a
+            for x, a, step in self._inputs(frames):
+                mirrored.append((x.flip(-1), a, None))  # the mirrored pass reads its own motion
+                yield x, a, step
 
         def mirror() -> Iterator[Inputs]:
             while True:  # a pass takes one input per output: the queue never runs dry
@@ -325,9 +350,9 @@ class Predictor:
 
         passes = raw(mirror())
         for out in raw(direct()):
-            x, a = mirrored[-1]
+            x, a, _ = mirrored[-1]
             if a is None:  # the row head's: the direct pass's slots, so both passes fill the same shelves
-                mirrored[-1] = (x, out["anchors"][None])
+                mirrored[-1] = (x, out["anchors"][None], None)
             back = next(passes)
             yield self._decide(
                 {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
@@ -335,8 +360,8 @@ class Predictor:
 
     def _stream(self, inputs: Iterable[Inputs]) -> Iterator[dict[str, torch.Tensor]]:
         state = None
-        for x, a in inputs:
-            out, state = self.model.step(x, state, a)
+        for x, a, step in inputs:
+            out, state = self.model.step(x, state, a, None if state is None else step)
             yield {k: o[0] for k, o in out.items()}
 
     def _window(self, inputs: Iterable[Inputs], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
@@ -345,7 +370,7 @@ class Predictor:
         anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
         cached: deque = deque(maxlen=t_len)
         last: torch.Tensor | None = None  # the frame before (the parallax's partner)
-        for i, (x, a) in enumerate(inputs):
+        for i, (x, a, _) in enumerate(inputs):  # each window's fresh memory reads its own steps
             if recompute:  # the naive form: the whole window through the model again
                 if not images:
                     images.extend([x] * (t_len + 1))

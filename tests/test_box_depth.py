@@ -454,8 +454,9 @@ def test_a_frame_choice_streams_the_first_frames_and_keeps_the_later_ones(
     tiny_checkpoint, tiny_dataset, tmp_path, capsys
 ):
     """The first N frames stream as in a whole pass (the stream is causal), and --from-frame drops only the
-    slots of the frames before it; the choice keys a kept cache, is recorded, and is checked on one line."""
-    model = with_box_head(load_model(tiny_checkpoint)[0])
+    slots of the frames before it (a parallax head's maps of the kept frames unchanged though the frames
+    before make none); the choice keys a kept cache, is recorded, and is checked on one line."""
+    model = with_box_head(load_model(tiny_checkpoint)[0], parallax=True)
     seq = open_dataset(tiny_dataset).sequences()[:1]
     for name in ("all", "f3", "f3k1"):
         (tmp_path / name).mkdir()

@@ -7,11 +7,16 @@ from dataclasses import replace
 import pytest
 import torch
 
-from layouts import InputError
+from layouts import VIEWS, InputError
 from layouts.canonical import CanonicalView
+from layouts.spec import LayoutSpec
+from network.fit_boxdepth import with_box_head
+from network.infer import Predictor
 from network.model import ModelConfig, MVRackLay, shift_columns
 from network.motion import MAX_SHIFT, camera_shift, motion_signature
+from network.toy import ToySequence
 from tests.test_network_model import ANCHORS, tiny
+from tests.tiny_net import tiny_config
 
 VIEW = CanonicalView(128, 96, 3.0)
 
@@ -181,3 +186,46 @@ def test_a_given_camera_step_replaces_the_image_estimate():
             model.step(frames[:1], None, ANCHORS[None], motion=torch.tensor([float("nan")]))
         with pytest.raises(InputError, match="motion"):
             model.step(frames[:1], None, ANCHORS[None], motion=torch.zeros(2))
+
+
+def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_its_own(monkeypatch):
+    """`Predictor` reads the camera's step once per frame and gives it to the memory: the same outputs
+    as `MVRackLay.step` reading the steps itself, one estimate per frame after the first, none in the
+    model; the mirrored pass of ``flip`` still reads its own. ``box_inputs_from`` is checked by name."""
+    spec = LayoutSpec(size=16)
+    torch.manual_seed(4)
+    model = with_box_head(MVRackLay(tiny_config(spec)).eval(), parallax=True)
+    torch.nn.init.normal_(model.memory.out.weight, std=0.5)
+    assert model.memory.view is not None
+    seq = ToySequence(spec, num_frames=5, image_size=(64, 64))
+    frames = [seq.rgb(i) for i in range(5)]
+    pred = Predictor(model, read_depth=False)
+    with torch.no_grad():
+        want, state = [], None
+        for i, f in enumerate(frames):
+            out, state = model.step(pred.preprocess(f, i), state)
+            want.append(out)
+    calls = {"infer": 0, "model": 0}
+
+    def counted(where):
+        def shift(prev, cur, view):
+            calls[where] += 1
+            return camera_shift(prev, cur, view)
+
+        return shift
+
+    monkeypatch.setattr("network.infer.camera_shift", counted("infer"))
+    monkeypatch.setattr("network.model.camera_shift", counted("model"))
+    got = list(Predictor(model, read_depth=False, box_inputs=True).stream(frames))
+    assert calls == {"infer": 4, "model": 0}
+    for g, w in zip(got, want):
+        for v in VIEWS:
+            assert torch.equal(g[v], w[v][0])
+    calls.update(infer=0, model=0)
+    list(Predictor(model, read_depth=False, flip=True).stream(frames))
+    assert calls == {"infer": 4, "model": 4}
+    for bad in (-1, 1.5, True):
+        with pytest.raises(InputError, match="box_inputs_from"):
+            Predictor(model, read_depth=False, box_inputs=True, box_inputs_from=bad)
+    with pytest.raises(InputError, match="box_inputs_from"):
+        Predictor(model, rack_depth=0.8, box_inputs_from=2)  # the head reads: it needs every frame's maps

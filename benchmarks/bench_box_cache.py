@@ -1,0 +1,82 @@
+"""Speed of the box-depth head's cache pass: frames/s streamed and slots kept per second.
+
+`mvracklay fit-box-depth` spends most of its minutes streaming the frozen network over the training
+scenes (`network.fit_boxdepth.cache_inputs`); the scenes a fixed number of minutes holds is what the
+head's quality follows (docs/network.md, *The heads inside the training budget*). This times that pass
+alone on the first ``--sequences`` scenes of ``--data``, streaming their first ``--frames`` frames and
+keeping the slots from ``--from-frame`` on, as the fit does; the best of ``--repeats`` passes is the
+figure least disturbed by other processes.
+
+    .venv/bin/python benchmarks/bench_box_cache.py runs/budget256b/mvracklay-disc-4/calibrated.pt \\
+        data/train256b --sequences 20 --frames 6 --from-frame 3 --parallax --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from layouts.errors import InputError  # noqa: E402
+from network.checkpoint import load_checkpoint, model_from  # noqa: E402
+from network.fit_boxdepth import FrameChoice, cache_inputs, with_box_head  # noqa: E402
+from network.train import open_data  # noqa: E402
+from waresynth.visibility import SeenTracker  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("checkpoint", type=Path, help="a trained checkpoint (its trunk is streamed)")
+    ap.add_argument("data", type=Path, help="a generated dataset folder (scenes with depth and instances)")
+    ap.add_argument("--sequences", type=int, default=20, help="scenes streamed (the first ones)")
+    ap.add_argument("--frames", type=int, help="stream only each scene's first N frames (default: all)")
+    ap.add_argument("--from-frame", type=int, default=0, help="keep the slots of frames K on")
+    ap.add_argument("--parallax", action="store_true", help="a head that reads the plane-sweep maps")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=2, help="passes; the best is shown")
+    ap.add_argument("--json", type=Path, help="also write the figures here")
+    args = ap.parse_args(argv)
+    try:
+        if args.sequences < 1 or args.threads < 1 or args.repeats < 1:
+            raise InputError("--sequences, --threads and --repeats must be >= 1")
+        choice = FrameChoice(args.frames, args.from_frame)
+        choice.validate()
+        torch.set_num_threads(args.threads)
+        payload, record = load_checkpoint(args.checkpoint)
+        model = with_box_head(model_from(payload, record, args.checkpoint), parallax=args.parallax)
+        seqs = open_data(args.data).sequences(None)[: args.sequences]
+        if not seqs:
+            raise InputError(f"{args.data}: no sequences")
+        frames = sum(choice.streamed(s) for s in seqs)
+        rates = []
+        for _ in range(args.repeats):
+            with tempfile.TemporaryDirectory(prefix="bench-box-cache-") as tmp:
+                t = time.perf_counter()
+                cache = cache_inputs(model, seqs, SeenTracker, Path(tmp), progress=False, choice=choice)
+                dt = time.perf_counter() - t
+                slots = len(cache)
+                del cache  # the memory maps closed before the folder goes
+            rates.append(frames / dt)
+    except InputError as e:
+        print(f"bench_box_cache.py: {e}", file=sys.stderr)
+        return 2
+    best = max(rates)
+    out = {"sequences": len(seqs), "frames": frames, "slots": slots, "threads": args.threads,
+           "frames_per_s": rates, "best_frames_per_s": best, "best_ms_per_frame": 1000 / best}  # fmt: skip
+    print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {args.threads} thread(s): "
+          f"{best:.2f} frames/s best ({1000 / best:.0f} ms a frame; passes: "
+          + ", ".join(f"{r:.2f}" for r in rates) + ")")  # fmt: skip
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
