@@ -88,8 +88,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
         ids = list(range(0, seq.num_frames, every))
         pred = Predictor(model, camera, fuse_tau=0)  # the canonical warp of inference, so the head sees what it will
         x = torch.cat([pred.preprocess(seq.rgb(i), i) for i in ids])
-        feats = model.encode(x)
-        p = pool_columns(*model.pyramid(feats, model.temporal(feats[4])))
+        p = pool_columns(*model.maps(x))
         if pooled is None:
             pooled = torch.empty((total, *p.shape[1:]), dtype=torch.float16)
         pooled[n : n + len(ids)] = p.half().cpu()

@@ -48,6 +48,7 @@ from torch import nn
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
+from network import frozen
 from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
 from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
 from network.boxdepth import BoxDepthHead, window_rows
@@ -628,16 +629,15 @@ class MVRackLay(nn.Module):
         if (h, w) != (self.cfg.input_height, self.cfg.input_width):
             raise InputError(f"model expects images of {self.cfg.input_width}x{self.cfg.input_height}, got {w}x{h}")
 
-    def encode(self, x: torch.Tensor) -> Features:
-        """Encoder features of frames ``(N, 3, H, W)``: (1/2, 1/4, 1/8, 1/16, reduced 1/32)."""
-        self._check(x)
-        s1, f2, f3, f4, f5 = self.encoder((x - self.mean) / self.std)
-        return s1, f2, f3, f4, self.reduce(f5)
+    def maps(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The pyramid maps ``(p1, p2)`` (1/2 and 1/4 scale) of frames ``(N, 3, H, W)``; at inference on the CPU
+        through the trunk's frozen graph (`network.frozen`; ``self.frozen_trunk = False`` turns it off)."""
+        self._check(images)
+        return frozen.maps(self, images)
 
     def pooled_rows(self, images: torch.Tensor) -> torch.Tensor:
         """The row heads' input for frames ``(N, 3, H, W)``: `network.backedge.pool_rows` of the pyramid."""
-        feats = self.encode(images)
-        return pool_rows(*self.pyramid(feats, self.temporal(feats[4])))
+        return pool_rows(*self.maps(images))
 
     def frame_features(
         self,
@@ -652,8 +652,7 @@ class MVRackLay(nn.Module):
         are the frames before (None: none, as at a sequence start) and ``dx`` ``(N,)`` the camera's
         steps from them (metres; None: read from the images).
         """
-        feats = self.encode(images)
-        p1, p2 = self.pyramid(feats, self.temporal(feats[4]))
+        p1, p2 = self.maps(images)
         pooled = pool_rows(p1, p2)
         rows = self.rows.from_pooled(pooled)
         if anchors is None:
