@@ -14,7 +14,6 @@ figure least disturbed by other processes.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -25,6 +24,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.errors import InputError  # noqa: E402
+from layouts.fileio import atomic_write_json  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.fit_boxdepth import FrameChoice, cache_inputs, with_box_head  # noqa: E402
 from network.train import open_data  # noqa: E402
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{best:.2f} frames/s best ({1000 / best:.0f} ms a frame; passes: "
           + ", ".join(f"{r:.2f}" for r in rates) + ")")  # fmt: skip
     if args.json:
-        args.json.write_text(json.dumps(out, indent=1) + "\n")
+        atomic_write_json(args.json, out)
     return 0
 
 
