@@ -174,10 +174,8 @@ class Predictor:
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         memory = model.memory
-        #: the camera's step is read once per frame in `_inputs`: something downstream needs it
-        self._reads_motion = (
-            self._tracks_motion or model.parallax is not None or (memory is not None and memory.view is not None)
-        )
+        #: the model reads the camera's step (its aligned memory, its parallax): streaming gives it `_inputs`' own
+        self._model_motion = model.parallax is not None or (memory is not None and memory.view is not None)
         self.whole_sequence = bool(whole_sequence)
         # an angle not given is the camera's recorded one (a generated sequence's, `SequenceCamera`), else 0
         recorded = getattr(self.camera, "angles", (0.0, 0.0, 0.0))
@@ -188,8 +186,8 @@ class Predictor:
         #: the camera's rotation, known or read from the frames (None: the camera is taken as level)
         turned = (self.roll or 0.0, self.pitch or 0.0, self.yaw or 0.0)
         self.leveller = CameraLeveller(*turned) if any(a != 0 for a in turned) else None
-        #: the direct pass's camera steps (metres) and canonical images not yet used
-        self._motion: deque[tuple[float, torch.Tensor]] = deque()
+        #: the direct pass's camera steps (metres), motion signatures and canonical images not yet used
+        self._motion: deque[tuple[float, torch.Tensor, torch.Tensor]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -229,26 +227,27 @@ class Predictor:
         yield from head
         yield from it
 
-    def _inputs(self, frames: Iterable[np.ndarray]) -> Iterator[Inputs]:
+    def _inputs(self, frames: Iterable[np.ndarray], streaming: bool) -> Iterator[Inputs]:
+        """Each frame's inputs; the camera's step read once where the readers need it or, ``streaming``, the model."""
         prev: torch.Tensor | None = None
         for i, rgb in enumerate(self._primed(frames)):
             x = self.preprocess(rgb, i)
             step = None
-            if self._reads_motion:
+            if self._tracks_motion or (streaming and self._model_motion):
                 sig = motion_signature(x)
                 step = x.new_zeros(1) if prev is None else camera_shift(prev, sig, self.cfg.view)
                 prev = sig
                 if self._tracks_motion:
-                    self._motion.append((float(step[0]), x))
+                    self._motion.append((float(step[0]), sig, x))
             yield x, self._anchors(i), step
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
-        return self._outputs(frames, self._stream)
+        return self._outputs(frames, self._stream, streaming=True)
 
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
-        return self._outputs(frames, lambda inputs: self._window(inputs, recompute))
+        return self._outputs(frames, lambda inputs: self._window(inputs, recompute), streaming=False)
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
         if mode == "stream":
@@ -282,7 +281,7 @@ class Predictor:
                 )
             out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
-                step, x = self._motion.popleft()
+                step, sig, x = self._motion.popleft()
                 if history is not None and i < self.box_inputs_from:
                     history.keep(x, step)
                 elif history is not None:
@@ -291,7 +290,7 @@ class Predictor:
                 if boxes is not None:
                     out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
                 if self.fuse_tau > 0:
-                    cols = seen_columns(motion_signature(x), out["top"].shape[-1]).to(out["top"].device)
+                    cols = seen_columns(sig, out["top"].shape[-1]).to(out["top"].device)
                     if fusion is not None:
                         out.update(fusion.add({v: out[v] for v in VIEWS}, step, cols))
                     else:
@@ -324,23 +323,29 @@ class Predictor:
         return boxes.add(*reading(self._box_logits(out, i)), torch.isfinite(out["anchors"]).cpu().numpy(), step)
 
     def _outputs(
-        self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
+        self,
+        frames: Iterable[np.ndarray],
+        raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]],
+        streaming: bool,
     ) -> Iterator[dict[str, torch.Tensor]]:
-        return self._depths(self._decided(frames, raw))
+        return self._depths(self._decided(frames, raw, streaming))
 
     @torch.no_grad()
     def _decided(
-        self, frames: Iterable[np.ndarray], raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]]
+        self,
+        frames: Iterable[np.ndarray],
+        raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]],
+        streaming: bool,
     ) -> Iterator[dict[str, torch.Tensor]]:
         """``raw`` (a mode's pass over (image, anchors) inputs) per frame, flip-averaged if asked, decided."""
         if not self.flip:
-            for out in raw(self._inputs(frames)):
+            for out in raw(self._inputs(frames, streaming)):
                 yield self._decide(out)
             return
         mirrored: deque[Inputs] = deque()  # the mirrored pass's next input, queued once the direct pass is done
 
         def direct() -> Iterator[Inputs]:
-            for x, a, step in self._inputs(frames):
+            for x, a, step in self._inputs(frames, streaming):
                 mirrored.append((x.flip(-1), a, None))  # the mirrored pass reads its own motion
                 yield x, a, step
 

@@ -12,7 +12,7 @@
 #   4. box decision offsets chosen on the tuning set (as in scripts/train_256.sh, not counted: no weight moves);
 #   5. the heads, the network frozen, on both threads at once: on one the back-edge head, then the upright
 #      head, each on HEAD_SEQUENCES training sequences (default 700); on the other the box-depth head with
-#      parallax on BOX_SEQUENCES scenes (default 950), of which it streams the first BOX_FRAMES frames (6)
+#      parallax on BOX_SEQUENCES scenes (default 1150), of which it streams the first BOX_FRAMES frames (6)
 #      and keeps the slots from frame BOX_FROM (3) on: the head is short of scenes rather than of frames,
 #      and frames 0-2 lack the parallax against 3 frames back. Their wall minutes are counted whole, caching
 #      included. BOX_SEQUENCES=0 leaves the box-depth head out and fits the two rack heads side by side, one
@@ -35,7 +35,7 @@ TOTAL=${TOTAL:-120}
 STAGE2=${STAGE2:-18.5}
 HEAD_SEQUENCES=${HEAD_SEQUENCES:-700}
 HEAD_EPOCHS=${HEAD_EPOCHS:-}
-BOX_SEQUENCES=${BOX_SEQUENCES:-950}
+BOX_SEQUENCES=${BOX_SEQUENCES:-1150}
 BOX_FRAMES=${BOX_FRAMES:-6}
 BOX_FROM=${BOX_FROM:-3}
 WORKERS=${WORKERS:-2}
