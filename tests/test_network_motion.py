@@ -224,6 +224,9 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
     calls.update(infer=0, model=0)
     list(Predictor(model, read_depth=False, flip=True).stream(frames))
     assert calls == {"infer": 4, "model": 4}
+    calls.update(infer=0, model=0)
+    list(Predictor(model, read_depth=False).window(frames))  # each window's memory reads its own; no reader needs one
+    assert calls["infer"] == 0 and calls["model"] > 0
     for bad in (-1, 1.5, True):
         with pytest.raises(InputError, match="box_inputs_from"):
             Predictor(model, read_depth=False, box_inputs=True, box_inputs_from=bad)
