@@ -57,7 +57,7 @@ def run(model, seqs, every: int) -> list[dict]:
             dist = camera(i)[1]
             with torch.no_grad():
                 win, extra = frame_head_inputs(out, view, dist)
-                logits = model.box_depth(win, extra)
+                logits = model.box_logits(win, extra)
                 z, p = decode(logits)
             valid = torch.isfinite(out["anchors"]).numpy()
             by_pose = poses.add(*reading(logits), valid, xs[i] - xs[i - 1] if i else 0.0)

@@ -1,63 +1,74 @@
-"""The trunk (encoder, 1/32 blocks, pyramid) as a frozen TorchScript graph for CPU inference.
+"""Parts of the network as frozen TorchScript graphs for CPU inference.
 
-Per frame the trunk is most of the network's arithmetic. Traced once for an input shape, frozen (the
-weights become constants, batch norms folded into the convolutions) and optimised for inference
-(`torch.jit.optimize_for_inference`: oneDNN layouts kept between convolutions), it runs faster on CPUs
-(measured: the encoder alone at 256x256 on 2 threads, 16.5 ms a frame as modules, 9.9 as the graph;
+Per frame the network runs three parts with most of its arithmetic: the trunk (encoder, 1/32 blocks,
+pyramid), the slot heads' coarse maps and box windows, and the box-depth head. Each, traced once for
+its input shapes, frozen (the weights become constants, batch norms folded into the convolutions) and
+optimised for inference (`torch.jit.optimize_for_inference`: oneDNN layouts kept between convolutions),
+runs faster on CPUs than as modules (measured, 256x256 on 2 threads: the encoder 16.5 -> 9.9 ms a frame,
 docs/network.md *Inference speed*), with outputs within float rounding of the modules' (~1e-6).
 
-`maps` uses the graph only where it gives the same function: the model in eval mode, no gradients,
-float32 on the CPU, no autocast. A graph is kept per model (weakly: it goes with the model) and rebuilt
-when the input shape or any trunk weight changes (weights are tracked by storage and version, which
-every in-place update, an optimiser step or ``load_state_dict``, bumps), so training with
-validation passes between its steps never reads stale weights. ``model.frozen_trunk = False`` turns it
-off for a model.
+`run` uses a graph only where it gives the same function: the model in eval mode, no gradients, float32
+on the CPU, no autocast. A graph is kept per model (weakly: it goes with the model), part and input
+shapes, and rebuilt when any of the part's weights changes (weights are tracked by storage and version,
+which every in-place update, an optimiser step or ``load_state_dict``, bumps), so training with
+validation passes between its steps, or a head fitted on a frozen trunk, never reads stale weights.
+``model.frozen_graphs = False`` turns the graphs off for a model.
 """
 
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 from weakref import WeakKeyDictionary
 
 import torch
 from torch import nn
 
-#: the submodules the trunk runs, in order
-TRUNK = ("encoder", "reduce", "temporal", "pyramid")
-#: graphs kept per model, one per input shape (a windowed pass and a stream alternate two), the oldest dropped
+#: each part: the submodules and buffers of the model it reads (their tensors key its graphs)
+PARTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "trunk": (("encoder", "reduce", "temporal", "pyramid"), ("mean", "std")),
+    "slots": (("slots",), ()),
+    "box_depth": (("box_depth",), ()),
+}
+#: graphs kept per model and part, one per set of input shapes (a windowed pass and a stream alternate
+#: two), the oldest dropped
 SHAPES_KEPT = 4
-#: per model, per input shape: the key its graph was built for, the trunk's tensors, the graph (None: it failed)
+#: per model, per (part, function, input shapes): the key its graph was built for, the part's tensors, the graph
+#: (None: it failed)
 Held = tuple[tuple[Any, ...], list[torch.Tensor], torch.jit.ScriptModule | None]
-_GRAPHS: WeakKeyDictionary[nn.Module, dict[tuple[int, ...], Held]] = WeakKeyDictionary()
+_GRAPHS: WeakKeyDictionary[nn.Module, dict[tuple[Any, ...], Held]] = WeakKeyDictionary()
+T = TypeVar("T")
 
 
 def trunk_maps(m: Any, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The pyramid maps ``(p1, p2)`` of canonical frames ``x`` ``(N, 3, H, W)`` in [0, 1]: ``m`` has the
-    `TRUNK` submodules and the ``mean``/``std`` buffers (an `network.model.MVRackLay` or `_Trunk`)."""
+    trunk's submodules and the ``mean``/``std`` buffers (an `network.model.MVRackLay` or `_Part`)."""
     s1, f2, f3, f4, f5 = m.encoder((x - m.mean) / m.std)
     t5 = m.reduce(f5)
     return m.pyramid((s1, f2, f3, f4, t5), m.temporal(t5))
 
 
-class _Trunk(nn.Module):
-    """A model's trunk alone (its submodules shared), the module that is traced."""
+class _Part(nn.Module):
+    """A model's part alone (its submodules and buffers shared) running ``fn``: the module that is traced."""
 
-    def __init__(self, model: nn.Module) -> None:
+    def __init__(self, model: nn.Module, part: str, fn: Callable[..., Any]) -> None:
         super().__init__()
-        for name in TRUNK:
+        modules, buffers = PARTS[part]
+        for name in modules:
             setattr(self, name, getattr(model, name))
-        self.register_buffer("mean", model.mean)
-        self.register_buffer("std", model.std)
+        for name in buffers:
+            self.register_buffer(name, getattr(model, name))
+        self.fn = fn
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return trunk_maps(self, x)
+    def forward(self, *xs: torch.Tensor) -> Any:
+        return self.fn(self, *xs)
 
 
 def applies(model: nn.Module, x: torch.Tensor) -> bool:
-    """Whether the frozen graph gives ``model``'s maps of ``x`` (see the module docstring)."""
+    """Whether a frozen graph gives ``model``'s function of input ``x`` (see the module docstring)."""
     return (
-        getattr(model, "frozen_trunk", True)
+        getattr(model, "frozen_graphs", True)
         and not model.training
         and not torch.is_grad_enabled()
         and x.device.type == "cpu"
@@ -66,44 +77,55 @@ def applies(model: nn.Module, x: torch.Tensor) -> bool:
     )
 
 
-def _tensors(model: nn.Module) -> list[torch.Tensor]:
-    """The trunk's parameters and buffers (the objects themselves: in-place updates keep them)."""
-    return [t for name in TRUNK for t in getattr(model, name).state_dict(keep_vars=True).values()]
+def _tensors(model: nn.Module, part: str) -> list[torch.Tensor]:
+    """The part's parameters and buffers (the objects themselves: in-place updates keep them)."""
+    modules, buffers = PARTS[part]
+    return [t for name in modules for t in getattr(model, name).state_dict(keep_vars=True).values()] + [
+        getattr(model, name) for name in buffers
+    ]
 
 
-def _key(model: nn.Module, x: torch.Tensor, tensors: list[torch.Tensor]) -> tuple[Any, ...]:
-    """What a graph was built for: the input's shape, the trunk's modules, each weight's storage and version."""
+def _key(model: nn.Module, part: str, xs: tuple[torch.Tensor, ...], tensors: list[torch.Tensor]) -> tuple[Any, ...]:
+    """What a graph was built for: the inputs' shapes, the part's modules, each weight's storage and version."""
     return (
-        tuple(x.shape),
-        tuple(id(getattr(model, name)) for name in TRUNK),
+        tuple(tuple(x.shape) for x in xs),
+        tuple(id(getattr(model, name)) for name in PARTS[part][0]),
         *((t.data_ptr(), t._version) for t in tensors),
     )
 
 
-def _build(model: nn.Module, x: torch.Tensor) -> torch.jit.ScriptModule | None:
+def _build(model: nn.Module, part: str, fn: Callable[..., Any], xs: tuple[torch.Tensor, ...]) -> Any:
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # tracing's notes on constants: the shape is fixed by design
-            traced = torch.jit.trace(_Trunk(model).eval(), x, check_trace=False)
+            warnings.simplefilter("ignore")  # tracing's notes on constants: the shapes are fixed by design
+            traced = torch.jit.trace(_Part(model, part, fn).eval(), xs, check_trace=False)
             return torch.jit.optimize_for_inference(torch.jit.freeze(traced))
     except (RuntimeError, TypeError) as e:  # an unusual build of torch: the module's own path still works
-        warnings.warn(f"the frozen trunk graph could not be built ({e}); running the modules", stacklevel=3)
+        warnings.warn(f"the frozen {part} graph could not be built ({e}); running the modules", stacklevel=3)
         return None
+
+
+def run(model: nn.Module, part: str, fn: Callable[..., T], *xs: torch.Tensor) -> T:
+    """``fn(model, *xs)``, through the part's frozen graph where that `applies`: ``fn`` reads only the part's
+    submodules and buffers (`PARTS`) and returns tensors (or tuples of them); its Python control flow may
+    depend on the inputs' shapes only (a graph is traced per set of shapes)."""
+    if not applies(model, xs[0]):
+        return fn(model, *xs)
+    graphs = _GRAPHS.setdefault(model, {})
+    slot = (part, fn, tuple(tuple(x.shape) for x in xs))
+    held = graphs.get(slot)
+    if held is None or held[0] != _key(model, part, xs, held[1]):
+        tensors = _tensors(model, part)
+        held = (_key(model, part, xs, tensors), tensors, _build(model, part, fn, xs))
+        graphs.pop(slot, None)
+        same = [k for k in graphs if k[0] == part]
+        if len(same) >= SHAPES_KEPT:
+            del graphs[same[0]]
+        graphs[slot] = held
+    graph = held[2]
+    return fn(model, *xs) if graph is None else graph(*xs)
 
 
 def maps(model: nn.Module, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """`trunk_maps` of ``model``, through its frozen graph where that `applies`."""
-    if not applies(model, x):
-        return trunk_maps(model, x)
-    graphs = _GRAPHS.setdefault(model, {})
-    shape = tuple(x.shape)
-    held = graphs.get(shape)
-    if held is None or held[0] != _key(model, x, held[1]):
-        tensors = _tensors(model)
-        held = (_key(model, x, tensors), tensors, _build(model, x))
-        graphs.pop(shape, None)
-        if len(graphs) >= SHAPES_KEPT:
-            del graphs[next(iter(graphs))]
-        graphs[shape] = held
-    graph = held[2]
-    return trunk_maps(model, x) if graph is None else graph(x)
+    return run(model, "trunk", trunk_maps, x)

@@ -316,7 +316,7 @@ class Predictor:
     def _box_logits(self, out: dict[str, torch.Tensor], i: int) -> torch.Tensor:
         """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.boxdepth`)."""
         win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
-        return self.model.box_depth(win.to(self.device), extra.to(self.device))
+        return self.model.box_logits(win.to(self.device), extra.to(self.device))
 
     def _box_backs(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
         """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""

@@ -621,6 +621,9 @@ class MVRackLay(nn.Module):
         #: per view, subtracted from the box logit by `network.infer.Predictor` (`network.calibrate`;
         #: not part of the weights: a checkpoint's record carries it)
         self.box_logit_offset: dict[str, float] = {v: 0.0 for v in VIEWS}
+        #: at inference on the CPU the trunk, the slot maps and the box-depth head run as frozen graphs
+        #: (`network.frozen`); False: always the modules
+        self.frozen_graphs = True
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -631,7 +634,7 @@ class MVRackLay(nn.Module):
 
     def maps(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The pyramid maps ``(p1, p2)`` (1/2 and 1/4 scale) of frames ``(N, 3, H, W)``; at inference on the CPU
-        through the trunk's frozen graph (`network.frozen`; ``self.frozen_trunk = False`` turns it off)."""
+        through the trunk's frozen graph (`network.frozen`; ``self.frozen_graphs = False`` turns them off)."""
         self._check(images)
         return frozen.maps(self, images)
 
@@ -671,15 +674,23 @@ class MVRackLay(nn.Module):
                     )
                 cost = plane_sweep(images, prev, dx.to(images.device), view)
             par = self.parallax(cost)
-        feats = self.slots.coarse(p1, p2, anchors, par)
-        feats.motion = sig
+        fn = slot_maps_windows if self.box_depth is not None else slot_maps
+        maps = frozen.run(self, "slots", fn, p1, p2, anchors, *(() if par is None else (par,)))
+        feats = SlotFeatures(*maps[:3], torch.isfinite(anchors), motion=sig)
         if self.back is not None:
             feats.back = self.back(pooled)
         if self.uprights is not None:
             feats.uprights = self.uprights(pool_columns(p1, p2))
         if self.box_depth is not None:
-            feats.window = self.slots.window(p1, anchors)
+            feats.window = maps[3]
         return feats, rows, anchors
+
+    def box_logits(self, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+        """The box-depth head's logits on `network.boxdepth.head_inputs` (at inference on the CPU through
+        its frozen graph, `network.frozen`)."""
+        if self.box_depth is None:
+            raise InputError("this model has no box-depth head (mvracklay fit-box-depth adds one)")
+        return frozen.run(self, "box_depth", _box_head, win, extra)
 
     def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
         """Logits of each frame of a window (slot features in frame order) but the ``skip`` first,
@@ -772,6 +783,26 @@ class MVRackLay(nn.Module):
         out["anchors"] = anchors
         out.update(head_outputs(feats))
         return out, state
+
+
+def slot_maps(
+    m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, *par: torch.Tensor
+) -> tuple[torch.Tensor, ...]:
+    """`SlotHeads.coarse` of ``m.slots`` as tensors ``(top, front, fine)`` (``par``: the parallax maps, if
+    any): the slot heads' part of a frame that `network.frozen` runs as a graph."""
+    f = m.slots.coarse(p1, p2, anchors, par[0] if par else None)
+    return f.top, f.front, f.fine
+
+
+def slot_maps_windows(
+    m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, *par: torch.Tensor
+) -> tuple[torch.Tensor, ...]:
+    """`slot_maps` and the box-depth head's windows (`SlotHeads.window`)."""
+    return (*slot_maps(m, p1, p2, anchors, *par), m.slots.window(p1, anchors))
+
+
+def _box_head(m: Any, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
+    return m.box_depth(win, extra)
 
 
 def head_outputs(feats: SlotFeatures) -> dict[str, torch.Tensor]:

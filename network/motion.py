@@ -62,6 +62,20 @@ def motion_signature(images: torch.Tensor) -> torch.Tensor:
     return torch.stack([g * valid, valid], 1)
 
 
+def fft_length(n: int) -> int:
+    """The smallest length >= ``n`` with no prime factor above 5: the FFTs' fast sizes (at 256x256 the
+    correlation's 308 becomes 320, ~1.4x faster in float64)."""
+    best = n
+    while True:
+        m = best
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        if m == 1:
+            return best
+        best += 1
+
+
 def _band_index(h: int, bands: int, device: torch.device) -> torch.Tensor:
     """Band of every row ``(H,)``: ``bands`` bands of (nearly) equal height."""
     return (torch.arange(h, device=device) * bands) // h
@@ -75,7 +89,7 @@ def _profiles(prev: torch.Tensor, cur: torch.Tensor, m: int, bands: int) -> tupl
     columns left: the camera moved right).
     """
     n, _, h, w = prev.shape
-    length = w + m + 1  # zero padding: no wrap-around for offsets within +-m
+    length = fft_length(w + m + 1)  # zero padding: no wrap-around for offsets within +-m
     # every sum over an overlap is a row-wise correlation of two maps (sums of w, a, b, a*a, b*b, a*b,
     # where w = valid in both); computed with FFTs in float64 and summed per band before going back
     gp, mp = prev[:, 0].double(), prev[:, 1].double()  # grey is zero where invalid already
@@ -84,8 +98,10 @@ def _profiles(prev: torch.Tensor, cur: torch.Tensor, m: int, bands: int) -> tupl
     fc = torch.fft.rfft(torch.stack([mc, gc, gc * gc], 1), n=length).conj()
     pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))  # (prev map, cur map) of each sum
     prod = torch.stack([fp[:, i] * fc[:, j] for i, j in pairs], 1)  # (N, 6, H, F)
-    idx = _band_index(h, bands, prev.device)
-    per_band_f = prod.new_zeros(n, 6, bands, prod.shape[-1]).index_add_(2, idx, prod)
+    if h % bands == 0:  # bands of equal height: a sum over a reshape (~3x faster than index_add_)
+        per_band_f = prod.view(n, 6, bands, h // bands, -1).sum(3)
+    else:
+        per_band_f = prod.new_zeros(n, 6, bands, prod.shape[-1]).index_add_(2, _band_index(h, bands, prev.device), prod)
     corr = torch.fft.irfft(per_band_f, n=length)  # (N, 6, bands, length): [k] = sum_x prev(x + k) cur(x)
     offsets = torch.arange(-m, m + 1, device=prev.device) % length
     per_band = corr[..., offsets]  # (N, 6, bands, 2m+1)

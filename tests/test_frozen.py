@@ -1,0 +1,148 @@
+"""The frozen graphs (`network.frozen`): the modules' function, never stale, only where they apply."""
+
+from __future__ import annotations
+
+import torch
+from tiny_net import tiny_config
+
+from layouts.spec import LayoutSpec
+from network import frozen
+from network.boxdepth import head_inputs
+from network.model import MVRackLay
+
+
+def _model(seed: int = 0, **options) -> MVRackLay:
+    torch.manual_seed(seed)
+    model = MVRackLay(tiny_config(LayoutSpec(size=16), **options))
+    for m in model.modules():  # batch norms with statistics of their own, so folding them is not a no-op
+        if isinstance(m, (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d)):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+    return model.eval()
+
+
+def _close(a: tuple[torch.Tensor, ...], b: tuple[torch.Tensor, ...]) -> None:
+    for p, q in zip(a, b, strict=True):
+        torch.testing.assert_close(p, q, rtol=1e-4, atol=1e-5)
+
+
+def _builds(monkeypatch) -> list[tuple]:
+    """Each graph built from now on, as (part, first input's shape)."""
+    built: list[tuple] = []
+    build = frozen._build
+
+    def counted(model, part, fn, xs):
+        built.append((part, tuple(xs[0].shape)))
+        return build(model, part, fn, xs)
+
+    monkeypatch.setattr(frozen, "_build", counted)
+    return built
+
+
+def _off(model: MVRackLay, fn):
+    """``fn()`` with the model's graphs turned off (the modules' own outputs)."""
+    model.frozen_graphs = False
+    try:
+        return fn()
+    finally:
+        model.frozen_graphs = True
+
+
+def test_the_graph_gives_the_modules_maps_once_built_per_shape(monkeypatch):
+    model = _model()
+    builds = _builds(monkeypatch)
+    x1, x4 = torch.rand(1, 3, 64, 64), torch.rand(4, 3, 64, 64)
+    with torch.no_grad():
+        want1, want4 = frozen.trunk_maps(model, x1), frozen.trunk_maps(model, x4)
+        for _ in range(2):  # a stream and a window alternating: one graph each, built once
+            _close(model.maps(x1), want1)
+            _close(model.maps(x4), want4)
+    assert builds == [("trunk", (1, 3, 64, 64)), ("trunk", (4, 3, 64, 64))]
+    assert all(held[2] is not None for held in frozen._GRAPHS[model].values())  # graphs, not the fallback
+
+
+def test_a_stream_through_the_graphs_gives_the_modules_outputs(monkeypatch):
+    """Trunk, slot maps and box windows, and the box-depth head: a streamed frame's outputs within rounding."""
+    model = _model(box_depth=True)
+    builds = _builds(monkeypatch)
+    frames = [torch.rand(1, 3, 64, 64) for _ in range(3)]
+    anchors = torch.tensor([[40.0, 20.0, float("nan")]])  # slot 2 has none: its outputs are the background
+    with torch.no_grad():
+
+        def stream():
+            outs, state = [], None
+            for x in frames:
+                out, state = model.step(x, state, anchors=anchors, motion=torch.tensor([0.05]))
+                inputs = head_inputs(
+                    out["box_window"][0], out["top"][0], out["front"][0], anchors[0], model.cfg.view, 2.5
+                )
+                outs.append((out["top"], out["front"], out["box_window"], model.box_logits(*inputs)))
+            return outs
+
+        want = _off(model, stream)
+        assert builds == []
+        for got, ref in zip(stream(), want, strict=True):
+            _close(got, ref)
+    assert sorted(p for p, _ in builds) == ["box_depth", "slots", "trunk"]  # each built once for the stream
+
+
+def test_changed_weights_rebuild_the_graph(monkeypatch):
+    model, other = _model(0), _model(1)
+    builds = _builds(monkeypatch)
+    x = torch.rand(1, 3, 64, 64)
+    opt = torch.optim.SGD(model.parameters(), lr=0.5)
+    with torch.no_grad():
+        before = model.maps(x)
+    model.train()
+    loss = sum(m.square().mean() for m in model.maps(x))  # training: the modules, with gradients
+    loss.backward()
+    opt.step()  # in-place updates of the trunk's weights
+    model.eval()
+    with torch.no_grad():
+        after = model.maps(x)
+        _close(after, frozen.trunk_maps(model, x))
+        assert not torch.allclose(after[0], before[0], atol=1e-4)
+        model.load_state_dict(other.state_dict())  # another network's weights copied in
+        _close(model.maps(x), frozen.trunk_maps(other, x))
+    assert len(builds) == 3
+
+
+def test_a_head_fitted_on_the_frozen_trunk_rebuilds_its_graph_alone(monkeypatch):
+    """As `mvracklay fit-box-depth` does: only the box-depth head's weights move; its graph follows them."""
+    model = _model(box_depth=True)
+    win = torch.rand(3, model.box_depth.c2d, 8, 32)
+    extra = torch.rand(3, model.box_depth.c1d, model.cfg.spec.size)
+    x = torch.rand(1, 3, 64, 64)
+    with torch.no_grad():
+        model.maps(x)
+        before = model.box_logits(win, extra)
+    builds = _builds(monkeypatch)
+    head = model.box_depth.train()
+    opt = torch.optim.SGD(head.parameters(), lr=0.5)
+    head(win, extra).square().mean().backward()
+    opt.step()
+    head.eval()
+    with torch.no_grad():
+        after = model.box_logits(win, extra)
+        _close((after,), (head(win, extra),))
+        assert not torch.allclose(after, before, atol=1e-4)
+        model.maps(x)  # the trunk's graph still holds
+    assert builds == [("box_depth", (3, model.box_depth.c2d, 8, 32))]
+
+
+def test_the_modules_run_where_the_graph_does_not_apply(monkeypatch):
+    model = _model()
+    builds = _builds(monkeypatch)
+    x = torch.rand(2, 3, 64, 64)
+    with torch.no_grad():
+        want = frozen.trunk_maps(model, x)
+        off = _off(model, lambda: model.maps(x))
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            model.maps(x)
+    for p, q in zip(off, want, strict=True):
+        assert torch.equal(p, q)
+    assert model.maps(x)[0].requires_grad  # gradients on
+    model.train()
+    with torch.no_grad():
+        model.maps(x)  # training mode: batch statistics
+    assert builds == []
