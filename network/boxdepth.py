@@ -34,6 +34,7 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
+from network.fastops import avg_pool2, mean_row_pairs
 from network.parallax import RATIOS, plane_sweep, relative_costs
 
 BIN_STEP = 0.05  #: metres between the depth bins
@@ -128,7 +129,7 @@ class ParallaxHistory:
             j = min(b, len(self.images) - 1)
             prev = self.images[-1 - j]
             dx = torch.tensor([sum(list(self.steps)[-j:]) if j else 0.0], device=image.device)
-            maps.append(F.avg_pool2d(plane_sweep(image.float(), prev.float(), dx, self.view), 2))
+            maps.append(avg_pool2(plane_sweep(image.float(), prev.float(), dx, self.view)))
         return torch.cat([relative_costs(m) for m in maps], 1)  # pooled first: both steps are linear
 
 
@@ -147,7 +148,9 @@ def head_inputs(
     a = anchors.float()
     a = torch.where(torch.isfinite(a), a, torch.full_like(a, view.height / 2))
     fr = torch.softmax(front.float(), 1)  # (R, 3, D, D), rows top to bottom of the window
-    fr = F.adaptive_avg_pool2d(fr, (window.shape[-2], d)).repeat_interleave(window.shape[-1] // d, -1)
+    rows = window.shape[-2]
+    fr = mean_row_pairs(fr) if fr.shape[-2] == 2 * rows else F.adaptive_avg_pool2d(fr, (rows, d))
+    fr = fr.repeat_interleave(window.shape[-1] // d, -1)
     tb = torch.softmax(top.float(), 1)[:, BOX]  # (R, D depth rows, D columns)
     elev = ((a - view.height / 2) * view.metres_per_pixel).view(-1, 1, 1).expand(-1, 1, d)
     dist = torch.full_like(elev, distance - DISTANCE_OFFSET)

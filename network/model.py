@@ -53,6 +53,7 @@ from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
 from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
 from network.boxdepth import BoxDepthHead, window_rows
 from network.convlstm import StackedConvLSTM, State
+from network.fastops import avg_pool2, up2
 from network.geotop import GeometricTop
 from network.motion import camera_shift, motion_signature
 from network.parallax import RATIOS, ParallaxNet, plane_sweep
@@ -202,7 +203,7 @@ def _conv_bn_relu(cin: int, cout: int, k: int = 3) -> nn.Sequential:
 def _up(x: torch.Tensor, like: torch.Tensor | None = None) -> torch.Tensor:
     if like is not None:
         return F.interpolate(x, size=like.shape[-2:], mode="nearest")
-    return F.interpolate(x, scale_factor=2.0, mode="nearest")
+    return up2(x)
 
 
 class ColumnTransform(nn.Module):
@@ -506,7 +507,7 @@ class SlotMemory(nn.Module):
 
     @staticmethod
     def _pooled(f: SlotFeatures) -> torch.Tensor:
-        return F.avg_pool2d(torch.cat([f.top, f.front], 1), 2)
+        return avg_pool2(torch.cat([f.top, f.front], 1))
 
     def _align(
         self, state: State, prev: torch.Tensor | None, cur: SlotFeatures, dx: torch.Tensor | None = None
