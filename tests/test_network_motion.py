@@ -100,21 +100,38 @@ def test_camera_shift_ignores_the_static_edge_of_the_source_image():
         camera_shift(torch.zeros(1, 128, 128), torch.zeros(1, 128, 128), SQUARE)
 
 
-def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both():
+@pytest.mark.parametrize("bands", [2, 3])  # bands of equal height (summed over a reshape) and not (index_add_)
+def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both(bands):
     from network.motion import _profiles
 
     g = torch.Generator().manual_seed(11)
     frames = torch.rand(2, 3, 16, 40, generator=g)
     sig = motion_signature(frames)
     sig[0, :, :, :5] = 0.0  # the first frame's 5 left columns outside its source image
-    band, whole = _profiles(sig[:1], sig[1:], 6, 2)
+    band, whole = _profiles(sig[:1], sig[1:], 6, bands)
+    first = slice(0, -(-16 // bands))  # the first band's rows
     for k in (-6, -1, 0, 3, 6):
         p, c = (sig[0, :, :, k:], sig[1, :, :, : 40 - k]) if k >= 0 else (sig[0, :, :, : 40 + k], sig[1, :, :, -k:])
-        for rows, got in ((slice(0, 8), band[0, 0, k + 6]), (slice(0, 16), whole[0, k + 6])):
+        for rows, got in ((first, band[0, 0, k + 6]), (slice(0, 16), whole[0, k + 6])):
             keep = (p[1, rows] * c[1, rows]) > 0
             a, b = p[0, rows][keep].double(), c[0, rows][keep].double()
             want = float(((a - a.mean()) * (b - b.mean())).sum() / ((a - a.mean()).norm() * (b - b.mean()).norm()))
             assert abs(float(got) - want) < 1e-4, (k, rows)
+
+
+def test_fft_lengths_are_the_smallest_with_factors_2_3_5():
+    from network.motion import fft_length
+
+    def smooth(n: int) -> bool:
+        for p in (2, 3, 5):
+            while n % p == 0:
+                n //= p
+        return n == 1
+
+    for n in range(1, 400):
+        got = fft_length(n)
+        assert got >= n and smooth(got) and not any(smooth(k) for k in range(n, got)), n
+    assert fft_length(308) == 320  # the correlation's length at 256x256
 
 
 def test_shift_columns_moves_content_against_the_camera():
