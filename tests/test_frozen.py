@@ -57,6 +57,7 @@ def test_the_graph_gives_the_modules_maps_once_built_per_shape(monkeypatch):
         for _ in range(2):  # a stream and a window alternating: one graph each, built once
             _close(model.maps(x1), want1)
             _close(model.maps(x4), want4)
+        assert all(m.is_contiguous() for m in model.maps(x1))  # the channels-last trunk's maps given back
     assert builds == [("trunk", (1, 3, 64, 64)), ("trunk", (4, 3, 64, 64))]
     assert all(held[2] is not None for held in frozen._GRAPHS[model].values())  # graphs, not the fallback
 
