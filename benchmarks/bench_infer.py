@@ -15,7 +15,6 @@ passes is the figure least disturbed by other processes; the median is printed b
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace
@@ -26,6 +25,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from layouts.fileio import atomic_write_json  # noqa: E402
+from network import frozen  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.fusion import add_fuse_option  # noqa: E402
 from network.infer import Predictor  # noqa: E402
@@ -85,6 +86,11 @@ def main() -> int:
     add_fuse_option(ap)
     add_roll_option(ap)
     ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
+    ap.add_argument(
+        "--no-graphs",
+        action="store_true",
+        help="run the network's modules, not its frozen graphs (network/frozen.py), to see what they buy",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     try:
@@ -108,11 +114,12 @@ def main() -> int:
     print(
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
-        f"{camera}"
+        f"{camera}{', modules (no frozen graphs)' if args.no_graphs else ''}"
     )
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
+        model.frozen_graphs = not args.no_graphs
         pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch, yaw=args.yaw)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
@@ -126,11 +133,13 @@ def main() -> int:
                     "fps_median": med,
                     "threads": args.threads,
                     "device": str(device),
+                    "graphs": not args.no_graphs,
+                    "graphs_built": len(frozen._GRAPHS.get(model, {})),  # what ran: 0 for the modules alone
                 }
             )
             print(f"{size}x{size}  {mode:<17} best {best:7.1f}  median {med:7.1f} frames/s")
     if args.json:
-        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+        atomic_write_json(args.json, rows)
     return 0
 
 
