@@ -134,7 +134,7 @@ def main() -> int:
                     "threads": args.threads,
                     "device": str(device),
                     "graphs": not args.no_graphs,
-                    "graphs_built": len(frozen._GRAPHS.get(model, {})),  # what ran: 0 for the modules alone
+                    "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
                 }
             )
             print(f"{size}x{size}  {mode:<17} best {best:7.1f}  median {med:7.1f} frames/s")

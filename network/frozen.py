@@ -157,6 +157,11 @@ def _contiguous(out: Any) -> Any:
     return tuple(o.contiguous() for o in out) if isinstance(out, tuple) else out.contiguous()
 
 
+def graphs_held(model: nn.Module) -> int:
+    """How many graphs are kept for ``model`` (0: its parts have only run as modules)."""
+    return len(_GRAPHS.get(model, {}))
+
+
 def maps(model: nn.Module, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """`trunk_maps` of ``model``, through its frozen graph where that `applies`."""
     return run(model, "trunk", trunk_maps, x)
