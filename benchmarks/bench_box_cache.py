@@ -5,10 +5,13 @@ scenes (`network.fit_boxdepth.cache_inputs`); the scenes a fixed number of minut
 head's quality follows (docs/network.md, *The heads inside the training budget*). This times that pass
 alone on the first ``--sequences`` scenes of ``--data``, streaming their first ``--frames`` frames and
 keeping the slots from ``--from-frame`` on, as the fit does; the best of ``--repeats`` passes is the
-figure least disturbed by other processes.
+figure least disturbed by other processes. ``--workers N`` splits the pass over N processes of one
+thread each (`network.fit_boxdepth.cache_part`, `fit-box-depth --cache-workers N`); ``--threads`` is then
+the parent's and unused by the pass.
 
     .venv/bin/python benchmarks/bench_box_cache.py runs/budget256b/mvracklay-disc-4/calibrated.pt \\
         data/train256b --sequences 20 --frames 6 --from-frame 3 --parallax --threads 1
+    #   ... --threads 2 (one process on both cores), --workers 2 (two processes of one thread)
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.errors import InputError  # noqa: E402
 from layouts.fileio import atomic_write_json  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
-from network.fit_boxdepth import FrameChoice, cache_inputs, with_box_head  # noqa: E402
+from network.fit_boxdepth import FrameChoice, cache_part, with_box_head  # noqa: E402
 from network.train import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
@@ -39,13 +42,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, help="stream only each scene's first N frames (default: all)")
     ap.add_argument("--from-frame", type=int, default=0, help="keep the slots of frames K on")
     ap.add_argument("--parallax", action="store_true", help="a head that reads the plane-sweep maps")
-    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=1, help="torch threads of a one-process pass")
+    ap.add_argument("--workers", type=int, default=1, help="processes of one thread each sharing the pass")
     ap.add_argument("--repeats", type=int, default=2, help="passes; the best is shown")
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args(argv)
     try:
-        if args.sequences < 1 or args.threads < 1 or args.repeats < 1:
-            raise InputError("--sequences, --threads and --repeats must be >= 1")
+        if args.sequences < 1 or args.threads < 1 or args.repeats < 1 or args.workers < 1:
+            raise InputError("--sequences, --threads, --workers and --repeats must be >= 1")
         choice = FrameChoice(args.frames, args.from_frame)
         choice.validate()
         torch.set_num_threads(args.threads)
@@ -59,18 +63,19 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory(prefix="bench-box-cache-") as tmp:
                 t = time.perf_counter()
-                cache = cache_inputs(model, seqs, SeenTracker, Path(tmp), progress=False, choice=choice)
+                caches = cache_part(model, seqs, SeenTracker, Path(tmp), False, choice, args.workers)[0]
                 dt = time.perf_counter() - t
-                slots = len(cache)
-                del cache  # the memory maps closed before the folder goes
+                slots = sum(len(c) for c in caches)
+                del caches  # the memory maps closed before the folder goes
             rates.append(frames / dt)
     except InputError as e:
         print(f"bench_box_cache.py: {e}", file=sys.stderr)
         return 2
     best = max(rates)
-    out = {"sequences": len(seqs), "frames": frames, "slots": slots, "threads": args.threads,
+    out = {"sequences": len(seqs), "frames": frames, "slots": slots, "threads": args.threads, "workers": args.workers,
            "frames_per_s": rates, "best_frames_per_s": best, "best_ms_per_frame": 1000 / best}  # fmt: skip
-    print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {args.threads} thread(s): "
+    how = f"{args.workers} processes of 1 thread" if args.workers > 1 else f"{args.threads} thread(s)"
+    print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {how}: "
           f"{best:.2f} frames/s best ({1000 / best:.0f} ms a frame; passes: "
           + ", ".join(f"{r:.2f}" for r in rates) + ")")  # fmt: skip
     if args.json:

@@ -9,7 +9,9 @@ The head is then fitted with a two-hot cross entropy over the depth bins (column
 shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit.
 `kept_cache` keeps the inputs in a folder, one part per dataset folder, each with a record of what it
 depends on (`cache_key`), so later fits of other seeds, epochs or head designs on the same trunk, or on
-more datasets, skip the streamed passes already made.
+more datasets, skip the streamed passes already made. `cache_part` splits a pass over processes of one
+thread each (``workers``): the pass is one frame after another, so two single-thread processes stream
+nearly twice the frames of one process on two threads.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import contextlib
 import hashlib
 import json
 import math
+import multiprocessing as mp
 import tempfile
 import time
 import warnings
@@ -190,12 +193,27 @@ def cache_inputs(
     """Streams the frames of ``seqs`` ``choice`` names (all by default) through ``model`` (it has the head) and
     memory-maps the head's inputs and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and
     ``labels(i)`` (frames in order)."""
+    bar = tqdm(total=sum(choice.streamed(s) for s in seqs), desc="box depth: cache", unit="frame", disable=not progress)
+    data = stream_slots(model, seqs, labels, folder, choice, lambda: bar.update(1))
+    bar.close()
+    if data is None:
+        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+    return data
+
+
+def stream_slots(
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    choice: FrameChoice,
+    tick: Callable[[], None],
+) -> Cache | None:
+    """`cache_inputs`' pass (``tick()`` after each frame); None when no kept frame has a valid slot."""
     r, d = model.cfg.spec.num_slots, model.cfg.spec.size
-    total = sum(choice.streamed(s) for s in seqs)
-    cap = total * r  # an upper bound on the valid slots
+    cap = sum(choice.streamed(s) for s in seqs) * r  # an upper bound on the valid slots
     arrays: dict[str, np.ndarray] = {}
     n = 0
-    bar = tqdm(total=total, desc="box depth: cache", unit="frame", disable=not progress)
     for seq in seqs:
         camera = sequence_camera(seq)
         seen = labels(seq)
@@ -204,7 +222,7 @@ def cache_inputs(
             model, camera, read_depth=False, box_inputs=True, box_inputs_from=choice.from_frame, fuse_tau=0
         )
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(choice.streamed(seq)))):
-            bar.update(1)
+            tick()
             seen.add(i)
             if i < choice.from_frame:
                 continue
@@ -222,10 +240,117 @@ def cache_inputs(
             for k, a in parts.items():
                 arrays[k][n : n + m] = a
             n += m
-    bar.close()
     if not n:
-        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+        return None
+    for a in arrays.values():
+        a.flush()
     return Cache(*(arrays[k][:n] for k in CACHE_FIELDS))
+
+
+SHARD_RECORD = "shard.json"  #: in a shard's folder, written last: its slot count, or the error that stopped it
+
+
+def shard_name(k: int) -> str:
+    """The folder of a part's ``k``-th shard (`cache_part`)."""
+    return f"shard-{k}"
+
+
+def split_contiguous(seqs: list[Any], count: int, choice: FrameChoice) -> list[list[Any]]:
+    """``seqs`` in at most ``count`` contiguous runs of about equal streamed frames (none empty)."""
+    frames = np.cumsum([choice.streamed(s) for s in seqs])
+    cuts = np.searchsorted(frames, frames[-1] * np.arange(1, count) / count, side="right")
+    bounds = [0, *sorted(set(int(c) for c in cuts if 0 < c < len(seqs))), len(seqs)]
+    return [seqs[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def _shard_worker(
+    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, choice: FrameChoice, counter: Any
+) -> None:
+    """One process of `cache_part`: one torch thread, its shard's slots, then its record."""
+    torch.set_num_threads(1)
+
+    def tick() -> None:
+        with counter.get_lock():
+            counter.value += 1
+
+    try:
+        data = stream_slots(model, seqs, labels, folder, choice, tick)
+        rec: dict[str, Any] = {"slots": 0 if data is None else len(data)}
+    except Exception as e:  # noqa: BLE001 - reported by the parent as one line
+        rec = {"error": f"{type(e).__name__}: {e}"}
+    atomic_write_json(folder / SHARD_RECORD, rec)
+
+
+def open_shard(folder: Path, n: int) -> Cache | None:
+    """The ``n`` slots memory-mapped from a shard (or a single part's) ``folder``; None for an empty shard."""
+    if n == 0:
+        return None
+    try:
+        arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
+    except (OSError, ValueError) as e:
+        raise InputError(f"{folder}: unreadable box-depth input cache ({e}); remove the folder to rebuild it") from None
+    if any(len(a) != n for a in arrays):
+        raise InputError(f"{folder}: box-depth cache files shorter than its record; remove the folder to rebuild it")
+    return Cache(*arrays)
+
+
+def cache_part(
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    progress: bool = True,
+    choice: FrameChoice = FrameChoice(),
+    workers: int = 1,
+) -> tuple[list[Cache], list[int] | None]:
+    """``(caches, shard_slots)``: `cache_inputs` over ``seqs`` into ``folder``, or, with ``workers`` > 1, split
+    into that many contiguous shards streamed by forked processes of one torch thread each (``folder/shard-K``;
+    their slots in the order of ``seqs``, as one pass would give them). ``shard_slots``: each shard's slot
+    count (None for one pass)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    runs = split_contiguous(seqs, workers, choice) if workers > 1 else [seqs]
+    if len(runs) < 2 or "fork" not in mp.get_all_start_methods():
+        return [cache_inputs(model, seqs, labels, folder, progress, choice)], None
+    ctx = mp.get_context("fork")  # the model and the label factory are inherited, nothing is pickled
+    counter = ctx.Value("q", 0)
+    dirs = [folder / shard_name(k) for k in range(len(runs))]
+    for sub in dirs:
+        sub.mkdir(parents=True, exist_ok=True)
+        (sub / SHARD_RECORD).unlink(missing_ok=True)
+    procs = [
+        ctx.Process(target=_shard_worker, args=(model, run, labels, sub, choice, counter), daemon=True)
+        for run, sub in zip(runs, dirs)
+    ]
+    total = sum(choice.streamed(s) for s in seqs)
+    bar = tqdm(total=total, desc=f"box depth: cache ({len(procs)} processes)", unit="frame", disable=not progress)
+    try:
+        for p in procs:
+            p.start()
+        while any(p.is_alive() for p in procs):
+            time.sleep(0.5)
+            bar.update(counter.value - bar.n)
+            if any(p.exitcode not in (None, 0) for p in procs):
+                break
+        bar.update(counter.value - bar.n)
+    finally:
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+            p.join()
+        bar.close()
+    counts = []
+    for p, sub in zip(procs, dirs):
+        try:
+            rec = json.loads((sub / SHARD_RECORD).read_text())
+        except (OSError, ValueError):
+            raise InputError(f"box-depth cache: the process for {sub} stopped (exit code {p.exitcode})") from None
+        if "error" in rec:
+            raise InputError(f"box-depth cache: {sub}: {rec['error']}")
+        counts.append(int(rec["slots"]))
+    caches = [c for c in (open_shard(sub, n) for sub, n in zip(dirs, counts)) if c is not None]
+    if not caches:
+        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+    return caches, counts
 
 
 def model_key(model: MVRackLay) -> dict[str, Any]:
@@ -261,15 +386,17 @@ def sequence_key(seq: Any) -> list[Any]:
     return key if quality is None else [*key, int(quality)]
 
 
-def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
-    """The complete cache in ``folder`` if it was made for ``key``; None if the folder holds none (or an
-    unfinished one); a one-line error if it holds another model's or other data's inputs."""
+def open_kept_cache(folder: Path, key: dict[str, Any]) -> list[Cache] | None:
+    """The complete cache in ``folder`` (one piece, or one per shard of a pass split over processes) if it
+    was made for ``key``; None if the folder holds none (or an unfinished one); a one-line error if it holds
+    another model's or other data's inputs."""
     path = folder / CACHE_RECORD
     if not path.is_file():
         return None
     try:
         rec = json.loads(path.read_text())
         n = int(rec["slots"])
+        shards = [int(k) for k in rec.get("shards", [])]
         same = rec["key"] == key
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"{path}: not a box-depth input cache record ({e})") from None
@@ -278,13 +405,11 @@ def open_kept_cache(folder: Path, key: dict[str, Any]) -> Cache | None:
             f"--keep-cache {folder}: holds the inputs of another checkpoint, head inputs, training sequences or "
             "choice of frames; give another --keep-cache folder (or remove this one)"
         )
-    try:
-        arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
-    except (OSError, ValueError) as e:
-        raise InputError(f"--keep-cache {folder}: unreadable cache ({e}); remove the folder to rebuild it") from None
-    if any(len(a) != n for a in arrays):
-        raise InputError(f"--keep-cache {folder}: cache files shorter than its record; remove the folder to rebuild it")
-    return Cache(*arrays)
+    if not shards:
+        return [open_shard(folder, n)]
+    if sum(shards) != n:
+        raise InputError(f"{path}: its shards' slots do not add up to its own; remove the folder to rebuild it")
+    return [c for c in (open_shard(folder / shard_name(k), m) for k, m in enumerate(shards)) if c is not None]
 
 
 def part_name(folder: Path) -> str:
@@ -333,30 +458,28 @@ def kept_cache(
     folder: Path,
     progress: bool = True,
     choice: FrameChoice = FrameChoice(),
+    workers: int = 1,
 ) -> tuple[Chain, int]:
     """``(chain, reused)``: the inputs of ``seqs`` kept in ``folder``, one part (`part_name`) per folder the
     sequences sit in, so a fit on more data reuses the parts already made. A part with a finished cache for
     this model and its sequences is reused (``reused`` counts them), an absent or unfinished one is made
-    (`cache_inputs`, its record written last: an interrupted pass is redone, never used)."""
+    (`cache_part` with ``workers``, its record written last: an interrupted pass is redone, never used)."""
     move_single_part(folder)
     parts, reused = [], 0
     base = model_key(model)  # the trunk's digest once, not per part
     for parent, group in by_folder(seqs):
         sub = folder / part_name(parent)
         key = cache_key(base, group, choice)
-        data = open_kept_cache(sub, key)
-        if data is not None:
-            parts.append(data)
+        kept = open_kept_cache(sub, key)
+        if kept is not None:
+            parts.extend(kept)
             reused += 1
             continue
         sub.mkdir(parents=True, exist_ok=True)
-        data = cache_inputs(model, group, labels, sub, progress, choice)
-        for k in CACHE_FIELDS:
-            a = getattr(data, k)
-            if isinstance(a, np.memmap):
-                a.flush()
-        atomic_write_json(sub / CACHE_RECORD, {"key": key, "slots": len(data)})
-        parts.append(data)
+        made, shards = cache_part(model, group, labels, sub, progress, choice, workers)
+        rec: dict[str, Any] = {"key": key, "slots": sum(len(c) for c in made)}
+        atomic_write_json(sub / CACHE_RECORD, rec if shards is None else {**rec, "shards": shards})
+        parts.extend(made)
     return Chain(parts), reused
 
 
@@ -409,49 +532,86 @@ def fit_box_depth(
     row_profile: bool = False,
     keep_cache: Path | None = None,
     choice: FrameChoice = FrameChoice(),
+    workers: int = 1,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
     `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
-    ``choice``: which frames of each sequence are streamed and kept (`FrameChoice`; all by default)."""
+    ``choice``: which frames of each sequence are streamed and kept (`FrameChoice`; all by default);
+    ``workers``: processes of one thread each that share the streamed pass (`cache_part`)."""
     cfg.validate()
-    choice.validate()
-    if not train:
-        raise InputError("no training sequences to fit the box-depth head on")
-    longest = max(choice.streamed(s) for s in train)
-    if choice.from_frame >= longest:
-        raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
     t0 = time.perf_counter()
-    model = with_box_head(model, parallax, row_profile)
+    model = _ready(model, train, choice, workers, parallax, row_profile)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
-            data, reused = Chain([cache_inputs(model, train, labels, Path(tmp), progress, choice)]), 0
+            data, reused = Chain(cache_part(model, train, labels, Path(tmp), progress, choice, workers)[0]), 0
         else:
-            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice)
+            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
         head = BoxDepthHead(first.win.shape[1], first.extra.shape[1], row_profile=row_profile, rows=first.win.shape[2])
         losses = train_head(head, data, cfg, progress)
-        back = data.field("back")
-        slots, parts, shown = len(data), len(data.parts), float(np.mean(data.field("shown")[np.isfinite(back)]))
+        summary = _summary(data, train, choice, parallax, reused, workers)
         del data, first  # the memory maps closed before the temporary folder goes
-    summary = {
+    summary.update(
+        row_profile=row_profile, epochs=cfg.epochs, seed=cfg.seed, losses=losses,
+        cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
+    )  # fmt: skip
+    return head, summary
+
+
+def keep_box_inputs(
+    model: MVRackLay,
+    train: list[Any],
+    labels: Callable[[Any], Any],
+    keep_cache: Path,
+    progress: bool = True,
+    parallax: bool = False,
+    choice: FrameChoice = FrameChoice(),
+    workers: int = 1,
+) -> dict[str, Any]:
+    """Only the streamed pass of `fit_box_depth`, kept in ``keep_cache`` (`kept_cache`) for later fits of the
+    same checkpoint: the pass can then take every core and the fit one thread beside other work. Returns the
+    summary of the cache (slots, shown fraction, minutes)."""
+    t0 = time.perf_counter()
+    model = _ready(model, train, choice, workers, parallax, False)
+    data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
+    summary = _summary(data, train, choice, parallax, reused, workers)
+    del data
+    return {**summary, "cache_minutes": (time.perf_counter() - t0) / 60}
+
+
+def _ready(
+    model: MVRackLay, train: list[Any], choice: FrameChoice, workers: int, parallax: bool, row_profile: bool
+) -> MVRackLay:
+    """The checks shared by `fit_box_depth` and `keep_box_inputs`; ``model`` given a fresh head to read with."""
+    choice.validate()
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise InputError(f"--cache-workers must be a positive integer, got {workers!r}")
+    if not train:
+        raise InputError("no training sequences to fit the box-depth head on")
+    longest = max(choice.streamed(s) for s in train)
+    if choice.from_frame >= longest:
+        raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
+    return with_box_head(model, parallax, row_profile)
+
+
+def _summary(
+    data: Chain, train: list[Any], choice: FrameChoice, parallax: bool, reused: int, workers: int
+) -> dict[str, Any]:
+    """What a fit's or a cache's record says of its inputs."""
+    back = data.field("back")
+    return {
         "train_sequences": len(train),
         **choice.key(),
         "parallax": parallax,
-        "row_profile": row_profile,
-        "cache_parts": parts,
+        "cache_parts": len(by_folder(train)),
         "cache_reused": reused,
-        "train_slots": slots,
-        "shown_fraction": shown,
-        "epochs": cfg.epochs,
-        "seed": cfg.seed,
-        "losses": losses,
-        "cache_minutes": (t1 - t0) / 60,
-        "fit_minutes": (time.perf_counter() - t1) / 60,
+        "cache_workers": workers,
+        "train_slots": len(data),
+        "shown_fraction": float(np.mean(data.field("shown")[np.isfinite(back)])),
     }
-    return head, summary

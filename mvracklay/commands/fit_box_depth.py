@@ -23,7 +23,9 @@ DESCRIPTION = (
     "--cache-dir puts them where there is room) and removed at the end; --keep-cache DIR keeps them, one part "
     "per --data folder, and a later fit of the same checkpoint with --keep-cache DIR reuses the parts of the "
     "folders it shares (another seed, more epochs, --row-profile or one more dataset without the hour-long "
-    "passes already made)."
+    "passes already made). The pass streams one frame after another: --cache-workers 2 splits it over two "
+    "processes of one thread each (nearly twice the frames per minute of one process on two threads), and "
+    "--cache-only stops after it, so the fit can run later on one thread beside other work."
 )
 ORDER = 35
 
@@ -64,15 +66,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="keep the input cache in DIR (created if missing), one part per data folder, and reuse a part when "
         "it holds this checkpoint's inputs for that folder's sequences; refused when it holds another's",
     )  # fmt: skip
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    p.add_argument(
+        "--cache-workers", type=int, default=1, metavar="N",
+        help="split the streamed pass over N processes of one torch thread each (contiguous shares of the "
+        "sequences; the same inputs as one pass); --threads then applies to the fit",
+    )  # fmt: skip
+    p.add_argument(
+        "--cache-only", action="store_true",
+        help="make (or find) the input cache in --keep-cache DIR and stop: no head is fitted, no checkpoint "
+        "written; a later fit with the same --keep-cache DIR and data reuses it",
+    )  # fmt: skip
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (the fit's, and a one-process pass's)")
+    p.add_argument("--json", type=Path, help="also write the fit's (or the cache's) summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
     add_jpeg_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FitConfig, FrameChoice, box_head_config, fit_box_depth
+    from network.fit_boxdepth import FitConfig, FrameChoice, box_head_config, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -83,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--cache-dir {args.cache_dir}: not a folder")
     if args.keep_cache is not None and args.keep_cache.exists() and not args.keep_cache.is_dir():
         raise InputError(f"--keep-cache {args.keep_cache}: not a folder")
+    if args.cache_workers < 1:
+        raise InputError(f"--cache-workers must be >= 1, got {args.cache_workers}")
+    if args.cache_only and args.keep_cache is None:
+        raise InputError("--cache-only needs --keep-cache DIR (the cache it makes would be removed at once)")
     cfg = FitConfig(epochs=args.epochs, seed=args.seed)
     cfg.validate()
     choice = FrameChoice(args.frames, args.from_frame)
@@ -92,9 +108,22 @@ def run(args: argparse.Namespace) -> int:
     model = model_from(payload, record, args.checkpoint)
     train = training_sequences(args)
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
+    if args.cache_only:
+        summary = keep_box_inputs(
+            model, train, SeenTracker, args.keep_cache, progress=not args.quiet, parallax=args.parallax,
+            choice=choice, workers=args.cache_workers,
+        )  # fmt: skip
+        state = "found" if summary["cache_reused"] == summary["cache_parts"] else "made"
+        print(
+            f"{state} the inputs of {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
+            f"in {args.keep_cache} ({summary['cache_minutes']:.1f} minutes); fit with the same --keep-cache"
+        )
+        if args.json:
+            atomic_write_json(args.json, nan_to_null(summary))
+        return 0
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
-        row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice,
+        row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
     )  # fmt: skip
     print(
         (

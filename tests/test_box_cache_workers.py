@@ -1,0 +1,130 @@
+"""The box-depth head's streamed pass split over processes (`network.fit_boxdepth.cache_part`) and
+`mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from layouts.errors import InputError
+from mvracklay.cli import main
+from network.checkpoint import load_checkpoint, load_model
+from network.fit_boxdepth import (
+    CACHE_FIELDS,
+    FrameChoice,
+    cache_inputs,
+    cache_part,
+    part_name,
+    shard_name,
+    split_contiguous,
+    with_box_head,
+)
+from waresynth.dataset import open_dataset
+from waresynth.visibility import SeenTracker
+
+
+@pytest.mark.parametrize("frames", [[12] * 7, [3, 12, 5, 1, 1, 8], [4], [6, 6]])
+@pytest.mark.parametrize("count", [1, 2, 3, 5])
+def test_split_contiguous_covers_the_sequences_in_order_in_balanced_runs(frames, count):
+    seqs = [SimpleNamespace(num_frames=f, k=k) for k, f in enumerate(frames)]
+    runs = split_contiguous(seqs, count, FrameChoice())
+    assert [s.k for run in runs for s in run] == list(range(len(seqs)))  # all of them, in order, once
+    assert all(runs) and len(runs) <= min(count, len(seqs))
+    if count <= len(seqs) and len(set(frames)) == 1:
+        assert len(runs) == count and max(map(len, runs)) - min(map(len, runs)) <= 1
+    capped = split_contiguous(seqs, count, FrameChoice(frames=2))  # balanced by the frames streamed
+    if count <= len(seqs):
+        assert len(capped) == count
+
+
+def test_a_pass_split_over_processes_gives_the_inputs_of_one_pass(tiny_checkpoint, tiny_dataset, tmp_path):
+    torch.set_num_threads(1)
+    model = with_box_head(load_model(tiny_checkpoint)[0], parallax=True)
+    seqs = open_dataset(tiny_dataset).sequences()
+    choice = FrameChoice(4, 1)
+    (tmp_path / "one").mkdir()
+    one = cache_inputs(model, seqs, SeenTracker, tmp_path / "one", progress=False, choice=choice)
+    for workers in (2, 3):
+        caches, counts = cache_part(model, seqs, SeenTracker, tmp_path / f"w{workers}", False, choice, workers)
+        assert counts is not None and len(counts) == workers and sum(counts) == len(one)
+        assert sorted(p.name for p in (tmp_path / f"w{workers}").iterdir()) == [shard_name(k) for k in range(workers)]
+        for k in CACHE_FIELDS:
+            np.testing.assert_array_equal(np.concatenate([np.asarray(getattr(c, k)) for c in caches]), getattr(one, k))
+    caches, counts = cache_part(model, seqs, SeenTracker, tmp_path / "w1", False, choice, 1)
+    assert counts is None and len(caches) == 1 and len(caches[0]) == len(one)
+
+
+def test_a_failing_process_stops_the_pass_with_one_line(tiny_checkpoint, tiny_dataset, tmp_path):
+    model = with_box_head(load_model(tiny_checkpoint)[0])
+    seqs = open_dataset(tiny_dataset).sequences()
+
+    def labels(seq):
+        if seq is seqs[-1]:
+            raise ValueError("no instance file for this one")
+        return SeenTracker(seq)
+
+    with pytest.raises(InputError) as err:
+        cache_part(model, seqs, labels, tmp_path, False, FrameChoice(), 2)
+    msg = str(err.value)
+    assert "\n" not in msg and shard_name(1) in msg and "no instance file for this one" in msg
+
+
+def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    keep = tmp_path / "cache"
+    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
+            "--frames", "4", "--from-frame", "1", "--epochs", "1", "--threads", "1", "--quiet"]  # fmt: skip
+    made = ["--cache-only", "--cache-workers", "2", "--keep-cache", str(keep), "--out", str(tmp_path / "no.pt")]
+    assert main([*base, *made, "--json", str(tmp_path / "cache.json")]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("made the inputs of ") and not (tmp_path / "no.pt").exists()  # no head, no checkpoint
+    summary = json.loads((tmp_path / "cache.json").read_text())
+    assert summary["cache_workers"] == 2 and summary["train_sequences"] == 3 and summary["train_slots"] > 0
+    record = json.loads((keep / part_name(tiny_dataset) / "cache.json").read_text())
+    assert len(record["shards"]) == 2 and sum(record["shards"]) == record["slots"] == summary["train_slots"]
+    assert main([*base, *made]) == 0 and capsys.readouterr().out.startswith("found the inputs of ")
+    assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "kept.pt")]) == 0
+    assert f"reused the inputs cached in {keep} for 1 of 1 data folders" in capsys.readouterr().out
+    assert main([*base, "--out", str(tmp_path / "plain.pt")]) == 0  # one pass in one process, a temporary cache
+    kept, plain = (load_checkpoint(tmp_path / f"{k}.pt") for k in ("kept", "plain"))
+    heads = [k for k in plain[0]["model"] if k.startswith("box_depth.")]
+    assert heads and all(torch.equal(kept[0]["model"][k], plain[0]["model"][k]) for k in heads)
+    assert kept[1]["box_depth"]["train_slots"] == plain[1]["box_depth"]["train_slots"] == summary["train_slots"]
+    lost = shard_name(int(np.argmax(record["shards"])))  # a shard with slots loses a file: one line, no traceback
+    (keep / part_name(tiny_dataset) / lost / "win.npy").unlink()
+    assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and lost in err and "remove the folder" in err
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [(["--cache-only"], "--cache-only needs --keep-cache"), (["--cache-workers", "0"], "--cache-workers must be")],
+)
+def test_cache_options_are_checked_on_one_line(tiny_checkpoint, tiny_dataset, tmp_path, capsys, extra, needle):
+    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--quiet", *extra]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err
+
+
+def test_bench_box_cache_times_a_pass_split_over_processes(tiny_checkpoint, tiny_dataset, tmp_path):
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_box_cache.py"
+    args = [sys.executable, str(script), str(tiny_checkpoint), str(tiny_dataset), "--sequences", "3", "--frames", "3",
+            "--repeats", "1"]  # fmt: skip
+    got = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}.json"
+        done = subprocess.run([*args, "--workers", str(workers), "--json", str(out)], capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
+        got[workers] = json.loads(out.read_text())
+    assert "2 processes of 1 thread" in done.stdout and got[2]["workers"] == 2
+    assert got[2]["slots"] == got[1]["slots"] > 0 and got[2]["frames"] == got[1]["frames"] == 9
+    bad = subprocess.run([*args, "--workers", "0"], capture_output=True, text=True)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--workers" in bad.stderr
