@@ -305,8 +305,8 @@ def cache_part(
 ) -> tuple[list[Cache], list[int] | None]:
     """``(caches, shard_slots)``: `cache_inputs` over ``seqs`` into ``folder``, or, with ``workers`` > 1, split
     into that many contiguous shards streamed by forked processes of one torch thread each (``folder/shard-K``;
-    their slots in the order of ``seqs``, as one pass would give them). ``shard_slots``: each shard's slot
-    count (None for one pass)."""
+    their slots in the order of ``seqs``, as one pass would give them; one pass where the platform cannot fork
+    or there is one sequence). ``shard_slots``: each shard's slot count (None for one pass)."""
     folder.mkdir(parents=True, exist_ok=True)
     runs = split_contiguous(seqs, workers, choice) if workers > 1 else [seqs]
     if len(runs) < 2 or "fork" not in mp.get_all_start_methods():
