@@ -107,6 +107,7 @@ def column_targets(
 
 CACHE_FIELDS = ("win", "extra", "back", "shown")
 CACHE_RECORD = "cache.json"  #: in a kept cache part's folder: what it holds (`cache_key`) and how many slots
+NO_SLOTS = "no frame of the training sequences has a shelf slot to fit the box-depth head on"  #: one pass or every shard of one found no valid slot
 
 
 @dataclass
@@ -197,7 +198,7 @@ def cache_inputs(
     data = stream_slots(model, seqs, labels, folder, choice, lambda: bar.update(1))
     bar.close()
     if data is None:
-        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+        raise InputError(NO_SLOTS)
     return data
 
 
@@ -349,7 +350,7 @@ def cache_part(
         counts.append(int(rec["slots"]))
     caches = [c for c in (open_shard(sub, n) for sub, n in zip(dirs, counts)) if c is not None]
     if not caches:
-        raise InputError("no frame of the training sequences has a shelf slot to fit the box-depth head on")
+        raise InputError(NO_SLOTS)
     return caches, counts
 
 
