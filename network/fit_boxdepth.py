@@ -63,6 +63,9 @@ class FitConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
+        v = self.weight_decay
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise InputError(f"--weight-decay must be a number >= 0, got {v!r}")
 
 
 def box_head_config(cfg: ModelConfig, parallax: bool = False, row_profile: bool = False) -> ModelConfig:
@@ -559,7 +562,8 @@ def fit_box_depth(
         summary = _summary(data, train, choice, parallax, reused, workers)
         del data, first  # the memory maps closed before the temporary folder goes
     summary.update(
-        row_profile=row_profile, epochs=cfg.epochs, seed=cfg.seed, losses=losses,
+        row_profile=row_profile, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
+        losses=losses,
         cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
     )  # fmt: skip
     return head, summary

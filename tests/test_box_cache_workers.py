@@ -1,5 +1,6 @@
 """The box-depth head's streamed pass split over processes (`network.fit_boxdepth.cache_part`) and
-`mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused."""
+`mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
+fits of other settings too: --lr, --weight-decay)."""
 
 from __future__ import annotations
 
@@ -96,6 +97,12 @@ def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint
     heads = [k for k in plain[0]["model"] if k.startswith("box_depth.")]
     assert heads and all(torch.equal(kept[0]["model"][k], plain[0]["model"][k]) for k in heads)
     assert kept[1]["box_depth"]["train_slots"] == plain[1]["box_depth"]["train_slots"] == summary["train_slots"]
+    assert (kept[1]["box_depth"]["lr"], kept[1]["box_depth"]["weight_decay"]) == (2e-3, 1e-2)  # the defaults
+    tuned = ["--keep-cache", str(keep), "--lr", "1e-2", "--weight-decay", "0", "--out", str(tmp_path / "tuned.pt")]
+    assert main([*base, *tuned]) == 0 and "reused the inputs" in capsys.readouterr().out  # other settings, no pass
+    tuned = load_checkpoint(tmp_path / "tuned.pt")
+    assert (tuned[1]["box_depth"]["lr"], tuned[1]["box_depth"]["weight_decay"]) == (1e-2, 0.0)
+    assert not all(torch.equal(tuned[0]["model"][k], plain[0]["model"][k]) for k in heads)
     lost = shard_name(int(np.argmax(record["shards"])))  # a shard with slots loses a file: one line, no traceback
     (keep / part_name(tiny_dataset) / lost / "win.npy").unlink()
     assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
@@ -105,7 +112,13 @@ def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint
 
 @pytest.mark.parametrize(
     ("extra", "needle"),
-    [(["--cache-only"], "--cache-only needs --keep-cache"), (["--cache-workers", "0"], "--cache-workers must be")],
+    [
+        (["--cache-only"], "--cache-only needs --keep-cache"),
+        (["--cache-workers", "0"], "--cache-workers must be"),
+        (["--lr", "0"], "--lr must be a positive number"),
+        (["--weight-decay", "-0.1"], "--weight-decay must be a number >= 0"),
+        (["--weight-decay", "nan"], "--weight-decay must be a number >= 0"),
+    ],
 )
 def test_cache_options_are_checked_on_one_line(tiny_checkpoint, tiny_dataset, tmp_path, capsys, extra, needle):
     args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--quiet", *extra]

@@ -10,6 +10,7 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from mvracklay.commands._depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
+from network.fit_boxdepth import FitConfig
 
 NAME = "fit-box-depth"
 HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
@@ -39,6 +40,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
     p.add_argument("--epochs", type=int, default=3, help="passes over the cached inputs")
     p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
+    p.add_argument(
+        "--lr", type=float, default=FitConfig.lr,
+        help="peak learning rate of the fit's one-cycle schedule (AdamW)",
+    )  # fmt: skip
+    p.add_argument(
+        "--weight-decay", type=float, default=FitConfig.weight_decay,
+        help="AdamW's decoupled weight decay of the head's weights",
+    )  # fmt: skip
     p.add_argument(
         "--parallax", action="store_true",
         help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
@@ -84,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FitConfig, FrameChoice, box_head_config, fit_box_depth, keep_box_inputs
+    from network.fit_boxdepth import FrameChoice, box_head_config, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -99,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--cache-workers must be >= 1, got {args.cache_workers}")
     if args.cache_only and args.keep_cache is None:
         raise InputError("--cache-only needs --keep-cache DIR (the cache it makes would be removed at once)")
-    cfg = FitConfig(epochs=args.epochs, seed=args.seed)
+    cfg = FitConfig(epochs=args.epochs, seed=args.seed, lr=args.lr, weight_decay=args.weight_decay)
     cfg.validate()
     choice = FrameChoice(args.frames, args.from_frame)
     choice.validate()
