@@ -98,8 +98,8 @@ def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint
     assert heads and all(torch.equal(kept[0]["model"][k], plain[0]["model"][k]) for k in heads)
     assert kept[1]["box_depth"]["train_slots"] == plain[1]["box_depth"]["train_slots"] == summary["train_slots"]
     assert (kept[1]["box_depth"]["lr"], kept[1]["box_depth"]["weight_decay"]) == (2e-3, 1e-2)  # the defaults
-    tuned = ["--keep-cache", str(keep), "--lr", "1e-2", "--weight-decay", "0", "--out", str(tmp_path / "tuned.pt")]
-    assert main([*base, *tuned]) == 0 and "reused the inputs" in capsys.readouterr().out  # other settings, no pass
+    fit = ["--keep-cache", str(keep), "--lr", "1e-2", "--weight-decay", "0", "--out", str(tmp_path / "tuned.pt")]
+    assert main([*base, *fit]) == 0 and "reused the inputs" in capsys.readouterr().out  # other settings, no pass
     tuned = load_checkpoint(tmp_path / "tuned.pt")
     assert (tuned[1]["box_depth"]["lr"], tuned[1]["box_depth"]["weight_decay"]) == (1e-2, 0.0)
     assert not all(torch.equal(tuned[0]["model"][k], plain[0]["model"][k]) for k in heads)

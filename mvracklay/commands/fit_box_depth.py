@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument(
         "--weight-decay", type=float, default=FitConfig.weight_decay,
-        help="AdamW's decoupled weight decay of the head's weights",
+        help="AdamW's decoupled weight decay, on all the head's parameters",
     )  # fmt: skip
     p.add_argument(
         "--parallax", action="store_true",
