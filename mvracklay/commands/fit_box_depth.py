@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="generated dataset(s) with depth, instance and scene files to fit on",
     )  # fmt: skip
     p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
-    p.add_argument("--epochs", type=int, default=3, help="passes over the cached inputs")
+    p.add_argument("--epochs", type=int, default=FitConfig.epochs, help="passes over the cached inputs")
     p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
     p.add_argument(
         "--lr", type=float, default=FitConfig.lr,
