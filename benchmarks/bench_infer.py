@@ -9,6 +9,7 @@ unless --checkpoint is given. Images are fed at the model's input size (no resiz
 passes is the figure least disturbed by other processes; the median is printed beside it.
 
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
+    .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --precision bf16
     python benchmarks/bench_infer.py --device cuda --checkpoint weights/mvracklay-disc-4.pt   # on a GPU
 """
 
@@ -91,6 +92,7 @@ def main() -> int:
         action="store_true",
         help="run the network's modules, not its frozen graphs (network/frozen.py), to see what they buy",
     )
+    frozen.add_precision_option(ap)
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     try:
@@ -115,11 +117,16 @@ def main() -> int:
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
         f"{camera}{', modules (no frozen graphs)' if args.no_graphs else ''}"
+        f"{', the trunk in bf16' if args.precision == 'bf16' and not args.no_graphs else ''}"
     )
+    line = frozen.precision_warning(args.precision)
+    if line:
+        print(f"warning: {line}", file=sys.stderr)
     for size in args.sizes:
         c = replace(cfg, input_width=size, input_height=size)
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
         model.frozen_graphs = not args.no_graphs
+        frozen.set_precision(model, args.precision)
         pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch, yaw=args.yaw)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
@@ -134,6 +141,7 @@ def main() -> int:
                     "threads": args.threads,
                     "device": str(device),
                     "graphs": not args.no_graphs,
+                    "precision": args.precision,
                     "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
                 }
             )

@@ -625,6 +625,8 @@ class MVRackLay(nn.Module):
         #: at inference on the CPU the trunk, the slot maps and the box-depth head run as frozen graphs
         #: (`network.frozen`); False: always the modules
         self.frozen_graphs = True
+        #: the trunk graph's precision, fp32 or bf16 (`network.frozen.set_precision`)
+        self.graph_precision = "fp32"
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 

@@ -16,7 +16,8 @@
 #      and keeps the slots from frame BOX_FROM (3) on: the head is short of scenes rather than of frames,
 #      and frames 0-2 lack the parallax against 3 frames back. Their wall minutes are counted whole, caching
 #      included. BOX_SEQUENCES=0 leaves the box-depth head out and fits the two rack heads side by side, one
-#      thread each (the earlier recipe, with STAGE2=28);
+#      thread each (the earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's:
+#      bf16 on CPUs with native bf16), and so does the box-depth head's fit (`--precision`);
 #   6. the budget added up (the runs' step minutes, the fits' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
@@ -71,7 +72,7 @@ EPOCHS=()
 [ -n "$HEAD_EPOCHS" ] && EPOCHS=(--epochs "$HEAD_EPOCHS")
 fit() {  # command, output name
     [ -f "$RUN/$2.pt" ] || $PY -m mvracklay "$1" --checkpoint "$RUN/calibrated.pt" --data "$TRAIN" \
-        --sequences "$HEAD_SEQUENCES" --val "$TUNE" --threads 1 --quiet "${EPOCHS[@]}" --out "$RUN/$2.pt" \
+        --sequences "$HEAD_SEQUENCES" --val "$TUNE" --threads 1 --quiet "${EPOCHS[@]}" --precision "$PRECISION" --out "$RUN/$2.pt" \
         --json "$RUN/$2.fit.json" > "$RUN/$2.log" 2>&1
 }
 fit_box() {  # its whole wall time, model loading included, in box.wall_seconds
@@ -79,7 +80,7 @@ fit_box() {  # its whole wall time, model loading included, in box.wall_seconds
     local t0
     t0=$(date +%s)
     $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "$TRAIN" --sequences "$BOX_SEQUENCES" \
-        --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --threads 1 --cache-dir "$RUNS" --quiet \
+        --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --threads 1 --cache-dir "$RUNS" --quiet --precision "$PRECISION" \
         "${EPOCHS[@]}" --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
     echo $(( $(date +%s) - t0 )) > "$RUN/box.wall_seconds"
 }

@@ -1,4 +1,5 @@
-"""`benchmarks/bench_infer.py`: figures per size and mode, with the frozen graphs or the modules."""
+"""`benchmarks/bench_infer.py`: figures per size and mode, with the frozen graphs (float32 or a bf16
+trunk) or the modules."""
 
 from __future__ import annotations
 
@@ -12,11 +13,13 @@ SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_infer.py"
 
 def test_bench_infer_times_streaming_with_and_without_the_graphs(tmp_path):
     base = [sys.executable, str(SCRIPT), "--sizes", "64", "--frames", "3", "--repeats", "1", "--modes", "stream"]
-    for flags, graphs in (([], True), (["--no-graphs"], False)):
-        out = tmp_path / f"{graphs}.json"
+    for flags, graphs, precision in (([], True, "fp32"), (["--no-graphs"], False, "fp32"),
+                                     (["--precision", "bf16"], True, "bf16")):  # fmt: skip
+        out = tmp_path / f"{graphs}{precision}.json"
         done = subprocess.run([*base, *flags, "--threads", "1", "--json", str(out)], capture_output=True, text=True)
         assert done.returncode == 0, done.stderr
         (row,) = json.loads(out.read_text())
         assert (row["size"], row["mode"], row["graphs"]) == (64, "stream", graphs) and row["fps_best"] > 0
+        assert row["precision"] == precision and ("the trunk in bf16" in done.stdout) is (precision == "bf16")
         assert (row["graphs_built"] > 0) is graphs  # the trunk's, the slot maps' and the box-depth head's, or none
         assert ("no frozen graphs" in done.stdout) is not graphs

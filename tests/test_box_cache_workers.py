@@ -1,6 +1,6 @@
 """The box-depth head's streamed pass split over processes (`network.fit_boxdepth.cache_part`) and
 `mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
-fits of other settings too: --lr, --weight-decay)."""
+fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own."""
 
 from __future__ import annotations
 
@@ -108,6 +108,25 @@ def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint
     assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and lost in err and "remove the folder" in err
+
+
+def test_a_bf16_pass_and_fit_keep_a_cache_of_their_own(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
+            "--frames", "4", "--from-frame", "1", "--epochs", "2", "--threads", "1", "--quiet"]  # fmt: skip
+    fp32, bf16 = tmp_path / "fp32", tmp_path / "bf16"
+    assert main([*base, "--keep-cache", str(fp32), "--out", str(tmp_path / "a.pt")]) == 0
+    capsys.readouterr()
+    assert main([*base, "--keep-cache", str(fp32), "--precision", "bf16", "--out", str(tmp_path / "x.pt")]) == 2
+    err = capsys.readouterr().err.strip()  # the float32 pass's inputs are not the bf16 pass's: refused, one line
+    assert len(err.splitlines()) == 1 and "trunk precision" in err and not (tmp_path / "x.pt").exists()
+    assert main([*base, "--keep-cache", str(bf16), "--precision", "bf16", "--out", str(tmp_path / "b.pt")]) == 0
+    a, b = (load_checkpoint(tmp_path / f"{k}.pt") for k in "ab")
+    assert (a[1]["box_depth"]["precision"], a[1]["box_depth"]["fit_precision"]) == ("fp32", "fp32")
+    assert (b[1]["box_depth"]["precision"], b[1]["box_depth"]["fit_precision"]) == ("bf16", "bf16")
+    assert b[1]["box_depth"]["train_slots"] > 0 and np.isfinite(b[1]["box_depth"]["losses"]).all()
+    keys = [json.loads((d / part_name(tiny_dataset) / "cache.json").read_text())["key"] for d in (fp32, bf16)]
+    assert "precision" not in keys[0] and keys[1]["precision"] == "bf16"  # float32 caches keep their keys
+    assert {k: v for k, v in keys[1].items() if k != "precision"} == keys[0]  # the same trunk and sequences
 
 
 @pytest.mark.parametrize(

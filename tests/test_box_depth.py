@@ -250,7 +250,8 @@ def test_column_targets_pool_the_truth_to_the_model_columns():
         column_targets(top, labels, spec, 1.0, 3)
 
 
-def test_the_head_learns_box_depths(tiny_checkpoint, tiny_dataset, tmp_path):
+@pytest.mark.parametrize("precision", ["fp32", "bf16"])
+def test_the_head_learns_box_depths(tiny_checkpoint, tiny_dataset, tmp_path, precision):
     model = with_box_head(load_model(tiny_checkpoint)[0])
     seqs = open_dataset(tiny_dataset).sequences()
     data = cache_inputs(model, seqs, SeenTracker, tmp_path, progress=False)
@@ -259,8 +260,14 @@ def test_the_head_learns_box_depths(tiny_checkpoint, tiny_dataset, tmp_path):
     from network.boxdepth import BoxDepthHead
 
     head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
-    losses = train_head(head, data, FitConfig(epochs=12, batch=8, lr=3e-3), progress=False)
+    losses = train_head(head, data, FitConfig(epochs=12, batch=8, lr=3e-3, precision=precision), progress=False)
     assert losses[-1] < 0.7 * losses[0]
+    assert all(p.dtype == torch.float32 for p in head.parameters())  # bf16 autocast: the weights stay float32
+
+
+def test_the_fit_refuses_an_unknown_precision_on_one_line():
+    with pytest.raises(InputError, match="--precision must be one of fp32, bf16, got 'fp16'"):
+        FitConfig(precision="fp16").validate()
 
 
 def test_fit_box_depth_writes_a_model_that_reads_box_depths(tiny_checkpoint, tiny_dataset, tmp_path, capsys):

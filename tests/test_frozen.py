@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 from tiny_net import tiny_config
 
+from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from network import frozen
 from network.boxdepth import head_inputs
@@ -31,9 +33,9 @@ def _builds(monkeypatch) -> list[tuple]:
     built: list[tuple] = []
     build = frozen._build
 
-    def counted(model, part, fn, xs):
-        built.append((part, tuple(xs[0].shape)))
-        return build(model, part, fn, xs)
+    def counted(model, part, fn, xs, bf16):
+        built.append((part, tuple(xs[0].shape)) + (("bf16",) if bf16 else ()))
+        return build(model, part, fn, xs, bf16)
 
     monkeypatch.setattr(frozen, "_build", counted)
     return built
@@ -147,3 +149,39 @@ def test_the_modules_run_where_the_graph_does_not_apply(monkeypatch):
     with torch.no_grad():
         model.maps(x)  # training mode: batch statistics
     assert builds == []
+
+
+def test_a_bf16_trunk_graph_gives_float32_maps_near_the_modules_and_leaves_the_weights(monkeypatch):
+    model = _model()
+    builds = _builds(monkeypatch)
+    x = torch.rand(2, 3, 64, 64)
+    with torch.no_grad():
+        want = frozen.trunk_maps(model, x)
+        _close(model.maps(x), want)
+        frozen.set_precision(model, "bf16")
+        got = model.maps(x)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == torch.float32 and g.is_contiguous() and g.shape == w.shape
+            err = float((g - w).abs().mean() / w.abs().mean())
+            assert 0 < err < 0.05  # bf16 rounding: near the float32 maps, not them
+        model.maps(x)  # built once
+        frozen.set_precision(model, "fp32")
+        _close(model.maps(x), want)  # the float32 graph again, kept beside the bf16 one
+    assert builds == [("trunk", (2, 3, 64, 64)), ("trunk", (2, 3, 64, 64), "bf16")]
+    assert all(p.dtype == torch.float32 for p in model.parameters())
+
+
+def test_bf16_leaves_the_other_parts_in_float32(monkeypatch):
+    model = _model(box_depth=True)
+    frozen.set_precision(model, "bf16")
+    builds = _builds(monkeypatch)
+    with torch.no_grad():
+        model.step(torch.rand(1, 3, 64, 64), None, anchors=torch.tensor([[40.0, 20.0, 50.0]]))
+    assert sorted((b[0], b[-1] == "bf16") for b in builds) == [("slots", False), ("trunk", True)]
+
+
+def test_an_unknown_precision_is_refused_on_one_line():
+    model = _model()
+    with pytest.raises(InputError, match="--precision must be one of fp32, bf16, got 'fp16'"):
+        frozen.set_precision(model, "fp16")
+    assert model.graph_precision == "fp32"

@@ -10,6 +10,7 @@ from tiny_net import TINY_NET
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
+from network import frozen
 
 TINY = TINY_NET
 
@@ -86,6 +87,33 @@ def test_evaluate_and_predict_take_flip_average(run_dir, tiny_dataset, tmp_path,
     seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
     assert main(["predict", str(seq), *ckpt, "--out", str(tmp_path / "lay"), "--mode", "window"]) == 0
     assert LayoutFolder(tmp_path / "lay").indices() == list(range(8))
+
+
+def test_evaluate_and_predict_run_a_bf16_trunk_on_request(run_dir, tiny_dataset, tmp_path, capsys, monkeypatch):
+    built = []
+    build = frozen._build
+
+    def counted(model, part, fn, xs, bf16):
+        built.append((part, bf16))
+        return build(model, part, fn, xs, bf16)
+
+    monkeypatch.setattr(frozen, "_build", counted)
+    out = tmp_path / "eval.json"
+    ckpt = ["--checkpoint", str(run_dir / "best.pt"), "--threads", "1", "--quiet", "--precision", "bf16"]
+    assert (
+        main(
+            ["evaluate", *ckpt, "--data", str(tiny_dataset), "--split", "all", "--max-frames", "2", "--json", str(out)]
+        )
+        == 0
+    )
+    assert ", the trunk in bf16" in capsys.readouterr().out
+    res = json.loads(out.read_text())
+    assert res["precision"] == "bf16" and res["frames"] == 6 and 0 <= res["visible"]["top"]["rack"]["miou"] <= 1
+    assert ("trunk", True) in built and all(bf16 is (part == "trunk") for part, bf16 in built)
+    built.clear()
+    seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
+    assert main(["predict", str(seq), *ckpt, "--out", str(tmp_path / "lay")]) == 0
+    assert LayoutFolder(tmp_path / "lay").indices() == list(range(8)) and ("trunk", True) in built
 
 
 def test_predict_writes_a_layout_folder_reconstruct_can_read(run_dir, tiny_dataset, tmp_path):

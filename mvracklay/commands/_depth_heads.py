@@ -12,6 +12,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from network.frozen import add_precision_option, use_precision
 
 
 def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:
@@ -29,6 +30,7 @@ def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
+    add_precision_option(p)
     add_jpeg_arguments(p)
 
 
@@ -80,6 +82,7 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
     model = model_from(payload, record, args.checkpoint)
+    use_precision(model, args.precision)
     train = training_sequences(args)
     val = open_data(args.val).sequences(None) if args.val else []
     head, summary = fit(model, train, val, cfg, progress=not args.quiet)

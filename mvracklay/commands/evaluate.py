@@ -15,6 +15,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
+from network.frozen import add_precision_option, use_precision
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.roll import ANGLES, add_roll_option, check_angle, describe_angles
@@ -47,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_roll_option(p)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    add_precision_option(p)
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
     )
@@ -68,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
+    use_precision(model, args.precision)
     ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
@@ -90,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
         title += ", flip-averaged"
+    if args.precision != "fp32":
+        title += f", the trunk in {args.precision}"
     if model.back is not None or model.uprights is not None:
         title += f", rack depth {res['rack_depth']}"
     if model.box_depth is not None:
@@ -124,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
             "split": args.split,
             "sequences": len(seqs),
             "variant": record.get("variant"),
+            "precision": args.precision,
             **res,
         }
         atomic_write_json(args.json, nan_to_null(out))

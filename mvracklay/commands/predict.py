@@ -25,6 +25,7 @@ from mvracklay.frames import camera_warning, lens_from_record
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.distributed import single_process_device
+from network.frozen import add_precision_option, use_precision
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
 from network.model import MVRackLay
@@ -71,6 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_fuse_option(p)
     add_roll_option(p)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    add_precision_option(p)
     p.add_argument(
         "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
     )
@@ -106,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.to(single_process_device(NAME, args.device))
+    use_precision(model, args.precision)
     n = predict_folder(
         model,
         record,
