@@ -35,6 +35,7 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
+from network.frozen import PRECISIONS, use_precision
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
 from network.roll import angle_warnings, check_angle, resolve_angles
@@ -77,6 +78,7 @@ class RunConfig:
     opening: bool = True
     board_thickness: float = 0.06
     threads: int = 2
+    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.frozen.set_precision`)
     progress: bool = True
 
     def validate(self) -> None:
@@ -99,6 +101,8 @@ class RunConfig:
             raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
         if self.threads < 1:
             raise InputError(f"--threads must be >= 1, got {self.threads}")
+        if self.precision not in PRECISIONS:
+            raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
 
 
 @dataclass
@@ -242,6 +246,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     ckpt = resolve_checkpoint(cfg.checkpoint)
     torch.set_num_threads(cfg.threads)
     model, record = load_model(ckpt)
+    use_precision(model, cfg.precision)
     intr, intr_source = resolve_intrinsics(source, cfg.camera)
     lens = resolve_lens(source, cfg.camera)
     if lens is not None:
@@ -352,6 +357,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
             "flip_average": cfg.flip,
+            "precision": cfg.precision,
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
             # the camera's rotation levelled before the network (`network.roll`): the median over the frames

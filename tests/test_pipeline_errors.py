@@ -11,6 +11,7 @@ import torch
 from PIL import Image
 from tiny_net import tiny_config
 
+from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay import pipeline
 from mvracklay.cli import main
@@ -149,3 +150,8 @@ def test_bad_options(tmp_path: Path, checkpoint: Path, capsys, extra: list[str],
     out = tmp_path / "out"
     _fails(["run", str(src), "--out", str(out), "--checkpoint", str(checkpoint), *extra], capsys, needle)
     _nothing_in(out)
+
+
+def test_run_config_refuses_an_unknown_precision():
+    with pytest.raises(InputError, match="--precision must be one of fp32, bf16, got 'fp16'"):
+        pipeline.RunConfig(precision="fp16").validate()

@@ -80,12 +80,12 @@ def test_layouts_feed_reconstruct(run_out: Path, tmp_path: Path):
 def test_run_prints_free_space_table(seq_dir: Path, checkpoint: Path, tmp_path: Path, capsys):
     out = tmp_path / "o"
     argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--no-rrd", "--quiet"]
-    assert main([*argv, "--max-frames", "3", "--mode", "window", "--flip-average"]) == 0
+    assert main([*argv, "--max-frames", "3", "--mode", "window", "--flip-average", "--precision", "bf16"]) == 0
     text = capsys.readouterr().out
     wmap = WarehouseMap.load(out / "warehouse.json")
     assert "free_len" in text and len(wmap.steps) == 3
     assert "predict" in text and "rerun" not in text.split("speed:")[1].splitlines()[0]  # nothing logged, no rate
-    assert wmap.meta["mode"] == "window" and wmap.meta["flip_average"] is True
+    assert wmap.meta["mode"] == "window" and wmap.meta["flip_average"] is True and wmap.meta["precision"] == "bf16"
     for s in wmap.shelves():
         assert s.id in text
     assert not (out / "warehouse.rrd").exists()

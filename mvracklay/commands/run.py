@@ -7,6 +7,7 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
+from network.frozen import add_precision_option
 from network.fusion import add_fuse_option
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.roll import add_roll_option, describe_angles
@@ -67,6 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for the network")
+    add_precision_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -98,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         opening=not args.no_opening,
         board_thickness=args.board_thickness,
         threads=args.threads,
+        precision=args.precision,
         progress=not args.quiet,
     )
     cfg.validate()
