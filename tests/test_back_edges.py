@@ -164,15 +164,25 @@ def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
 def test_fit_back_edges_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "with_head.pt"
     args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
-    assert (
-        main([*args, "--val", str(tiny_dataset), "--epochs", "2", "--out", str(out), "--threads", "1", "--quiet"]) == 0
-    )
+    flags = [
+        "--epochs",
+        "2",
+        "--out",
+        str(out),
+        "--threads",
+        "1",
+        "--quiet",
+        "--precision",
+        "bf16",
+    ]  # a bf16 trunk pass
+    assert main([*args, "--val", str(tiny_dataset), *flags]) == 0
     said = capsys.readouterr().out
     assert "val   rack depth error" in said and f"wrote {out}" in said
     payload, record = load_checkpoint(out)
     src, _ = load_checkpoint(tiny_checkpoint)
     assert record["model_config"]["back_edges"] is True
     assert record["back_edges"]["train_sequences"] == 3 and record["back_edges"]["epochs"] == 2
+    assert record["back_edges"]["precision"] == "bf16"
     assert all(torch.equal(payload["model"][k], v) for k, v in src["model"].items())  # the trunk is untouched
     assert load_model(out)[0].back is not None
     seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]

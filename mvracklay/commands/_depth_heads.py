@@ -89,7 +89,8 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     print_depth_errors(summary, source)
     out = args.out or args.checkpoint
     val_name = str(args.val) if args.val else None
-    info = {"data": [str(d) for d in args.data], "val": val_name, **jpeg_record(args), **summary}
+    info = {"data": [str(d) for d in args.data], "val": val_name, **jpeg_record(args), "precision": args.precision}
+    info.update(summary)
     save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
