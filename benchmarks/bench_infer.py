@@ -117,7 +117,7 @@ def main() -> int:
         f"torch {torch.__version__}, {_where(device, args.threads)}, variant {cfg.variant}, encoder width {cfg.encoder_width}, "
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
         f"{camera}{', modules (no frozen graphs)' if args.no_graphs else ''}"
-        f"{', the trunk in bf16' if args.precision == 'bf16' and not args.no_graphs else ''}"
+        f"{', the trunk in bf16' if args.precision == 'bf16' and not args.no_graphs and device.type == 'cpu' else ''}"
     )
     line = frozen.precision_warning(args.precision)
     if line:
@@ -141,7 +141,7 @@ def main() -> int:
                     "threads": args.threads,
                     "device": str(device),
                     "graphs": not args.no_graphs,
-                    "precision": args.precision,
+                    "precision": frozen.trunk_precision(model),  # what ran: bf16 on the CPU's graphs only
                     "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
                 }
             )

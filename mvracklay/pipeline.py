@@ -35,7 +35,7 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
-from network.frozen import PRECISIONS, use_precision
+from network.frozen import PRECISIONS, trunk_precision, use_precision
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
 from network.roll import angle_warnings, check_angle, resolve_angles
@@ -357,7 +357,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "checkpoint": str(ckpt),
             "mode": cfg.mode,
             "flip_average": cfg.flip,
-            "precision": cfg.precision,
+            "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
             # the camera's rotation levelled before the network (`network.roll`): the median over the frames

@@ -98,11 +98,21 @@ def precision_warning(precision: str) -> str | None:
 
 
 def use_precision(model: nn.Module, precision: str) -> None:
-    """`set_precision` for a command's ``--precision``, with `precision_warning`'s line on stderr."""
+    """`set_precision` for a command's ``--precision`` (the model already on its device), with a line on stderr
+    where bf16 is emulated (`precision_warning`) or cannot apply (the graphs run on the CPU only)."""
     set_precision(model, precision)
     line = precision_warning(precision)
+    if precision != "fp32" and trunk_precision(model) == "fp32":
+        line = f"--precision {precision} applies to the CPU's frozen graphs; here the network runs in float32"
     if line:
         print(f"warning: {line}", file=sys.stderr)
+
+
+def trunk_precision(model: nn.Module) -> str:
+    """The precision ``model``'s trunk runs in at inference: bf16 where `set_precision` asked for it and its
+    graphs run (on the CPU, not turned off), else fp32."""
+    on_cpu = all(p.device.type == "cpu" for p in model.parameters())
+    return "bf16" if in_bf16(model, "trunk") and getattr(model, "frozen_graphs", True) and on_cpu else "fp32"
 
 
 def in_bf16(model: nn.Module, part: str) -> bool:

@@ -184,4 +184,14 @@ def test_an_unknown_precision_is_refused_on_one_line():
     model = _model()
     with pytest.raises(InputError, match="--precision must be one of fp32, bf16, got 'fp16'"):
         frozen.set_precision(model, "fp16")
-    assert model.graph_precision == "fp32"
+    assert model.graph_precision == "fp32" and frozen.trunk_precision(model) == "fp32"
+
+
+def test_the_trunk_runs_in_bf16_only_where_its_graph_runs(capsys):
+    model = _model()
+    frozen.use_precision(model, "bf16")
+    assert frozen.trunk_precision(model) == "bf16"
+    model.frozen_graphs = False  # the modules: float32 whatever was asked, and the records say so
+    assert frozen.trunk_precision(model) == "fp32"
+    frozen.use_precision(model, "bf16")
+    assert "here the network runs in float32" in capsys.readouterr().err

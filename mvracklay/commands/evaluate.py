@@ -15,7 +15,7 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
 from network.distributed import single_process_device
 from network.evaluate import evaluate_sequences
-from network.frozen import add_precision_option, use_precision
+from network.frozen import add_precision_option, trunk_precision, use_precision
 from network.fusion import add_fuse_option, check_tau
 from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
 from network.roll import ANGLES, add_roll_option, check_angle, describe_angles
@@ -93,8 +93,8 @@ def run(args: argparse.Namespace) -> int:
     title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
     if args.flip_average:
         title += ", flip-averaged"
-    if args.precision != "fp32":
-        title += f", the trunk in {args.precision}"
+    if trunk_precision(model) != "fp32":
+        title += f", the trunk in {trunk_precision(model)}"
     if model.back is not None or model.uprights is not None:
         title += f", rack depth {res['rack_depth']}"
     if model.box_depth is not None:
@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
             "split": args.split,
             "sequences": len(seqs),
             "variant": record.get("variant"),
-            "precision": args.precision,
+            "precision": trunk_precision(model),
             **res,
         }
         atomic_write_json(args.json, nan_to_null(out))
