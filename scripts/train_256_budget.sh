@@ -8,11 +8,13 @@
 #      warm start was trained on it among others), the held-out and the tuning scenes (seeds 202, 303);
 #   2. stage 1: weights/racklay256-stage1.pt (80 of racklay's 120-minute schedule on 2 threads, shipped);
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
-#      18.5; scripts/train_256.sh: 40 minutes on one thread beside racklay's second stage);
+#      18.5, 14 where PRECISION is bf16; scripts/train_256.sh: 40 minutes on one thread beside racklay's second
+#      stage);
 #   4. box decision offsets chosen on the tuning set (as in scripts/train_256.sh, not counted: no weight moves);
 #   5. the heads, the network frozen, on both threads at once: on one the back-edge head, then the upright
 #      head, each on HEAD_SEQUENCES training sequences (default 700); on the other the box-depth head with
-#      parallax on BOX_SEQUENCES scenes (default 1150), of which it streams the first BOX_FRAMES frames (6)
+#      parallax on BOX_SEQUENCES scenes (default 1150, 2500 where PRECISION is bf16: the bf16 trunk and fit
+#      make room for them, and the stage's last minutes buy nothing), of which it streams the first BOX_FRAMES frames (6)
 #      and keeps the slots from frame BOX_FROM (3) on: the head is short of scenes rather than of frames,
 #      and frames 0-2 lack the parallax against 3 frames back. Their wall minutes are counted whole, caching
 #      included. BOX_SEQUENCES=0 leaves the box-depth head out and fits the two rack heads side by side, one
@@ -33,6 +35,9 @@ PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs/budget256}
 TOTAL=${TOTAL:-120}
+DEFAULT_PRECISION=$($PY -c "from network.train import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
+PRECISION=${PRECISION:-$DEFAULT_PRECISION}
+if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_SEQUENCES=${BOX_SEQUENCES:-2500}; fi
 STAGE2=${STAGE2:-18.5}
 HEAD_SEQUENCES=${HEAD_SEQUENCES:-700}
 HEAD_EPOCHS=${HEAD_EPOCHS:-}
@@ -41,8 +46,6 @@ BOX_FRAMES=${BOX_FRAMES:-6}
 BOX_FROM=${BOX_FROM:-3}
 WORKERS=${WORKERS:-2}
 STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
-DEFAULT_PRECISION=$($PY -c "from network.train import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
-PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 [ -f "$STAGE1_WEIGHTS" ] || { echo "train_256_budget.sh: $STAGE1_WEIGHTS is missing (scripts/train_256.sh STAGE=1 makes it)" >&2; exit 2; }
 
 # 1. Data at 256x256.
