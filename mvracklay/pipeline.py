@@ -35,9 +35,10 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
-from network.frozen import PRECISIONS, trunk_precision, use_precision
+from network.frozen import trunk_precision, use_precision
 from network.fusion import check_tau
 from network.infer import MODES, Predictor, frame_layouts
+from network.precision import check_precision
 from network.roll import angle_warnings, check_angle, resolve_angles
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
@@ -101,8 +102,7 @@ class RunConfig:
             raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
         if self.threads < 1:
             raise InputError(f"--threads must be >= 1, got {self.threads}")
-        if self.precision not in PRECISIONS:
-            raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        check_precision(self.precision)
 
 
 @dataclass

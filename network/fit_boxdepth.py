@@ -41,7 +41,7 @@ from layouts.fileio import atomic_write_json
 from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, frame_head_inputs
 from network.infer import Predictor, sequence_camera
 from network.model import ModelConfig, MVRackLay
-from network.train import PRECISIONS, forward_autocast
+from network.precision import check_precision, forward_autocast
 
 
 @dataclass(frozen=True)
@@ -70,8 +70,7 @@ class FitConfig:
         v = self.weight_decay
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise InputError(f"--weight-decay must be a number >= 0, got {v!r}")
-        if self.precision not in PRECISIONS:
-            raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        check_precision(self.precision)
 
 
 def box_head_config(cfg: ModelConfig, parallax: bool = False, row_profile: bool = False) -> ModelConfig:

@@ -37,6 +37,8 @@ from weakref import WeakKeyDictionary
 import torch
 from torch import nn
 
+from network.precision import PRECISIONS, check_precision, cpu_has_native_bf16
+
 
 class Part(NamedTuple):
     """A part of the network that runs as a graph."""
@@ -51,7 +53,6 @@ class Part(NamedTuple):
     bf16: bool = False
 
 
-PRECISIONS = ("fp32", "bf16")  #: the graphs' precisions (`set_precision`)
 PARTS: dict[str, Part] = {
     "trunk": Part(("encoder", "reduce", "temporal", "pyramid"), ("mean", "std"), channels_last=True, bf16=True),
     "slots": Part(("slots",)),
@@ -70,10 +71,7 @@ T = TypeVar("T")
 def set_precision(model: nn.Module, precision: str) -> None:
     """Run ``model``'s trunk graph in ``precision`` (`PRECISIONS`: ``fp32``, the default, or ``bf16``; see
     the module docstring) wherever its graphs apply; one line naming the option when it is neither."""
-    if precision not in PRECISIONS:
-        from layouts.errors import InputError
-
-        raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    check_precision(precision)
     model.graph_precision = precision
 
 
@@ -91,8 +89,6 @@ def add_precision_option(p: argparse.ArgumentParser, more: str = "") -> None:
 
 def precision_warning(precision: str) -> str | None:
     """One line to print when ``precision`` is bf16 on a CPU known to lack native bf16, else None."""
-    from network.train import cpu_has_native_bf16
-
     if precision == "bf16" and cpu_has_native_bf16() is False:
         return "--precision bf16: this CPU has no native bf16 (AVX512-BF16 or AMX): the trunk runs emulated, far slower"
     return None

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -56,34 +55,8 @@ from network.losses import (
     supervised_loss,
 )
 from network.model import ModelConfig, MVRackLay, build_discriminators
+from network.precision import check_precision, forward_autocast
 from network.resnet import load_imagenet_weights
-
-PRECISIONS = ("fp32", "bf16")  #: training forward-pass precisions (`TrainConfig.precision`)
-
-
-def cpu_has_native_bf16(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> bool | None:
-    """Whether this CPU computes bf16 natively (AVX512-BF16 or AMX-BF16); None where unknown (no ``cpuinfo``).
-
-    Without it, bf16 autocast emulates the arithmetic: on an AVX2 AMD EPYC a `racklay` step at
-    128x128 took 13.6 s in bf16 against 0.77 s in fp32, at 256x256 36.4 s against 1.52 s (`benchmarks/bench_train_step.py`).
-    """
-    try:
-        text = Path(cpuinfo).read_text(errors="replace")
-    except OSError:
-        return None
-    flags = {f for line in text.splitlines() if line.startswith("flags") for f in line.split(":", 1)[-1].split()}
-    if not flags:
-        return None
-    return bool(flags & {"avx512_bf16", "amx_bf16"})
-
-
-def forward_autocast(device_type: str, precision: str) -> torch.autocast:
-    """The context training's forward passes run in: bf16 autocast for ``precision`` bf16, else a no-op.
-
-    On CPUs with native bf16 (AVX512-BF16, AMX) a step takes ~0.6x the time; validation, evaluation
-    and the written weights stay fp32.
-    """
-    return torch.autocast(device_type, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
 @dataclass
@@ -157,8 +130,7 @@ class TrainConfig:
         check_jpeg(self.jpeg, tuple(self.jpeg_quality), ("--jpeg", "--jpeg-quality"))
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
-        if self.precision not in PRECISIONS:
-            raise InputError(f"--precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        check_precision(self.precision)
         if self.val_mode not in ("window", "stream"):
             raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
 

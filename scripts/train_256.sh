@@ -31,7 +31,7 @@ STAGE=${STAGE:-4}
 WORKERS=${WORKERS:-2}
 STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 # bf16 autocast where the CPU computes it natively (AVX512-BF16 / AMX), else fp32 (emulated bf16 is 18-24x slower)
-DEFAULT_PRECISION=$($PY -c "from network.train import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
+DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 SIZE=(--input-size 256 256 --precision "$PRECISION")
 COMMON=(--epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 --quiet)

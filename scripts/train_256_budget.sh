@@ -35,7 +35,7 @@ PY=.venv/bin/python
 DATA=${DATA:-data}
 RUNS=${RUNS:-runs/budget256}
 TOTAL=${TOTAL:-120}
-DEFAULT_PRECISION=$($PY -c "from network.train import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
+DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_SEQUENCES=${BOX_SEQUENCES:-2500}; fi
 STAGE2=${STAGE2:-18.5}

@@ -164,17 +164,8 @@ def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
 def test_fit_back_edges_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "with_head.pt"
     args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
-    flags = [
-        "--epochs",
-        "2",
-        "--out",
-        str(out),
-        "--threads",
-        "1",
-        "--quiet",
-        "--precision",
-        "bf16",
-    ]  # a bf16 trunk pass
+    # a bf16 trunk pass
+    flags = ["--epochs", "2", "--out", str(out), "--threads", "1", "--quiet", "--precision", "bf16"]
     assert main([*args, "--val", str(tiny_dataset), *flags]) == 0
     said = capsys.readouterr().out
     assert "val   rack depth error" in said and f"wrote {out}" in said

@@ -202,7 +202,7 @@ def test_stop_at_pauses_inside_the_schedule_and_resume_continues(tmp_path):
 
 
 def test_native_bf16_is_read_from_the_cpu_flags(tmp_path):
-    from network.train import cpu_has_native_bf16
+    from network.precision import cpu_has_native_bf16
 
     info = tmp_path / "cpuinfo"
     info.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx2 fma\n\nprocessor\t: 1\nflags\t\t: fpu sse2 avx2 fma\n")

@@ -10,7 +10,8 @@ from pathlib import Path
 from layouts.errors import InputError
 from network.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
 from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
-from network.train import PRECISIONS, TrainConfig, Trainer, cpu_has_native_bf16, default_model_config, open_data
+from network.precision import PRECISIONS, cpu_has_native_bf16
+from network.train import TrainConfig, Trainer, default_model_config, open_data
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
