@@ -11,7 +11,8 @@ the parent's and unused by the pass.
 
     .venv/bin/python benchmarks/bench_box_cache.py runs/budget256b/mvracklay-disc-4/calibrated.pt \\
         data/train256b --sequences 20 --frames 6 --from-frame 3 --parallax --threads 1
-    #   ... --threads 2 (one process on both cores), --workers 2 (two processes of one thread)
+    #   ... --threads 2 (one process on both cores), --workers 2 (two processes of one thread),
+    #   --precision bf16 (the trunk's graph in bf16, as fit-box-depth --precision bf16 streams it)
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from layouts.errors import InputError  # noqa: E402
 from layouts.fileio import atomic_write_json  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.fit_boxdepth import FrameChoice, cache_part, with_box_head  # noqa: E402
+from network.frozen import add_precision_option, trunk_precision, use_precision  # noqa: E402
 from network.train import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
@@ -45,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch threads of a one-process pass")
     ap.add_argument("--workers", type=int, default=1, help="processes of one thread each sharing the pass")
     ap.add_argument("--repeats", type=int, default=2, help="passes; the best is shown")
+    add_precision_option(ap)
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args(argv)
     try:
@@ -55,6 +58,7 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
         payload, record = load_checkpoint(args.checkpoint)
         model = with_box_head(model_from(payload, record, args.checkpoint), parallax=args.parallax)
+        use_precision(model, args.precision)
         seqs = open_data(args.data).sequences(None)[: args.sequences]
         if not seqs:
             raise InputError(f"{args.data}: no sequences")
@@ -73,9 +77,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     best = max(rates)
     out = {"sequences": len(seqs), "frames": frames, "slots": slots, "threads": args.threads, "workers": args.workers,
+           "precision": trunk_precision(model),
            "frames_per_s": rates, "best_frames_per_s": best, "best_ms_per_frame": 1000 / best}  # fmt: skip
     how = f"{args.workers} processes of 1 thread" if args.workers > 1 else f"{args.threads} thread(s)"
-    print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {how}: "
+    print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {how}, the trunk in {trunk_precision(model)}: "
           f"{best:.2f} frames/s best ({1000 / best:.0f} ms a frame; passes: "
           + ", ".join(f"{r:.2f}" for r in rates) + ")")  # fmt: skip
     if args.json:

@@ -151,11 +151,13 @@ def test_bench_box_cache_times_a_pass_split_over_processes(tiny_checkpoint, tiny
     args = [sys.executable, str(script), str(tiny_checkpoint), str(tiny_dataset), "--sequences", "3", "--frames", "3",
             "--repeats", "1"]  # fmt: skip
     got = {}
-    for workers in (1, 2):
+    for workers in (1, 2):  # a bf16 trunk: the shards' processes inherit it (its boxes, so its slots, differ)
         out = tmp_path / f"w{workers}.json"
-        done = subprocess.run([*args, "--workers", str(workers), "--json", str(out)], capture_output=True, text=True)
+        flags = ["--workers", str(workers), "--precision", "bf16", "--json", str(out)]
+        done = subprocess.run([*args, *flags], capture_output=True, text=True)
         assert done.returncode == 0, done.stderr
         got[workers] = json.loads(out.read_text())
+        assert got[workers]["precision"] == "bf16" and "the trunk in bf16" in done.stdout
     assert "2 processes of 1 thread" in done.stdout and got[2]["workers"] == 2
     assert got[2]["slots"] == got[1]["slots"] > 0 and got[2]["frames"] == got[1]["frames"] == 9
     bad = subprocess.run([*args, "--workers", "0"], capture_output=True, text=True)

@@ -522,6 +522,7 @@ def test_bench_box_cache_times_the_cache_pass_of_the_frames_chosen(tiny_checkpoi
     assert done.returncode == 0, done.stderr
     got = json.loads(out.read_text())
     assert (got["sequences"], got["frames"]) == (1, 3) and got["slots"] > 0 and got["best_frames_per_s"] > 0
+    assert got["precision"] == "fp32" and "the trunk in fp32" in done.stdout
     assert "3 frames streamed" in done.stdout
     bad = subprocess.run([*args, "--frames", "2", "--from-frame", "2"], capture_output=True, text=True)
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--from-frame" in bad.stderr
