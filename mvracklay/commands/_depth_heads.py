@@ -12,7 +12,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from network.frozen import add_precision_option, use_precision
+from network.frozen import add_precision_option, trunk_precision, use_precision
 
 
 def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:
@@ -89,8 +89,14 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     print_depth_errors(summary, source)
     out = args.out or args.checkpoint
     val_name = str(args.val) if args.val else None
-    info = {"data": [str(d) for d in args.data], "val": val_name, **jpeg_record(args), "precision": args.precision}
-    info.update(summary)
+    precision = trunk_precision(model)  # what the pass ran, as the other records say
+    info = {
+        "data": [str(d) for d in args.data],
+        "val": val_name,
+        **jpeg_record(args),
+        "precision": precision,
+        **summary,
+    }
     save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
