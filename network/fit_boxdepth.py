@@ -11,7 +11,8 @@ shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the show
 depends on (`cache_key`), so later fits of other seeds, epochs or head designs on the same trunk, or on
 more datasets, skip the streamed passes already made. `cache_part` splits a pass over processes of one
 thread each (``workers``): the pass is one frame after another, so two single-thread processes stream
-nearly twice the frames of one process on two threads.
+nearly twice the frames of one process on two threads. A pass can also stop at a ``deadline``: inside a
+training budget the head then takes as many scenes as the machine streams in the minutes left.
 """
 
 from __future__ import annotations
@@ -203,12 +204,26 @@ def cache_inputs(
     """Streams the frames of ``seqs`` ``choice`` names (all by default) through ``model`` (it has the head) and
     memory-maps the head's inputs and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and
     ``labels(i)`` (frames in order)."""
+    return timed_inputs(model, seqs, labels, folder, progress, choice)[0]
+
+
+def timed_inputs(
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    progress: bool = True,
+    choice: FrameChoice = FrameChoice(),
+    deadline: float | None = None,
+) -> tuple[Cache, int]:
+    """`cache_inputs`, no sequence started after ``deadline`` (a `time.monotonic` time; the first is always
+    streamed), and how many sequences were streamed."""
     bar = tqdm(total=sum(choice.streamed(s) for s in seqs), desc="box depth: cache", unit="frame", disable=not progress)
-    data = stream_slots(model, seqs, labels, folder, choice, lambda: bar.update(1))
+    data, streamed = stream_slots(model, seqs, labels, folder, choice, lambda: bar.update(1), deadline)
     bar.close()
     if data is None:
         raise InputError(NO_SLOTS)
-    return data
+    return data, streamed
 
 
 def stream_slots(
@@ -218,13 +233,19 @@ def stream_slots(
     folder: Path,
     choice: FrameChoice,
     tick: Callable[[], None],
-) -> Cache | None:
-    """`cache_inputs`' pass (``tick()`` after each frame); None when no kept frame has a valid slot."""
+    deadline: float | None = None,
+) -> tuple[Cache | None, int]:
+    """`cache_inputs`' pass (``tick()`` after each frame; no sequence but the first started after
+    ``deadline``, a `time.monotonic` time): the cache (None when no kept frame has a valid slot) and how many
+    sequences it streamed."""
     r, d = model.cfg.spec.num_slots, model.cfg.spec.size
     cap = sum(choice.streamed(s) for s in seqs) * r  # an upper bound on the valid slots
     arrays: dict[str, np.ndarray] = {}
-    n = 0
+    n = streamed = 0
     for seq in seqs:
+        if streamed and deadline is not None and time.monotonic() >= deadline:
+            break
+        streamed += 1
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
@@ -251,13 +272,13 @@ def stream_slots(
                 arrays[k][n : n + m] = a
             n += m
     if not n:
-        return None
+        return None, streamed
     for a in arrays.values():
         a.flush()
-    return Cache(*(arrays[k][:n] for k in CACHE_FIELDS))
+    return Cache(*(arrays[k][:n] for k in CACHE_FIELDS)), streamed
 
 
-SHARD_RECORD = "shard.json"  #: in a shard's folder, written last: its slot count, or the error that stopped it
+SHARD_RECORD = "shard.json"  #: in a shard's folder, written last: its slots and sequences, or the error that stopped it
 
 
 def shard_name(k: int) -> str:
@@ -274,7 +295,13 @@ def split_contiguous(seqs: list[Any], count: int, choice: FrameChoice) -> list[l
 
 
 def _shard_worker(
-    model: MVRackLay, seqs: list[Any], labels: Callable[[Any], Any], folder: Path, choice: FrameChoice, counter: Any
+    model: MVRackLay,
+    seqs: list[Any],
+    labels: Callable[[Any], Any],
+    folder: Path,
+    choice: FrameChoice,
+    counter: Any,
+    deadline: float | None,
 ) -> None:
     """One process of `cache_part`: one torch thread, its shard's slots, then its record."""
     torch.set_num_threads(1)
@@ -284,8 +311,8 @@ def _shard_worker(
             counter.value += 1
 
     try:
-        data = stream_slots(model, seqs, labels, folder, choice, tick)
-        rec: dict[str, Any] = {"slots": 0 if data is None else len(data)}
+        data, streamed = stream_slots(model, seqs, labels, folder, choice, tick, deadline)
+        rec: dict[str, Any] = {"slots": 0 if data is None else len(data), "sequences": streamed}
     except Exception as e:  # noqa: BLE001 - reported by the parent as one line
         rec = {"error": f"{type(e).__name__}: {e}"}
     atomic_write_json(folder / SHARD_RECORD, rec)
@@ -312,15 +339,19 @@ def cache_part(
     progress: bool = True,
     choice: FrameChoice = FrameChoice(),
     workers: int = 1,
-) -> tuple[list[Cache], list[int] | None]:
-    """``(caches, shard_slots)``: `cache_inputs` over ``seqs`` into ``folder``, or, with ``workers`` > 1, split
-    into that many contiguous shards streamed by forked processes of one torch thread each (``folder/shard-K``;
-    their slots in the order of ``seqs``, as one pass would give them; one pass where the platform cannot fork
-    or there is one sequence). ``shard_slots``: each shard's slot count (None for one pass)."""
+    deadline: float | None = None,
+) -> tuple[list[Cache], list[int] | None, int]:
+    """``(caches, shard_slots, streamed)``: `cache_inputs` over ``seqs`` into ``folder``, or, with ``workers``
+    > 1, split into that many contiguous shards streamed by forked processes of one torch thread each
+    (``folder/shard-K``; their slots in the order of ``seqs``, as one pass would give them; one pass where the
+    platform cannot fork or there is one sequence). ``shard_slots``: each shard's slot count (None for one
+    pass). ``deadline`` (a `time.monotonic` time): no process starts a sequence after it but its first, so each
+    shard holds a leading run of its sequences; ``streamed`` counts the sequences streamed in all."""
     folder.mkdir(parents=True, exist_ok=True)
     runs = split_contiguous(seqs, workers, choice) if workers > 1 else [seqs]
     if len(runs) < 2 or "fork" not in mp.get_all_start_methods():
-        return [cache_inputs(model, seqs, labels, folder, progress, choice)], None
+        data, streamed = timed_inputs(model, seqs, labels, folder, progress, choice, deadline)
+        return [data], None, streamed
     ctx = mp.get_context("fork")  # the model and the label factory are inherited, nothing is pickled
     counter = ctx.Value("q", 0)
     dirs = [folder / shard_name(k) for k in range(len(runs))]
@@ -328,7 +359,7 @@ def cache_part(
         sub.mkdir(parents=True, exist_ok=True)
         (sub / SHARD_RECORD).unlink(missing_ok=True)
     procs = [
-        ctx.Process(target=_shard_worker, args=(model, run, labels, sub, choice, counter), daemon=True)
+        ctx.Process(target=_shard_worker, args=(model, run, labels, sub, choice, counter, deadline), daemon=True)
         for run, sub in zip(runs, dirs)
     ]
     total = sum(choice.streamed(s) for s in seqs)
@@ -348,7 +379,7 @@ def cache_part(
                 p.terminate()
             p.join()
         bar.close()
-    counts = []
+    counts, streamed = [], 0
     for p, sub in zip(procs, dirs):
         try:
             rec = json.loads((sub / SHARD_RECORD).read_text())
@@ -357,10 +388,11 @@ def cache_part(
         if "error" in rec:
             raise InputError(f"box-depth cache: {sub}: {rec['error']}")
         counts.append(int(rec["slots"]))
+        streamed += int(rec["sequences"])
     caches = [c for c in (open_shard(sub, n) for sub, n in zip(dirs, counts)) if c is not None]
     if not caches:
         raise InputError(NO_SLOTS)
-    return caches, counts
+    return caches, counts, streamed
 
 
 def model_key(model: MVRackLay) -> dict[str, Any]:
@@ -488,7 +520,7 @@ def kept_cache(
             reused += 1
             continue
         sub.mkdir(parents=True, exist_ok=True)
-        made, shards = cache_part(model, group, labels, sub, progress, choice, workers)
+        made, shards, _ = cache_part(model, group, labels, sub, progress, choice, workers)
         rec: dict[str, Any] = {"key": key, "slots": sum(len(c) for c in made)}
         atomic_write_json(sub / CACHE_RECORD, rec if shards is None else {**rec, "shards": shards})
         parts.extend(made)
@@ -547,6 +579,7 @@ def fit_box_depth(
     keep_cache: Path | None = None,
     choice: FrameChoice = FrameChoice(),
     workers: int = 1,
+    pass_minutes: float | None = None,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
     `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
@@ -554,14 +587,21 @@ def fit_box_depth(
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
     ``choice``: which frames of each sequence are streamed and kept (`FrameChoice`; all by default);
-    ``workers``: processes of one thread each that share the streamed pass (`cache_part`)."""
+    ``workers``: processes of one thread each that share the streamed pass (`cache_part`); ``pass_minutes``:
+    no sequence is started that many minutes after the pass began (each process streams at least one), and
+    the head is fitted on those streamed by then (not with ``keep_cache``: what such a pass holds depends on the
+    machine, and a kept cache is keyed on its sequences)."""
     cfg.validate()
+    check_pass_minutes(pass_minutes, keep_cache)
     t0 = time.perf_counter()
     model = _ready(model, train, choice, workers, parallax, row_profile)
+    streamed = len(train)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
-            data, reused = Chain(cache_part(model, train, labels, Path(tmp), progress, choice, workers)[0]), 0
+            deadline = None if pass_minutes is None else time.monotonic() + 60 * pass_minutes
+            caches, _, streamed = cache_part(model, train, labels, Path(tmp), progress, choice, workers, deadline)
+            data, reused = Chain(caches), 0
         else:
             data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
         t1 = time.perf_counter()
@@ -571,6 +611,8 @@ def fit_box_depth(
         losses = train_head(head, data, cfg, progress)
         summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
         del data, first  # the memory maps closed before the temporary folder goes
+    if pass_minutes is not None:
+        summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
     summary.update(
         row_profile=row_profile, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
         fit_precision=cfg.precision, losses=losses,
@@ -598,6 +640,20 @@ def keep_box_inputs(
     summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
     del data
     return {**summary, "cache_minutes": (time.perf_counter() - t0) / 60}
+
+
+def check_pass_minutes(pass_minutes: float | None, keep_cache: Path | None) -> None:
+    """``pass_minutes`` is None or a positive number of minutes, and not given with ``keep_cache``."""
+    if pass_minutes is None:
+        return
+    number = isinstance(pass_minutes, (int, float)) and not isinstance(pass_minutes, bool)
+    if not (number and math.isfinite(pass_minutes) and pass_minutes > 0):
+        raise InputError(f"--pass-minutes must be a positive number, got {pass_minutes!r}")
+    if keep_cache is not None:
+        raise InputError(
+            "--pass-minutes cannot be used with --keep-cache: the sequences a pass cut by the clock holds depend "
+            "on the machine, and a kept cache is reused by its sequences"
+        )
 
 
 def _ready(

@@ -5,22 +5,26 @@
 # network's second stage fewer minutes and fits the heads in the rest:
 #
 #   1. data: the second 256x256 training set of scripts/train_256.sh (2,500 scenes, seed 103; the stage-1
-#      warm start was trained on it among others), the held-out and the tuning scenes (seeds 202, 303);
+#      warm start was trained on it among others), the held-out and the tuning scenes (seeds 202, 303), and
+#      BOX_EXTRA more scenes of 6 frames for the box-depth head (default 5,000, seed 104, data/train256c);
 #   2. stage 1: weights/racklay256-stage1.pt (80 of racklay's 120-minute schedule on 2 threads, shipped);
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
 #      18.5, 14 where PRECISION is bf16; scripts/train_256.sh: 40 minutes on one thread beside racklay's second
 #      stage);
 #   4. box decision offsets chosen on the tuning set (as in scripts/train_256.sh, not counted: no weight moves);
-#   5. the heads, the network frozen, on both threads at once: on one the back-edge head, then the upright
-#      head, each on HEAD_SEQUENCES training sequences (default 700); on the other the box-depth head with
-#      parallax on BOX_SEQUENCES scenes (default 1150, 2500 where PRECISION is bf16: the bf16 trunk and fit
-#      make room for them, and the stage's last minutes buy nothing), of which it streams the first BOX_FRAMES frames (6)
-#      and keeps the slots from frame BOX_FROM (3) on: the head is short of scenes rather than of frames,
-#      and frames 0-2 lack the parallax against 3 frames back. Their wall minutes are counted whole, caching
-#      included. BOX_SEQUENCES=0 leaves the box-depth head out and fits the two rack heads side by side, one
-#      thread each (the earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's:
-#      bf16 on CPUs with native bf16), and so does the box-depth head's fit (`--precision`);
-#   6. the budget added up (the runs' step minutes, the fits' wall minutes; refused over TOTAL), then Table I
+#   5. the heads, the network frozen: first the back-edge and the upright heads side by side, one thread each,
+#      each on HEAD_SEQUENCES training sequences (default 700); then the box-depth head with parallax on both
+#      threads, its streamed pass split over two processes, over the scenes of both training folders in turn
+#      (at most BOX_SEQUENCES, default all 7,500): it streams the first BOX_FRAMES frames of each (6) and keeps
+#      the slots from frame BOX_FROM (3) on (the head is short of scenes rather than of frames, and frames 0-2
+#      lack the parallax against 3 frames back), and its pass stops at the minutes the budget has left, less
+#      BOX_MARGIN (1.5) and the fit's share (`--pass-minutes`: the fit takes BOX_FIT_RATIO minutes per minute
+#      of pass, measured 0.55 with bf16, default 0.6; 1.0 in float32, estimated), so a faster machine fits the
+#      head on more scenes and a slower one on fewer. Every step's wall minutes are counted whole, model
+#      loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the earlier recipe, with
+#      STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs with native bf16), and
+#      so does the box-depth head's fit (`--precision`);
+#   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
 #
@@ -28,7 +32,7 @@
 # folders with DATA=... RUNS=...; "minutes" of a run are wall-clock minutes spent in optimiser steps (loading
 # and validation not counted), as in the other recipes. A smoke check of the whole script:
 #   DATA=/tmp/bd RUNS=/tmp/br TRAIN_SEQUENCES=12 HELDOUT_SEQUENCES=2 TUNE_SEQUENCES=2 HELDOUT_FRAMES=12
-#   STAGE2=0.3 HEAD_SEQUENCES=4 HEAD_EPOCHS=1 BOX_SEQUENCES=4 TOTAL=100 scripts/train_256_budget.sh
+#   STAGE2=0.3 HEAD_SEQUENCES=4 HEAD_EPOCHS=1 BOX_EXTRA=4 TOTAL=100 scripts/train_256_budget.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=.venv/bin/python
@@ -37,11 +41,15 @@ RUNS=${RUNS:-runs/budget256}
 TOTAL=${TOTAL:-120}
 DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
-if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_SEQUENCES=${BOX_SEQUENCES:-2500}; fi
+if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_FIT_RATIO=${BOX_FIT_RATIO:-0.6}; fi
 STAGE2=${STAGE2:-18.5}
+BOX_FIT_RATIO=${BOX_FIT_RATIO:-1.0}
+BOX_MARGIN=${BOX_MARGIN:-1.5}
 HEAD_SEQUENCES=${HEAD_SEQUENCES:-700}
 HEAD_EPOCHS=${HEAD_EPOCHS:-}
-BOX_SEQUENCES=${BOX_SEQUENCES:-1150}
+TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-2500}
+BOX_EXTRA=${BOX_EXTRA:-5000}
+BOX_SEQUENCES=${BOX_SEQUENCES:-$((TRAIN_SEQUENCES + BOX_EXTRA))}
 BOX_FRAMES=${BOX_FRAMES:-6}
 BOX_FROM=${BOX_FROM:-3}
 WORKERS=${WORKERS:-2}
@@ -50,10 +58,13 @@ STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 
 # 1. Data at 256x256.
 TRAIN="$DATA/train256b"
+TRAIN2="$DATA/train256c"
 HELDOUT="$DATA/heldout256"
 TUNE="$DATA/tune256"
-for SPEC in "$TRAIN:${TRAIN_SEQUENCES:-2500}:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HELDOUT_FRAMES:-50}:202" \
-    "$TUNE:${TUNE_SEQUENCES:-8}:${HELDOUT_FRAMES:-50}:303"; do
+SPECS=("$TRAIN:$TRAIN_SEQUENCES:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HELDOUT_FRAMES:-50}:202"
+    "$TUNE:${TUNE_SEQUENCES:-8}:${HELDOUT_FRAMES:-50}:303")
+[ "$BOX_SEQUENCES" -gt 0 ] && [ "$BOX_EXTRA" -gt 0 ] && SPECS+=("$TRAIN2:$BOX_EXTRA:$BOX_FRAMES:104")
+for SPEC in "${SPECS[@]}"; do
     IFS=: read -r DIR N FRAMES SEED <<< "$SPEC"
     $PY -m mvracklay generate "$DIR" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" --workers "$WORKERS"
 done
@@ -70,7 +81,7 @@ $PY -m mvracklay train --data "$TRAIN" --out "$RUN" --variant mvracklay-disc-4 -
     --out "$RUN/calibrated.pt" --threads 2 --quiet --json "$RUN/calibration.json" > "$RUN/calibration.txt"
 
 
-# 5. The heads on both threads (the network frozen); then one file with the rack heads, one with all of them.
+# 5. The heads (the network frozen): the rack heads side by side, then the box-depth head on both threads.
 EPOCHS=()
 [ -n "$HEAD_EPOCHS" ] && EPOCHS=(--epochs "$HEAD_EPOCHS")
 fit() {  # command, output name
@@ -78,23 +89,51 @@ fit() {  # command, output name
         --sequences "$HEAD_SEQUENCES" --val "$TUNE" --threads 1 --quiet "${EPOCHS[@]}" --precision "$PRECISION" --out "$RUN/$2.pt" \
         --json "$RUN/$2.fit.json" > "$RUN/$2.log" 2>&1
 }
-fit_box() {  # its whole wall time, model loading included, in box.wall_seconds
-    [ -f "$RUN/box.pt" ] && return
+timed() {  # name, command...: run it once; its whole wall time in $RUN/name.wall_seconds (a re-run skips it)
+    [ -f "$RUN/$1.wall_seconds" ] && return
     local t0
     t0=$(date +%s)
-    $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "$TRAIN" --sequences "$BOX_SEQUENCES" \
-        --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --threads 1 --cache-dir "$RUNS" --quiet --precision "$PRECISION" \
-        "${EPOCHS[@]}" --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
-    echo $(( $(date +%s) - t0 )) > "$RUN/box.wall_seconds"
+    "${@:2}"
+    echo $(( $(date +%s) - t0 )) > "$RUN/$1.wall_seconds"
 }
-if [ "$BOX_SEQUENCES" -gt 0 ]; then
-    { fit fit-back-edges back_edges && fit fit-uprights uprights; } &
-    fit_box &
-else
-    fit fit-back-edges back_edges &
-    fit fit-uprights uprights &
+rack_heads() {
+    local a b
+    fit fit-back-edges back_edges & a=$!
+    fit fit-uprights uprights & b=$!
+    wait "$a" && wait "$b"
+}
+budget() {  # mode ("pass": the box-depth head's pass minutes; "total": the budget's record)
+    $PY - "$1" "$STAGE1_WEIGHTS" "$RUN" "$TOTAL" "$BOX_MARGIN" "$BOX_FIT_RATIO" <<'EOF'
+import json, sys
+from pathlib import Path
+mode, stage1, run, (total, margin, ratio) = sys.argv[1], sys.argv[2], Path(sys.argv[3]), map(float, sys.argv[4:7])
+s1 = json.loads(Path(stage1).with_suffix(".json").read_text())["train_wall_minutes"]
+s2 = json.loads((run / "last.json").read_text())["train_wall_minutes"]  # this run's own steps
+wall = {p.name.split(".")[0]: int(p.read_text()) / 60 for p in run.glob("*.wall_seconds")}
+spent = s1 + s2 + sum(wall.values())
+if mode == "pass":  # the minutes left, less the margin, shared between the pass and the fit after it
+    left = total - spent - margin
+    if left <= 0:
+        sys.exit(f"train_256_budget.sh: {spent:.1f} of {total:g} minutes spent, none left for the box-depth head")
+    print(f"{left / (1 + ratio):.2f}")
+    sys.exit()
+fits = [json.loads((run / f"{k}.fit.json").read_text())["wall_minutes"] for k in ("back_edges", "uprights")]
+out = {"stage1": s1, "stage2": s2, "back_edges": fits[0], "uprights": fits[1], **wall, "total": spent}
+print(json.dumps(out))
+if spent > total:
+    sys.exit(f"train_256_budget.sh: {spent:.1f} minutes spent, over the budget of {total:g}")
+EOF
+}
+timed rack_heads rack_heads
+if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/box.pt" ]; then
+    PASS=$(budget pass)
+    BOX_DATA=("$TRAIN")
+    [ "$BOX_EXTRA" -gt 0 ] && BOX_DATA+=("$TRAIN2")
+    timed box_depth $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "${BOX_DATA[@]}" \
+        --sequences "$BOX_SEQUENCES" --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --pass-minutes "$PASS" \
+        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" \
+        --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
 fi
-wait
 [ -f "$RUN/heads.pt" ] || $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" \
     --only uprights
 if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/heads_box.pt" ]; then
@@ -102,27 +141,7 @@ if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/heads_box.pt" ]; then
 fi
 
 # 6. The budget, then Table I.
-BOX_WALL=""
-[ "$BOX_SEQUENCES" -gt 0 ] && BOX_WALL="$RUN/box.wall_seconds"
-$PY - "$STAGE1_WEIGHTS" "$RUN/best.pt" "$RUN/back_edges.fit.json" "$RUN/uprights.fit.json" "$TOTAL" "$BOX_WALL" <<'EOF' |
-import json, sys
-from pathlib import Path
-stage1, best, back, up, total, box = sys.argv[1:7]
-s1 = json.loads(Path(stage1).with_suffix(".json").read_text())["train_wall_minutes"]
-last = json.loads(Path(best).with_name("last.json").read_text())["train_wall_minutes"]  # this run's own steps
-fits = [json.loads(Path(p).read_text())["wall_minutes"] for p in (back, up)]
-out = {"stage1": s1, "stage2": last, "back_edges": fits[0], "uprights": fits[1]}
-if box:  # one thread: the two rack heads one after the other; the other: the box-depth head
-    out["box_depth"] = int(Path(box).read_text()) / 60
-    spent = s1 + last + max(sum(fits), out["box_depth"])
-else:  # the two rack heads side by side
-    spent = s1 + last + max(fits)
-out["total"] = spent
-print(json.dumps(out))
-if spent > float(total):
-    sys.exit(f"train_256_budget.sh: {spent:.1f} minutes spent, over the budget of {total}")
-EOF
-    tee "$RUN/budget.json"
+budget total | tee "$RUN/budget.json"
 EVAL=(--data "$HELDOUT" --split all --threads 2 --quiet)
 table1() {  # checkpoint, output name, extra flags
     [ -f "$RUN/$2.json" ] || $PY -m mvracklay evaluate --checkpoint "$RUN/$1" "${EVAL[@]}" --json "$RUN/$2.json" \

@@ -1,12 +1,14 @@
 """The box-depth head's streamed pass split over processes (`network.fit_boxdepth.cache_part`) and
 `mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
-fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own."""
+fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own; a pass
+cut by the clock (--pass-minutes) fits on what it streamed."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -53,13 +55,49 @@ def test_a_pass_split_over_processes_gives_the_inputs_of_one_pass(tiny_checkpoin
     (tmp_path / "one").mkdir()
     one = cache_inputs(model, seqs, SeenTracker, tmp_path / "one", progress=False, choice=choice)
     for workers in (2, 3):
-        caches, counts = cache_part(model, seqs, SeenTracker, tmp_path / f"w{workers}", False, choice, workers)
-        assert counts is not None and len(counts) == workers and sum(counts) == len(one)
+        caches, counts, streamed = cache_part(
+            model, seqs, SeenTracker, tmp_path / f"w{workers}", False, choice, workers
+        )
+        assert counts is not None and len(counts) == workers and sum(counts) == len(one) and streamed == len(seqs)
         assert sorted(p.name for p in (tmp_path / f"w{workers}").iterdir()) == [shard_name(k) for k in range(workers)]
         for k in CACHE_FIELDS:
             np.testing.assert_array_equal(np.concatenate([np.asarray(getattr(c, k)) for c in caches]), getattr(one, k))
-    caches, counts = cache_part(model, seqs, SeenTracker, tmp_path / "w1", False, choice, 1)
-    assert counts is None and len(caches) == 1 and len(caches[0]) == len(one)
+    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "w1", False, choice, 1)
+    assert counts is None and len(caches) == 1 and len(caches[0]) == len(one) and streamed == len(seqs)
+
+
+def test_a_pass_past_its_deadline_streams_each_process_s_first_sequence_only(tiny_checkpoint, tiny_dataset, tmp_path):
+    torch.set_num_threads(1)
+    model = with_box_head(load_model(tiny_checkpoint)[0])
+    seqs = open_dataset(tiny_dataset).sequences()
+    choice = FrameChoice(3)
+    (tmp_path / "first").mkdir()
+    first = cache_inputs(model, seqs[:1], SeenTracker, tmp_path / "first", progress=False, choice=choice)
+    past = time.monotonic()
+    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "one", False, choice, 1, past)
+    assert (counts, streamed) == (None, 1)
+    for k in CACHE_FIELDS:  # the first sequence's inputs, nothing after it
+        np.testing.assert_array_equal(np.asarray(getattr(caches[0], k)), getattr(first, k))
+    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "two", False, choice, 2, past)
+    runs = split_contiguous(seqs, 2, choice)
+    assert streamed == 2 and len(runs) == 2 and max(map(len, runs)) > 1  # a shard of two stopped after its first
+    assert counts is not None and counts[0] == len(first)
+    _, _, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "late", False, choice, 2, past + 3600)
+    assert streamed == len(seqs)  # a deadline not reached stops nothing
+
+
+def test_pass_minutes_fits_on_the_sequences_streamed_in_time(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--frames", "3",
+            "--epochs", "1", "--threads", "1", "--cache-workers", "2", "--quiet"]  # fmt: skip
+    assert main([*base, "--pass-minutes", "1e-9", "--out", str(tmp_path / "cut.pt")]) == 0
+    assert "sequences (of 3: the pass stopped at --pass-minutes 1e-09)" in capsys.readouterr().out
+    cut = load_checkpoint(tmp_path / "cut.pt")[1]["box_depth"]
+    assert (cut["train_sequences"], cut["sequences_given"], cut["pass_minutes"]) == (2, 3, 1e-9)
+    assert main([*base, "--pass-minutes", "60", "--out", str(tmp_path / "all.pt")]) == 0
+    assert "the pass stopped" not in capsys.readouterr().out
+    whole = load_checkpoint(tmp_path / "all.pt")[1]["box_depth"]
+    assert (whole["train_sequences"], whole["sequences_given"]) == (3, 3)
+    assert whole["train_slots"] > cut["train_slots"] > 0
 
 
 def test_a_failing_process_stops_the_pass_with_one_line(tiny_checkpoint, tiny_dataset, tmp_path):
@@ -134,6 +172,9 @@ def test_a_bf16_pass_and_fit_keep_a_cache_of_their_own(tiny_checkpoint, tiny_dat
     [
         (["--cache-only"], "--cache-only needs --keep-cache"),
         (["--cache-workers", "0"], "--cache-workers must be"),
+        (["--pass-minutes", "0"], "--pass-minutes must be a positive number"),
+        (["--pass-minutes", "nan"], "--pass-minutes must be a positive number"),
+        (["--pass-minutes", "5", "--keep-cache", "/tmp/k"], "--pass-minutes cannot be used with --keep-cache"),
         (["--lr", "0"], "--lr must be a positive number"),
         (["--weight-decay", "-0.1"], "--weight-decay must be a number >= 0"),
         (["--weight-decay", "nan"], "--weight-decay must be a number >= 0"),

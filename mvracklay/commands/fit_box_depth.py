@@ -86,6 +86,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="make (or find) the input cache in --keep-cache DIR and stop: no head is fitted, no checkpoint "
         "written; a later fit with the same --keep-cache DIR and data reuses it",
     )  # fmt: skip
+    p.add_argument(
+        "--pass-minutes", type=float, metavar="M",
+        help="start no sequence M minutes after the streamed pass began (each process streams at least one) and "
+        "fit on the sequences streamed by then: a fit inside a time budget takes as many scenes as the machine "
+        "streams (the record says how many); not with --keep-cache or --cache-only",
+    )  # fmt: skip
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (the fit's, and a one-process pass's)")
     p.add_argument("--json", type=Path, help="also write the fit's (or the cache's) summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
@@ -98,7 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FrameChoice, box_head_config, fit_box_depth, keep_box_inputs
+    from network.fit_boxdepth import FrameChoice, box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -113,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--cache-workers must be >= 1, got {args.cache_workers}")
     if args.cache_only and args.keep_cache is None:
         raise InputError("--cache-only needs --keep-cache DIR (the cache it makes would be removed at once)")
+    check_pass_minutes(args.pass_minutes, args.keep_cache)
     cfg = FitConfig(
         epochs=args.epochs, seed=args.seed, lr=args.lr, weight_decay=args.weight_decay, precision=args.precision
     )
@@ -141,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
         row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
+        pass_minutes=args.pass_minutes,
     )  # fmt: skip
     print(
         (
@@ -150,7 +158,12 @@ def run(args: argparse.Namespace) -> int:
             else ""
         )
         + f"fitted on {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
-        f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
+        + (
+            f"(of {summary['sequences_given']}: the pass stopped at --pass-minutes {args.pass_minutes:g}) "
+            if summary["train_sequences"] < summary.get("sequences_given", 0)
+            else ""
+        )
+        + f"({100 * summary['shown_fraction']:.0f} % of box columns shown); loss per epoch "
         + ", ".join(f"{v:.3f}" for v in summary["losses"])
     )
     out = args.out or args.checkpoint
