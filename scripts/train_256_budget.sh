@@ -6,7 +6,7 @@
 #
 #   1. data: the second 256x256 training set of scripts/train_256.sh (2,500 scenes, seed 103; the stage-1
 #      warm start was trained on it among others), the held-out and the tuning scenes (seeds 202, 303), and
-#      BOX_EXTRA more scenes of 6 frames for the box-depth head (default 5,000, seed 104, data/train256c);
+#      BOX_EXTRA more scenes of 6 frames for the box-depth head (default 5,000, seed 104, data/train256box);
 #   2. stage 1: weights/racklay256-stage1.pt (80 of racklay's 120-minute schedule on 2 threads, shipped);
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
 #      18.5, 14 where PRECISION is bf16; scripts/train_256.sh: 40 minutes on one thread beside racklay's second
@@ -58,7 +58,7 @@ STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 
 # 1. Data at 256x256.
 TRAIN="$DATA/train256b"
-TRAIN2="$DATA/train256c"
+TRAIN2="$DATA/train256box"
 HELDOUT="$DATA/heldout256"
 TUNE="$DATA/tune256"
 SPECS=("$TRAIN:$TRAIN_SEQUENCES:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HELDOUT_FRAMES:-50}:202"
