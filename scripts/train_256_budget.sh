@@ -19,11 +19,11 @@
 #      the slots from frame BOX_FROM (3) on (the head is short of scenes rather than of frames, and frames 0-2
 #      lack the parallax against 3 frames back), and its pass stops at the minutes the budget has left, less
 #      BOX_MARGIN (1.5) and the fit's share (`--pass-minutes`: the fit takes BOX_FIT_RATIO minutes per minute
-#      of pass, measured 0.55 with bf16, default 0.6; 1.0 in float32, estimated), so a faster machine fits the
-#      head on more scenes and a slower one on fewer. Every step's wall minutes are counted whole, model
-#      loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the earlier recipe, with
-#      STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs with native bf16), and
-#      so does the box-depth head's fit (`--precision`);
+#      of pass, measured 0.55 with bf16, default 0.6; measured 0.88-0.92 in float32, default 0.95), so a
+#      faster machine fits the head on more scenes and a slower one on fewer. Every step's wall minutes are
+#      counted whole, model loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the
+#      earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs
+#      with native bf16), and so does the box-depth head's fit (`--precision`);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
@@ -43,7 +43,7 @@ DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_FIT_RATIO=${BOX_FIT_RATIO:-0.6}; fi
 STAGE2=${STAGE2:-18.5}
-BOX_FIT_RATIO=${BOX_FIT_RATIO:-1.0}
+BOX_FIT_RATIO=${BOX_FIT_RATIO:-0.95}
 BOX_MARGIN=${BOX_MARGIN:-1.5}
 HEAD_SEQUENCES=${HEAD_SEQUENCES:-700}
 HEAD_EPOCHS=${HEAD_EPOCHS:-}
