@@ -50,6 +50,10 @@ PARALLAX_BASELINES = (1, 3)
 PARALLAX_CHANNELS = len(PARALLAX_BASELINES) * (len(RATIOS) + 1)
 
 
+#: the head's channels by default (`BoxDepthHead`)
+BOX_WIDTH = 32
+
+
 def window_rows(layout_size: int) -> int:
     """Rows of a slot's front window for layouts of ``layout_size``: the front view's rows in whole groups."""
     return math.gcd(WINDOW_ROWS, layout_size)
@@ -65,7 +69,9 @@ class BoxDepthHead(nn.Module):
     box's top face or side face gives its depth through its rows relative to the board and the box top,
     which pooling alone discards."""
 
-    def __init__(self, c2d: int, c1d: int, width: int = 32, row_profile: bool = False, rows: int = WINDOW_ROWS) -> None:
+    def __init__(
+        self, c2d: int, c1d: int, width: int = BOX_WIDTH, row_profile: bool = False, rows: int = WINDOW_ROWS
+    ) -> None:
         super().__init__()
         self.c2d, self.c1d = c2d, c1d
 

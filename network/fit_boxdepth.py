@@ -39,7 +39,7 @@ from layouts import BOX, LayoutSpec
 from layouts.boxdepth import cell_z
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
-from network.boxdepth import BIN_STEP, BINS, BoxDepthHead, frame_head_inputs
+from network.boxdepth import BIN_STEP, BINS, BOX_WIDTH, BoxDepthHead, frame_head_inputs
 from network.infer import Predictor, sequence_camera
 from network.model import ModelConfig, MVRackLay
 from network.precision import check_precision, forward_autocast
@@ -74,19 +74,25 @@ class FitConfig:
         check_precision(self.precision)
 
 
-def box_head_config(cfg: ModelConfig, parallax: bool = False, row_profile: bool = False) -> ModelConfig:
+def box_head_config(
+    cfg: ModelConfig, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH
+) -> ModelConfig:
     """``cfg`` with a box-depth head of that kind (``parallax``: it reads the plane-sweep maps; ``row_profile``:
-    `BoxDepthHead`'s row profile): what a fitted head's checkpoint records."""
-    return replace(cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile)
+    `BoxDepthHead`'s row profile; ``width``: its channels): what a fitted head's checkpoint records."""
+    return replace(cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile, box_width=width)
 
 
-def with_box_head(model: MVRackLay, parallax: bool = False, row_profile: bool = False) -> MVRackLay:
+def with_box_head(
+    model: MVRackLay, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH
+) -> MVRackLay:
     """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps;
-    ``row_profile``: `BoxDepthHead`'s row profile), else a copy with a fresh one (same weights otherwise)."""
+    ``row_profile``: `BoxDepthHead`'s row profile; ``width``: its channels), else a copy with a fresh one (same
+    weights otherwise)."""
     cfg = model.cfg
-    if model.box_depth is not None and (cfg.box_parallax, cfg.box_row_profile) == (parallax, row_profile):
+    kind = (cfg.box_parallax, cfg.box_row_profile, cfg.box_width)
+    if model.box_depth is not None and kind == (parallax, row_profile, width):
         return model
-    out = MVRackLay(box_head_config(cfg, parallax, row_profile))
+    out = MVRackLay(box_head_config(cfg, parallax, row_profile, width))
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
     missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
@@ -580,9 +586,10 @@ def fit_box_depth(
     choice: FrameChoice = FrameChoice(),
     workers: int = 1,
     pass_minutes: float | None = None,
+    width: int = BOX_WIDTH,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
-    `network.boxdepth.ParallaxHistory`; ``row_profile``: `BoxDepthHead`'s) and a summary for the
+    `network.boxdepth.ParallaxHistory`; ``row_profile``, ``width``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
@@ -594,7 +601,8 @@ def fit_box_depth(
     cfg.validate()
     check_pass_minutes(pass_minutes, keep_cache)
     t0 = time.perf_counter()
-    model = _ready(model, train, choice, workers, parallax, row_profile)
+    check_width(width)
+    model = _ready(model, train, choice, workers, parallax, row_profile, width)
     streamed = len(train)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
@@ -607,14 +615,16 @@ def fit_box_depth(
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
-        head = BoxDepthHead(first.win.shape[1], first.extra.shape[1], row_profile=row_profile, rows=first.win.shape[2])
+        head = BoxDepthHead(
+            first.win.shape[1], first.extra.shape[1], width=width, row_profile=row_profile, rows=first.win.shape[2]
+        )
         losses = train_head(head, data, cfg, progress)
         summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
         del data, first  # the memory maps closed before the temporary folder goes
     if pass_minutes is not None:
         summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
     summary.update(
-        row_profile=row_profile, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
+        row_profile=row_profile, width=width, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
         fit_precision=cfg.precision, losses=losses,
         cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
     )  # fmt: skip
@@ -642,6 +652,12 @@ def keep_box_inputs(
     return {**summary, "cache_minutes": (time.perf_counter() - t0) / 60}
 
 
+def check_width(width: int) -> None:
+    """``width`` (the head's channels) is an integer >= 4."""
+    if isinstance(width, bool) or not isinstance(width, int) or width < 4:
+        raise InputError(f"--head-width must be an integer >= 4, got {width!r}")
+
+
 def check_pass_minutes(pass_minutes: float | None, keep_cache: Path | None) -> None:
     """``pass_minutes`` is None or a positive number of minutes, and not given with ``keep_cache``."""
     if pass_minutes is None:
@@ -657,7 +673,13 @@ def check_pass_minutes(pass_minutes: float | None, keep_cache: Path | None) -> N
 
 
 def _ready(
-    model: MVRackLay, train: list[Any], choice: FrameChoice, workers: int, parallax: bool, row_profile: bool
+    model: MVRackLay,
+    train: list[Any],
+    choice: FrameChoice,
+    workers: int,
+    parallax: bool,
+    row_profile: bool,
+    width: int = BOX_WIDTH,
 ) -> MVRackLay:
     """The checks shared by `fit_box_depth` and `keep_box_inputs`; ``model`` given a fresh head to read with."""
     choice.validate()
@@ -668,7 +690,7 @@ def _ready(
     longest = max(choice.streamed(s) for s in train)
     if choice.from_frame >= longest:
         raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
-    return with_box_head(model, parallax, row_profile)
+    return with_box_head(model, parallax, row_profile, width)
 
 
 def _summary(

@@ -50,8 +50,8 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network import frozen
 from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
+from network.boxdepth import BOX_WIDTH, BoxDepthHead, window_rows
 from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
-from network.boxdepth import BoxDepthHead, window_rows
 from network.convlstm import StackedConvLSTM, State
 from network.fastops import avg_pool2, up2
 from network.geotop import GeometricTop
@@ -107,6 +107,7 @@ class ModelConfig:
     box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
     box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
     box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.boxdepth`)
+    box_width: int = BOX_WIDTH  #: that head's channels (`network.boxdepth.BoxDepthHead`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -118,7 +119,7 @@ class ModelConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 32 or v % 32:
                 raise InputError(f"{name} must be a positive multiple of 32, got {v!r}")
-        for name in ("encoder_width", "hidden", "lstm_layers", "memory_hidden", "decoder_width"):
+        for name in ("encoder_width", "hidden", "lstm_layers", "memory_hidden", "decoder_width", "box_width"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
@@ -608,7 +609,13 @@ class MVRackLay(nn.Module):
         #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
         c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
         self.box_depth = (
-            BoxDepthHead(c2d, cfg.spec.size + 2, row_profile=cfg.box_row_profile, rows=window_rows(cfg.spec.size))
+            BoxDepthHead(
+                c2d,
+                cfg.spec.size + 2,
+                width=cfg.box_width,
+                row_profile=cfg.box_row_profile,
+                rows=window_rows(cfg.spec.size),
+            )  # fmt: skip
             if cfg.box_depth
             else None
         )

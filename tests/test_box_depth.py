@@ -421,6 +421,13 @@ def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, t
     c = load_model(tmp_path / "c.pt")[0]
     assert c.cfg.box_row_profile and c.box_depth.profile is not None
     assert "reused the inputs" in capsys.readouterr().out
+    assert main([*args, "--out", str(tmp_path / "w.pt"), "--head-width", "12", *common]) == 0  # a narrower head
+    w = load_model(tmp_path / "w.pt")[0]
+    assert w.cfg.box_width == 12 and w.box_depth.conv2d[0][0].out_channels == 12 and w.box_depth.out.in_channels == 24
+    assert "reused the inputs" in capsys.readouterr().out
+    assert main([*args, "--out", str(tmp_path / "v.pt"), "--head-width", "2", *common]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--head-width must be an integer >= 4, got 2" in err
     assert main([*args, "--out", str(tmp_path / "d.pt"), "--parallax", *common]) == 2  # other inputs: refused
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(part) in err and "another" in err

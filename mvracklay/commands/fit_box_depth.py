@@ -10,6 +10,7 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from mvracklay.commands._depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
+from network.boxdepth import BOX_WIDTH
 from network.fit_boxdepth import FitConfig
 from network.frozen import add_precision_option, use_precision
 
@@ -58,6 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--row-profile", action="store_true",
         help="the head also reads its window's rows through a learned profile over the rows, keeping where a box's "
         "top or side face lies along the height (pooling over rows alone discards it)",
+    )  # fmt: skip
+    p.add_argument(
+        "--head-width", type=int, default=BOX_WIDTH, metavar="C",
+        help="the head's channels (its 1-D block has twice as many); the inputs cached are the same for any width",
     )  # fmt: skip
     p.add_argument(
         "--frames", type=int, metavar="N",
@@ -148,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
         row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
-        pass_minutes=args.pass_minutes,
+        pass_minutes=args.pass_minutes, width=args.head_width,
     )  # fmt: skip
     print(
         (
@@ -168,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **jpeg_record(args), **summary}
-    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile)
+    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile, args.head_width)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
