@@ -6,7 +6,9 @@
 #
 #   1. data: the second 256x256 training set of scripts/train_256.sh (2,500 scenes, seed 103; the stage-1
 #      warm start was trained on it among others), the held-out and the tuning scenes (seeds 202, 303), and
-#      BOX_EXTRA more scenes of 6 frames for the box-depth head (default 5,000, seed 104, data/train256box);
+#      BOX_EXTRA more scenes of 6 frames for the box-depth head (default 5,000, seed 104, data/train256box;
+#      BOX_CONFIG=FILE makes them with that generator config, in data/train256box-<FILE's name>, e.g.
+#      scripts/configs/no_sparse.json: no scene with the sparse shelf preset);
 #   2. stage 1: weights/racklay256-stage1.pt (80 of racklay's 120-minute schedule on 2 threads, shipped);
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
 #      18.5, 14 where PRECISION is bf16; scripts/train_256.sh: 40 minutes on one thread beside racklay's second
@@ -58,7 +60,14 @@ STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 
 # 1. Data at 256x256.
 TRAIN="$DATA/train256b"
-TRAIN2="$DATA/train256box"
+# BOX_CONFIG: a generator config (JSON) for the box-depth head's extra scenes, made in a folder of their own
+BOX_CONFIG=${BOX_CONFIG:-}
+if [ -n "$BOX_CONFIG" ]; then
+    [ -f "$BOX_CONFIG" ] || { echo "train_256_budget.sh: BOX_CONFIG $BOX_CONFIG is missing" >&2; exit 2; }
+    TRAIN2="$DATA/train256box-$(basename "$BOX_CONFIG" .json)"
+else
+    TRAIN2="$DATA/train256box"
+fi
 HELDOUT="$DATA/heldout256"
 TUNE="$DATA/tune256"
 SPECS=("$TRAIN:$TRAIN_SEQUENCES:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HELDOUT_FRAMES:-50}:202"
@@ -66,7 +75,10 @@ SPECS=("$TRAIN:$TRAIN_SEQUENCES:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HEL
 [ "$BOX_SEQUENCES" -gt 0 ] && [ "$BOX_EXTRA" -gt 0 ] && SPECS+=("$TRAIN2:$BOX_EXTRA:$BOX_FRAMES:104")
 for SPEC in "${SPECS[@]}"; do
     IFS=: read -r DIR N FRAMES SEED <<< "$SPEC"
-    $PY -m mvracklay generate "$DIR" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" --workers "$WORKERS"
+    CONFIG=()
+    [ "$DIR" = "$TRAIN2" ] && [ -n "$BOX_CONFIG" ] && CONFIG=(--config "$BOX_CONFIG")
+    $PY -m mvracklay generate "$DIR" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" --workers "$WORKERS" \
+        "${CONFIG[@]}"
 done
 mkdir -p "$RUNS"
 RUN="$RUNS/mvracklay-disc-4"

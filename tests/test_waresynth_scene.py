@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -85,6 +86,15 @@ def test_block_fill_matches_exact_ray_casting():
         same = f.instance == e.instance
         assert np.abs(f.depth_mm[same].astype(int) - e.depth_mm[same]).max() <= 1
         assert f.rgb.dtype == np.uint8 and f.rgb.shape == (96, 128, 3)
+
+
+def test_shipped_no_sparse_config_never_draws_the_sparse_preset():
+    """scripts/configs/no_sparse.json (the budget script's BOX_CONFIG) keeps the other presets and drops sparse."""
+    path = Path(__file__).resolve().parents[1] / "scripts" / "configs" / "no_sparse.json"
+    drawn = {_scene(seed, config=path)[0].density for seed in range(40)}
+    assert "sparse" not in drawn
+    assert len(drawn) >= 2
+    assert "sparse" in {_scene(seed)[0].density for seed in range(40)}
 
 
 def test_render_outputs_are_consistent():
