@@ -62,11 +62,12 @@ STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 TRAIN="$DATA/train256b"
 # BOX_CONFIG: a generator config (JSON) for the box-depth head's extra scenes, made in a folder of their own
 BOX_CONFIG=${BOX_CONFIG:-}
+TRAIN2="$DATA/train256box"
+BOX_GENERATE=()  # generate's extra arguments for that folder
 if [ -n "$BOX_CONFIG" ]; then
     [ -f "$BOX_CONFIG" ] || { echo "train_256_budget.sh: BOX_CONFIG $BOX_CONFIG is missing" >&2; exit 2; }
     TRAIN2="$DATA/train256box-$(basename "$BOX_CONFIG" .json)"
-else
-    TRAIN2="$DATA/train256box"
+    BOX_GENERATE=(--config "$BOX_CONFIG")
 fi
 HELDOUT="$DATA/heldout256"
 TUNE="$DATA/tune256"
@@ -76,7 +77,7 @@ SPECS=("$TRAIN:$TRAIN_SEQUENCES:12:103" "$HELDOUT:${HELDOUT_SEQUENCES:-24}:${HEL
 for SPEC in "${SPECS[@]}"; do
     IFS=: read -r DIR N FRAMES SEED <<< "$SPEC"
     CONFIG=()
-    [ "$DIR" = "$TRAIN2" ] && [ -n "$BOX_CONFIG" ] && CONFIG=(--config "$BOX_CONFIG")
+    [ "$DIR" = "$TRAIN2" ] && CONFIG=("${BOX_GENERATE[@]}")
     $PY -m mvracklay generate "$DIR" --sequences "$N" --frames "$FRAMES" --size 256 --seed "$SEED" --workers "$WORKERS" \
         "${CONFIG[@]}"
 done
