@@ -59,7 +59,7 @@ class MeanMap(RowMap):
     (shown probability, variance); column 0 of ``logs`` holds the weighted sum of depths."""
 
     def __init__(self, weigh: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> None:
-        super().__init__(1)
+        super().__init__(np.zeros(1))  # one column: the weighted sum of depths
         self.weigh = weigh
 
     def add(self, cells: np.ndarray, log_q: np.ndarray, p: np.ndarray) -> None:

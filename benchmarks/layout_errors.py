@@ -35,7 +35,10 @@ column is from the optical axis (a box's side face shows only off-axis). ``--see
 data only) also breaks box depth down by whether the stack's depth is seen (`waresynth.visibility`,
 the test of `layout_ceilings.py`): in this frame, only in an earlier one, or never so far. Depth
 read well where this frame sees it but not where only an earlier frame did points at the memory;
-read badly in both, at the per-frame reading.
+read badly in both, at the per-frame reading. ``--read-depth`` scores the layouts after the
+checkpoint's depth heads redraw them (what `mvracklay evaluate` scores by default) instead of the
+decoder's own; for a box-depth head that reads fronts (`fit-box-depth --front`) it adds a line with the
+decoder's box fronts kept (the head's backs and rack depth still applied): what the head's fronts are worth.
 """
 
 from __future__ import annotations
@@ -129,6 +132,9 @@ def extent_rows(mask: np.ndarray) -> np.ndarray:
     return hi - lo + 1
 
 
+#: the extra line of a head that reads box fronts: its layouts with the decoder's fronts instead
+OWN_FRONTS = "decoder's box fronts"
+
 FIXES = (
     None,
     true_footprint,
@@ -147,12 +153,18 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--seen", action="store_true", help="box depth by whether the stack's depth is seen (see above)")
+    ap.add_argument(
+        "--read-depth",
+        action="store_true",
+        help="score the layouts after the checkpoint's depth heads (rack depth, carried box backs) redraw them",
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.eval()
     seqs = open_data(args.data).sequences()
-    scorers = {c: FrameScorer() for c in CASES}
+    scorers = {c: FrameScorer() for c in (*CASES, OWN_FRONTS)}
+    has_fronts = False
     rack = []  # (sequence, predicted depth m, true depth m, board metres below the camera) per frame and slot
     boxes = []  # (predicted, true, board metres below the camera, |X| m, seen) box depth per shared box column
     fronts = []  # (box front error, its slot's rack front error) in metres per shared box column, top view
@@ -160,7 +172,8 @@ def main() -> int:
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for q, seq in enumerate(seqs):
         row_m = seq.spec.z_extent / seq.spec.size
-        pred = Predictor(model, sequence_camera(seq), read_depth=False, fuse_tau=0)  # the decoder's own depth
+        # the decoder's own depths unless --read-depth (then the heads' redrawn layouts, as `evaluate`)
+        pred = Predictor(model, sequence_camera(seq), read_depth=args.read_depth, fuse_tau=0)
         seen = SeenTracker(seq) if args.seen else None
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
@@ -170,6 +183,10 @@ def main() -> int:
                 continue
             gt = seq.layouts(i)
             p = frame_layouts(out, seq.spec)
+            if "box_front" in out:
+                has_fronts = True
+                own = frame_layouts({k: v for k, v in out.items() if k != "box_front"}, seq.spec)
+                scorers[OWN_FRONTS].update(own, gt)
             vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
             rec = seq.frame(i)
             cam_y = float(rec["camera_position"][1])
@@ -198,7 +215,9 @@ def main() -> int:
     bar.close()
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {frames} frames of {len(seqs)} sequences")
     print(f"{'mIoU, columns in view':28s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s}")
-    for case in CASES:
+    for case in (*CASES, OWN_FRONTS):
+        if case == OWN_FRONTS and not has_fronts:
+            continue
         v = scorers[case].result()["visible"]
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
         print(f"{case:28s} {cells[0]:9.1f} {cells[1]:8.1f} {cells[2]:11.1f} {cells[3]:10.1f}")

@@ -65,7 +65,13 @@ def redraw(
 
 
 def impose_box_backs(
-    top: np.ndarray, front: np.ndarray, spec: LayoutSpec, depth: float, backs: np.ndarray, split: bool = True
+    top: np.ndarray,
+    front: np.ndarray,
+    spec: LayoutSpec,
+    depth: float,
+    backs: np.ndarray,
+    split: bool = True,
+    fronts: np.ndarray | None = None,
 ) -> np.ndarray:
     """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
     front per column of a grid of ``W`` columns over the same X extent (NaN: unknown; a box with no
@@ -74,7 +80,8 @@ def impose_box_backs(
     two for the stitcher), at least its front cell deep. Boxes that touch side by side form one component;
     it is split where the front view's box height steps (`layouts.steps.pieces`, as the stitcher splits
     it), each piece with the median of its own known columns (of the whole component where it has none;
-    ``split=False``: one back per component). A copy is returned."""
+    ``split=False``: one back per component). ``fronts`` ``(R, W)``, as ``backs``: each column of a box with
+    a known back also takes its front from there (NaN: its own front stays). A copy is returned."""
     top = np.asarray(top)
     backs = np.asarray(backs, dtype=np.float64)
     r, d = top.shape[0], spec.size
@@ -82,6 +89,8 @@ def impose_box_backs(
         raise ValueError(f"top and front must both be (R, {d}, {d}) class ids, got {top.shape} and {np.shape(front)}")
     if backs.ndim != 2 or backs.shape[0] != r or backs.shape[1] < 1:
         raise ValueError(f"backs must be ({r}, W) back depths, got {backs.shape}")
+    if fronts is not None and np.shape(fronts) != backs.shape:
+        raise ValueError(f"fronts must have the shape of backs {backs.shape}, got {np.shape(fronts)}")
     if not np.isfinite(depth) or depth <= 0:
         raise ValueError(f"rack depth must be a positive number of metres, got {depth}")
     out = top.copy()
@@ -95,6 +104,8 @@ def impose_box_backs(
             known = np.isfinite(zb)
             if not known.any():
                 continue
+            if fronts is not None:
+                zf = np.where(np.isfinite(zn := fronts[k, cols * w // d]), zn, zf)
             whole = float(np.median(zb[known]))
             back = np.empty(len(cols))
             height = np.count_nonzero(front[k][:, cols] == BOX, axis=0) * dh

@@ -19,6 +19,12 @@ raised to its shown probability (`RowMap`), the camera's X summed from the steps
 (`network.motion`). Each frame's ``"box_back"`` ``(R, D)`` is the fused distribution's expected depth
 (NaN where the frames have not shown it enough yet); `network.infer.frame_layouts` moves every predicted box's back
 there (`layouts.boxdepth.impose_box_backs`).
+
+A head fitted with fronts (``front``; `mvracklay fit-box-depth --front`) also gives, per column, a
+distribution over the box's front behind the rack front (`FRONT_BINS`: the stack's setback, a few
+centimetres the decoder reads loosely); the reader fuses those the same way, every frame counting once
+(a front shows in every frame that sees the box), and each frame's ``"box_front"`` ``(R, D)`` moves
+every box's front there.
 """
 
 from __future__ import annotations
@@ -39,6 +45,9 @@ from network.parallax import RATIOS, plane_sweep, relative_costs
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres
+FRONT_STEP = 0.02  #: metres between the front bins
+#: box fronts behind the rack front (setbacks) a head with fronts chooses among, metres
+FRONT_BINS = np.arange(0.0, 0.301, FRONT_STEP)
 WINDOW_ROWS = 32  #: rows of the front window sampled from the 1/2 map
 #: summed shown probability from which a carried cell's fused depth is used (below it, half a frame's worth
 #: of showing, the fused distribution is still near flat and the decoder's depth stays)
@@ -61,7 +70,7 @@ def window_rows(layout_size: int) -> int:
 
 class BoxDepthHead(nn.Module):
     """Per slot: window ``(c2d, WINDOW_ROWS, W)`` + column extras ``(c1d, D)`` -> ``(len(BINS) + 1, D)`` logits
-    (the back-depth bins, then the shown logit). A 2-D block over the window, its rows pooled (mean and
+    (the back-depth bins, then the shown logit; with ``front``, then the front bins). A 2-D block over the window, its rows pooled (mean and
     max), then a dilated 1-D block along the columns.
 
     ``row_profile``: the rows are also read by a learned profile (a convolution spanning all
@@ -70,10 +79,17 @@ class BoxDepthHead(nn.Module):
     which pooling alone discards."""
 
     def __init__(
-        self, c2d: int, c1d: int, width: int = BOX_WIDTH, row_profile: bool = False, rows: int = WINDOW_ROWS
+        self,
+        c2d: int,
+        c1d: int,
+        width: int = BOX_WIDTH,
+        row_profile: bool = False,
+        rows: int = WINDOW_ROWS,
+        front: bool = False,
     ) -> None:
         super().__init__()
         self.c2d, self.c1d = c2d, c1d
+        self.front = front  #: the logits end with the front bins (`FRONT_BINS`, `split_logits`)
 
         def block(cin: int, cout: int, dil: tuple[int, int]) -> nn.Sequential:
             return nn.Sequential(
@@ -96,7 +112,7 @@ class BoxDepthHead(nn.Module):
             )
 
         self.conv1d = nn.Sequential(block1(pooled + c1d, w1, 1), block1(w1, w1, 2), block1(w1, w1, 4))
-        self.out = nn.Conv1d(w1, len(BINS) + 1, 1)
+        self.out = nn.Conv1d(w1, len(BINS) + 1 + (len(FRONT_BINS) if front else 0), 1)
 
     def forward(self, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
         x = self.conv2d(win.contiguous(memory_format=torch.channels_last))
@@ -175,21 +191,37 @@ def frame_head_inputs(
     )
 
 
+def split_logits(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """A head's ``(N, C, D)`` logits -> back-depth bins ``(N, K, D)``, the shown logit ``(N, D)`` and, for a
+    head with fronts, the front bins ``(N, F, D)`` (None without)."""
+    k = len(BINS)
+    if logits.shape[1] not in (k + 1, k + 1 + len(FRONT_BINS)):
+        raise ValueError(
+            f"box-depth logits must have {k + 1} or {k + 1 + len(FRONT_BINS)} channels, got {logits.shape}"
+        )
+    return logits[:, :k], logits[:, k], logits[:, k + 1 :] if logits.shape[1] > k + 1 else None
+
+
 def decode(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     """``(R, K+1, D)`` logits -> expected back depth ``(R, D)`` (metres behind the rack front) and the
     probability ``(R, D)`` that the frame shows it."""
-    p = torch.softmax(logits[:, :-1].float(), 1)
+    bins, shown, _ = split_logits(logits)
+    p = torch.softmax(bins.float(), 1)
     z = (p * torch.as_tensor(BINS, dtype=torch.float32, device=p.device)[None, :, None]).sum(1)
-    return z.cpu().numpy(), torch.sigmoid(logits[:, -1].float()).cpu().numpy()
+    return z.cpu().numpy(), torch.sigmoid(shown.float()).cpu().numpy()
 
 
 def reading(logits: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
     """``(R, K+1, D)`` logits -> what `BoxDepthReader.add` takes: ``(R, K, D)`` log-probabilities of the
     back-depth bins (`BINS`) and the probability ``(R, D)`` that the frame shows the depth."""
-    return (
-        torch.log_softmax(logits[:, :-1].float(), 1).cpu().numpy(),
-        torch.sigmoid(logits[:, -1].float()).cpu().numpy(),
-    )
+    bins, shown, _ = split_logits(logits)
+    return torch.log_softmax(bins.float(), 1).cpu().numpy(), torch.sigmoid(shown.float()).cpu().numpy()
+
+
+def front_reading(logits: torch.Tensor) -> np.ndarray | None:
+    """A head's logits -> ``(R, F, D)`` log-probabilities of the front bins (`FRONT_BINS`; None: no fronts)."""
+    front = split_logits(logits)[2]
+    return None if front is None else torch.log_softmax(front.float(), 1).cpu().numpy()
 
 
 class RowMap:
@@ -201,9 +233,11 @@ class RowMap:
     has shown anything. Chosen on the tuning sets over the earlier shown-weighted mean of expected depths
     from the frames that said shown (p >= 0.5; docs/network.md, *Fusing the frames' readings*)."""
 
-    def __init__(self, bins: int = len(BINS)) -> None:
+    def __init__(self, values: np.ndarray = BINS, min_weight: float = MIN_WEIGHT) -> None:
+        self.values = np.asarray(values, dtype=np.float64)  #: the bins' depths, metres
+        self.min_weight = min_weight  #: summed weight from which a cell's fused depth is used
         self.first = 0  #: world-X cell of row 0 of ``logs``
-        self.logs = np.zeros((0, bins))  #: (cells, K) weighted log-probability sums
+        self.logs = np.zeros((0, len(self.values)))  #: (cells, K) weighted log-probability sums
         self.weight = np.zeros(0)  #: (cells,) summed shown probabilities
 
     def _cover(self, cells: np.ndarray) -> None:
@@ -231,17 +265,17 @@ class RowMap:
         np.add.at(self.weight, idx, p)
 
     def mean(self, cells: np.ndarray) -> np.ndarray:
-        """The fused distribution's expected back depth at each of ``cells`` (NaN: summed shown probability
-        under `MIN_WEIGHT`, or never in view)."""
+        """The fused distribution's expected depth at each of ``cells`` (NaN: summed shown probability
+        under ``min_weight``, or never in view)."""
         cells = np.asarray(cells, dtype=np.int64)
         out = np.full(cells.shape, np.nan)
         idx = cells - self.first
         ok = (idx >= 0) & (idx < self.weight.size)
-        ok[ok] = self.weight[idx[ok]] >= MIN_WEIGHT
+        ok[ok] = self.weight[idx[ok]] >= self.min_weight
         if ok.any():
             logs = self.logs[idx[ok]]
             q = np.exp(logs - logs.max(1, keepdims=True))
-            out[ok] = (q @ BINS) / q.sum(1)
+            out[ok] = (q @ self.values) / q.sum(1)
         return out
 
     def update(self, cells: np.ndarray, log_q: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -263,6 +297,7 @@ class BoxDepthReader:
         self.make_map = make_map  #: one slot's map (`RowMap`; benchmarks/box_fusion.py passes other rules)
         self.camera_x = 0.0  #: metres along the row since the first frame
         self.maps: dict[int, RowMap] = {}
+        self.front_maps: dict[int, RowMap] = {}  #: per slot, the fronts of a head with fronts (`FRONT_BINS`)
 
     def cells(self, camera_x: float) -> np.ndarray:
         """The world-X cell of each layout column's centre with the camera at ``camera_x``."""
@@ -270,22 +305,35 @@ class BoxDepthReader:
         # floor: centres sit mid-cell, never on a boundary
         return np.floor((camera_x + self.spec.col_to_x(np.arange(self.spec.size) + 0.5)) / width).astype(int)
 
-    def add(self, log_q: np.ndarray, p: np.ndarray, valid: np.ndarray, step: float = 0.0) -> np.ndarray:
+    def add(
+        self, log_q: np.ndarray, p: np.ndarray, valid: np.ndarray, step: float = 0.0, front: np.ndarray | None = None
+    ) -> np.ndarray:
         """``log_q`` ``(R, K, D)``, ``p`` ``(R, D)``: the head's bin log-probabilities and shown probabilities
         (`reading`); ``valid`` ``(R,)``: slots with an anchor; ``step``: the camera's
-        motion along X since the previous frame (metres). Returns `backs` here."""
+        motion along X since the previous frame (metres); ``front``: a head's front-bin log-probabilities
+        ``(R, F, D)`` (`front_reading`), each frame's counted once. Returns `backs` here."""
         self.camera_x += float(step)
         cells = self.cells(self.camera_x)
+        ones = np.ones(self.spec.size)
         for r in np.nonzero(valid)[0]:
             self.maps.setdefault(int(r), self.make_map()).add(cells, log_q[r], p[r])
+            if front is not None:
+                self.front_maps.setdefault(int(r), RowMap(FRONT_BINS)).add(cells, front[r], ones)
         return self.backs(self.camera_x, valid)
 
     def backs(self, camera_x: float, valid: np.ndarray) -> np.ndarray:
         """``(R, D)`` fused back depths the maps hold for the slots ``valid`` with the camera at ``camera_x``."""
+        return self._look_up(self.maps, camera_x, valid)
+
+    def fronts(self, camera_x: float, valid: np.ndarray) -> np.ndarray | None:
+        """``(R, D)`` fused box fronts behind the rack front, as `backs` (None: the head reads no fronts)."""
+        return self._look_up(self.front_maps, camera_x, valid) if self.front_maps else None
+
+    def _look_up(self, maps: dict[int, RowMap], camera_x: float, valid: np.ndarray) -> np.ndarray:
         cells = self.cells(camera_x)
         out = np.full((len(valid), self.spec.size), np.nan)
         for r in np.nonzero(valid)[0]:
-            m = self.maps.get(int(r))
+            m = maps.get(int(r))
             if m is not None:
                 out[r] = m.mean(cells)
         return out

@@ -6,7 +6,9 @@ scenes are ~4 GB of fp16 windows) with the targets from the generator's ground t
 column the truth's box back behind the rack front (the top-view layout, the scene's rack depth)
 and whether the frame shows that stack's depth (``labels``: `waresynth.visibility.SeenTracker`).
 The head is then fitted with a two-hot cross entropy over the depth bins (columns whose depth is
-shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit.
+shown weighted `FitConfig.shown_weight`) plus a binary cross entropy on the shown logit; a head with
+fronts adds a two-hot cross entropy over the front bins (the truth's box front behind the rack front,
+every box column).
 `kept_cache` keeps the inputs in a folder, one part per dataset folder, each with a record of what it
 depends on (`cache_key`), so later fits of other seeds, epochs or head designs on the same trunk, or on
 more datasets, skip the streamed passes already made. `cache_part` splits a pass over processes of one
@@ -39,7 +41,16 @@ from layouts import BOX, LayoutSpec
 from layouts.boxdepth import cell_z
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
-from network.boxdepth import BIN_STEP, BINS, BOX_WIDTH, BoxDepthHead, frame_head_inputs
+from network.boxdepth import (
+    BIN_STEP,
+    BINS,
+    BOX_WIDTH,
+    FRONT_BINS,
+    FRONT_STEP,
+    BoxDepthHead,
+    frame_head_inputs,
+    split_logits,
+)
 from network.infer import Predictor, sequence_camera
 from network.model import ModelConfig, MVRackLay
 from network.precision import check_precision, forward_autocast
@@ -75,24 +86,27 @@ class FitConfig:
 
 
 def box_head_config(
-    cfg: ModelConfig, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH
+    cfg: ModelConfig, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH, front: bool = False
 ) -> ModelConfig:
     """``cfg`` with a box-depth head of that kind (``parallax``: it reads the plane-sweep maps; ``row_profile``:
-    `BoxDepthHead`'s row profile; ``width``: its channels): what a fitted head's checkpoint records."""
-    return replace(cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile, box_width=width)
+    `BoxDepthHead`'s row profile; ``width``: its channels; ``front``: it also reads each box's front): what a
+    fitted head's checkpoint records."""
+    return replace(
+        cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile, box_width=width, box_front=front
+    )
 
 
 def with_box_head(
-    model: MVRackLay, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH
+    model: MVRackLay, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH, front: bool = False
 ) -> MVRackLay:
     """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps;
-    ``row_profile``: `BoxDepthHead`'s row profile; ``width``: its channels), else a copy with a fresh one (same
-    weights otherwise)."""
+    ``row_profile``: `BoxDepthHead`'s row profile; ``width``: its channels; ``front``: it reads fronts too), else
+    a copy with a fresh one (same weights otherwise)."""
     cfg = model.cfg
-    kind = (cfg.box_parallax, cfg.box_row_profile, cfg.box_width)
-    if model.box_depth is not None and kind == (parallax, row_profile, width):
+    kind = (cfg.box_parallax, cfg.box_row_profile, cfg.box_width, cfg.box_front)
+    if model.box_depth is not None and kind == (parallax, row_profile, width, front):
         return model
-    out = MVRackLay(box_head_config(cfg, parallax, row_profile, width))
+    out = MVRackLay(box_head_config(cfg, parallax, row_profile, width, front))
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
     missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
@@ -104,36 +118,46 @@ def with_box_head(
 
 def column_targets(
     truth_top: np.ndarray, labels: np.ndarray, spec: LayoutSpec, depth: float, d: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per slot and model column (``d`` of them): the truth's box back behind the rack front (metres, the
-    mean over the layout columns it covers; NaN: no box) and whether the frame shows that stack's depth
-    (``labels`` ``(R, D)``: 2 = shown in this frame, `waresynth.visibility.SeenTracker.labels`)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per slot and model column (``d`` of them): the truth's box back and front behind the rack front
+    (metres, the means over the layout columns it covers; NaN: no box) and whether the frame shows that
+    stack's depth (``labels`` ``(R, D)``: 2 = shown in this frame, `waresynth.visibility.SeenTracker.labels`)."""
     if spec.size % d:
         raise InputError(f"layouts of size {spec.size} do not cover the model's {d} columns evenly")
     g = truth_top == BOX  # (R, D, D), row 0 deepest
-    zb = cell_z(spec, depth) + spec.z_extent / spec.size / 2
-    back = np.where(g.any(1), zb[np.argmax(g, 1)], np.nan)  # (R, D)
+    half = spec.z_extent / spec.size / 2
+    zc = cell_z(spec, depth)
+    has = g.any(1)
+    back = np.where(has, zc[np.argmax(g, 1)] + half, np.nan)  # (R, D)
+    front = np.where(has, zc[spec.size - 1 - np.argmax(g[:, ::-1], 1)] - half, np.nan)
     k = spec.size // d
     with warnings.catch_warnings():  # columns without a box: NaN
         warnings.simplefilter("ignore", RuntimeWarning)
-        back = np.nanmean(back.reshape(back.shape[0], d, k), 2)
+        back, front = (np.nanmean(v.reshape(v.shape[0], d, k), 2) for v in (back, front))
     shown = (np.asarray(labels).reshape(labels.shape[0], d, k) >= 2).any(2)
-    return back, shown
+    return back, shown, front
 
 
-CACHE_FIELDS = ("win", "extra", "back", "shown")
+#: a cache's fields; ``front`` is absent from caches kept before it (read as unknown: NaN)
+CACHE_FIELDS = ("win", "extra", "back", "shown", "front")
 CACHE_RECORD = "cache.json"  #: in a kept cache part's folder: what it holds (`cache_key`) and how many slots
 NO_SLOTS = "no frame of the training sequences has a shelf slot to fit the box-depth head on"  #: one pass or every shard of one found no valid slot
 
 
 @dataclass
 class Cache:
-    """Per valid slot: window, extras (fp16), back targets (metres, NaN: no box), shown flags."""
+    """Per valid slot: window, extras (fp16), back targets (metres, NaN: no box), shown flags, front targets
+    (metres; None: unknown, NaN like ``back``)."""
 
     win: np.ndarray
     extra: np.ndarray
     back: np.ndarray
     shown: np.ndarray
+    front: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.front is None:
+            self.front = np.full(np.shape(self.back), np.nan, np.float32)
 
     def __len__(self) -> int:
         return len(self.win)
@@ -264,10 +288,10 @@ def stream_slots(
             if i < choice.from_frame:
                 continue
             win, extra = frame_head_inputs(out, model.cfg.view, camera(i)[1])
-            back, shown = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
+            back, shown, front = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
             v = torch.isfinite(out["anchors"]).cpu().numpy()
             parts = {"win": win[v].half().numpy(), "extra": extra[v].half().numpy(),
-                     "back": back[v].astype(np.float32), "shown": shown[v]}  # fmt: skip
+                     "back": back[v].astype(np.float32), "shown": shown[v], "front": front[v].astype(np.float32)}  # fmt: skip
             if not arrays:
                 arrays = {
                     k: np.lib.format.open_memmap(folder / f"{k}.npy", "w+", a.dtype, (cap, *a.shape[1:]))
@@ -328,8 +352,9 @@ def open_shard(folder: Path, n: int) -> Cache | None:
     """The ``n`` slots memory-mapped from a shard (or a single part's) ``folder``; None for an empty shard."""
     if n == 0:
         return None
+    fields = [k for k in CACHE_FIELDS if k != "front" or (folder / "front.npy").is_file()]
     try:
-        arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in CACHE_FIELDS]
+        arrays = [np.load(folder / f"{k}.npy", mmap_mode="r", allow_pickle=False)[:n] for k in fields]
     except (OSError, ValueError) as e:
         raise InputError(f"{folder}: unreadable box-depth input cache ({e}); remove the folder to rebuild it") from None
     if any(len(a) != n for a in arrays):
@@ -541,6 +566,9 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
     per_epoch = math.ceil(n / cfg.batch)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.lr, total_steps=cfg.epochs * per_epoch)
     bins = torch.as_tensor(BINS, dtype=torch.float32)
+    front_bins = torch.as_tensor(FRONT_BINS, dtype=torch.float32)
+    if head.front and not np.isfinite(data.field("front") if isinstance(data, Chain) else data.front).any():
+        raise InputError("the cached inputs hold no box fronts (a cache kept before them); fit --front on a new cache")
     gen = torch.Generator().manual_seed(cfg.seed)
     head.train()
     losses = []
@@ -552,17 +580,18 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
             batch = data.take(b)
             with forward_autocast("cpu", cfg.precision):
                 logits = head(torch.from_numpy(batch.win).float(), torch.from_numpy(batch.extra).float())
-            logits = logits.float()
-            lz, ls = logits[:, :-1], logits[:, -1]
+            lz, ls, lf = split_logits(logits.float())
             tb, sb = torch.from_numpy(batch.back), torch.from_numpy(batch.shown)
             m = torch.isfinite(tb)
             loss = F.binary_cross_entropy_with_logits(ls[m], sb[m].float()) if m.any() else ls.sum() * 0
             if m.any():
-                t = tb.nan_to_num(0.0).clamp(float(BINS[0]), float(BINS[-1]))
-                w = (1 - (t[..., None] - bins).abs() / BIN_STEP).clamp(min=0)  # two-hot target
-                ce = -(w * torch.log_softmax(lz, 1).permute(0, 2, 1)).sum(-1)
                 wt = torch.where(sb, cfg.shown_weight, 1.0)
-                loss = loss + (ce * wt)[m].sum() / wt[m].sum()
+                loss = loss + (two_hot_ce(lz, tb, bins, BIN_STEP) * wt)[m].sum() / wt[m].sum()
+            if lf is not None:
+                tf = torch.from_numpy(np.asarray(batch.front, dtype=np.float32))
+                mf = torch.isfinite(tf)
+                if mf.any():
+                    loss = loss + two_hot_ce(lf, tf, front_bins, FRONT_STEP)[mf].mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -571,6 +600,14 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
         losses.append(total / per_epoch)
     head.eval()
     return losses
+
+
+def two_hot_ce(logits: torch.Tensor, target: torch.Tensor, bins: torch.Tensor, step: float) -> torch.Tensor:
+    """``(N, K, D)`` bin logits against ``(N, D)`` targets (metres; NaN anywhere, masked by the caller): the
+    cross entropy with the target's two neighbouring bins weighted by nearness, ``(N, D)``."""
+    t = target.nan_to_num(0.0).clamp(float(bins[0]), float(bins[-1]))
+    w = (1 - (t[..., None] - bins).abs() / step).clamp(min=0)
+    return -(w * torch.log_softmax(logits, 1).permute(0, 2, 1)).sum(-1)
 
 
 def fit_box_depth(
@@ -587,9 +624,10 @@ def fit_box_depth(
     workers: int = 1,
     pass_minutes: float | None = None,
     width: int = BOX_WIDTH,
+    front: bool = False,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
-    `network.boxdepth.ParallaxHistory`; ``row_profile``, ``width``: `BoxDepthHead`'s) and a summary for the
+    `network.boxdepth.ParallaxHistory`; ``row_profile``, ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
@@ -602,7 +640,7 @@ def fit_box_depth(
     check_pass_minutes(pass_minutes, keep_cache)
     t0 = time.perf_counter()
     check_width(width)
-    model = _ready(model, train, choice, workers, parallax, row_profile, width)
+    model = _ready(model, train, choice, workers, parallax, row_profile, width, front)
     streamed = len(train)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
@@ -616,15 +654,16 @@ def fit_box_depth(
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
         head = BoxDepthHead(
-            first.win.shape[1], first.extra.shape[1], width=width, row_profile=row_profile, rows=first.win.shape[2]
-        )
+            first.win.shape[1], first.extra.shape[1], width=width, row_profile=row_profile, rows=first.win.shape[2],
+            front=front,
+        )  # fmt: skip
         losses = train_head(head, data, cfg, progress)
         summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
         del data, first  # the memory maps closed before the temporary folder goes
     if pass_minutes is not None:
         summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
     summary.update(
-        row_profile=row_profile, width=width, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
+        row_profile=row_profile, width=width, front=front, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
         fit_precision=cfg.precision, losses=losses,
         cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
     )  # fmt: skip
@@ -680,6 +719,7 @@ def _ready(
     parallax: bool,
     row_profile: bool,
     width: int = BOX_WIDTH,
+    front: bool = False,
 ) -> MVRackLay:
     """The checks shared by `fit_box_depth` and `keep_box_inputs`; ``model`` given a fresh head to read with."""
     choice.validate()
@@ -690,7 +730,7 @@ def _ready(
     longest = max(choice.streamed(s) for s in train)
     if choice.from_frame >= longest:
         raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
-    return with_box_head(model, parallax, row_profile, width)
+    return with_box_head(model, parallax, row_profile, width, front)
 
 
 def _summary(

@@ -24,7 +24,7 @@ from layouts.boxdepth import impose_box_backs
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
 from network.backedge import DepthReader
-from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, reading
+from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
 from network.calibrate import apply_box_offset
 from network.data import (
     DEFAULT_DISTANCE,
@@ -289,6 +289,9 @@ class Predictor:
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
                     out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
+                    fronts = boxes.fronts(boxes.camera_x, torch.isfinite(out["anchors"]).cpu().numpy())
+                    if fronts is not None:
+                        out["box_front"] = torch.from_numpy(fronts)
                 if self.fuse_tau > 0:
                     cols = seen_columns(sig, out["top"].shape[-1]).to(out["top"].device)
                     if fusion is not None:
@@ -310,6 +313,9 @@ class Predictor:
             out["rack_depth"] = _depth_tensor(depth)
             if boxes is not None:
                 out["box_back"] = torch.from_numpy(boxes.backs(camera_x, valid))
+                fronts = boxes.fronts(camera_x, valid)
+                if fronts is not None:
+                    out["box_front"] = torch.from_numpy(fronts)
             yield out
 
     @torch.no_grad()
@@ -319,8 +325,11 @@ class Predictor:
         return self.model.box_logits(win.to(self.device), extra.to(self.device))
 
     def _box_backs(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
-        """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`)."""
-        return boxes.add(*reading(self._box_logits(out, i)), torch.isfinite(out["anchors"]).cpu().numpy(), step)
+        """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`; a head with fronts adds its
+        fronts to the reader too)."""
+        logits = self._box_logits(out, i)
+        valid = torch.isfinite(out["anchors"]).cpu().numpy()
+        return boxes.add(*reading(logits), valid, step, front_reading(logits))
 
     def _outputs(
         self,
@@ -424,14 +433,19 @@ def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarra
 def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, Any]:
     """Both views' class-id stacks at ``spec.size`` from one frame's outputs, the top view redrawn
     at the output's ``"rack_depth"`` when it has one (`Predictor`; `layouts.rackdepth.impose_rack_depth`)
-    and then, with ``"box_back"``, every box's back moved there (`layouts.boxdepth.impose_box_backs`)."""
+    and then, with ``"box_back"``, every box's back moved there (`layouts.boxdepth.impose_box_backs`; with
+    ``"box_front"`` its front too)."""
     lay = {v: logits_to_layout(out[v], spec.size) for v in VIEWS}
     depth = out.get("rack_depth")
     if depth is not None and bool(torch.isfinite(torch.as_tensor(depth))):
         lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))  # checks it fits the top view
         backs = out.get("box_back")
         if backs is not None:
-            lay["top"] = impose_box_backs(lay["top"], lay["front"], spec, float(depth), np.asarray(backs))
+            fronts = out.get("box_front")
+            fronts = None if fronts is None else np.asarray(fronts)
+            lay["top"] = impose_box_backs(
+                lay["top"], lay["front"], spec, float(depth), np.asarray(backs), fronts=fronts
+            )
     return lay
 
 

@@ -108,6 +108,7 @@ class ModelConfig:
     box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
     box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.boxdepth`)
     box_width: int = BOX_WIDTH  #: that head's channels (`network.boxdepth.BoxDepthHead`)
+    box_front: bool = False  #: that head also reads each box's front (`network.boxdepth.FRONT_BINS`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -125,12 +126,13 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        for name in ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile"):
+        flags = ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile")
+        for name in (*flags, "box_front"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:
             raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
-        for name in ("box_parallax", "box_row_profile"):
+        for name in ("box_parallax", "box_row_profile", "box_front"):
             if getattr(self, name) and not self.box_depth:
                 raise InputError(f"{name} is part of the box-depth head; it needs box_depth")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
@@ -615,6 +617,7 @@ class MVRackLay(nn.Module):
                 width=cfg.box_width,
                 row_profile=cfg.box_row_profile,
                 rows=window_rows(cfg.spec.size),
+                front=cfg.box_front,
             )  # fmt: skip
             if cfg.box_depth
             else None

@@ -25,7 +25,9 @@
 #      faster machine fits the head on more scenes and a slower one on fewer. Every step's wall minutes are
 #      counted whole, model loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the
 #      earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs
-#      with native bf16), and so does the box-depth head's fit (`--precision`);
+#      with native bf16), and so does the box-depth head's fit (`--precision`). The head also reads each box's
+#      front (`--front`: its setback behind the rack front, +0.4 to +0.7 top box on the same backs, no slower);
+#      BOX_FRONT=0 fits the head without it (runs/budget256i-l);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
@@ -54,6 +56,7 @@ BOX_EXTRA=${BOX_EXTRA:-5000}
 BOX_SEQUENCES=${BOX_SEQUENCES:-$((TRAIN_SEQUENCES + BOX_EXTRA))}
 BOX_FRAMES=${BOX_FRAMES:-6}
 BOX_FROM=${BOX_FROM:-3}
+BOX_FRONT=${BOX_FRONT:-1}
 WORKERS=${WORKERS:-2}
 STAGE1_WEIGHTS=${STAGE1_WEIGHTS:-weights/racklay256-stage1.pt}
 [ -f "$STAGE1_WEIGHTS" ] || { echo "train_256_budget.sh: $STAGE1_WEIGHTS is missing (scripts/train_256.sh STAGE=1 makes it)" >&2; exit 2; }
@@ -142,9 +145,11 @@ if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/box.pt" ]; then
     PASS=$(budget pass)
     BOX_DATA=("$TRAIN")
     [ "$BOX_EXTRA" -gt 0 ] && BOX_DATA+=("$TRAIN2")
+    FRONT=()
+    [ "$BOX_FRONT" = 1 ] && FRONT=(--front)
     timed box_depth $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "${BOX_DATA[@]}" \
         --sequences "$BOX_SEQUENCES" --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --pass-minutes "$PASS" \
-        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" \
+        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" "${FRONT[@]}" \
         --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
 fi
 [ -f "$RUN/heads.pt" ] || $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" \

@@ -242,10 +242,13 @@ def test_column_targets_pool_the_truth_to_the_model_columns():
     top[0, 5:8, 2:4] = BOX
     labels = np.full((1, 8), -1)
     labels[0, 2] = 2
-    back, shown = column_targets(top, labels, spec, 1.0, 4)
-    zb = cell_z(spec, 1.0)[5] + spec.z_extent / 16
-    assert np.isnan(back[0, 0]) and back[0, 1] == pytest.approx(zb) and np.isnan(back[0, 2:]).all()
+    top[0, 7, 2] = SHELF  # column 2's box starts a row deeper (its setback)
+    back, shown, front = column_targets(top, labels, spec, 1.0, 4)
+    zc, half = cell_z(spec, 1.0), spec.z_extent / 16
+    assert np.isnan(back[0, 0]) and back[0, 1] == pytest.approx(zc[5] + half) and np.isnan(back[0, 2:]).all()
     assert shown[0].tolist() == [False, True, False, False]
+    # the front edge of the nearest box cell, behind the rack front, averaged over the two layout columns
+    assert front[0, 1] == pytest.approx((zc[6] + zc[7]) / 2 - half) and np.isnan(front[0, [0, 2, 3]]).all()
     with pytest.raises(InputError, match="evenly"):
         column_targets(top, labels, spec, 1.0, 3)
 

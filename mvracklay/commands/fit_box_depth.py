@@ -61,6 +61,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "top or side face lies along the height (pooling over rows alone discards it)",
     )  # fmt: skip
     p.add_argument(
+        "--front", action="store_true",
+        help="the head also reads each box's front behind the rack front (its setback, 0-30 cm in 2 cm bins), "
+        "carried along the row like the backs; predict, run and evaluate then move every box's front there too",
+    )  # fmt: skip
+    p.add_argument(
         "--head-width", type=int, default=BOX_WIDTH, metavar="C",
         help="the head's channels (its 1-D block has twice as many); the inputs cached are the same for any width",
     )  # fmt: skip
@@ -153,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
         row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
-        pass_minutes=args.pass_minutes, width=args.head_width,
+        pass_minutes=args.pass_minutes, width=args.head_width, front=args.front,
     )  # fmt: skip
     print(
         (
@@ -173,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **jpeg_record(args), **summary}
-    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile, args.head_width)
+    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile, args.head_width, args.front)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:
