@@ -288,10 +288,7 @@ class Predictor:
                     maps = history.add(x, step)
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
-                    out["box_back"] = torch.from_numpy(self._box_backs(out, boxes, i, step))
-                    fronts = boxes.fronts(boxes.camera_x, torch.isfinite(out["anchors"]).cpu().numpy())
-                    if fronts is not None:
-                        out["box_front"] = torch.from_numpy(fronts)
+                    self._read_boxes(out, boxes, i, step)
                 if self.fuse_tau > 0:
                     cols = seen_columns(sig, out["top"].shape[-1]).to(out["top"].device)
                     if fusion is not None:
@@ -312,10 +309,7 @@ class Predictor:
         for out, camera_x, valid in held:
             out["rack_depth"] = _depth_tensor(depth)
             if boxes is not None:
-                out["box_back"] = torch.from_numpy(boxes.backs(camera_x, valid))
-                fronts = boxes.fronts(camera_x, valid)
-                if fronts is not None:
-                    out["box_front"] = torch.from_numpy(fronts)
+                _put_box_depths(out, boxes, camera_x, valid)
             yield out
 
     @torch.no_grad()
@@ -324,12 +318,12 @@ class Predictor:
         win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
         return self.model.box_logits(win.to(self.device), extra.to(self.device))
 
-    def _box_backs(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
-        """One frame's carried box back depths ``(R, D)`` (`network.boxdepth`; a head with fronts adds its
-        fronts to the reader too)."""
+    def _read_boxes(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> None:
+        """One frame's head reading added to ``boxes``, and its carried box depths put in ``out``."""
         logits = self._box_logits(out, i)
         valid = torch.isfinite(out["anchors"]).cpu().numpy()
-        return boxes.add(*reading(logits), valid, step, front_reading(logits))
+        boxes.add(*reading(logits), valid, step, front_reading(logits))
+        _put_box_depths(out, boxes, boxes.camera_x, valid)
 
     def _outputs(
         self,
@@ -428,6 +422,15 @@ def resize_logits(logits: torch.Tensor, size: int | None = None) -> torch.Tensor
 def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarray:
     """``(R, 3, D, D)`` logits -> ``(R, size, size)`` uint8 class ids (bilinear on logits when resizing)."""
     return resize_logits(logits, size).argmax(1).to(torch.uint8).cpu().numpy()
+
+
+def _put_box_depths(out: dict[str, torch.Tensor], boxes: BoxDepthReader, camera_x: float, valid: np.ndarray) -> None:
+    """``out["box_back"]`` ``(R, D)`` from the maps of ``boxes`` with the camera at ``camera_x`` and, for a head
+    that reads fronts, ``out["box_front"]``."""
+    out["box_back"] = torch.from_numpy(boxes.backs(camera_x, valid))
+    fronts = boxes.fronts(camera_x, valid)
+    if fronts is not None:
+        out["box_front"] = torch.from_numpy(fronts)
 
 
 def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, Any]:
