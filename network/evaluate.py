@@ -93,7 +93,7 @@ def evaluate_sequences(
         "mode": mode,
         "flip_average": flip,
         "rack_depth": rack_depth_source(model) if read_depth else "as decoded",
-        "box_depth": "carried from the box-depth head" if read_depth and model.box_depth is not None else "as decoded",
+        "box_depth": box_depth_source(model) if read_depth else "as decoded",
         "depths_from": "the whole sequence" if whole_sequence else "the frames so far",
         "fuse_frames": fuse_tau,
         # as asked: degrees, "auto", or None for each sequence's recorded angle
@@ -109,6 +109,13 @@ def evaluate_sequences(
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }
+
+
+def box_depth_source(model: MVRackLay) -> str:
+    """Where a model reading depths takes its boxes' depths from (the record's ``"box_depth"``)."""
+    if model.box_depth is None:
+        return "as decoded"
+    return "carried from the box-depth head" + (", fronts too" if model.cfg.box_front else "")
 
 
 def score(result: dict[str, Any], part: str = "visible") -> float:

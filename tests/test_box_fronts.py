@@ -19,6 +19,7 @@ from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from network.boxdepth import BINS, FRONT_BINS, BoxDepthHead, BoxDepthReader, front_reading, reading, split_logits
 from network.checkpoint import load_checkpoint, load_model
+from network.evaluate import box_depth_source
 from network.fit_boxdepth import Cache, FitConfig, cache_inputs, train_head, with_box_head
 from network.infer import Predictor, frame_layouts
 from waresynth.dataset import open_dataset
@@ -130,6 +131,10 @@ def test_fit_box_depth_front_round_trips_and_moves_the_fronts(tiny_checkpoint, t
     assert record["model_config"]["box_front"] is True and record["box_depth"]["front"] is True
     model = load_model(out)[0]
     assert model.cfg.box_front
+    plain = load_model(tiny_checkpoint)[0]
+    assert box_depth_source(model) == "carried from the box-depth head, fronts too"  # what evaluate's table says
+    assert box_depth_source(with_box_head(plain)) == "carried from the box-depth head"
+    assert box_depth_source(plain) == "as decoded"
     seq = open_dataset(tiny_dataset).sequences()[0]
     frames = [seq.rgb(i) for i in range(seq.num_frames)]
     for whole in (False, True):
