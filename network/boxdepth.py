@@ -314,11 +314,10 @@ class BoxDepthReader:
         ``(R, F, D)`` (`front_reading`), each frame's counted once. Returns `backs` here."""
         self.camera_x += float(step)
         cells = self.cells(self.camera_x)
-        ones = np.ones(self.spec.size)
         for r in np.nonzero(valid)[0]:
             self.maps.setdefault(int(r), self.make_map()).add(cells, log_q[r], p[r])
             if front is not None:
-                self.front_maps.setdefault(int(r), RowMap(FRONT_BINS)).add(cells, front[r], ones)
+                self.front_maps.setdefault(int(r), RowMap(FRONT_BINS)).add(cells, front[r], np.ones(len(cells)))
         return self.backs(self.camera_x, valid)
 
     def backs(self, camera_x: float, valid: np.ndarray) -> np.ndarray:

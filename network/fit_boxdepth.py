@@ -166,6 +166,10 @@ class Cache:
         """Slots ``idx`` (sorted ascending: a memory map reads forward) as arrays in memory."""
         return Cache(*(np.asarray(getattr(self, k)[idx]) for k in CACHE_FIELDS))
 
+    def field(self, name: str) -> np.ndarray:
+        """One field over every slot, in memory (as `Chain.field`)."""
+        return np.asarray(getattr(self, name))
+
 
 class Chain:
     """Several caches read as one, in order (a kept cache has one part per folder of sequences)."""
@@ -567,7 +571,7 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.lr, total_steps=cfg.epochs * per_epoch)
     bins = torch.as_tensor(BINS, dtype=torch.float32)
     front_bins = torch.as_tensor(FRONT_BINS, dtype=torch.float32)
-    if head.front and not np.isfinite(data.field("front") if isinstance(data, Chain) else data.front).any():
+    if head.front and not np.isfinite(data.field("front")).any():
         raise InputError("the cached inputs hold no box fronts (a cache kept before them); fit --front on a new cache")
     gen = torch.Generator().manual_seed(cfg.seed)
     head.train()

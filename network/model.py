@@ -126,8 +126,9 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        flags = ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile")
-        for name in (*flags, "box_front"):
+        flags = ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile",
+                 "box_front")  # fmt: skip
+        for name in flags:
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.parallax and not self.use_lstm:

@@ -26,8 +26,8 @@
 #      counted whole, model loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the
 #      earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs
 #      with native bf16), and so does the box-depth head's fit (`--precision`). The head also reads each box's
-#      front (`--front`: its setback behind the rack front, +0.4 to +0.7 top box on the same backs, about +0.4 net, no slower);
-#      BOX_FRONT=0 fits the head without it (runs/budget256i-l);
+#      front (`--front`: its setback behind the rack front; +0.4 to +0.7 top box on the same backs, about +0.4
+#      net, no slower); BOX_FRONT=0 fits the head without it (runs/budget256i-l);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
