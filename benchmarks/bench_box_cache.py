@@ -12,7 +12,8 @@ the parent's and unused by the pass.
     .venv/bin/python benchmarks/bench_box_cache.py runs/budget256b/mvracklay-disc-4/calibrated.pt \\
         data/train256b --sequences 20 --frames 6 --from-frame 3 --parallax --threads 1
     #   ... --threads 2 (one process on both cores), --workers 2 (two processes of one thread),
-    #   --precision bf16 (the trunk's graph in bf16, as fit-box-depth --precision bf16 streams it)
+    #   --precision bf16 (the trunk's graph in bf16, as fit-box-depth --precision bf16 streams it),
+    #   --cold-start (the frames before --from-frame skip the network, as fit-box-depth --cold-start)
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sequences", type=int, default=20, help="scenes streamed (the first ones)")
     ap.add_argument("--frames", type=int, help="stream only each scene's first N frames (default: all)")
     ap.add_argument("--from-frame", type=int, default=0, help="keep the slots of frames K on")
+    ap.add_argument("--cold-start", action="store_true", help="the frames before --from-frame skip the network")
     ap.add_argument("--parallax", action="store_true", help="a head that reads the plane-sweep maps")
     ap.add_argument("--threads", type=int, default=1, help="torch threads of a one-process pass")
     ap.add_argument("--workers", type=int, default=1, help="processes of one thread each sharing the pass")
@@ -53,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.sequences < 1 or args.threads < 1 or args.repeats < 1 or args.workers < 1:
             raise InputError("--sequences, --threads, --workers and --repeats must be >= 1")
-        choice = FrameChoice(args.frames, args.from_frame)
+        choice = FrameChoice(args.frames, args.from_frame, args.cold_start)
         choice.validate()
         torch.set_num_threads(args.threads)
         payload, record = load_checkpoint(args.checkpoint)
@@ -76,10 +78,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_box_cache.py: {e}", file=sys.stderr)
         return 2
     best = max(rates)
-    out = {"sequences": len(seqs), "frames": frames, "slots": slots, "threads": args.threads, "workers": args.workers,
+    out = {"sequences": len(seqs), "frames": frames, "cold_start": args.cold_start, "slots": slots, "threads": args.threads, "workers": args.workers,
            "precision": trunk_precision(model),
            "frames_per_s": rates, "best_frames_per_s": best, "best_ms_per_frame": 1000 / best}  # fmt: skip
     how = f"{args.workers} processes of 1 thread" if args.workers > 1 else f"{args.threads} thread(s)"
+    how += ", the frames before K skipping the network" if args.cold_start else ""
     print(f"{len(seqs)} scenes, {frames} frames streamed, {slots} slots kept, {how}, the trunk in {trunk_precision(model)}: "
           f"{best:.2f} frames/s best ({1000 / best:.0f} ms a frame; passes: "
           + ", ".join(f"{r:.2f}" for r in rates) + ")")  # fmt: skip

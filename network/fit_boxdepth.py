@@ -205,10 +205,16 @@ class FrameChoice:
     """Which frames of each training sequence the cache pass streams and keeps: the first ``frames`` (None:
     all), of which the slots of frames ``from_frame`` on are kept (the earlier ones only build the stream's
     memory, the parallax history and what has been seen). Fewer frames per scene buy more scenes for the same
-    minutes, and the head is short of scenes rather than of frames (docs/network.md)."""
+    minutes, and the head is short of scenes rather than of frames (docs/network.md).
+
+    ``cold``: the frames before ``from_frame`` skip the network (`network.infer.Predictor`'s ``trunk_from``):
+    they only enter the motion estimate, the parallax history and what has been seen, and the memory starts
+    at ``from_frame``. The network's memory changes few of its cells, and a skipped frame costs a fraction
+    of a streamed one, so the same minutes cover more scenes again."""
 
     frames: int | None = None
     from_frame: int = 0
+    cold: bool = False
 
     def validate(self) -> None:
         if self.frames is not None and (isinstance(self.frames, bool) or self.frames < 1):
@@ -217,6 +223,8 @@ class FrameChoice:
             raise InputError(f"--from-frame must be >= 0, got {self.from_frame!r}")
         if self.frames is not None and self.from_frame >= self.frames:
             raise InputError(f"--from-frame {self.from_frame} keeps no frame of the first --frames {self.frames}")
+        if self.cold and not self.from_frame:
+            raise InputError("--cold-start skips the frames before --from-frame K: give K >= 1")
 
     def streamed(self, seq: Any) -> int:
         """How many frames of ``seq`` are streamed."""
@@ -224,7 +232,9 @@ class FrameChoice:
 
     def key(self) -> dict[str, Any]:
         """Its part of `cache_key` (nothing for the default: caches made before it keep their keys)."""
-        return {} if self == FrameChoice() else {"frames": self.frames, "from_frame": self.from_frame}
+        if self == FrameChoice():
+            return {}
+        return {"frames": self.frames, "from_frame": self.from_frame, **({"cold": True} if self.cold else {})}
 
 
 def cache_inputs(
@@ -284,8 +294,9 @@ def stream_slots(
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
         pred = Predictor(  # each frame's own layouts; no plane sweeps for the frames whose slots are not kept
-            model, camera, read_depth=False, box_inputs=True, box_inputs_from=choice.from_frame, fuse_tau=0
-        )
+            model, camera, read_depth=False, box_inputs=True, box_inputs_from=choice.from_frame, fuse_tau=0,
+            trunk_from=choice.from_frame if choice.cold else 0,
+        )  # fmt: skip
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(choice.streamed(seq)))):
             tick()
             seen.add(i)

@@ -110,7 +110,10 @@ class Predictor:
     (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
     output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading;
     ``box_inputs_from`` then skips the maps of the frames before it (they still enter the history): a fit
-    that keeps none of their slots need not pay for their plane sweeps.
+    that keeps none of their slots need not pay for their plane sweeps. ``trunk_from`` (streaming, not
+    reading) goes further: the frames before it are not run through the network at all (their outputs are
+    empty dicts), they only enter the motion estimate and the parallax history, and the memory starts at
+    that frame.
 
     The camera's step along the row is read from the images once per frame (`network.motion.camera_shift`)
     and given to the memory, the parallax and the readers alike.
@@ -145,6 +148,7 @@ class Predictor:
         read_depth: bool = True,
         box_inputs: bool = False,
         box_inputs_from: int = 0,
+        trunk_from: int = 0,
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
@@ -171,6 +175,13 @@ class Predictor:
                 "box_inputs_from is for fitting the box-depth head: a reading head needs every frame's maps"
             )
         self.box_inputs_from = box_inputs_from
+        if not isinstance(trunk_from, int) or isinstance(trunk_from, bool) or not 0 <= trunk_from <= box_inputs_from:
+            raise InputError(f"trunk_from must be a frame index from 0 to box_inputs_from, got {trunk_from!r}")
+        if trunk_from and (flip or whole_sequence or fuse_tau or self.reads_depth):
+            raise InputError(
+                "trunk_from is for fitting the box-depth head: not with flip, whole_sequence, fuse_tau or a depth read"
+            )
+        self.trunk_from = trunk_from  #: frames before it skip the network (`stream` only)
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         memory = model.memory
@@ -191,7 +202,10 @@ class Predictor:
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """One frame's outputs with the model's box-logit offsets applied."""
+        """One frame's outputs with the model's box-logit offsets applied (an empty one, a frame the
+        network skipped, as it is)."""
+        if not res:
+            return res
         res = dict(res)
         for v in VIEWS:
             res[v] = apply_box_offset(res[v], self.model.box_logit_offset.get(v, 0.0))
@@ -247,6 +261,8 @@ class Predictor:
 
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
+        if self.trunk_from:
+            raise InputError("trunk_from skips frames of a stream; the windowed mode runs every frame")
         return self._outputs(frames, lambda inputs: self._window(inputs, recompute), streaming=False)
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
@@ -279,7 +295,8 @@ class Predictor:
                     self.camera(i)[1],
                     None if ups is None else torch.sigmoid(ups.float()).cpu().numpy(),
                 )
-            out["rack_depth"] = _depth_tensor(depth)
+            if out:  # not a frame the network skipped (`trunk_from`)
+                out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
                 step, sig, x = self._motion.popleft()
                 if history is not None and i < self.box_inputs_from:
@@ -368,7 +385,10 @@ class Predictor:
 
     def _stream(self, inputs: Iterable[Inputs]) -> Iterator[dict[str, torch.Tensor]]:
         state = None
-        for x, a, step in inputs:
+        for i, (x, a, step) in enumerate(inputs):
+            if i < self.trunk_from:
+                yield {}
+                continue
             out, state = self.model.step(x, state, a, None if state is None else step)
             yield {k: o[0] for k, o in out.items()}
 
