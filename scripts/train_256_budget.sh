@@ -19,10 +19,13 @@
 #      threads, its streamed pass split over two processes, over the scenes of both training folders in turn
 #      (at most BOX_SEQUENCES, default all 7,500): it streams the first BOX_FRAMES frames of each (6) and keeps
 #      the slots from frame BOX_FROM (3) on (the head is short of scenes rather than of frames, and frames 0-2
-#      lack the parallax against 3 frames back), and its pass stops at the minutes the budget has left, less
+#      lack the parallax against 3 frames back; `--cold-start`: frames 0-2 skip the network, entering only the
+#      motion estimate and the parallax history, so the pass holds 1.3-1.6 times the scenes; BOX_COLD=0 streams
+#      them through it, runs/budget256i-l), and its pass stops at the minutes the budget has left, less
 #      BOX_MARGIN (1.5) and the fit's share (`--pass-minutes`: the fit takes BOX_FIT_RATIO minutes per minute
-#      of pass, measured 0.55 with bf16, default 0.6; measured 0.88-0.92 in float32, default 0.95), so a
-#      faster machine fits the head on more scenes and a slower one on fewer. Every step's wall minutes are
+#      of pass, measured 0.90 with bf16 and the cold start, default 0.95 (0.55 and 0.6 without it); in float32
+#      default 1.3 (0.95 without it, measured 0.88-0.92)), so a faster machine fits the head on more scenes and
+#      a slower one on fewer. Every step's wall minutes are
 #      counted whole, model loading and caching included. BOX_SEQUENCES=0 leaves the box-depth head out (the
 #      earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs
 #      with native bf16), and so does the box-depth head's fit (`--precision`). The head also reads each box's
@@ -45,9 +48,11 @@ RUNS=${RUNS:-runs/budget256}
 TOTAL=${TOTAL:-120}
 DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as f; print('bf16' if f() else 'fp32')")
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
-if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_FIT_RATIO=${BOX_FIT_RATIO:-0.6}; fi
+BOX_COLD=${BOX_COLD:-1}
+if [ "$BOX_COLD" = 1 ]; then RATIOS=(0.95 1.3); else RATIOS=(0.6 0.95); fi  # the fit's share: bf16, float32
+if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[0]}}; fi
 STAGE2=${STAGE2:-18.5}
-BOX_FIT_RATIO=${BOX_FIT_RATIO:-0.95}
+BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[1]}}
 BOX_MARGIN=${BOX_MARGIN:-1.5}
 HEAD_SEQUENCES=${HEAD_SEQUENCES:-700}
 HEAD_EPOCHS=${HEAD_EPOCHS:-}
@@ -145,11 +150,12 @@ if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/box.pt" ]; then
     PASS=$(budget pass)
     BOX_DATA=("$TRAIN")
     [ "$BOX_EXTRA" -gt 0 ] && BOX_DATA+=("$TRAIN2")
-    FRONT=()
-    [ "$BOX_FRONT" = 1 ] && FRONT=(--front)
+    BOX_FLAGS=()
+    [ "$BOX_FRONT" = 1 ] && BOX_FLAGS=(--front)
+    [ "$BOX_COLD" = 1 ] && [ "$BOX_FROM" -gt 0 ] && BOX_FLAGS+=(--cold-start)
     timed box_depth $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "${BOX_DATA[@]}" \
         --sequences "$BOX_SEQUENCES" --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --pass-minutes "$PASS" \
-        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" "${FRONT[@]}" \
+        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" "${BOX_FLAGS[@]}" \
         --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
 fi
 [ -f "$RUN/heads.pt" ] || $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" \

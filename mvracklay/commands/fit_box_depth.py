@@ -82,7 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--cold-start", action="store_true",
         help="the frames before --from-frame skip the network: they enter only the motion estimate and the "
-        "parallax history, and the memory starts at frame K (about 1.6x the scenes per minute at --frames 6 "
+        "parallax history, and the memory starts at frame K (measured 1.5x the scenes per minute at --frames 6 "
         "--from-frame 3; the network's memory changes few cells)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
