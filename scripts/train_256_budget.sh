@@ -11,8 +11,9 @@
 #      scripts/configs/no_sparse.json: no scene with the sparse shelf preset);
 #   2. stage 1: weights/racklay256-stage1.pt (80 of racklay's 120-minute schedule on 2 threads, shipped);
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
-#      18.5, 14 where PRECISION is bf16; scripts/train_256.sh: 40 minutes on one thread beside racklay's second
-#      stage);
+#      18.5, 7 where PRECISION is bf16: 7 minutes lose little of the network and give the box-depth head 1.4
+#      times the scenes, runs/budget256m against runs/budget256n; scripts/train_256.sh: 40 minutes on one thread
+#      beside racklay's second stage);
 #   4. box decision offsets chosen on the tuning set (as in scripts/train_256.sh, not counted: no weight moves);
 #   5. the heads, the network frozen: first the back-edge and the upright heads side by side, one thread each,
 #      each on HEAD_SEQUENCES training sequences (default 700); then the box-depth head with parallax on both
@@ -50,7 +51,7 @@ DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 BOX_COLD=${BOX_COLD:-1}
 if [ "$BOX_COLD" = 1 ]; then RATIOS=(0.95 1.3); else RATIOS=(0.6 0.95); fi  # the fit's share: bf16, float32
-if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-14} BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[0]}}; fi
+if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-7} BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[0]}}; fi
 STAGE2=${STAGE2:-18.5}
 BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[1]}}
 BOX_MARGIN=${BOX_MARGIN:-1.5}
