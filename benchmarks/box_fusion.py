@@ -33,10 +33,10 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from layouts.boxdepth import impose_box_backs  # noqa: E402
+from layouts.boxdepth import BACK_RULES, FRONT_RULES, impose_box_backs  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
-from network.boxdepth import BINS, BoxDepthReader, RowMap, reading  # noqa: E402
+from network.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -49,9 +49,9 @@ class Keeping(Predictor):
         out["head_logits"] = super()._box_logits(out, i)
         return out["head_logits"]
 
-    def _box_backs(self, out: dict, boxes: BoxDepthReader, i: int, step: float) -> np.ndarray:
+    def _read_boxes(self, out: dict, boxes: BoxDepthReader, i: int, step: float) -> None:
         out["step"] = step
-        return super()._box_backs(out, boxes, i, step)
+        super()._read_boxes(out, boxes, i, step)
 
 
 class MeanMap(RowMap):
@@ -87,23 +87,61 @@ class Doubled(RowMap):
         super().add(cells, log_q, 2 * np.asarray(p))
 
 
-#: name -> (map factory, split side-by-side boxes by the front view's heights)
-RULES: dict[str, tuple[Callable[[], RowMap], bool]] = {
+class PriorBelow(RowMap):
+    """The product, and where a cell in view has summed shown probability under ``min_weight`` (no frame
+    has shown its depth enough yet) the fixed back ``prior`` (metres behind the rack front) instead of the
+    decoder's: box depths are drawn independently of everything a frame shows, so before a frame shows one
+    the best guess is a constant."""
+
+    def __init__(self, prior: float) -> None:
+        super().__init__()
+        self.prior = prior
+
+    def mean(self, cells: np.ndarray) -> np.ndarray:
+        out = super().mean(cells)
+        idx = np.asarray(cells, dtype=np.int64) - self.first
+        seen = (idx >= 0) & (idx < self.weight.size)
+        out[seen & ~np.isfinite(out)] = self.prior
+        return out
+
+
+#: name -> (map factory, split side-by-side boxes by the front view's heights[, front rule, back rule])
+RULES: dict[str, tuple] = {
     "mean p>=0.5": (lambda: MeanMap(lambda p, v: np.where(p >= 0.5, p, 0.0)), True),
     "mean": (lambda: MeanMap(lambda p, v: p), True),
     "inverse variance": (lambda: MeanMap(lambda p, v: p / (v + 0.001)), True),
     "product (shipped)": (RowMap, True),
     "product x2": (Doubled, True),
     "product, one back per component": (RowMap, False),
+    "product, used from weight 0.25": (lambda: RowMap(min_weight=0.25), True),
+    "product, used from weight 0": (lambda: RowMap(min_weight=0.0), True),
+    **{f"product, {p:.2f} m until shown": ((lambda p=p: PriorBelow(p)), True) for p in (0.45, 0.5, 0.55)},
+    **{
+        f"product, fronts {fr}, backs {br}": (RowMap, True, fr, br)
+        for fr in FRONT_RULES
+        for br in BACK_RULES
+        if (fr, br) != ("column", "median")
+    },
 }
 
 
-def carried(frames: list[dict], spec_m, make: Callable[[], RowMap], whole: bool) -> list[np.ndarray]:  # noqa: ANN001
-    """Each frame's ``(R, D)`` backs from ``frames`` (one sequence) fused by the maps ``make`` builds, as
-    `network.infer.Predictor` gives them (``whole``: every frame from the maps of the whole sequence)."""
+def carried(
+    frames: list[dict],
+    spec_m,
+    make: Callable[[], RowMap],
+    whole: bool,  # noqa: ANN001
+) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Each frame's ``(R, D)`` backs and fronts (None: a head without fronts) from ``frames`` (one sequence),
+    the backs fused by the maps ``make`` builds, as `network.infer.Predictor` gives them (``whole``: every
+    frame from the maps of the whole sequence)."""
     reader = BoxDepthReader(spec_m, make)
-    out = [(reader.add(f["log_q"], f["p"], f["valid"], f["step"]), reader.camera_x) for f in frames]
-    return [reader.backs(x, f["valid"]) if whole else backs for (backs, x), f in zip(out, frames)]
+    out = []
+    for f in frames:
+        backs = reader.add(f["log_q"], f["p"], f["valid"], f["step"], f["front_q"])
+        out.append((backs, reader.fronts(reader.camera_x, f["valid"]), reader.camera_x))
+    if whole:
+        return [(reader.backs(x, f["valid"]), reader.fronts(x, f["valid"])) for (_, _, x), f in zip(out, frames)]
+    return [(backs, fronts) for backs, fronts, _ in out]
 
 
 def main() -> int:
@@ -128,7 +166,7 @@ def main() -> int:
             log_q, p = reading(out["head_logits"])
             frames.append({
                 "top": logits_to_layout(out["top"], seq.spec.size), "front": logits_to_layout(out["front"], seq.spec.size),
-                "depth": float(out["rack_depth"]), "log_q": log_q, "p": p,
+                "depth": float(out["rack_depth"]), "log_q": log_q, "p": p, "front_q": front_reading(out["head_logits"]),
                 "step": out["step"], "valid": torch.isfinite(out["anchors"]).numpy(), "gt": gt,
             })  # fmt: skip
         runs.append((seq.spec, frames))
@@ -136,16 +174,16 @@ def main() -> int:
         f"{args.checkpoint} on {args.data}: {sum(len(f) for _, f in runs)} frames, {args.mode} mode; top rack / top box"
     )
     for whole in (False, True):
-        for name, (make, split) in RULES.items():
+        for name, (make, split, *shape) in RULES.items():
             scorer = FrameScorer()
             for spec, frames in runs:
                 last_depth = frames[-1]["depth"]
-                for f, backs in zip(frames, carried(frames, model.cfg.spec, make, whole)):
+                for f, (backs, fronts) in zip(frames, carried(frames, model.cfg.spec, make, whole)):
                     depth = last_depth if whole else f["depth"]
                     top = f["top"]
                     if np.isfinite(depth):
                         top = impose_rack_depth(top, spec, depth)
-                        top = impose_box_backs(top, f["front"], spec, depth, backs, split)
+                        top = impose_box_backs(top, f["front"], spec, depth, backs, split, fronts, *shape)
                     scorer.update({"top": top, "front": f["front"]}, f["gt"])
             v = scorer.result()["visible"]["top"]
             frames_from = "whole sequence" if whole else "frames so far"
