@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from layouts.boxdepth import BACK_RULES, FRONT_RULES, impose_box_backs  # noqa: E402
+from layouts.boxdepth import impose_box_backs  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
 from network.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
@@ -105,8 +105,8 @@ class PriorBelow(RowMap):
         return out
 
 
-#: name -> (map factory, split side-by-side boxes by the front view's heights[, front rule, back rule])
-RULES: dict[str, tuple] = {
+#: name -> (map factory, split side-by-side boxes by the front view's heights)
+RULES: dict[str, tuple[Callable[[], RowMap], bool]] = {
     "mean p>=0.5": (lambda: MeanMap(lambda p, v: np.where(p >= 0.5, p, 0.0)), True),
     "mean": (lambda: MeanMap(lambda p, v: p), True),
     "inverse variance": (lambda: MeanMap(lambda p, v: p / (v + 0.001)), True),
@@ -116,12 +116,6 @@ RULES: dict[str, tuple] = {
     "product, used from weight 0.25": (lambda: RowMap(min_weight=0.25), True),
     "product, used from weight 0": (lambda: RowMap(min_weight=0.0), True),
     **{f"product, {p:.2f} m until shown": ((lambda p=p: PriorBelow(p)), True) for p in (0.45, 0.5, 0.55)},
-    **{
-        f"product, fronts {fr}, backs {br}": (RowMap, True, fr, br)
-        for fr in FRONT_RULES
-        for br in BACK_RULES
-        if (fr, br) != ("column", "median")
-    },
 }
 
 
@@ -174,7 +168,7 @@ def main() -> int:
         f"{args.checkpoint} on {args.data}: {sum(len(f) for _, f in runs)} frames, {args.mode} mode; top rack / top box"
     )
     for whole in (False, True):
-        for name, (make, split, *shape) in RULES.items():
+        for name, (make, split) in RULES.items():
             scorer = FrameScorer()
             for spec, frames in runs:
                 last_depth = frames[-1]["depth"]
@@ -183,7 +177,7 @@ def main() -> int:
                     top = f["top"]
                     if np.isfinite(depth):
                         top = impose_rack_depth(top, spec, depth)
-                        top = impose_box_backs(top, f["front"], spec, depth, backs, split, fronts, *shape)
+                        top = impose_box_backs(top, f["front"], spec, depth, backs, split, fronts)
                     scorer.update({"top": top, "front": f["front"]}, f["gt"])
             v = scorer.result()["visible"]["top"]
             frames_from = "whole sequence" if whole else "frames so far"

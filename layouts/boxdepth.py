@@ -64,22 +64,6 @@ def redraw(
     top[:, cols] = sub
 
 
-#: how `impose_box_backs` sets a piece's fronts and its back
-FRONT_RULES = ("column", "median", "line")
-BACK_RULES = ("median", "depth")
-
-
-def _front_line(z: np.ndarray, rule: str) -> np.ndarray:
-    """A piece's per-column fronts ``z`` by ``rule`` (`impose_box_backs`); a line needs 3 columns, else the median."""
-    if rule == "column" or z.size == 0:
-        return z
-    if rule == "median" or z.size < 3:
-        return np.full_like(z, np.median(z))
-    x = np.arange(z.size, dtype=np.float64)
-    slope, icpt = np.polyfit(x, z, 1)
-    return icpt + slope * x
-
-
 def impose_box_backs(
     top: np.ndarray,
     front: np.ndarray,
@@ -88,8 +72,6 @@ def impose_box_backs(
     backs: np.ndarray,
     split: bool = True,
     fronts: np.ndarray | None = None,
-    front_rule: str = "column",
-    back_rule: str = "median",
 ) -> np.ndarray:
     """Top views ``(R, D, D)`` with every box's back moved to ``backs`` ``(R, W)``: metres behind the rack
     front per column of a grid of ``W`` columns over the same X extent (NaN: unknown; a box with no
@@ -99,15 +81,7 @@ def impose_box_backs(
     it is split where the front view's box height steps (`layouts.steps.pieces`, as the stitcher splits
     it), each piece with the median of its own known columns (of the whole component where it has none;
     ``split=False``: one back per component). ``fronts`` ``(R, W)``, as ``backs``: each column of a box with
-    a known back also takes its front from there (NaN: its own front stays). ``front_rule``: each column keeps
-    its front (``"column"``), each piece takes its columns' median (``"median"``) or a straight line fitted to
-    them (``"line"``: a box turned about Y has a slanted front); ``back_rule``: each piece's back is the median of
-    its known backs (``"median"``) or its front plus the median of its known depths back minus front
-    (``"depth"``: a slanted front gives a back slanted alike, a cuboid's). A copy is returned."""
-    if front_rule not in FRONT_RULES:
-        raise ValueError(f"front_rule must be one of {', '.join(FRONT_RULES)}, got {front_rule!r}")
-    if back_rule not in BACK_RULES:
-        raise ValueError(f"back_rule must be one of {', '.join(BACK_RULES)}, got {back_rule!r}")
+    a known back also takes its front from there (NaN: its own front stays). A copy is returned."""
     top = np.asarray(top)
     backs = np.asarray(backs, dtype=np.float64)
     r, d = top.shape[0], spec.size
@@ -132,18 +106,11 @@ def impose_box_backs(
                 continue
             if fronts is not None:
                 zf = np.where(np.isfinite(zn := fronts[k, cols * w // d]), zn, zf)
-            zf = np.array(zf, dtype=np.float64)
-            height = np.count_nonzero(front[k][:, cols] == BOX, axis=0) * dh
-            parts = pieces(height, SPLIT_STEP, min_cols) if split else [(0, len(cols))]
-            for a, b in parts:
-                zf[a:b] = _front_line(zf[a:b], front_rule)
-            rel = zb - zf if back_rule == "depth" else zb
-            whole = float(np.median(rel[known]))
+            whole = float(np.median(zb[known]))
             back = np.empty(len(cols))
-            for a, b in parts:
-                part = rel[a:b][known[a:b]]
+            height = np.count_nonzero(front[k][:, cols] == BOX, axis=0) * dh
+            for a, b in pieces(height, SPLIT_STEP, min_cols) if split else [(0, len(cols))]:
+                part = zb[a:b][known[a:b]]
                 back[a:b] = np.median(part) if part.size else whole
-            if back_rule == "depth":
-                back = back + zf
             redraw(out[k], cols, zf, np.maximum(back, zf + cell), spec, depth)
     return out

@@ -69,10 +69,6 @@ class FitConfig:
     #: the head's forward passes: fp32, or bf16 autocast (the loss in fp32). With native bf16 (AVX512-BF16) a
     #: batch of 64 slots took 1,030-1,100 -> 520 ms on one thread, the first epoch's loss within 0.1 %
     precision: str = "fp32"
-    #: the probability that a slot of a batch is mirrored left-right (its window, extras and targets flipped along
-    #: the columns: what the head would read of the mirrored frame, up to the trunk's features, which a mirror
-    #: maps only roughly onto the mirrored image's); 0 keeps every slot as streamed
-    flip: float = 0.0
 
     def validate(self) -> None:
         for name in ("epochs", "batch"):
@@ -86,9 +82,6 @@ class FitConfig:
         v = self.weight_decay
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
             raise InputError(f"--weight-decay must be a number >= 0, got {v!r}")
-        v = self.flip
-        if not (isinstance(v, (int, float)) and 0 <= v <= 1):
-            raise InputError(f"--flip must be a probability in [0, 1], got {v!r}")
         check_precision(self.precision)
 
 
@@ -600,8 +593,6 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
         for idx in tqdm(perm.split(cfg.batch), desc=f"box depth: epoch {ep + 1}/{cfg.epochs}", disable=not progress):
             b = np.sort(idx.numpy())  # sorted: the memory map reads forward
             batch = data.take(b)
-            if cfg.flip > 0:
-                batch = mirrored(batch, (torch.rand(len(b), generator=gen) < cfg.flip).numpy())
             with forward_autocast("cpu", cfg.precision):
                 logits = head(torch.from_numpy(batch.win).float(), torch.from_numpy(batch.extra).float())
             lz, ls, lf = split_logits(logits.float())
@@ -624,17 +615,6 @@ def train_head(head: BoxDepthHead, data: Cache | Chain, cfg: FitConfig, progress
         losses.append(total / per_epoch)
     head.eval()
     return losses
-
-
-def mirrored(batch: Cache, which: np.ndarray) -> Cache:
-    """``batch`` with the slots ``which`` (bool, per slot) mirrored left-right: every field flipped along its
-    last axis, the columns (the window's map columns, the extras' and targets' layout columns)."""
-    out = []
-    for k in CACHE_FIELDS:
-        v = np.array(getattr(batch, k))
-        v[which] = v[which][..., ::-1]
-        out.append(v)
-    return Cache(*out)
 
 
 def two_hot_ce(logits: torch.Tensor, target: torch.Tensor, bins: torch.Tensor, step: float) -> torch.Tensor:
@@ -699,7 +679,6 @@ def fit_box_depth(
         summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
     summary.update(
         row_profile=row_profile, width=width, front=front, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
-        flip=cfg.flip,
         fit_precision=cfg.precision, losses=losses,
         cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
     )  # fmt: skip

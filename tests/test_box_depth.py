@@ -28,7 +28,6 @@ from network.fit_boxdepth import (
     FrameChoice,
     cache_inputs,
     column_targets,
-    mirrored,
     part_name,
     train_head,
     with_box_head,
@@ -522,39 +521,6 @@ def test_a_chain_of_caches_reads_as_their_concatenation():
         for k in ("win", "extra", "back", "shown"):
             np.testing.assert_array_equal(getattr(got, k), np.concatenate([getattr(p, k) for p in parts])[idx])
     np.testing.assert_array_equal(chain.field("back"), np.concatenate([p.back for p in parts]))
-
-
-def test_mirrored_slots_flip_every_field_along_the_columns_and_leave_the_others():
-    rng = np.random.default_rng(1)
-    n, d = 4, 6
-    batch = Cache(
-        rng.random((n, 3, 2, 2 * d)).astype(np.float16), rng.random((n, d + 2, d)).astype(np.float16),
-        rng.random((n, d)).astype(np.float32), rng.random((n, d)) > 0.5, rng.random((n, d)).astype(np.float32),
-    )  # fmt: skip
-    which = np.array([True, False, True, False])
-    got = mirrored(batch, which)
-    for k in ("win", "extra", "back", "shown", "front"):
-        v, w = getattr(batch, k), getattr(got, k)
-        assert w.dtype == v.dtype and w.shape == v.shape
-        np.testing.assert_array_equal(w[~which], v[~which])
-        np.testing.assert_array_equal(w[which], v[which][..., ::-1])
-    np.testing.assert_array_equal(mirrored(got, which).win, batch.win)  # the batch itself untouched, twice = none
-    with pytest.raises(InputError, match="--flip must be a probability in"):
-        FitConfig(flip=1.5).validate()
-
-
-def test_the_head_learns_box_depths_from_mirrored_slots(tiny_checkpoint, tiny_dataset, tmp_path):
-    model = with_box_head(load_model(tiny_checkpoint)[0])
-    data = cache_inputs(model, open_dataset(tiny_dataset).sequences(), SeenTracker, tmp_path, progress=False)
-    from network.boxdepth import BoxDepthHead
-
-    runs = {}
-    for flip in (0.0, 0.5):
-        torch.manual_seed(0)
-        head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
-        runs[flip] = train_head(head, data, FitConfig(epochs=12, batch=8, lr=3e-3, flip=flip), progress=False)
-    assert runs[0.5][-1] < 0.7 * runs[0.5][0]
-    assert runs[0.5] != runs[0.0]  # the mirrored slots are what it was fitted on
 
 
 def test_bench_box_cache_times_the_cache_pass_of_the_frames_chosen(tiny_checkpoint, tiny_dataset, tmp_path):

@@ -51,11 +51,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="AdamW's decoupled weight decay, on all the head's parameters",
     )  # fmt: skip
     p.add_argument(
-        "--flip", type=float, default=FitConfig.flip, metavar="P",
-        help="mirror each cached slot left-right with probability P during the fit (its inputs and targets "
-        "flipped along the columns): more variety from the same streamed pass",
-    )  # fmt: skip
-    p.add_argument(
         "--parallax", action="store_true",
         help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
         "the rack front move less than the front as the camera moves); a cache ~2.4x as large, slower inference",
@@ -142,12 +137,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--cache-only needs --keep-cache DIR (the cache it makes would be removed at once)")
     check_pass_minutes(args.pass_minutes, args.keep_cache)
     cfg = FitConfig(
-        epochs=args.epochs,
-        seed=args.seed,
-        lr=args.lr,
-        weight_decay=args.weight_decay,
-        precision=args.precision,
-        flip=args.flip,
+        epochs=args.epochs, seed=args.seed, lr=args.lr, weight_decay=args.weight_decay, precision=args.precision
     )
     cfg.validate()
     choice = FrameChoice(args.frames, args.from_frame, args.cold_start)
