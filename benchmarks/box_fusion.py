@@ -13,7 +13,15 @@ so far and over the whole sequence, then scores the top view (columns in view, m
 * ``mean``: the same without the threshold;
 * ``inverse variance``: each frame's expected depth weighted by its shown probability over its variance;
 * ``product``: the frames' distributions multiplied, each raised to its shown probability (`RowMap`,
-  shipped); ``product x2``: the same with every exponent doubled (a sharper fused distribution).
+  shipped); ``product x2``: the same with every exponent doubled (a sharper fused distribution);
+* ``product, used from weight W``: the product used once a cell's summed shown probability reaches W
+  (shipped 0.5, `network.boxdepth.MIN_WEIGHT`; below it the decoder's back stays);
+* ``product, Z m until shown``: the product, and a fixed back Z metres behind the rack front where the
+  frames have not shown the depth enough yet, instead of the decoder's (box depths are drawn apart from
+  anything a frame shows, so before one shows it a constant is the best guess it could make).
+
+A head that reads fronts (`fit-box-depth --front`) has its fronts carried and imposed as the
+pipeline does, under every rule.
 
 Every rule gives each box one back, boxes side by side in one component told apart where the front
 view's box height steps (`layouts.boxdepth.impose_box_backs`, shipped); ``product, one back per

@@ -8,9 +8,12 @@ in view, mIoU in percent) of its layouts as decoded and after `layouts.rackdepth
 (what `mvracklay predict/run --rack-depth M` does) with: the depth the model reads from the boards'
 back edges and, with the upright head, the racks' uprights over the frames so far
 (`network.backedge`, `network.uprights`; what such models do by default); each scene's true rack
-depth (from its scene.json, what a racking spec sheet gives); the true depth off by +-ERR cm (a
-spec that is a little wrong); and one fixed depth for every scene (a guess). Only the top view
-changes.
+depth (from its scene.json, what a racking spec sheet gives); the true depth in each sequence's first
+K frames only (``--first K``) and the depth read after them: what a camera that starts reading
+well at once would gain, the reader being poorest while it has seen few frames; the true depth off
+by +-ERR cm (a spec that is a little wrong); and one fixed depth for every scene (a guess). A model
+with the box-depth head has its carried box backs (and fronts) imposed after the rack depth, as
+`mvracklay evaluate` does, wherever a depth is given. Only the top view changes.
 """
 
 from __future__ import annotations
@@ -26,7 +29,6 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.metrics import FrameScorer  # noqa: E402
-from layouts.rackdepth import impose_rack_depth  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -39,13 +41,18 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
     ap.add_argument("--errors", type=float, nargs="*", default=[2.0, 5.0], help="depth errors to try, cm")
     ap.add_argument("--fixed", type=float, default=1.0, help="the one depth for every scene, metres")
+    ap.add_argument(
+        "--first", type=int, nargs="*", default=[10], metavar="K",
+        help="the true depth in each sequence's first K frames, the read one after",
+    )  # fmt: skip
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     model, record = load_model(args.checkpoint)
     model.eval()
     seqs = open_dataset(args.data).sequences()
-    frames = []  # (predicted layouts, ground truth, scene rack depth)
+    frames = []  # (outputs, ground truth, scene rack depth, spec, depth read, frame index)
+    keep = ("top", "front", "box_back", "box_front")
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for seq in seqs:
         depth = float(seq.scene()["row"]["depth"])
@@ -53,14 +60,15 @@ def main() -> int:
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
             if i % args.every == 0:
-                read = float(out["rack_depth"])
-                decoded = frame_layouts({**out, "rack_depth": torch.tensor(float("nan"))}, seq.spec)
-                frames.append((decoded, seq.layouts(i), depth, seq.spec, read))
+                kept = {k: out[k] for k in keep if k in out}
+                frames.append((kept, seq.layouts(i), depth, seq.spec, float(out["rack_depth"]), i))
     bar.close()
     cases = [("as decoded", None)]
     if pred.reads_depth:
         cases.append((rack_depth_source(model), "read"))
     cases.append(("true rack depth", lambda d: d))
+    if pred.reads_depth:
+        cases += [(f"true, first {k} frames, read after", ("first", k)) for k in args.first]
     for e in args.errors:
         cases += [(f"true {sign}{e:g} cm", lambda d, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))]
     cases.append((f"{args.fixed:g} m for every scene", lambda d: args.fixed))
@@ -73,12 +81,14 @@ def main() -> int:
     for name, depth_of in cases:
         scorer = FrameScorer()
         errors = []
-        for p, gt, depth, spec, read in frames:
-            new = read if depth_of == "read" else None if depth_of is None else depth_of(depth)
-            top = p["top"] if new is None or not np.isfinite(new) else impose_rack_depth(p["top"], spec, new)
-            if new is not None and np.isfinite(new):
+        for out, gt, depth, spec, read, i in frames:
+            if isinstance(depth_of, tuple):
+                new = depth if i < depth_of[1] else read
+            else:
+                new = read if depth_of == "read" else float("nan") if depth_of is None else depth_of(depth)
+            if np.isfinite(new):
                 errors.append(abs(new - depth))
-            scorer.update({"top": top, "front": p["front"]}, gt)
+            scorer.update(frame_layouts({**out, "rack_depth": torch.tensor(new)}, spec), gt)
         v = scorer.result()["visible"]
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
         err = f"{100 * np.mean(errors):9.1f}" if errors else f"{'':9s}"

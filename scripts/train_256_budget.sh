@@ -13,7 +13,8 @@
 #   3. stage 2: mvracklay-disc-4 from those weights at 3e-4 on both threads for STAGE2 minutes (default
 #      18.5, 7 where PRECISION is bf16: 7 minutes lose little of the network and give the box-depth head 1.4
 #      times the scenes, runs/budget256m against runs/budget256n and runs/budget256p; 3.5 minutes lose,
-#      runs/budget256o; STAGE2=14 for runs/budget256g-m; scripts/train_256.sh: 40 minutes on one thread beside
+#      runs/budget256o; 10 minutes, runs/budget256q, level held out, lower on the tuning set, +1 on the front
+#      view; STAGE2=14 for runs/budget256g-m; scripts/train_256.sh: 40 minutes on one thread beside
 #      racklay's second stage);
 #   4. box decision offsets chosen on the tuning set (as in scripts/train_256.sh, not counted: no weight moves);
 #   5. the heads, the network frozen: first the back-edge and the upright heads side by side, one thread each,
