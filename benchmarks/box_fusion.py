@@ -44,6 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.boxdepth import impose_box_backs  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
+from layouts.spec import LayoutSpec  # noqa: E402
 from network.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
@@ -129,9 +130,9 @@ RULES: dict[str, tuple[Callable[[], RowMap], bool]] = {
 
 def carried(
     frames: list[dict],
-    spec_m,
+    spec_m: LayoutSpec,
     make: Callable[[], RowMap],
-    whole: bool,  # noqa: ANN001
+    whole: bool,
 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Each frame's ``(R, D)`` backs and fronts (None: a head without fronts) from ``frames`` (one sequence),
     the backs fused by the maps ``make`` builds, as `network.infer.Predictor` gives them (``whole``: every
