@@ -63,15 +63,18 @@ def main() -> int:
                 kept = {k: out[k] for k in keep if k in out}
                 frames.append((kept, seq.layouts(i), depth, seq.spec, float(out["rack_depth"]), i))
     bar.close()
-    cases = [("as decoded", None)]
+    # each case: name, and the depth it imposes from (true depth, depth read, frame index); NaN imposes none
+    cases = [("as decoded", lambda d, r, i: float("nan"))]
     if pred.reads_depth:
-        cases.append((rack_depth_source(model), "read"))
-    cases.append(("true rack depth", lambda d: d))
+        cases.append((rack_depth_source(model), lambda d, r, i: r))
+    cases.append(("true rack depth", lambda d, r, i: d))
     if pred.reads_depth:
-        cases += [(f"true, first {k} frames, read after", ("first", k)) for k in args.first]
+        cases += [(f"true, first {k} frames, read after", lambda d, r, i, k=k: d if i < k else r) for k in args.first]
     for e in args.errors:
-        cases += [(f"true {sign}{e:g} cm", lambda d, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))]
-    cases.append((f"{args.fixed:g} m for every scene", lambda d: args.fixed))
+        cases += [
+            (f"true {sign}{e:g} cm", lambda d, r, i, s=s, e=e: d + s * e / 100) for sign, s in (("+", 1), ("-", -1))
+        ]
+    cases.append((f"{args.fixed:g} m for every scene", lambda d, r, i: args.fixed))
     print(f"{record.get('variant')} ({args.checkpoint}) on {args.data}: {len(frames)} frames of {len(seqs)} sequences")
     print(
         f"{'mIoU, columns in view':34s} {'top rack':>9s} {'top box':>8s} {'front rack':>11s} {'front box':>10s} "
@@ -82,10 +85,7 @@ def main() -> int:
         scorer = FrameScorer()
         errors = []
         for out, gt, depth, spec, read, i in frames:
-            if isinstance(depth_of, tuple):
-                new = depth if i < depth_of[1] else read
-            else:
-                new = read if depth_of == "read" else float("nan") if depth_of is None else depth_of(depth)
+            new = depth_of(depth, read, i)
             if np.isfinite(new):
                 errors.append(abs(new - depth))
             scorer.update(frame_layouts({**out, "rack_depth": torch.tensor(new)}, spec), gt)
