@@ -149,13 +149,16 @@ class DepthReader:
 
     `add` accumulates a frame's `frame_depth_scores` (times `network.uprights.BACK_EDGE_WEIGHT` when
     the frame's uprights are given) and `network.uprights.upright_depth_scores`; `depth` is the best
-    hypothesis so far (None before any board or upright has given evidence). One reader per sequence
-    (one rack row).
+    hypothesis so far (None before any board or upright has given evidence) plus ``offset`` metres (the
+    reader's measured bias undone, `network.calibrate.fit_rack_depth_offset`), at most ``z_extent``. One
+    reader per sequence (one rack row).
     """
 
-    def __init__(self, view: CanonicalView, z_extent: float) -> None:
+    def __init__(self, view: CanonicalView, z_extent: float, offset: float = 0.0) -> None:
         self.view = view
         self.depths = depth_hypotheses(z_extent)
+        self.offset = float(offset)
+        self.z_extent = float(z_extent)
         self.scores = np.zeros(len(self.depths))
         self.frames = 0  #: frames that contributed
 
@@ -192,4 +195,4 @@ class DepthReader:
         k = int(np.argmax(self.scores))
         if k in (0, len(self.depths) - 1):
             return None
-        return float(self.depths[k])
+        return min(float(self.depths[k]) + self.offset, self.z_extent)

@@ -1,4 +1,5 @@
-"""Decision calibration: one box-logit offset per view, chosen on data the model never trained on.
+"""Decision calibration: one box-logit offset per view, and the rack-depth reader's offset, chosen on data
+the model never trained on.
 
 Training weights the rare box class (``--class-weights``, box x2 by default), which moves the
 argmax toward "box": a weighted cross entropy is minimised by probabilities in which box counts
@@ -9,6 +10,12 @@ model); `fit_box_offsets` picks the offset per view that maximises that view's m
 mIoU over a grid, on a tuning set (never the held-out set one reports on). The offsets live in the
 checkpoint's record (``box_logit_offset``) and `network.infer.Predictor` applies them, so every
 consumer of predictions (evaluate, predict, run) gets the calibrated decision.
+
+The rack depth read from the uprights and back edges (`network.backedge.DepthReader`) is biased in the
+same way on scenes its heads were not fitted on: shallow by a centimetre or so, the heads' marks being
+surer on the scenes they were fitted on. `fit_rack_depth_offset` measures that bias on a tuning set with
+known rack depths (the median of read minus true over the frames with a reading) and returns its negative,
+which the record carries as ``rack_depth_offset`` (metres) and the reader adds to every reading.
 """
 
 from __future__ import annotations
@@ -29,6 +36,8 @@ from network.model import MVRackLay
 GRID: tuple[float, ...] = tuple(round(0.25 * k, 2) for k in range(11))  # 0 .. 2.5
 #: offsets outside this range are refused (they would erase or flood the box class)
 LIMIT = 5.0
+#: rack-depth offsets beyond this many metres are refused: a reader that far off is broken, not biased
+DEPTH_OFFSET_LIMIT = 0.2
 
 
 def check_offsets(value: Any, source: str) -> dict[str, float]:
@@ -44,6 +53,23 @@ def check_offsets(value: Any, source: str) -> dict[str, float]:
             raise InputError(f"{source}: box_logit_offset[{v!r}] must be a number in [-{LIMIT}, {LIMIT}], got {x!r}")
         out[v] = float(x)
     return out
+
+
+def check_depth_offset(value: Any, source: str) -> float:
+    """A record's ``rack_depth_offset`` in metres (None: not calibrated, 0), or a one-line `InputError`."""
+    if value is None:
+        return 0.0
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or abs(value) > DEPTH_OFFSET_LIMIT
+    ):
+        raise InputError(
+            f"{source}: rack_depth_offset must be a number of metres in [-{DEPTH_OFFSET_LIMIT}, "
+            f"{DEPTH_OFFSET_LIMIT}], got {value!r}"
+        )
+    return float(value)
 
 
 def apply_box_offset(logits: torch.Tensor, offset: float) -> torch.Tensor:
@@ -120,6 +146,61 @@ def fit_box_offsets(
         "box_logit_offset": best,
         "scores": scores,
         "frames": frames,
+        "mode": mode,
+        "flip_average": flip,
+        "every": every,
+    }
+
+
+def fit_rack_depth_offset(
+    model: MVRackLay,
+    sequences: list[Any],
+    *,
+    every: int = 2,
+    mode: str = "stream",
+    flip: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """The offset that centres ``model``'s rack-depth reading on ``sequences``' true rack depths.
+
+    Streams each generated sequence as `network.infer.Predictor` does (the depth from the frames so far,
+    every frame run, every ``every``-th one counted) with the offset at 0, and returns
+    ``{"rack_depth_offset": -median(read - true), "frames", "error_before", "error_after", "mode",
+    "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading).
+    """
+    from network.fit_backedge import rack_row
+    from network.infer import Predictor, sequence_camera  # infer imports this module
+
+    if not sequences:
+        raise InputError("calibration needs at least one sequence with ground truth")
+    if model.back is None and model.uprights is None:
+        raise InputError("the model reads no rack depth (it has neither the back-edge nor the upright head)")
+    truths = [rack_row(seq, "the rack-depth offset")[0] for seq in sequences]
+    saved = model.rack_depth_offset
+    model.rack_depth_offset = 0.0
+    errors: list[float] = []
+    try:
+        bar = tqdm(total=sum(s.num_frames for s in sequences), desc="rack depth", unit="frame", disable=not progress)
+        for seq, truth in zip(sequences, truths):
+            pred = Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0)
+            for i, out in enumerate(pred.run((seq.rgb(k) for k in range(seq.num_frames)), mode)):
+                bar.update(1)
+                read = float(out["rack_depth"]) if "rack_depth" in out else float("nan")
+                if i % every == 0 and math.isfinite(read):
+                    errors.append(read - truth)
+        bar.close()
+    finally:
+        model.rack_depth_offset = saved
+    if not errors:
+        raise InputError("the model read no rack depth on the calibration sequences")
+    err = np.asarray(errors)
+    offset = -float(np.median(err))
+    check_depth_offset(offset, "the measured rack-depth bias")
+    return {
+        "rack_depth_offset": offset,
+        "frames": len(errors),
+        "error_before": float(np.abs(err).mean()),
+        "error_after": float(np.abs(err + offset).mean()),
         "mode": mode,
         "flip_average": flip,
         "every": every,

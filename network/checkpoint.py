@@ -21,7 +21,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes, atomic_write_json
-from network.calibrate import check_offsets
+from network.calibrate import check_depth_offset, check_offsets
 from network.model import ModelConfig, MVRackLay
 
 FORMAT = "mvracklay-checkpoint"
@@ -43,6 +43,10 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any], record: di
     atomic_write_json(json_path(path), record)
 
 
+#: record keys of the heads the rack depth is read from: a file with a new one loses its `rack_depth_offset`
+RACK_DEPTH_HEADS = ("back_edges", "uprights")
+
+
 def save_with_head(
     path: str | os.PathLike,
     payload: dict[str, Any],
@@ -60,6 +64,8 @@ def save_with_head(
     dtype = next(v.dtype for v in state.values() if v.is_floating_point())
     state.update({f"{name}.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()})
     record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    if key in RACK_DEPTH_HEADS:
+        record.pop("rack_depth_offset", None)  # measured on the heads it replaces
     record["model_config"] = cfg.to_dict()
     record[key] = info
     save_checkpoint(path, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
@@ -99,7 +105,8 @@ def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
 
 
 def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.PathLike) -> MVRackLay:
-    """The model (float32, eval mode, the record's box offsets) of a loaded checkpoint (`load_checkpoint`)."""
+    """The model (float32, eval mode, the record's box and rack-depth offsets) of a loaded checkpoint
+    (`load_checkpoint`)."""
     cfg = ModelConfig.from_dict(record.get("model_config"), f"{path} (model_config)")
     model = MVRackLay(cfg)
     state = payload["model"]
@@ -117,6 +124,7 @@ def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.P
         )
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()})
     model.box_logit_offset = check_offsets(record.get("box_logit_offset"), f"{path} (record)")
+    model.rack_depth_offset = check_depth_offset(record.get("rack_depth_offset"), f"{path} (record)")
     return model.eval()
 
 

@@ -276,7 +276,11 @@ class Predictor:
         """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
         with the box-depth head, ``"box_back"``: from the frames so far, or (``whole_sequence``) from all;
         the logits fused with the neighbouring frames' (``fuse_tau``) once the heads have read them."""
-        reader = DepthReader(self.cfg.view, self.cfg.spec.z_extent) if self.reads_depth else None
+        reader = (
+            DepthReader(self.cfg.view, self.cfg.spec.z_extent, self.model.rack_depth_offset)
+            if self.reads_depth
+            else None
+        )
         x_extent = self.cfg.spec.x_extent
         fusion = LayoutFusion(self.fuse_tau, x_extent) if self.fuse_tau > 0 and not self.whole_sequence else None
         steps: list[float] = []  # whole_sequence with fusion: each frame's camera step and columns seen
@@ -424,7 +428,10 @@ class Predictor:
 def rack_depth_source(model: MVRackLay) -> str:
     """How ``model`` reads the rack depth, in words (records and tables)."""
     cues = [name for name, head in (("uprights", model.uprights), ("back edges", model.back)) if head is not None]
-    return "read from " + " and ".join(cues) if cues else "as decoded"
+    if not cues:
+        return "as decoded"
+    offset = f", {100 * model.rack_depth_offset:+.1f} cm calibrated" if model.rack_depth_offset else ""
+    return "read from " + " and ".join(cues) + offset
 
 
 def _depth_tensor(depth: float | None) -> torch.Tensor:

@@ -633,6 +633,9 @@ class MVRackLay(nn.Module):
         #: per view, subtracted from the box logit by `network.infer.Predictor` (`network.calibrate`;
         #: not part of the weights: a checkpoint's record carries it)
         self.box_logit_offset: dict[str, float] = {v: 0.0 for v in VIEWS}
+        #: metres added to every rack depth the reader reads (`network.calibrate.fit_rack_depth_offset`;
+        #: a checkpoint's record carries it)
+        self.rack_depth_offset = 0.0
         #: at inference on the CPU the trunk, the slot maps and the box-depth head run as frozen graphs
         #: (`network.frozen`); False: always the modules
         self.frozen_graphs = True

@@ -34,6 +34,8 @@
 #      with native bf16), and so does the box-depth head's fit (`--precision`). The head also reads each box's
 #      front (`--front`: its setback behind the rack front; +0.4 to +0.7 top box on the same backs, about +0.4
 #      net, no slower); BOX_FRONT=0 fits the head without it (runs/budget256i-l);
+#      once the rack heads are joined, the offset that centres the rack depth they read on the tuning set's
+#      true depths (`calibrate --target rack-depth`; not counted either: no weight moves);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
 #      on the held-out set: the network alone, with the rack heads, with all heads, and all heads over the
 #      whole sequence, flip-averaged, with neighbouring frames fused.
@@ -161,8 +163,11 @@ if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/box.pt" ]; then
         --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" "${BOX_FLAGS[@]}" \
         --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
 fi
-[ -f "$RUN/heads.pt" ] || $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" \
-    --only uprights
+[ -f "$RUN/heads.pt" ] || { rm -f "$RUN/rack_depth_offset.json"
+    $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" --only uprights; }
+# the rack depth the heads read, centred on the tuning set's (not counted, as the box offsets: no weight moves)
+[ -f "$RUN/rack_depth_offset.json" ] || $PY -m mvracklay calibrate --target rack-depth --checkpoint "$RUN/heads.pt" \
+    --data "$TUNE" --threads 2 --quiet --json "$RUN/rack_depth_offset.json" > "$RUN/rack_depth_offset.txt"
 if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/heads_box.pt" ]; then
     $PY benchmarks/graft_heads.py "$RUN/box.pt" "$RUN/heads.pt" "$RUN/heads_box.pt" --only box_depth
 fi

@@ -224,11 +224,19 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     moved = {k: (v + 0.01 if v.is_floating_point() else v) for k, v in payload["model"].items()}
     net = tmp_path / "net.pt"
     record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record["rack_depth_offset"] = 0.03  # measured on NET's own rack heads: it goes when HEADS' come
     save_checkpoint(net, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": moved}, record)
     out = tmp_path / "grafted.pt"
     assert graft_heads.main([str(heads), str(net), str(out)]) == 0
     got, rec = load_checkpoint(out)
     h_payload, h_record = load_checkpoint(heads)
+    assert "rack_depth_offset" not in rec
+    h_rest = {k: v for k, v in h_record.items() if k not in ("format", "format_version")}
+    save_checkpoint(
+        heads, {k: v for k, v in h_payload.items() if k != "record_json"}, {**h_rest, "rack_depth_offset": -0.01}
+    )
+    assert graft_heads.main([str(heads), str(net), str(tmp_path / "g2.pt")]) == 0
+    assert load_model(tmp_path / "g2.pt")[0].rack_depth_offset == -0.01  # HEADS' offset comes with its heads
     assert rec["model_config"]["back_edges"] is True and rec["back_edges"] == h_record["back_edges"]
     assert rec["heads_grafted_from"] == str(heads)
     assert all(torch.equal(got["model"][k], v) for k, v in moved.items())

@@ -70,6 +70,14 @@ def test_the_reader_sums_frames_and_weighs_the_back_edges_less():
     edges_only = DepthReader(VIEW, 1.4)
     assert edges_only.add(prob, fronts, 2.5) == pytest.approx(1.2, abs=0.05)  # what the edges alone say
     assert DepthReader(VIEW, 1.4).add(None, [], 2.5, None) is None
+    # a calibrated offset moves every reading, never past the top view's depth, and gives none where none was
+    plain, shifted = DepthReader(VIEW, 1.4), DepthReader(VIEW, 1.4, offset=0.013)
+    capped = DepthReader(VIEW, 1.0, offset=0.2)
+    for xs in ([-1.2, 0.7], [-0.9, 1.1], [0.5, 1.3]):
+        ups = marks(VIEW, 2.5, 0.95, xs)
+        assert shifted.add(None, [], 2.5, ups) == pytest.approx(plain.add(None, [], 2.5, ups) + 0.013)
+        assert capped.add(None, [], 2.5, ups) == pytest.approx(1.0)
+    assert DepthReader(VIEW, 1.4, offset=0.05).add(None, [], 2.5, None) is None
 
 
 def test_the_head_is_in_the_model_and_its_reading_in_inference():

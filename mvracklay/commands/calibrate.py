@@ -1,25 +1,30 @@
-"""``mvracklay calibrate``: choose a checkpoint's per-view box-logit offsets on a tuning set."""
+"""``mvracklay calibrate``: choose a checkpoint's per-view box-logit offsets, or its rack-depth offset, on a
+tuning set."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from network.calibrate import GRID, fit_box_offsets
+from network.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.infer import FLIP_HELP
 
 NAME = "calibrate"
-HELP = "choose the per-view box decision offset of a checkpoint on a tuning set (writes it into the record)"
+HELP = "choose a checkpoint's box decision offsets or rack-depth offset on a tuning set (writes them into the record)"
 DESCRIPTION = (
     "Training weights the rare box class, which makes predicted boxes too large. This runs CKPT over a "
     "tuning set (with ground truth; never the set you report on), scores a grid of offsets subtracted "
     "from the box logit, and stores the best per view in the checkpoint's record as box_logit_offset: "
-    "evaluate, predict and run apply it from then on. The weights are not changed."
+    "evaluate, predict and run apply it from then on. With --target rack-depth it instead measures how far "
+    "the rack depth that a model with the upright or back-edge head reads lies from the true one (the "
+    "median over the frames, streamed; a generated tuning set) and stores the offset that undoes it as "
+    "rack_depth_offset (metres), added to every reading from then on. The weights are not changed."
 )
 ORDER = 33
 
@@ -28,6 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
     p.add_argument("--data", type=Path, required=True, help="tuning data with ground truth (dataset or RackLay export)")
     p.add_argument("--split", default="all", help="which split of --data to use (train, val, test, or all)")
+    p.add_argument(
+        "--target", choices=["box", "rack-depth"], default="box",
+        help="what to calibrate: the box decision offsets (default) or the offset of the rack depth the model reads",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
     p.add_argument(
@@ -36,7 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    p.add_argument("--json", type=Path, help="also write every offset's scores as JSON here")
+    p.add_argument(
+        "--json", type=Path, help="also write the scores (every box offset's, or the depth errors) as JSON here"
+    )
     p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
@@ -53,9 +64,22 @@ def run(args: argparse.Namespace) -> int:
     seqs = open_data(args.data).sequences(None if args.split == "all" else args.split)
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")
-    res = fit_box_offsets(
-        model, seqs, grid=GRID, every=args.every, mode=args.mode, flip=args.flip_average, progress=not args.quiet
-    )
+    opts = {"every": args.every, "mode": args.mode, "flip": args.flip_average, "progress": not args.quiet}
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    source = {"data": str(args.data), "split": args.split}
+    if args.target == "rack-depth":
+        res = fit_rack_depth_offset(model, seqs, **opts)
+        print(
+            f"rack depth: offset {100 * res['rack_depth_offset']:+.2f} cm  mean error {100 * res['error_before']:.2f} "
+            f"-> {100 * res['error_after']:.2f} cm ({res['frames']} frames with a reading)"
+        )
+        record["rack_depth_offset"] = res["rack_depth_offset"]
+        record["rack_depth_calibration"] = {
+            **source,
+            **{k: res[k] for k in ("frames", "mode", "flip_average", "every")},
+        }
+        return _write(args, payload, record, res)
+    res = fit_box_offsets(model, seqs, grid=GRID, **opts)
     best = res["box_logit_offset"]
     for v in ("top", "front"):
         s0, sb = res["scores"][v]["0"], res["scores"][v][f"{best[v]:g}"]
@@ -63,13 +87,13 @@ def run(args: argparse.Namespace) -> int:
             f"{v:5s}: box offset {best[v]:.2f}  rack {s0['rack'] * 100:.1f} -> {sb['rack'] * 100:.1f}  "
             f"box {s0['box'] * 100:.1f} -> {sb['box'] * 100:.1f} mIoU ({res['frames']} frames, columns in view)"
         )
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
     record["box_logit_offset"] = best
-    record["calibration"] = {
-        "data": str(args.data),
-        "split": args.split,
-        **{k: res[k] for k in ("frames", "mode", "flip_average", "every")},
-    }
+    record["calibration"] = {**source, **{k: res[k] for k in ("frames", "mode", "flip_average", "every")}}
+    return _write(args, payload, record, res)
+
+
+def _write(args: argparse.Namespace, payload: dict[str, Any], record: dict[str, Any], res: dict[str, Any]) -> int:
+    """The calibrated checkpoint written (to --out, else in place) and, with --json, the scores."""
     out = args.out or args.checkpoint
     save_checkpoint(out, {k: v for k, v in payload.items() if k != "record_json"}, record)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
