@@ -112,6 +112,7 @@ def with_box_head(
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
         raise InputError(f"model weights do not fit the model with a box-depth head: {unexpected or missing}")
     out.box_logit_offset = dict(model.box_logit_offset)
+    out.rack_depth_offset = model.rack_depth_offset
     out.graph_precision = model.graph_precision
     return out.to(next(model.parameters()).device).eval()
 
