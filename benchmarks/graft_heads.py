@@ -8,8 +8,8 @@ The back-edge, upright and box-depth heads are fitted with the network frozen (`
 the features of that network. After ``train --init-from HEADS`` has moved the network a little, those
 heads no longer match it exactly; refitting them costs hours at 256x256. This writes NET's weights and
 record with HEADS' head weights, head flags and fit records beside them (the box decision offsets stay
-NET's; the rack-depth offset goes with the rack heads, HEADS' where one is copied), so that ``evaluate`` measures what carrying the heads over without refitting costs. The record
-says where the heads came from (``heads_grafted_from``, ``heads_grafted``). ``--only FLAG ...`` copies
+NET's; the rack-depth offset goes with the rack heads, HEADS' where one is copied), so that ``evaluate``
+measures what carrying the heads over without refitting costs. The record says where the heads came from (``heads_grafted_from``, ``heads_grafted``). ``--only FLAG ...`` copies
 some of the heads and leaves NET its own others (NET with refitted heads, one of them swapped back).
 """
 
@@ -24,7 +24,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.errors import InputError  # noqa: E402
-from network.checkpoint import load_checkpoint, save_checkpoint  # noqa: E402
+from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint  # noqa: E402
 from network.model import ModelConfig  # noqa: E402
 
 #: (model-config flag, state-dict prefix, record key) of each head fitted after training
@@ -66,7 +66,7 @@ def graft(heads_path: Path, net_path: Path, out: Path, only: tuple[str, ...] = (
         copied.append(flag)
     if not copied:
         raise InputError(f"{heads_path}: has no depth heads to copy" + (f" of {', '.join(only)}" if only else ""))
-    if set(copied) & {"back_edges", "uprights"}:  # the reader's offset belongs to the heads it was measured on
+    if set(copied) & set(RACK_DEPTH_HEADS):  # the reader's offset belongs to the heads it was measured on
         record.pop("rack_depth_offset", None)
         if h_record.get("rack_depth_offset") is not None:
             record["rack_depth_offset"] = h_record["rack_depth_offset"]

@@ -11,9 +11,8 @@ mIoU over a grid, on a tuning set (never the held-out set one reports on). The o
 checkpoint's record (``box_logit_offset``) and `network.infer.Predictor` applies them, so every
 consumer of predictions (evaluate, predict, run) gets the calibrated decision.
 
-The rack depth read from the uprights and back edges (`network.backedge.DepthReader`) is biased in the
-same way on scenes its heads were not fitted on: shallow by a centimetre or so, the heads' marks being
-surer on the scenes they were fitted on. `fit_rack_depth_offset` measures that bias on a tuning set with
+The rack depth read from the uprights and back edges (`network.backedge.DepthReader`) is biased too, on
+scenes its heads were not fitted on: shallow by a centimetre or so (docs/network.md). `fit_rack_depth_offset` measures that bias on a tuning set with
 known rack depths (the median of read minus true over the frames with a reading) and returns its negative,
 which the record carries as ``rack_depth_offset`` (metres) and the reader adds to every reading.
 """
@@ -180,7 +179,13 @@ def fit_rack_depth_offset(
     model.rack_depth_offset = 0.0
     errors: list[float] = []
     try:
-        bar = tqdm(total=sum(s.num_frames for s in sequences), desc="rack depth", unit="frame", disable=not progress)
+        bar = tqdm(
+            total=sum(s.num_frames for s in sequences),
+            desc="rack depth",
+            unit="frame",
+            disable=not progress,
+            leave=False,
+        )
         for seq, truth in zip(sequences, truths):
             pred = Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0)
             for i, out in enumerate(pred.run((seq.rgb(k) for k in range(seq.num_frames)), mode)):

@@ -166,8 +166,9 @@ fi
 [ -f "$RUN/heads.pt" ] || { rm -f "$RUN/rack_depth_offset.json"
     $PY benchmarks/graft_heads.py "$RUN/uprights.pt" "$RUN/back_edges.pt" "$RUN/heads.pt" --only uprights; }
 # the rack depth the heads read, centred on the tuning set's (not counted, as the box offsets: no weight moves)
-[ -f "$RUN/rack_depth_offset.json" ] || $PY -m mvracklay calibrate --target rack-depth --checkpoint "$RUN/heads.pt" \
-    --data "$TUNE" --threads 2 --quiet --json "$RUN/rack_depth_offset.json" > "$RUN/rack_depth_offset.txt"
+[ -f "$RUN/rack_depth_offset.json" ] || { rm -f "$RUN/heads_box.pt"  # grafted from the heads before it
+    $PY -m mvracklay calibrate --target rack-depth --checkpoint "$RUN/heads.pt" --data "$TUNE" --threads 2 --quiet \
+        --json "$RUN/rack_depth_offset.json" > "$RUN/rack_depth_offset.txt"; }
 if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/heads_box.pt" ]; then
     $PY benchmarks/graft_heads.py "$RUN/box.pt" "$RUN/heads.pt" "$RUN/heads_box.pt" --only box_depth
 fi
