@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 import torch
 
@@ -65,35 +64,30 @@ def run(args: argparse.Namespace) -> int:
     if not seqs:
         raise InputError(f"{args.data}: has no '{args.split}' sequences")
     opts = {"every": args.every, "mode": args.mode, "flip": args.flip_average, "progress": not args.quiet}
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
-    source = {"data": str(args.data), "split": args.split}
     if args.target == "rack-depth":
         res = fit_rack_depth_offset(model, seqs, **opts)
         print(
             f"rack depth: offset {100 * res['rack_depth_offset']:+.2f} cm  mean error {100 * res['error_before']:.2f} "
             f"-> {100 * res['error_after']:.2f} cm ({res['frames']} frames with a reading)"
         )
-        record["rack_depth_offset"] = res["rack_depth_offset"]
-        record["rack_depth_calibration"] = {
-            **source,
-            **{k: res[k] for k in ("frames", "mode", "flip_average", "every")},
-        }
-        return _write(args, payload, record, res)
-    res = fit_box_offsets(model, seqs, grid=GRID, **opts)
-    best = res["box_logit_offset"]
-    for v in ("top", "front"):
-        s0, sb = res["scores"][v]["0"], res["scores"][v][f"{best[v]:g}"]
-        print(
-            f"{v:5s}: box offset {best[v]:.2f}  rack {s0['rack'] * 100:.1f} -> {sb['rack'] * 100:.1f}  "
-            f"box {s0['box'] * 100:.1f} -> {sb['box'] * 100:.1f} mIoU ({res['frames']} frames, columns in view)"
-        )
-    record["box_logit_offset"] = best
-    record["calibration"] = {**source, **{k: res[k] for k in ("frames", "mode", "flip_average", "every")}}
-    return _write(args, payload, record, res)
-
-
-def _write(args: argparse.Namespace, payload: dict[str, Any], record: dict[str, Any], res: dict[str, Any]) -> int:
-    """The calibrated checkpoint written (to --out, else in place) and, with --json, the scores."""
+        key, source_key = "rack_depth_offset", "rack_depth_calibration"
+    else:
+        res = fit_box_offsets(model, seqs, grid=GRID, **opts)
+        best = res["box_logit_offset"]
+        for v in ("top", "front"):
+            s0, sb = res["scores"][v]["0"], res["scores"][v][f"{best[v]:g}"]
+            print(
+                f"{v:5s}: box offset {best[v]:.2f}  rack {s0['rack'] * 100:.1f} -> {sb['rack'] * 100:.1f}  "
+                f"box {s0['box'] * 100:.1f} -> {sb['box'] * 100:.1f} mIoU ({res['frames']} frames, columns in view)"
+            )
+        key, source_key = "box_logit_offset", "calibration"
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record[key] = res[key]
+    record[source_key] = {
+        "data": str(args.data),
+        "split": args.split,
+        **{k: res[k] for k in ("frames", "mode", "flip_average", "every")},
+    }
     out = args.out or args.checkpoint
     save_checkpoint(out, {k: v for k, v in payload.items() if k != "record_json"}, record)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
