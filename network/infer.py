@@ -41,7 +41,7 @@ from network.roll import PRIME_FRAMES, CameraLeveller, check_angle
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
-HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax", "mirror_window", "mirror_parallax")
+HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax")
 #: the options' help, one text for every command that offers it
 WHOLE_SEQUENCE_HELP = (
     "read the rack depth and box depths from every frame of the sequence, not only the frames so far "
@@ -287,8 +287,6 @@ class Predictor:
         seen: list[torch.Tensor] = []
         boxes = BoxDepthReader(self.cfg.spec) if self.reads_box_depth else None
         history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
-        # the mirrored sequence's history (flip-averaged reading): its images mirrored, its steps the other way
-        mirrored = ParallaxHistory(self.cfg.view) if self.box_parallax and self.flip and self.reads_box_depth else None
         self._motion.clear()
         held: list[tuple[dict[str, torch.Tensor], float, np.ndarray]] = []  # whole_sequence: (out, camera X, slots)
         for i, out in enumerate(outs):
@@ -310,9 +308,6 @@ class Predictor:
                 elif history is not None:
                     maps = history.add(x, step)
                     out["box_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
-                    if mirrored is not None:
-                        maps = mirrored.add(x.flip(-1), -step)
-                        out["mirror_parallax"] = self.model.slots.window(maps.to(x.dtype), out["anchors"][None])[0]
                 if boxes is not None:
                     self._read_boxes(out, boxes, i, step)
                 if self.fuse_tau > 0:
@@ -340,19 +335,9 @@ class Predictor:
 
     @torch.no_grad()
     def _box_logits(self, out: dict[str, torch.Tensor], i: int) -> torch.Tensor:
-        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.boxdepth`); flip-averaged,
-        the mean of its logits on the frame and, mirrored back, on the mirrored frame (its own window and
-        parallax, the averaged view logits mirrored): the test-time flip of the views, given to the head."""
-        distance = self.camera(i)[1]
-        win, extra = frame_head_inputs(out, self.cfg.view, distance)
-        logits = self.model.box_logits(win.to(self.device), extra.to(self.device))
-        if "mirror_window" not in out:
-            return logits
-        mirror = {"box_window": out["mirror_window"], "anchors": out["anchors"], **{v: out[v].flip(-1) for v in VIEWS}}
-        if "mirror_parallax" in out:
-            mirror["box_parallax"] = out["mirror_parallax"]
-        win, extra = frame_head_inputs(mirror, self.cfg.view, distance)
-        return 0.5 * (logits + self.model.box_logits(win.to(self.device), extra.to(self.device)).flip(-1))
+        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.boxdepth`)."""
+        win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
+        return self.model.box_logits(win.to(self.device), extra.to(self.device))
 
     def _read_boxes(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> None:
         """One frame's head reading added to ``boxes``, and its carried box depths put in ``out``."""
@@ -398,14 +383,9 @@ class Predictor:
             if a is None:  # the row head's: the direct pass's slots, so both passes fill the same shelves
                 mirrored[-1] = (x, out["anchors"][None], None)
             back = next(passes)
-            res = {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
-            if self.reads_box_depth:  # the box-depth head reads the mirrored frame too (`_box_logits`)
-                res["mirror_window"] = back["box_window"]
-            if self.reads_depth:  # the rack heads' logits averaged too: back edges per image row, uprights per column
-                for k, cols in (("back", False), ("uprights", True)):
-                    if out.get(k) is not None:
-                        res[k] = 0.5 * (out[k] + (back[k].flip(-1) if cols else back[k]))
-            yield self._decide(res)
+            yield self._decide(
+                {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
+            )
 
     def _stream(self, inputs: Iterable[Inputs]) -> Iterator[dict[str, torch.Tensor]]:
         state = None
