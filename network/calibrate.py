@@ -20,6 +20,7 @@ which the record carries as ``rack_depth_offset`` (metres) and the reader adds t
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -71,6 +72,27 @@ def check_depth_offset(value: Any, source: str) -> float:
     return float(value)
 
 
+def _tuning_outputs(
+    model: MVRackLay, sequences: list[Any], every: int, mode: str, flip: bool, progress: bool, desc: str
+) -> Iterator[tuple[int, int, dict[str, torch.Tensor]]]:
+    """``(sequence index, frame index, outputs)`` of every ``every``-th frame of ``sequences``, each run whole by
+    `network.infer.Predictor` (``mode``, flip-averaged with ``flip``, no fusion), with a progress bar."""
+    from network.infer import Predictor, sequence_camera  # infer imports this module
+
+    if not sequences:
+        raise InputError("calibration needs at least one sequence with ground truth")
+    bar = tqdm(total=sum(s.num_frames for s in sequences), desc=desc, unit="frame", disable=not progress, leave=False)
+    try:
+        for k, seq in enumerate(sequences):
+            pred = Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0)
+            for i, out in enumerate(pred.run((seq.rgb(j) for j in range(seq.num_frames)), mode)):
+                bar.update(1)
+                if i % every == 0:
+                    yield k, i, out
+    finally:
+        bar.close()
+
+
 def apply_box_offset(logits: torch.Tensor, offset: float) -> torch.Tensor:
     """``(..., 3, D, D)`` logits with ``offset`` subtracted from the box class (a new tensor)."""
     if offset == 0.0:
@@ -96,38 +118,25 @@ def fit_box_offsets(
     best = the largest mean of the view's rack and box mIoU (ties: the smaller offset). ``flip``
     scores flip-averaged logits (`network.infer.Predictor`).
     """
-    from network.infer import Predictor, logits_to_layout, resize_logits, sequence_camera  # infer imports this module
+    from network.infer import logits_to_layout, resize_logits  # infer imports this module
 
-    if not sequences:
-        raise InputError("calibration needs at least one sequence with ground truth")
     if not grid or any(not math.isfinite(g) or abs(g) > LIMIT for g in grid):
         raise InputError(f"offset grid must hold numbers in [-{LIMIT}, {LIMIT}], got {grid}")
     saved = dict(model.box_logit_offset)
     model.box_logit_offset = {v: 0.0 for v in VIEWS}  # score the raw logits
     scorers = {g: LayoutMetrics() for g in grid}  # each view scored on its own, columns in view
-    total = sum(s.num_frames for s in sequences)
     frames = 0
     try:
-        bar = tqdm(total=total, desc="calibrate", unit="frame", disable=not progress, leave=False)
-        for seq in sequences:
-            d = seq.spec.size
-            for i, out in enumerate(
-                Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0).run(
-                    (seq.rgb(k) for k in range(seq.num_frames)), mode
-                )
-            ):
-                bar.update(1)
-                if i % every:
-                    continue
-                gt = seq.layouts(i)
-                vis = gt.visible if gt.visible is not None else np.ones(d, bool)
-                for v in VIEWS:
-                    logits = resize_logits(out[v].float(), d)  # offsets commute with the bilinear resize
-                    for g in grid:
-                        pred = logits_to_layout(apply_box_offset(logits, g))
-                        scorers[g].update(pred, getattr(gt, v), v, valid=vis)
-                frames += 1
-        bar.close()
+        for k, i, out in _tuning_outputs(model, sequences, every, mode, flip, progress, "calibrate"):
+            d = sequences[k].spec.size
+            gt = sequences[k].layouts(i)
+            vis = gt.visible if gt.visible is not None else np.ones(d, bool)
+            for v in VIEWS:
+                logits = resize_logits(out[v].float(), d)  # offsets commute with the bilinear resize
+                for g in grid:
+                    pred = logits_to_layout(apply_box_offset(logits, g))
+                    scorers[g].update(pred, getattr(gt, v), v, valid=vis)
+            frames += 1
     finally:
         model.box_logit_offset = saved
     scores: dict[str, dict[str, dict[str, float]]] = {v: {} for v in VIEWS}
@@ -168,32 +177,18 @@ def fit_rack_depth_offset(
     "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading).
     """
     from network.fit_backedge import rack_row
-    from network.infer import Predictor, sequence_camera  # infer imports this module
 
-    if not sequences:
-        raise InputError("calibration needs at least one sequence with ground truth")
     if model.back is None and model.uprights is None:
         raise InputError("the model reads no rack depth (it has neither the back-edge nor the upright head)")
-    truths = [rack_row(seq, "the rack-depth offset")[0] for seq in sequences]
+    truths = [rack_row(seq, "the rack-depth offset")[0] for seq in sequences]  # all checked before streaming
     saved = model.rack_depth_offset
     model.rack_depth_offset = 0.0
     errors: list[float] = []
     try:
-        bar = tqdm(
-            total=sum(s.num_frames for s in sequences),
-            desc="rack depth",
-            unit="frame",
-            disable=not progress,
-            leave=False,
-        )
-        for seq, truth in zip(sequences, truths):
-            pred = Predictor(model, sequence_camera(seq), flip=flip, fuse_tau=0)
-            for i, out in enumerate(pred.run((seq.rgb(k) for k in range(seq.num_frames)), mode)):
-                bar.update(1)
-                read = float(out["rack_depth"]) if "rack_depth" in out else float("nan")
-                if i % every == 0 and math.isfinite(read):
-                    errors.append(read - truth)
-        bar.close()
+        for k, _, out in _tuning_outputs(model, sequences, every, mode, flip, progress, "rack depth"):
+            read = float(out["rack_depth"]) if "rack_depth" in out else float("nan")
+            if math.isfinite(read):
+                errors.append(read - truths[k])
     finally:
         model.rack_depth_offset = saved
     if not errors:
