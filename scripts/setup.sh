@@ -5,7 +5,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY="${PYTHON:-python3}"
 
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+# grep reads the whole list (no -q): with pipefail, -q's early exit can kill ldconfig with SIGPIPE and
+# make a present library look missing (measured: 4 of 200 checks here)
+if ! ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null; then
     if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null; then
         echo "setup: installing libusb-1.0-0 (needed by open3d)"
         apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0 >/dev/null
