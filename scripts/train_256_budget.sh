@@ -33,7 +33,11 @@
 #      earlier recipe, with STAGE2=28). The heads' passes run the trunk in PRECISION (stage 2's: bf16 on CPUs
 #      with native bf16), and so does the box-depth head's fit (`--precision`). The head also reads each box's
 #      front (`--front`: its setback behind the rack front; +0.4 to +0.7 top box on the same backs, about +0.4
-#      net, no slower); BOX_FRONT=0 fits the head without it (runs/budget256i-l);
+#      net, no slower); BOX_FRONT=0 fits the head without it (runs/budget256i-l); BOX_WIDTH=64 fits a head of
+#      64 channels instead of 32 (`--head-width`; its fit takes 2.6 times the share, measured 2.24 minutes per
+#      pass-minute with bf16 and the cold start; +0.45 top box held out and on the tuning set on a machine whose
+#      pass streams every scene made with the default width, runs/budget256s/w64, where the scenes had stopped
+#      paying; on a slower machine the scenes it costs may outweigh it);
 #      once the rack heads are joined, the offset that centres the rack depth they read on the tuning set's
 #      true depths (`calibrate --target rack-depth`; not counted either: no weight moves);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
@@ -55,6 +59,12 @@ DEFAULT_PRECISION=$($PY -c "from network.precision import cpu_has_native_bf16 as
 PRECISION=${PRECISION:-$DEFAULT_PRECISION}
 BOX_COLD=${BOX_COLD:-1}
 if [ "$BOX_COLD" = 1 ]; then RATIOS=(0.95 1.3); else RATIOS=(0.6 0.95); fi  # the fit's share: bf16, float32
+BOX_WIDTH=${BOX_WIDTH:-32}
+case "$BOX_WIDTH" in
+    32) ;;
+    64) read -r -a RATIOS <<< "$(awk -v a="${RATIOS[0]}" -v b="${RATIOS[1]}" 'BEGIN { printf "%.2f %.2f", 2.6 * a, 2.6 * b }')" ;;
+    *) echo "train_256_budget.sh: BOX_WIDTH must be 32 or 64 (the fit's share is measured for those), got $BOX_WIDTH" >&2; exit 2 ;;
+esac
 if [ "$PRECISION" = bf16 ]; then STAGE2=${STAGE2:-7} BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[0]}}; fi
 STAGE2=${STAGE2:-18.5}
 BOX_FIT_RATIO=${BOX_FIT_RATIO:-${RATIOS[1]}}
@@ -160,7 +170,8 @@ if [ "$BOX_SEQUENCES" -gt 0 ] && [ ! -f "$RUN/box.pt" ]; then
     [ "$BOX_COLD" = 1 ] && [ "$BOX_FROM" -gt 0 ] && BOX_FLAGS+=(--cold-start)
     timed box_depth $PY -m mvracklay fit-box-depth --checkpoint "$RUN/calibrated.pt" --data "${BOX_DATA[@]}" \
         --sequences "$BOX_SEQUENCES" --frames "$BOX_FRAMES" --from-frame "$BOX_FROM" --parallax --pass-minutes "$PASS" \
-        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" "${EPOCHS[@]}" "${BOX_FLAGS[@]}" \
+        --cache-workers 2 --threads 2 --cache-dir "$RUNS" --quiet --precision "$PRECISION" --head-width "$BOX_WIDTH" \
+        "${EPOCHS[@]}" "${BOX_FLAGS[@]}" \
         --out "$RUN/box.pt" --json "$RUN/box.fit.json" > "$RUN/box.log" 2>&1
 fi
 [ -f "$RUN/heads.pt" ] || { rm -f "$RUN/rack_depth_offset.json"
