@@ -36,8 +36,8 @@
 #      net, no slower); BOX_FRONT=0 fits the head without it (runs/budget256i-l); BOX_WIDTH=64 fits a head of
 #      64 channels instead of 32 (`--head-width`; its fit takes 2.6 times the share, measured 2.24 minutes per
 #      pass-minute with bf16 and the cold start; +0.45 top box held out and on the tuning set on a machine whose
-#      pass streams every scene made with the default width, runs/budget256s/w64, where the scenes had stopped
-#      paying; on a slower machine the scenes it costs may outweigh it);
+#      pass streams every scene made with the default width, runs/budget256s/w64, but the whole script with it,
+#      runs/budget256t, only -0.1 to +0.3 online against two default runs, so the default stays 32);
 #      once the rack heads are joined, the offset that centres the rack depth they read on the tuning set's
 #      true depths (`calibrate --target rack-depth`; not counted either: no weight moves);
 #   6. the budget added up (the runs' step minutes, the heads' wall minutes; refused over TOTAL), then Table I
