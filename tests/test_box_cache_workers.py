@@ -97,7 +97,8 @@ def test_pass_minutes_fits_on_the_sequences_streamed_in_time(tiny_checkpoint, ti
     assert "the pass stopped" not in capsys.readouterr().out
     whole = load_checkpoint(tmp_path / "all.pt")[1]["box_depth"]
     assert (whole["train_sequences"], whole["sequences_given"]) == (3, 3)
-    assert whole["train_slots"] > cut["train_slots"] > 0
+    # how many slots the third sequence adds depends on which frames were streamed, not on the clock
+    assert whole["train_slots"] >= cut["train_slots"] > 0
 
 
 def test_a_failing_process_stops_the_pass_with_one_line(tiny_checkpoint, tiny_dataset, tmp_path):
@@ -155,8 +156,10 @@ def test_a_bf16_pass_and_fit_keep_a_cache_of_their_own(tiny_checkpoint, tiny_dat
     assert main([*base, "--keep-cache", str(fp32), "--out", str(tmp_path / "a.pt")]) == 0
     capsys.readouterr()
     assert main([*base, "--keep-cache", str(fp32), "--precision", "bf16", "--out", str(tmp_path / "x.pt")]) == 2
-    err = capsys.readouterr().err.strip()  # the float32 pass's inputs are not the bf16 pass's: refused, one line
-    assert len(err.splitlines()) == 1 and "trunk precision" in err and not (tmp_path / "x.pt").exists()
+    # the float32 pass's inputs are not the bf16 pass's: refused, one error line (a CPU without native bf16
+    # also prints a warning line before it)
+    errors = [x for x in capsys.readouterr().err.splitlines() if ": error: " in x]
+    assert len(errors) == 1 and "trunk precision" in errors[0] and not (tmp_path / "x.pt").exists()
     assert main([*base, "--keep-cache", str(bf16), "--precision", "bf16", "--out", str(tmp_path / "b.pt")]) == 0
     a, b = (load_checkpoint(tmp_path / f"{k}.pt") for k in "ab")
     assert (a[1]["box_depth"]["precision"], a[1]["box_depth"]["fit_precision"]) == ("fp32", "fp32")
