@@ -27,12 +27,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.fileio import atomic_write_json  # noqa: E402
-from network import frozen  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.fusion import add_fuse_option  # noqa: E402
-from network.infer import Predictor  # noqa: E402
-from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
-from network.roll import add_roll_option  # noqa: E402
+from network.inference import frozen  # noqa: E402
+from network.inference.fusion import add_fuse_option  # noqa: E402
+from network.inference.predictor import Predictor  # noqa: E402
+from network.inference.roll import add_roll_option  # noqa: E402
+from network.model.net import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
 
 def sync(device: torch.device) -> None:
@@ -90,7 +90,7 @@ def main() -> int:
     ap.add_argument(
         "--no-graphs",
         action="store_true",
-        help="run the network's modules, not its frozen graphs (network/frozen.py), to see what they buy",
+        help="run the network's modules, not its frozen graphs (network/inference/frozen.py), to see what they buy",
     )
     frozen.add_precision_option(ap)
     ap.add_argument("--json", type=Path, help="also write the figures here")

@@ -27,9 +27,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import VIEWS, LayoutSpec  # noqa: E402
-from network.losses import row_loss, supervised_loss  # noqa: E402
-from network.model import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+from network.model.net import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 from network.precision import PRECISIONS, forward_autocast  # noqa: E402
+from network.training.losses import row_loss, supervised_loss  # noqa: E402
 
 
 def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "fp32", prefix: int = 0) -> float:

@@ -3,15 +3,15 @@
 
     .venv/bin/python benchmarks/box_depth_reader.py CKPT --eval data/heldout256 [--sequences N] [--every 2]
 
-CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`, `network.boxdepth`).
+CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`, `network.heads.boxdepth`).
 `benchmarks/box_top_faces.py` measured, on the shipped predictions, that the true depth of every box
 whose depth the frame shows (any face) would lift the 256x256 top box from 66.8 to 75.0, and of every
 box some frame so far showed, to 81.2; this prints how much of that the head reads.
 
 Scored like `box_top_faces.py` (streamed, the rack depth read, Table I top view): each predicted
 box's back moved to the head's depth per column (a) everywhere, (b) where the head says the frame
-shows it, and (c) carried along the row (`network.boxdepth.BoxDepthReader`) with the camera's X
-from the poses or read from the images (`network.motion.camera_shift`): the latter is what
+shows it, and (c) carried along the row (`network.heads.boxdepth.BoxDepthReader`) with the camera's X
+from the poses or read from the images (`network.model.motion.camera_shift`): the latter is what
 `mvracklay predict`, `run` and `evaluate` do. Then the oracles of `box_top_faces.py`.
 """
 
@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
 
 from layouts.boxdepth import box_parts  # noqa: E402
-from network.boxdepth import BoxDepthReader, decode, frame_head_inputs, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.heads.boxdepth import BoxDepthReader, decode, frame_head_inputs, reading  # noqa: E402
+from network.inference.predictor import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

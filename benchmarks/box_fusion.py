@@ -9,13 +9,13 @@ and camera step are kept, and every rule below rebuilds the carried backs from t
 so far and over the whole sequence, then scores the top view (columns in view, mIoU):
 
 * ``mean p>=0.5``: the shown-weighted mean of the expected depths of the frames whose shown probability
-  is at least 0.5 (what `network.boxdepth.BoxDepthReader` did before the product);
+  is at least 0.5 (what `network.heads.boxdepth.BoxDepthReader` did before the product);
 * ``mean``: the same without the threshold;
 * ``inverse variance``: each frame's expected depth weighted by its shown probability over its variance;
 * ``product``: the frames' distributions multiplied, each raised to its shown probability (`RowMap`,
   shipped); ``product x2``: the same with every exponent doubled (a sharper fused distribution);
 * ``product, used from weight W``: the product used once a cell's summed shown probability reaches W
-  (shipped 0.5, `network.boxdepth.MIN_WEIGHT`; below it the decoder's back stays);
+  (shipped 0.5, `network.heads.boxdepth.MIN_WEIGHT`; below it the decoder's back stays);
 * ``product, Z m until shown``: the product, and a fixed back Z metres behind the rack front where the
   frames have not shown the depth enough yet, instead of the decoder's (box depths are drawn apart from
   anything a frame shows, so before one shows it a constant is the best guess it could make).
@@ -45,9 +45,9 @@ from layouts.boxdepth import impose_box_backs  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import impose_rack_depth  # noqa: E402
 from layouts.spec import LayoutSpec  # noqa: E402
-from network.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, logits_to_layout, sequence_camera  # noqa: E402
+from network.heads.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
+from network.inference.predictor import Predictor, logits_to_layout, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 
@@ -135,7 +135,7 @@ def carried(
     whole: bool,
 ) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Each frame's ``(R, D)`` backs and fronts (None: a head without fronts) from ``frames`` (one sequence),
-    the backs fused by the maps ``make`` builds, as `network.infer.Predictor` gives them (``whole``: every
+    the backs fused by the maps ``make`` builds, as `network.inference.predictor.Predictor` gives them (``whole``: every
     frame from the maps of the whole sequence)."""
     reader = BoxDepthReader(spec_m, make)
     out = []

@@ -1,6 +1,6 @@
 """Does the box-depth head read box depths better with the plane-sweep parallax among its inputs?
 
-One cache of the head's inputs with the parallax maps (`network.boxdepth.ParallaxHistory`) over the
+One cache of the head's inputs with the parallax maps (`network.heads.boxdepth.ParallaxHistory`) over the
 first N training sequences, then two heads fitted on it with the same seed and schedule: one on the
 window without the parallax channels (the shipped head's inputs), one with them. Writes both as
 checkpoints (``OUT/without.pt``, ``OUT/with.pt``) for `mvracklay evaluate` / `eval-reconstruction`.
@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from network.boxdepth import PARALLAX_CHANNELS, BoxDepthHead
 from network.checkpoint import load_checkpoint, model_from, save_with_head
-from network.fit_boxdepth import Cache, FitConfig, box_head_config, cache_inputs, train_head, with_box_head
-from network.train import open_data
+from network.heads.boxdepth import PARALLAX_CHANNELS, BoxDepthHead
+from network.training.fit_boxdepth import Cache, FitConfig, box_head_config, cache_inputs, train_head, with_box_head
+from network.training.trainer import open_data
 from waresynth.visibility import SeenTracker
 
 

@@ -8,7 +8,7 @@ between two horizontal edges: the front edge, at its front, and the back edge, a
 behind the rack front. On the front plane a point ``h`` metres above the board, ``Z`` behind the
 front, appears at height ``c - (c - h) * d / (d + Z)`` (``c``: the camera's height above the board,
 ``d``: its distance to the rack front), so the two edges' rows give the box's depth, as the boards'
-back edges give the rack's (`network.backedge`). The rows are few: a box top 0.5 m below the camera
+back edges give the rack's (`network.heads.backedge`). The rows are few: a box top 0.5 m below the camera
 shows a face 4-10 cm tall on the front plane for boxes 0.25-0.7 m deep.
 
 Runs the model (streaming, its own rack-depth reading and row-head anchors) over every sequence and
@@ -53,7 +53,7 @@ from layouts.boxdepth import box_parts, cell_z, redraw  # noqa: E402
 from layouts.canonical import CanonicalView  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, frame_layouts, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

@@ -25,7 +25,7 @@ from graft_heads import BOX_OPTIONS, HEADS, write_with_heads  # noqa: E402
 
 from layouts.errors import InputError  # noqa: E402
 from network.checkpoint import load_checkpoint  # noqa: E402
-from network.model import ModelConfig  # noqa: E402
+from network.model.net import ModelConfig  # noqa: E402
 
 
 def drop(path: Path, out: Path, heads: tuple[str, ...]) -> list[str]:

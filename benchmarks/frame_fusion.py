@@ -10,10 +10,10 @@ the argmax of the average is scored (`layouts.metrics.FrameScorer`, columns in v
 2nd frame). K = 1 is the model alone. If the per-frame errors were independent noise, the
 fused scores would climb with K; if they are a bias shared by neighbouring views of a scene,
 they stay close to K = 1. ``--motion images`` shifts by the camera motion read from the
-canonical images (`network.motion`, what the slot memory uses) instead of the truth: what such a
+canonical images (`network.model.motion`, what the slot memory uses) instead of the truth: what such a
 fusion would give on footage without poses.
 
-``--tau T [T ...]`` scores the shipped fusion instead (`network.fusion`, what ``--fuse-frames T`` does):
+``--tau T [T ...]`` scores the shipped fusion instead (`network.inference.fusion`, what ``--fuse-frames T`` does):
 the whole pipeline of ``mvracklay evaluate`` (windowed, depth heads, every frame), each frame's logits
 fused with weights exp(-frames apart / T) (T = 0: each frame alone), the camera motion read from the
 images (the same figures as ``evaluate --fuse-frames T``) or, with ``--motion truth``, the true steps;
@@ -37,10 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts import VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
-from network.infer import Predictor, frame_layouts, resize_logits, sequence_camera  # noqa: E402
-from network.motion import camera_shift, motion_signature  # noqa: E402
-from network.train import open_data  # noqa: E402
+from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
+from network.inference.predictor import Predictor, frame_layouts, resize_logits, sequence_camera  # noqa: E402
+from network.model.motion import camera_shift, motion_signature  # noqa: E402
+from network.training.trainer import open_data  # noqa: E402
 
 
 def shift_columns(p: torch.Tensor, seen: np.ndarray, s: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -68,7 +68,7 @@ def print_table(args: argparse.Namespace, title: str, key: str, scorers: dict, d
 
 
 def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace) -> int:
-    """Table I (columns in view) of the shipped pipeline with `network.fusion` at each of ``args.tau``."""
+    """Table I (columns in view) of the shipped pipeline with `network.inference.fusion` at each of ``args.tau``."""
     for t in args.tau:
         check_tau(t, "--tau")
     scorers = {t: FrameScorer() for t in args.tau}
@@ -99,7 +99,7 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
                 scorers[t].update(frame_layouts({**o, **f}, seq.spec), gt)
         bar.update(seq.num_frames)
     bar.close()
-    title = f"network.fusion (motion: {args.motion}{', whole sequence' if args.whole_sequence else ''})"
+    title = f"network.inference.fusion (motion: {args.motion}{', whole sequence' if args.whole_sequence else ''})"
     print_table(args, title, "tau", scorers, 2)
     return 0
 

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.errors import InputError  # noqa: E402
 from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint  # noqa: E402
-from network.model import ModelConfig  # noqa: E402
+from network.model.net import ModelConfig  # noqa: E402
 
 #: (model-config flag, state-dict prefix, record key) of each head fitted after training
 HEADS = (

@@ -7,7 +7,7 @@ Runs the model (streaming) over every sequence of a generated dataset and scores
 in view, mIoU in percent) of its layouts as decoded and after `layouts.rackdepth.impose_rack_depth`
 (what `mvracklay predict/run --rack-depth M` does) with: the depth the model reads from the boards'
 back edges and, with the upright head, the racks' uprights over the frames so far
-(`network.backedge`, `network.uprights`; what such models do by default); each scene's true rack
+(`network.heads.backedge`, `network.heads.uprights`; what such models do by default); each scene's true rack
 depth (from its scene.json, what a racking spec sheet gives); the true depth in each sequence's first
 K frames only (``--first K``) and the depth read after them: what a camera that starts reading
 well at once would gain, the reader being poorest while it has seen few frames; the true depth off
@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""How well `network.motion` reads the camera's motion along the row from consecutive frames.
+"""How well `network.model.motion` reads the camera's motion along the row from consecutive frames.
 
     .venv/bin/python benchmarks/motion_estimate.py data/heldout128 [--sequences 24] [--size 128]
 
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.canonical import CanonicalView  # noqa: E402
 from network.data import canonical_image, frame_camera, to_tensor  # noqa: E402
-from network.motion import camera_shift, motion_signature  # noqa: E402
+from network.model.motion import camera_shift, motion_signature  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""How much depth the plane sweep of `network.parallax` finds in two frames, with no learning at all.
+"""How much depth the plane sweep of `network.heads.parallax` finds in two frames, with no learning at all.
 
     .venv/bin/python benchmarks/parallax_signal.py data/heldout128 [--sequences 12] [--gap 1] [--true-motion]
     .venv/bin/python benchmarks/parallax_signal.py data/heldout128 --checkpoint runs/RUN/best.pt
 
 For frame pairs ``gap`` frames apart (every 2nd frame), both frames are warped into the model's
-canonical view, the camera step is read from the images (`network.motion`; ``--true-motion``: from
-the poses), and `network.parallax.plane_sweep` scores every swept plane. Each pixel's best plane
+canonical view, the camera step is read from the images (`network.model.motion`; ``--true-motion``: from
+the poses), and `network.heads.parallax.plane_sweep` scores every swept plane. Each pixel's best plane
 (winner takes all) is compared with its true ``rho = d / Z`` (camera-to-rack distance over the
 pixel's depth from the generator's depth image), on the 30 % of pixels whose cost varies most over
 the planes (the textured ones). Prints the correlation and the mean best plane per band of true
@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.canonical import CanonicalView  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.data import canonical_image, frame_camera, to_tensor  # noqa: E402
-from network.evaluate import evaluate_sequences  # noqa: E402
-from network.motion import camera_shift, motion_signature  # noqa: E402
-from network.parallax import RATIOS, plane_sweep  # noqa: E402
+from network.heads.parallax import RATIOS, plane_sweep  # noqa: E402
+from network.inference.evaluate import evaluate_sequences  # noqa: E402
+from network.model.motion import camera_shift, motion_signature  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 BANDS = ((0.6, 0.75), (0.75, 0.85), (0.85, 0.95), (0.95, 1.1))

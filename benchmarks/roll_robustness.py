@@ -7,10 +7,10 @@ Every frame of the dataset is turned by the roll (degrees, counter-clockwise abo
 point, as a camera rolled the other way would see it; the corners the turn uncovers take the
 canonical fill colour, where a real camera would see more of the scene) and run through the whole
 pipeline of ``mvracklay evaluate`` (windowed, depth heads, columns in view), once taking the camera
-as level and once reading its roll from the frames (`network.roll`); ``--levelled-by truth`` adds a
+as level and once reading its roll from the frames (`network.inference.roll`); ``--levelled-by truth`` adds a
 row with the true roll given (what the turn's lost corners cost alone), ``read-all`` one with the
 roll, pitch and yaw all read. The angle read is compared with the truth, frame by frame. ``--axis pitch`` / ``yaw`` tilts the camera up / turns it right
-instead (`network.roll.tilt_frame`, a homography), read with ``--pitch auto`` / ``--yaw auto``.
+instead (`network.inference.roll.tilt_frame`, a homography), read with ``--pitch auto`` / ``--yaw auto``.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
-from network.evaluate import evaluate_sequences  # noqa: E402
-from network.roll import ANGLES, tilt_frame, turn_frame  # noqa: E402
-from network.train import open_data  # noqa: E402
+from network.inference.evaluate import evaluate_sequences  # noqa: E402
+from network.inference.roll import ANGLES, tilt_frame, turn_frame  # noqa: E402
+from network.training.trainer import open_data  # noqa: E402
 
 
 class Turned:

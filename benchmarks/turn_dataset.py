@@ -6,8 +6,8 @@
     .venv/bin/python benchmarks/turn_dataset.py data/heldout128 data/heldout128-yaw3 --yaw 3
 
 Every ``SEQ/rgb/*.png`` is seen by the camera tilted up ``--pitch`` and turned right ``--yaw`` degrees
-(`network.roll.tilt_frame`, a homography), then rolled ``--roll`` degrees counter-clockwise about the
-principal point (`network.roll.turn_frame`); the uncovered parts take the canonical fill colour.
+(`network.inference.roll.tilt_frame`, a homography), then rolled ``--roll`` degrees counter-clockwise about the
+principal point (`network.inference.roll.turn_frame`); the uncovered parts take the canonical fill colour.
 Everything else (layouts, depth, semantics, cuboids, records) is hard-linked, or copied where links
 fail, unchanged. ``TURNED.json`` at the root says what was done. The copy's records still describe a
 level camera, so the commands take it as level unless given ``--roll`` / ``--pitch`` / ``--yaw``
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rgb_copy import write_rgb_copy  # noqa: E402  (this script's folder is on the path)
 
-from network.roll import check_angle, tilt_frame, turn_frame  # noqa: E402
+from network.inference.roll import check_angle, tilt_frame, turn_frame  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

@@ -4,7 +4,7 @@ A top-view box is a connected component of box cells in one slot; per layout col
 a front to a back depth behind the rack front (the top view is centred on the rack's mid-depth, so
 the rack ``depth`` places its rows, `layouts.spec`). `box_parts` lists the boxes a slot's top and
 front views agree on; `redraw` moves a box's back per column; `impose_box_backs` gives every box of a
-frame one back from per-column back depths read elsewhere (`network.boxdepth`), boxes that touch side
+frame one back from per-column back depths read elsewhere (`network.heads.boxdepth`), boxes that touch side
 by side told apart by their heights in the front view (`layouts.steps`).
 """
 

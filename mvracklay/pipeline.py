@@ -35,11 +35,11 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
-from network.frozen import trunk_precision, use_precision
-from network.fusion import check_tau
-from network.infer import MODES, Predictor, frame_layouts
+from network.inference.frozen import trunk_precision, use_precision
+from network.inference.fusion import check_tau
+from network.inference.predictor import MODES, Predictor, frame_layouts
+from network.inference.roll import angle_warnings, check_angle, resolve_angles
 from network.precision import check_precision
-from network.roll import angle_warnings, check_angle, resolve_angles
 from stitching import rerun_log
 from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -60,7 +60,7 @@ class RunConfig:
     checkpoint: Path | None = None
     camera: Path | None = None
     mode: str = "stream"
-    flip: bool = False  #: average each frame with its mirror image (`network.infer.Predictor`)
+    flip: bool = False  #: average each frame with its mirror image (`network.inference.predictor.Predictor`)
     max_frames: int = 0
     layout_size: int = 0
     distance: float | None = None
@@ -68,7 +68,7 @@ class RunConfig:
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
     fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
-    #: the camera's roll, pitch (optical axis up > 0) and yaw (turned right > 0), levelled (`network.roll`):
+    #: the camera's roll, pitch (optical axis up > 0) and yaw (turned right > 0), levelled (`network.inference.roll`):
     #: degrees or "auto"; None = 0 for a generated sequence, else "auto"
     roll: float | str | None = None
     pitch: float | str | None = None
@@ -79,7 +79,7 @@ class RunConfig:
     opening: bool = True
     board_thickness: float = 0.06
     threads: int = 2
-    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.frozen.set_precision`)
+    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.inference.frozen.set_precision`)
     progress: bool = True
 
     def validate(self) -> None:
@@ -360,7 +360,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
             "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
             "fuse_frames": cfg.fuse_tau,
-            # the camera's rotation levelled before the network (`network.roll`): the median over the frames
+            # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
             "camera_roll_deg": _median(lev.rolls if lev is not None else []),
             "camera_roll_source": _angle_source(pred.roll, cfg.roll),
             "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
@@ -370,7 +370,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
             "rack_depth": depth if np.isfinite(depth) else None,
             "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
-            # each box's back: carried from the box-depth head's readings (`network.boxdepth`) or as decoded
+            # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
             "box_depth_source": "read" if pred.reads_box_depth else "decoder",
             "intrinsics": intr.to_dict(),
             "spec": spec.to_dict(),

@@ -126,10 +126,10 @@ $PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
 CURVE_RUNS=("racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvracklay-4" "mvracklay-disc-4=$RUNS/mvracklay-disc-4"
     "mvracklay-disc-8=$RUNS/mvracklay-disc-8")
 [ -d "$RUNS/_unaligned-disc-4" ] && CURVE_RUNS+=("mvracklay-disc-4(unaligned)=$RUNS/_unaligned-disc-4")
-$PY -m network.curves "$CURVES" "${CURVE_RUNS[@]}"
+$PY -m network.training.curves "$CURVES" "${CURVE_RUNS[@]}"
 #    the second stage zoomed: stage 1 ran on 2 threads, so it ends near 2 x STAGE1 CPU-minutes
 FROM=$($PY -c "print(max(0.0, 2 * $STAGE1 - 10))")
-$PY -m network.curves --from "$FROM" "${CURVES%.png}_stage2.png" "${CURVE_RUNS[@]}"
+$PY -m network.training.curves --from "$FROM" "${CURVES%.png}_stage2.png" "${CURVE_RUNS[@]}"
 $PY benchmarks/bench_infer.py --checkpoint "$RUNS/mvracklay-disc-4/best.pt" --threads 2 --sizes 128 256 \
     | tee "$RUNS/bench_infer.txt"
 $PY -m mvracklay train --export "$RUNS/mvracklay-disc-4/calibrated.pt" --out "$WEIGHTS" \

@@ -341,7 +341,7 @@ class MapBuilder:
         """Estimate this frame's camera offset in the map (does not change the map).
 
         ``motion`` (metres, + = the camera moved to +X) is an independent estimate of the camera's
-        step since the previous frame (wheel odometry, or the images via `network.motion`). It is
+        step since the previous frame (wheel odometry, or the images via `network.model.motion`). It is
         used only where the layouts give no consensus, instead of the constant-velocity guess: the
         layouts' edges are the better measurement wherever they agree (centring the edge vote on
         image-estimated steps instead made the held-out drift worse, see docs/stitching.md).

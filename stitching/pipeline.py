@@ -109,7 +109,7 @@ class Stitcher:
         """Detect, lift, register and merge one frame.
 
         ``motion``: optional camera step along the row since the previous pushed frame (metres,
-        + = toward +X) from another source, e.g. the images (`network.motion`); the layouts still
+        + = toward +X) from another source, e.g. the images (`network.model.motion`); the layouts still
         decide where they agree, the step fills in where they do not.
         """
         idx = self.count if index is None else _frame_index(index)

@@ -16,7 +16,9 @@ from layouts.errors import InputError
 from layouts.rackdepth import depth_rows
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.backedge import (
+from network.checkpoint import load_checkpoint, load_model
+from network.data import DEFAULT_DISTANCE, row_target
+from network.heads.backedge import (
     DEPTH_STEP,
     MIN_OFFSET,
     NOMINAL_THICKNESS,
@@ -25,11 +27,9 @@ from network.backedge import (
     depth_hypotheses,
     frame_depth_scores,
 )
-from network.checkpoint import load_checkpoint, load_model
-from network.data import DEFAULT_DISTANCE, row_target
-from network.fit_backedge import FitConfig, cache_features, train_head
-from network.infer import Predictor, frame_layouts
-from network.model import ModelConfig, MVRackLay
+from network.inference.predictor import Predictor, frame_layouts
+from network.model.net import ModelConfig, MVRackLay
+from network.training.fit_backedge import FitConfig, cache_features, train_head
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset
 
@@ -119,7 +119,7 @@ def test_inference_reads_gives_or_skips_the_depth(mode, monkeypatch):
     back = back_edge_rows(fronts, view, DEFAULT_DISTANCE, 1.05)[0]
     prob = 0.02 + 0.96 * row_target([float(r) for r in back], view.height)
     logits = torch.from_numpy(np.log(prob / (1 - prob))).float()
-    monkeypatch.setattr("network.infer.board_peaks", lambda p, v: fronts)
+    monkeypatch.setattr("network.inference.predictor.board_peaks", lambda p, v: fronts)
     monkeypatch.setattr(model.back, "forward", lambda pooled: logits.expand(pooled.shape[0], -1))
     frames = [np.random.default_rng(i).integers(0, 255, (96, 128, 3), np.uint8) for i in range(3)]
     read = list(Predictor(model).run(frames, mode))
@@ -153,7 +153,7 @@ def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
     data = cache_features(model, seqs, progress=False)
     assert data.pooled.shape[0] == sum(s.num_frames for s in seqs)
     assert (data.target.amax(1) > 0.99).float().mean() > 0.5  # most frames show a board's back edge
-    from network.backedge import BackEdgeHead
+    from network.heads.backedge import BackEdgeHead
 
     torch.manual_seed(0)
     head = BackEdgeHead(data.pooled.shape[1], model.cfg.input_height)

@@ -1,4 +1,4 @@
-"""The box-depth head's streamed pass split over processes (`network.fit_boxdepth.cache_part`) and
+"""The box-depth head's streamed pass split over processes (`network.training.fit_boxdepth.cache_part`) and
 `mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
 fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own; a pass
 cut by the clock (--pass-minutes) fits on what it streamed."""
@@ -19,7 +19,7 @@ import torch
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint, load_model
-from network.fit_boxdepth import (
+from network.training.fit_boxdepth import (
     CACHE_FIELDS,
     FrameChoice,
     cache_inputs,

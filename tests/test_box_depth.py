@@ -19,9 +19,11 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
 from network.checkpoint import load_checkpoint, load_model
-from network.fit_boxdepth import (
+from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
+from network.inference.predictor import Predictor, frame_layouts
+from network.model.net import MVRackLay
+from network.training.fit_boxdepth import (
     Cache,
     Chain,
     FitConfig,
@@ -32,9 +34,7 @@ from network.fit_boxdepth import (
     train_head,
     with_box_head,
 )
-from network.infer import Predictor, frame_layouts
-from network.model import MVRackLay
-from network.toy import ToySequence
+from network.training.toy import ToySequence
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
@@ -260,7 +260,7 @@ def test_the_head_learns_box_depths(tiny_checkpoint, tiny_dataset, tmp_path, pre
     data = cache_inputs(model, seqs, SeenTracker, tmp_path, progress=False)
     assert len(data) > 0 and data.win.dtype == np.float16 and np.isfinite(data.back).any()
     torch.manual_seed(0)
-    from network.boxdepth import BoxDepthHead
+    from network.heads.boxdepth import BoxDepthHead
 
     head = BoxDepthHead(data.win.shape[1], data.extra.shape[1])
     losses = train_head(head, data, FitConfig(epochs=12, batch=8, lr=3e-3, precision=precision), progress=False)
@@ -318,8 +318,8 @@ def test_parallax_history_reads_the_depth_of_what_moved_and_nothing_at_a_start()
     """A texture on the front plane moves by the camera's full step: against the frames 1 and 3 back the
     plane with ratio 1 matches best; the first frame has no earlier one and gives zero maps."""
     from layouts.canonical import CanonicalView
-    from network.boxdepth import PARALLAX_BASELINES, PARALLAX_CHANNELS, ParallaxHistory
-    from network.parallax import RATIOS
+    from network.heads.boxdepth import PARALLAX_BASELINES, PARALLAX_CHANNELS, ParallaxHistory
+    from network.heads.parallax import RATIOS
 
     view = CanonicalView(64, 32, 3.0)
     g = torch.Generator().manual_seed(0)
@@ -344,7 +344,7 @@ def test_parallax_history_reads_the_depth_of_what_moved_and_nothing_at_a_start()
 def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkpoint, tiny_dataset, tmp_path):
     from dataclasses import replace
 
-    from network.boxdepth import PARALLAX_CHANNELS
+    from network.heads.boxdepth import PARALLAX_CHANNELS
 
     base = load_model(tiny_checkpoint)[0]
     with pytest.raises(InputError, match="box_parallax .* needs box_depth"):
@@ -380,7 +380,7 @@ def test_the_row_profile_reads_where_an_edge_lies_along_the_window():
     """Windows with one bright row, at row 10 or at row 20 (both beyond the pooled convolutions' reach of the
     window's borders), and a depth bin that depends on which: pooling over rows cannot tell them apart, the
     row profile can."""
-    from network.boxdepth import WINDOW_ROWS, BoxDepthHead
+    from network.heads.boxdepth import WINDOW_ROWS, BoxDepthHead
 
     g = torch.Generator().manual_seed(0)
     n, w = 32, 16

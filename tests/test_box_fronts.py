@@ -17,11 +17,11 @@ from layouts.boxdepth import box_parts, impose_box_backs
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.boxdepth import BINS, FRONT_BINS, BoxDepthHead, BoxDepthReader, front_reading, reading, split_logits
 from network.checkpoint import load_checkpoint, load_model
-from network.evaluate import box_depth_source
-from network.fit_boxdepth import Cache, FitConfig, cache_inputs, train_head, with_box_head
-from network.infer import Predictor, frame_layouts
+from network.heads.boxdepth import BINS, FRONT_BINS, BoxDepthHead, BoxDepthReader, front_reading, reading, split_logits
+from network.inference.evaluate import box_depth_source
+from network.inference.predictor import Predictor, frame_layouts
+from network.training.fit_boxdepth import Cache, FitConfig, cache_inputs, train_head, with_box_head
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
 

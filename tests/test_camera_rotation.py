@@ -156,9 +156,9 @@ def test_training_windows_are_levelled_by_the_recorded_rotation(turned_dataset):
 def test_the_rotation_is_the_default_for_generated_sequences_only(turned_dataset):
     from tiny_net import tiny_config
 
-    from network.infer import Predictor, sequence_camera
-    from network.model import MVRackLay
-    from network.roll import resolve_angles
+    from network.inference.predictor import Predictor, sequence_camera
+    from network.inference.roll import resolve_angles
+    from network.model.net import MVRackLay
     from waresynth.dataset import open_dataset
 
     assert resolve_angles(None, None, None, (1.0, 0.0, 4.0)) == (1.0, 0.0, 4.0)
@@ -231,7 +231,7 @@ def test_a_racklay_export_carries_the_rotation(turned_dataset, tmp_path):
 def test_the_roll_of_a_point_sampled_render_is_read():
     """The renderer samples each pixel at its centre: a rolled edge is a staircase whose gradients are
     level between its steps, which the orientation histogram alone reads as level (~0.4 of 5 degrees)."""
-    from network.roll import _orientation_peak, estimate_roll, estimate_tilt
+    from network.inference.roll import _orientation_peak, estimate_roll, estimate_tilt
 
     intr = Intrinsics.from_fov(128, 128, 60.0)
     rolls, tilt_rolls, histogram = [], [], []

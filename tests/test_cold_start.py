@@ -10,10 +10,10 @@ import torch
 from layouts import VIEWS
 from layouts.errors import InputError
 from mvracklay.cli import main
-from network.boxdepth import PARALLAX_CHANNELS
 from network.checkpoint import load_checkpoint, load_model
-from network.fit_boxdepth import FrameChoice, cache_inputs, with_box_head
-from network.infer import Predictor, sequence_camera
+from network.heads.boxdepth import PARALLAX_CHANNELS
+from network.inference.predictor import Predictor, sequence_camera
+from network.training.fit_boxdepth import FrameChoice, cache_inputs, with_box_head
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
 

@@ -8,10 +8,10 @@ import torch
 from tiny_net import tiny_config
 
 from layouts import VIEWS, LayoutSpec
-from network.calibrate import apply_box_offset
-from network.infer import Predictor
-from network.model import MVRackLay
-from network.toy import ToySequence
+from network.inference.predictor import Predictor
+from network.model.net import MVRackLay
+from network.training.calibrate import apply_box_offset
+from network.training.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 OFFSETS = {"top": 0.5, "front": 0.25}
@@ -32,7 +32,7 @@ def toy_frames(n: int = 5) -> list[np.ndarray]:
 
 def test_streamed_flip_average_is_the_mean_of_a_direct_and_a_mirrored_pass():
     model, frames = tiny_model(), toy_frames()
-    got = list(Predictor(model, flip=True, fuse_tau=0).stream(frames))  # each frame alone (network.fusion)
+    got = list(Predictor(model, flip=True, fuse_tau=0).stream(frames))  # each frame alone (network.inference.fusion)
     plain = Predictor(model, fuse_tau=0)
     direct = mirrored = None
     with torch.no_grad():

@@ -1,4 +1,4 @@
-"""Neighbouring frames' layouts fused along the row (`network.fusion`, ``Predictor(fuse_tau=...)``)."""
+"""Neighbouring frames' layouts fused along the row (`network.inference.fusion`, ``Predictor(fuse_tau=...)``)."""
 
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ from tiny_net import tiny_config
 from layouts import VIEWS
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
-from network.fit_boxdepth import with_box_head
-from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
-from network.infer import Predictor
-from network.model import MVRackLay
-from network.motion import motion_signature
-from network.toy import ToySequence
+from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
+from network.inference.predictor import Predictor
+from network.model.motion import motion_signature
+from network.model.net import MVRackLay
+from network.training.fit_boxdepth import with_box_head
+from network.training.toy import ToySequence
 
 D = 16
 X_EXTENT = 3.0
@@ -125,7 +125,7 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
     model = with_box_head(MVRackLay(tiny_config(spec)).eval())
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
     step = spec.x_extent / spec.size
-    monkeypatch.setattr("network.infer.camera_shift", lambda prev, cur, v: torch.tensor([step]))
+    monkeypatch.setattr("network.inference.predictor.camera_shift", lambda prev, cur, v: torch.tensor([step]))
     seq = ToySequence(spec, num_frames=4, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(4)]
     plain_pred = Predictor(model, rack_depth=0.8, fuse_tau=0)
@@ -167,7 +167,7 @@ def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_chec
 
 def test_fuse_frames_is_off_unless_asked_and_tau_1_when_bare():
     from mvracklay.cli import build_parser
-    from network.fusion import FUSE_TAU
+    from network.inference.fusion import FUSE_TAU
 
     parse = build_parser().parse_args
     base = ["evaluate", "--checkpoint", "c.pt", "--data", "d"]

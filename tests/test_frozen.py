@@ -1,4 +1,4 @@
-"""The frozen graphs (`network.frozen`): the modules' function, never stale, only where they apply."""
+"""The frozen graphs (`network.inference.frozen`): the modules' function, never stale, only where they apply."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from tiny_net import tiny_config
 
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
-from network import frozen
-from network.boxdepth import head_inputs
-from network.model import MVRackLay
+from network.heads.boxdepth import head_inputs
+from network.inference import frozen
+from network.model.net import MVRackLay
 
 
 def _model(seed: int = 0, **options) -> MVRackLay:

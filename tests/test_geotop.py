@@ -9,8 +9,8 @@ from tiny_net import tiny_config
 from layouts import LayoutSpec
 from layouts.camera import Intrinsics
 from layouts.canonical import CanonicalView
-from network.geotop import NOMINAL_DISTANCE, NOMINAL_RACK_DEPTH, top_view_grid
-from network.model import ModelConfig, MVRackLay
+from network.heads.geotop import NOMINAL_DISTANCE, NOMINAL_RACK_DEPTH, top_view_grid
+from network.model.net import ModelConfig, MVRackLay
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -14,10 +14,10 @@ import torch
 from layouts import BOX, VIEWS
 from layouts.errors import InputError
 from mvracklay.cli import main
-from network.calibrate import apply_box_offset, check_offsets
 from network.checkpoint import load_checkpoint, load_model, save_checkpoint
-from network.evaluate import evaluate_sequences
-from network.infer import Predictor, sequence_camera
+from network.inference.evaluate import evaluate_sequences
+from network.inference.predictor import Predictor, sequence_camera
+from network.training.calibrate import apply_box_offset, check_offsets
 from waresynth.dataset import open_dataset
 
 
@@ -74,7 +74,7 @@ def test_calibrate_picks_the_best_scoring_offset_and_records_it(
 def test_scores_match_evaluate_with_and_without_the_offset(calibrated, tiny_checkpoint, tiny_dataset) -> None:
     seqs = open_dataset(tiny_dataset).sequences()
     res = calibrated["scores"]
-    # calibrate scores each frame alone, so the same without fusing neighbouring frames (network.fusion)
+    # calibrate scores each frame alone, so the same without fusing neighbouring frames (network.inference.fusion)
     raw = evaluate_sequences(load_model(tiny_checkpoint)[0], seqs, mode="stream", progress=False, fuse_tau=0)["visible"]
     cal = evaluate_sequences(load_model(calibrated["path"])[0], seqs, mode="stream", progress=False, fuse_tau=0)[
         "visible"

@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from layouts import InputError
-from network.curves import plot_curves, start_offset
+from network.training.curves import plot_curves, start_offset
 
 
 def _entry(minutes: float, iou: float) -> dict:
@@ -44,7 +44,7 @@ def test_curves_png_and_warm_start_offset(tmp_path):
 
 
 def test_x_axis_rounds_up_to_round_ticks():
-    from network.curves import _round_up
+    from network.training.curves import _round_up
 
     assert _round_up(196.0) == 200.0
     assert _round_up(4.0) == 4.0
@@ -82,7 +82,7 @@ def test_legend_wraps_so_every_label_is_drawn(tmp_path):
 
 
 def test_steps_axis_from_the_command_line(tmp_path, capsys):
-    from network.curves import main
+    from network.training.curves import main
 
     a = _run(tmp_path / "a", [{**_entry(1, 0.2), "step": 100}, {**_entry(2, 0.5), "step": 1000}])
     b = _run(tmp_path / "b", [{**_entry(10, 0.6), "step": 500}], init={"step": 500, "train_cpu_minutes": 5.0})

@@ -8,8 +8,8 @@ import torch
 
 from layouts import BOX, SHELF, InputError, LayoutSpec
 from network.data import WindowDataset, resample_columns, resample_layout
-from network.losses import column_shifts, consistency_loss, lsgan_discriminator_loss, supervised_loss
-from network.toy import ToySequence
+from network.training.losses import column_shifts, consistency_loss, lsgan_discriminator_loss, supervised_loss
+from network.training.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -8,9 +8,9 @@ import torch
 from tiny_net import cached_and_naive_windows, tiny_config
 
 from layouts import VIEWS, InputError, LayoutSpec
-from network.infer import predict_layouts
-from network.model import VARIANTS, ModelConfig, MVRackLay, anchors_from_rows, build_discriminators
-from network.resnet import ResNet18Encoder, load_imagenet_weights
+from network.inference.predictor import predict_layouts
+from network.model.net import VARIANTS, ModelConfig, MVRackLay, anchors_from_rows, build_discriminators
+from network.model.resnet import ResNet18Encoder, load_imagenet_weights
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -10,11 +10,11 @@ import torch
 from layouts import VIEWS, InputError
 from layouts.canonical import CanonicalView
 from layouts.spec import LayoutSpec
-from network.fit_boxdepth import with_box_head
-from network.infer import Predictor
-from network.model import ModelConfig, MVRackLay, shift_columns
-from network.motion import MAX_SHIFT, camera_shift, motion_signature
-from network.toy import ToySequence
+from network.inference.predictor import Predictor
+from network.model.motion import MAX_SHIFT, camera_shift, motion_signature
+from network.model.net import ModelConfig, MVRackLay, shift_columns
+from network.training.fit_boxdepth import with_box_head
+from network.training.toy import ToySequence
 from tests.test_network_model import ANCHORS, tiny
 from tests.tiny_net import tiny_config
 
@@ -102,7 +102,7 @@ def test_camera_shift_ignores_the_static_edge_of_the_source_image():
 
 @pytest.mark.parametrize("bands", [2, 3])  # bands of equal height (summed over a reshape) and not (index_add_)
 def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both(bands):
-    from network.motion import _profiles
+    from network.model.motion import _profiles
 
     g = torch.Generator().manual_seed(11)
     frames = torch.rand(2, 3, 16, 40, generator=g)
@@ -120,7 +120,7 @@ def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both(
 
 
 def test_fft_lengths_are_the_smallest_with_factors_2_3_5():
-    from network.motion import fft_length
+    from network.model.motion import fft_length
 
     def smooth(n: int) -> bool:
         for p in (2, 3, 5):
@@ -231,8 +231,8 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
 
         return shift
 
-    monkeypatch.setattr("network.infer.camera_shift", counted("infer"))
-    monkeypatch.setattr("network.model.camera_shift", counted("model"))
+    monkeypatch.setattr("network.inference.predictor.camera_shift", counted("infer"))
+    monkeypatch.setattr("network.model.net.camera_shift", counted("model"))
     got = list(Predictor(model, read_depth=False, box_inputs=True).stream(frames))
     assert calls == {"infer": 4, "model": 0}
     for g, w in zip(got, want):

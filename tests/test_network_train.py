@@ -12,10 +12,10 @@ from tiny_net import tiny_config
 
 from layouts import InputError, LayoutSpec
 from network.checkpoint import export_weights, init_weights_from, load_checkpoint, load_model, save_checkpoint
-from network.evaluate import evaluate_sequences
-from network.model import ModelConfig, MVRackLay, build_discriminators
-from network.toy import ToySequence
-from network.train import TrainConfig, Trainer
+from network.inference.evaluate import evaluate_sequences
+from network.model.net import ModelConfig, MVRackLay, build_discriminators
+from network.training.toy import ToySequence
+from network.training.trainer import TrainConfig, Trainer
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -9,8 +9,8 @@ from tiny_net import cached_and_naive_windows, tiny_config
 
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.model import ModelConfig, MVRackLay
-from network.parallax import RATIOS, ParallaxNet, box_mean3, plane_sweep, shifted_costs
+from network.heads.parallax import RATIOS, ParallaxNet, box_mean3, plane_sweep, shifted_costs
+from network.model.net import ModelConfig, MVRackLay
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 VIEW = CanonicalView(64, 32, 3.0)

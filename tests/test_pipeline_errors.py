@@ -16,7 +16,7 @@ from layouts.spec import LayoutSpec
 from mvracklay import pipeline
 from mvracklay.cli import main
 from network.checkpoint import save_checkpoint
-from network.model import MVRackLay
+from network.model.net import MVRackLay
 
 
 @pytest.fixture(scope="module")

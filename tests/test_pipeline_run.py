@@ -195,7 +195,7 @@ def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
 
 
 def test_training_records_the_range_of_its_cameras(tmp_path: Path):
-    from network.train import _hfov_range
+    from network.training.trainer import _hfov_range
     from waresynth.generate import generate_dataset
 
     root = generate_dataset(

@@ -11,9 +11,9 @@ from test_network_train import seqs
 
 from layouts import InputError, LayoutSpec
 from network.data import WindowDataset
-from network.model import MVRackLay
-from network.toy import ToySequence
-from network.train import TrainConfig, Trainer
+from network.model.net import MVRackLay
+from network.training.toy import ToySequence
+from network.training.trainer import TrainConfig, Trainer
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -11,9 +11,9 @@ import pytest
 
 from layouts.errors import InputError
 from mvracklay.cli import main
-from network.calibrate import DEPTH_OFFSET_LIMIT, check_depth_offset
 from network.checkpoint import load_checkpoint, load_model
-from network.infer import Predictor, rack_depth_source, sequence_camera
+from network.inference.predictor import Predictor, rack_depth_source, sequence_camera
+from network.training.calibrate import DEPTH_OFFSET_LIMIT, check_depth_offset
 from waresynth.dataset import open_dataset
 
 
@@ -55,7 +55,7 @@ def fake_upright_scores(front, rear, view, distance, depths) -> np.ndarray:
 def test_calibrate_centres_the_reading_and_every_reading_moves_by_it(
     with_heads, tiny_dataset, tmp_path, capsys, monkeypatch
 ):
-    monkeypatch.setattr("network.backedge.upright_depth_scores", fake_upright_scores)
+    monkeypatch.setattr("network.heads.backedge.upright_depth_scores", fake_upright_scores)
     before = readings(with_heads, tiny_dataset)
     err = np.array([r - t for r, t in before if np.isfinite(r)])
     assert err.size and np.ptp(err) > 0  # depths read, errors that differ

@@ -1,4 +1,4 @@
-"""A rolled, pitched or yawed camera: levelled in the canonical warp, its angles read from rack images (`network.roll`)."""
+"""A rolled, pitched or yawed camera: levelled in the canonical warp, its angles read from rack images (`network.inference.roll`)."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from layouts import Intrinsics, LayoutError
 from layouts.canonical import FILL_RGB, CanonicalView
 from layouts.errors import InputError
 from mvracklay.cli import main
-from network import roll as roll_mod
-from network.roll import (
+from network.inference import roll as roll_mod
+from network.inference.roll import (
     CameraLeveller,
     angle_warnings,
     check_angle,
@@ -231,7 +231,7 @@ def test_the_leveller_reads_only_what_is_not_given(tiny_dataset, monkeypatch):
 
 def test_the_predictor_reads_the_start_ahead_when_it_reads_a_yaw(tiny_dataset, tiny_checkpoint, monkeypatch):
     from network.checkpoint import load_model
-    from network.infer import Predictor
+    from network.inference.predictor import Predictor
 
     seq = open_dataset(tiny_dataset).sequences()[1]
     intr = seq.intrinsics

@@ -10,8 +10,8 @@ import torch
 
 from layouts import BOX, InputError, LayoutSpec
 from network.data import WindowDataset
-from network.losses import supervised_loss
-from network.toy import ToySequence
+from network.training.losses import supervised_loss
+from network.training.toy import ToySequence
 from waresynth.dataset import open_dataset
 from waresynth.visibility import scene_stacks, seen_stacks, stack_columns
 

@@ -170,7 +170,7 @@ def _stitch_offsets(layouts, motions, config=None):
 def test_a_motion_estimate_carries_the_path_where_the_layouts_cannot():
     # The camera turns back at frame 15 while frames 13-17 show nothing to register on. Without a
     # motion estimate the stitcher keeps the old velocity through the turn; with the true steps
-    # (as `network.motion` reads them from the images) it follows the camera.
+    # (as `network.model.motion` reads them from the images) it follows the camera.
     seq = make_sequence(seed=7, frames=30, spec=SPEC, step=0.1, reverse_at=15)
     lays = [(_featureless(fl) if 13 <= i <= 17 else fl) for i, fl in enumerate(seq.layouts)]
     xs = np.array([r["camera_position"][0] for r in seq.frames])

@@ -16,8 +16,8 @@ from tiny_net import tiny_config
 from layouts import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
-from network.model import ModelConfig
-from network.train import TrainConfig, Trainer, open_data
+from network.model.net import ModelConfig
+from network.training.trainer import TrainConfig, Trainer, open_data
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["best.json", "best.pt", "last.json", "last.pt", "metrics.jsonl"]
@@ -112,7 +112,7 @@ def test_kill_9_then_resume_continues_from_the_last_checkpoint(tiny_dataset, tmp
 
 def test_stale_temporaries_are_removed_and_bad_flags_refused(tmp_path):
     from layouts import LayoutSpec
-    from network.toy import ToySequence
+    from network.training.toy import ToySequence
 
     spec = LayoutSpec(num_slots=2, size=16)
     cfg = tiny_config(spec, "mvracklay-4")

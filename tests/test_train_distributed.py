@@ -15,9 +15,9 @@ import torch
 
 from layouts import InputError
 from network.checkpoint import load_checkpoint, load_model
-from network.distributed import DistEnv, device_for, rank_indices, single_process_device
-from network.model import ModelConfig, build_discriminators
-from network.train import weights_fingerprint
+from network.model.net import ModelConfig, build_discriminators
+from network.training.distributed import DistEnv, device_for, rank_indices, single_process_device
+from network.training.trainer import weights_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 TORCHRUN = Path(sys.executable).with_name("torchrun")

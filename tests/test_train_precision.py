@@ -10,8 +10,8 @@ from test_network_train import seqs, tiny
 
 from layouts import InputError
 from network.checkpoint import load_checkpoint
-from network.model import ModelConfig
-from network.train import TrainConfig, Trainer
+from network.model.net import ModelConfig
+from network.training.trainer import TrainConfig, Trainer
 
 
 def test_bf16_runs_the_forward_in_bf16_learns_and_keeps_fp32_weights(tmp_path):

@@ -11,13 +11,13 @@ from layouts.canonical import CanonicalView
 from layouts.codecs import LayoutFolder
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from network.backedge import DepthReader, depth_hypotheses
 from network.checkpoint import load_checkpoint, load_model
-from network.fit_backedge import FitConfig
-from network.fit_uprights import cache_features, train_head, upright_targets
-from network.infer import Predictor
-from network.model import ModelConfig, MVRackLay
-from network.uprights import REAR_FACE, UprightHead, column_offsets, upright_depth_scores
+from network.heads.backedge import DepthReader, depth_hypotheses
+from network.heads.uprights import REAR_FACE, UprightHead, column_offsets, upright_depth_scores
+from network.inference.predictor import Predictor
+from network.model.net import ModelConfig, MVRackLay
+from network.training.fit_backedge import FitConfig
+from network.training.fit_uprights import cache_features, train_head, upright_targets
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset
 from waresynth.semantics import RACK
@@ -56,8 +56,8 @@ def test_the_reader_sums_frames_and_weighs_the_back_edges_less():
         depth = reader.add(None, [], 2.5, marks(VIEW, 2.5, 0.95, xs))
     assert depth == pytest.approx(0.95, abs=0.02)
     # back edges that say 1.2 m do not outvote the uprights (weighted `BACK_EDGE_WEIGHT`)
-    from network.backedge import back_edge_rows
     from network.data import row_target
+    from network.heads.backedge import back_edge_rows
 
     h0, m = VIEW.height / 2, VIEW.metres_per_pixel
     fronts = [h0 + 0.9 / m]

@@ -10,12 +10,12 @@ import torch
 from tiny_net import tiny_config
 
 from layouts.spec import LayoutSpec
-from network.backedge import DEPTH_STEP, back_edge_rows
-from network.boxdepth import BINS
 from network.data import DEFAULT_DISTANCE, row_target
-from network.fit_boxdepth import with_box_head
-from network.infer import HEAD_INPUTS, Predictor, frame_layouts
-from network.model import MVRackLay
+from network.heads.backedge import DEPTH_STEP, back_edge_rows
+from network.heads.boxdepth import BINS
+from network.inference.predictor import HEAD_INPUTS, Predictor, frame_layouts
+from network.model.net import MVRackLay
+from network.training.fit_boxdepth import with_box_head
 
 SPEC = LayoutSpec(size=16)
 FRAMES = 5
@@ -49,8 +49,8 @@ def _heads_shown_last(monkeypatch) -> MVRackLay:
         out[:, -1] = 20.0 if last else -20.0
         return out
 
-    monkeypatch.setattr("network.infer.board_peaks", lambda p, v: fronts)
-    monkeypatch.setattr("network.infer.camera_shift", lambda prev, cur, v: torch.tensor([STEP]))
+    monkeypatch.setattr("network.inference.predictor.board_peaks", lambda p, v: fronts)
+    monkeypatch.setattr("network.inference.predictor.camera_shift", lambda prev, cur, v: torch.tensor([STEP]))
     monkeypatch.setattr(model.back, "forward", back_forward)
     monkeypatch.setattr(model.box_depth, "forward", box_forward)
     model.frozen_graphs = False  # the patched forwards count their calls in Python: a traced graph would not
@@ -63,7 +63,7 @@ def _heads_shown_last(monkeypatch) -> MVRackLay:
 def test_every_frame_gets_what_the_last_frame_showed(mode, monkeypatch):
     frames = [np.random.default_rng(i).integers(0, 255, (96, 128, 3), np.uint8) for i in range(FRAMES)]
     model = _heads_shown_last(monkeypatch)
-    causal = list(Predictor(model, fuse_tau=0).run(frames, mode))  # the depths alone (network.fusion aside)
+    causal = list(Predictor(model, fuse_tau=0).run(frames, mode))  # the depths alone (network.inference.fusion aside)
     model.calls.update(back=0, box=0)
     whole = list(Predictor(model, whole_sequence=True, fuse_tau=0).run(frames, mode))
     assert len(whole) == FRAMES

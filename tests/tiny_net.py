@@ -9,7 +9,7 @@ TINY_NET: list[str] = [
 
 def tiny_config(spec, variant: str = "mvracklay-disc-4", **options):
     """The `ModelConfig` of `TINY_NET` for ``spec`` (64x64 input), with model ``options`` (e.g. ``parallax``)."""
-    from network.model import ModelConfig
+    from network.model.net import ModelConfig
 
     return ModelConfig(
         variant=variant,
@@ -51,11 +51,11 @@ def cached_and_naive_windows(model, spec, num_frames: int = 6):
     """
     import torch
 
-    from network.infer import Predictor
-    from network.toy import ToySequence
+    from network.inference.predictor import Predictor
+    from network.training.toy import ToySequence
 
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
     seq = ToySequence(spec, num_frames=num_frames, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(num_frames)]
-    pred = Predictor(model, fuse_tau=0)  # each frame's own outputs (network.fusion aside)
+    pred = Predictor(model, fuse_tau=0)  # each frame's own outputs (network.inference.fusion aside)
     return pred, frames, list(pred.window(frames)), list(pred.window(frames, recompute=True))

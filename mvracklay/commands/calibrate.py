@@ -10,9 +10,9 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from network.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
-from network.infer import FLIP_HELP
+from network.inference.predictor import FLIP_HELP
+from network.training.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 
 NAME = "calibrate"
 HELP = "choose a checkpoint's box decision offsets or rack-depth offset on a tuning set (writes them into the record)"
@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.train import open_data
+    from network.training.trainer import open_data
 
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")

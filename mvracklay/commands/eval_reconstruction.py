@@ -14,8 +14,8 @@ import numpy as np
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
-from network.fusion import add_fuse_option, check_tau
-from network.roll import add_roll_option, resolve_angles
+from network.inference.fusion import add_fuse_option, check_tau
+from network.inference.roll import add_roll_option, resolve_angles
 from stitching.detect import visible_range
 from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
 from stitching.pipeline import StitchConfig, Stitcher

@@ -13,13 +13,13 @@ from layouts.fileio import atomic_write_json, nan_to_null
 from layouts.metrics import format_table
 from layouts.rackdepth import NO_DEPTH_READ_HELP
 from network.checkpoint import load_model
-from network.distributed import single_process_device
-from network.evaluate import evaluate_sequences
-from network.frozen import add_precision_option, trunk_precision, use_precision
-from network.fusion import add_fuse_option, check_tau
-from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import ANGLES, add_roll_option, check_angle, describe_angles
-from network.train import open_data
+from network.inference.evaluate import evaluate_sequences
+from network.inference.frozen import add_precision_option, trunk_precision, use_precision
+from network.inference.fusion import add_fuse_option, check_tau
+from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP
+from network.inference.roll import ANGLES, add_roll_option, check_angle, describe_angles
+from network.training.distributed import single_process_device
+from network.training.trainer import open_data
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"

@@ -10,9 +10,9 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from mvracklay.commands._depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
-from network.boxdepth import BOX_WIDTH
-from network.fit_boxdepth import FitConfig
-from network.frozen import add_precision_option, use_precision
+from network.heads.boxdepth import BOX_WIDTH
+from network.inference.frozen import add_precision_option, use_precision
+from network.training.fit_boxdepth import FitConfig
 
 NAME = "fit-box-depth"
 HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
@@ -120,7 +120,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.fit_boxdepth import FrameChoice, box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
+    from network.training.fit_boxdepth import (
+        FrameChoice,
+        box_head_config,
+        check_pass_minutes,
+        fit_box_depth,
+        keep_box_inputs,
+    )
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:

@@ -20,12 +20,12 @@ ORDER = 34.5
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from network.fit_uprights import DEFAULT_FIT
+    from network.training.fit_uprights import DEFAULT_FIT
 
     add_fit_arguments(p, sequences=1000, epochs=DEFAULT_FIT.epochs)
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.fit_uprights import DEFAULT_FIT, fit_uprights
+    from network.training.fit_uprights import DEFAULT_FIT, fit_uprights
 
     return run_fit(args, DEFAULT_FIT, fit_uprights, "the uprights", "uprights", "uprights")

@@ -24,12 +24,12 @@ from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_de
 from mvracklay.frames import camera_warning, lens_from_record
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
-from network.distributed import single_process_device
-from network.frozen import add_precision_option, use_precision
-from network.fusion import add_fuse_option, check_tau
-from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
-from network.model import MVRackLay
-from network.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
+from network.inference.frozen import add_precision_option, use_precision
+from network.inference.fusion import add_fuse_option, check_tau
+from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
+from network.inference.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
+from network.model.net import MVRackLay
+from network.training.distributed import single_process_device
 from waresynth.config import camera_angles
 
 NAME = "predict"
@@ -160,9 +160,9 @@ def predict_folder(
     sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
     distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
-    itself unless ``read_depth`` is False (`network.infer.Predictor`), from the frames so far or, with
-    ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.fusion`).
-    ``roll``: the camera's roll (degrees or "auto", `network.roll`); None: a generated sequence's
+    itself unless ``read_depth`` is False (`network.inference.predictor.Predictor`), from the frames so far or, with
+    ``whole_sequence``, from every frame; ``fuse_tau`` fuses neighbouring frames (`network.inference.fusion`).
+    ``roll``: the camera's roll (degrees or "auto", `network.inference.roll`); None: a generated sequence's
     recorded roll (0 for a level camera), else read from the frames; ``pitch`` / ``yaw``: the camera's
     tilt (up > 0) / turn (right > 0), the same.
     """

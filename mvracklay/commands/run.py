@@ -7,10 +7,10 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
-from network.frozen import add_precision_option
-from network.fusion import add_fuse_option
-from network.infer import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.roll import add_roll_option, describe_angles
+from network.inference.frozen import add_precision_option
+from network.inference.fusion import add_fuse_option
+from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP
+from network.inference.roll import add_roll_option, describe_angles
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"

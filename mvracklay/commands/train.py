@@ -8,10 +8,10 @@ import sys
 from pathlib import Path
 
 from layouts.errors import InputError
-from network.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
-from network.model import DEFAULT_VARIANT, VARIANTS, ModelConfig
+from network.model.net import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
-from network.train import TrainConfig, Trainer, default_model_config, open_data
+from network.training.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
+from network.training.trainer import TrainConfig, Trainer, default_model_config, open_data
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
@@ -56,13 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--parallax",
         action="store_true",
         help="sequence variants: the top view also reads depth from the parallax between each frame and the one "
-        "before (a plane sweep over the canonical images; network/parallax.py)",
+        "before (a plane sweep over the canonical images; network/heads/parallax.py)",
     )
     g.add_argument(
         "--geo-top",
         action="store_true",
         help="the top view also samples image features where each top-view cell's 3D points project "
-        "(perspective placed by geometry, so off-axis side faces reach their own cells; network/geotop.py)",
+        "(perspective placed by geometry, so off-axis side faces reach their own cells; network/heads/geotop.py)",
     )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     g.add_argument(

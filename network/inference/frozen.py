@@ -119,7 +119,7 @@ def in_bf16(model: nn.Module, part: str) -> bool:
 
 def trunk_maps(m: Any, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The pyramid maps ``(p1, p2)`` of canonical frames ``x`` ``(N, 3, H, W)`` in [0, 1]: ``m`` has the
-    trunk's submodules and the ``mean``/``std`` buffers (an `network.model.MVRackLay` or `_Part`)."""
+    trunk's submodules and the ``mean``/``std`` buffers (an `network.model.net.MVRackLay` or `_Part`)."""
     s1, f2, f3, f4, f5 = m.encoder((x - m.mean) / m.std)
     t5 = m.reduce(f5)
     return m.pyramid((s1, f2, f3, f4, t5), m.temporal(t5))

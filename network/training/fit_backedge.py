@@ -1,4 +1,4 @@
-"""Fitting the back-edge head (`network.backedge`) to a trained model, the rest of the network frozen.
+"""Fitting the back-edge head (`network.heads.backedge`) to a trained model, the rest of the network frozen.
 
 The head reads the row head's column-pooled pyramid features, so one pass of the frozen trunk per
 frame gives everything it needs: `cache_features` runs it once over the training sequences (and
@@ -23,10 +23,10 @@ from torch import nn
 from tqdm import tqdm
 
 from layouts.errors import InputError
-from network.backedge import BackEdgeHead, DepthReader, back_edge_rows
 from network.data import board_rows, row_target
-from network.infer import Predictor, sequence_camera
-from network.model import MVRackLay, board_peaks
+from network.heads.backedge import BackEdgeHead, DepthReader, back_edge_rows
+from network.inference.predictor import Predictor, sequence_camera
+from network.model.net import MVRackLay, board_peaks
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Fitting the box-depth head (`network.boxdepth`) to a trained model, the rest of the network frozen.
+"""Fitting the box-depth head (`network.heads.boxdepth`) to a trained model, the rest of the network frozen.
 
 One streamed pass of the frozen model over the training sequences (`Predictor`, as at inference)
 gives each frame's head inputs per valid slot; they are cached on disk (memory-mapped: a thousand
@@ -41,7 +41,7 @@ from layouts import BOX, LayoutSpec
 from layouts.boxdepth import cell_z
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
-from network.boxdepth import (
+from network.heads.boxdepth import (
     BIN_STEP,
     BINS,
     BOX_WIDTH,
@@ -51,8 +51,8 @@ from network.boxdepth import (
     frame_head_inputs,
     split_logits,
 )
-from network.infer import Predictor, sequence_camera
-from network.model import ModelConfig, MVRackLay
+from network.inference.predictor import Predictor, sequence_camera
+from network.model.net import ModelConfig, MVRackLay
 from network.precision import check_precision, forward_autocast
 
 
@@ -208,7 +208,7 @@ class FrameChoice:
     memory, the parallax history and what has been seen). Fewer frames per scene buy more scenes for the same
     minutes, and the head is short of scenes rather than of frames (docs/network.md).
 
-    ``cold``: the frames before ``from_frame`` skip the network (`network.infer.Predictor`'s ``trunk_from``):
+    ``cold``: the frames before ``from_frame`` skip the network (`network.inference.predictor.Predictor`'s ``trunk_from``):
     they only enter the motion estimate, the parallax history and what has been seen, and the memory starts
     at ``from_frame``. The network's memory changes few of its cells, and a skipped frame costs a fraction
     of a streamed one, so the same minutes cover more scenes again."""
@@ -445,7 +445,7 @@ def cache_part(
 def model_key(model: MVRackLay) -> dict[str, Any]:
     """What a cache of head inputs takes from the model: the frozen trunk's weights (a digest), the inputs the
     head reads (parallax maps or not), the box-logit offsets and, when not fp32, the trunk graph's precision
-    (`network.frozen.set_precision`; caches made before it keep their keys)."""
+    (`network.inference.frozen.set_precision`; caches made before it keep their keys)."""
     digest = hashlib.sha256()
     for k, v in sorted(model.state_dict().items()):
         if not k.startswith("box_depth."):
@@ -643,7 +643,7 @@ def fit_box_depth(
     front: bool = False,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
-    `network.boxdepth.ParallaxHistory`; ``row_profile``, ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
+    `network.heads.boxdepth.ParallaxHistory`; ``row_profile``, ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.

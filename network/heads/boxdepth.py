@@ -10,14 +10,14 @@ window (`WINDOW_ROWS` rows, every column of that map) with the decoder's front-v
 pooled to those rows, then per layout column the decoder's top-view box probabilities along depth,
 the camera's height above the board and its distance to the rack front. Per layout column it gives a
 distribution over the box's back depth behind the rack front (`BINS`) and the probability that the
-frame shows that depth (fitted to `waresynth.visibility` labels; `network.fit_boxdepth`), the rest
+frame shows that depth (fitted to `waresynth.visibility` labels; `network.training.fit_boxdepth`), the rest
 of the network frozen.
 
 `BoxDepthReader` carries the head's readings along the row: per slot, a map over world X (cells of
 one model column) that multiplies the distributions of every frame that had the cell in view, each
 raised to its shown probability (`RowMap`), the camera's X summed from the steps the images show
-(`network.motion`). Each frame's ``"box_back"`` ``(R, D)`` is the fused distribution's expected depth
-(NaN where the frames have not shown it enough yet); `network.infer.frame_layouts` moves every predicted box's back
+(`network.model.motion`). Each frame's ``"box_back"`` ``(R, D)`` is the fused distribution's expected depth
+(NaN where the frames have not shown it enough yet); `network.inference.predictor.frame_layouts` moves every predicted box's back
 there (`layouts.boxdepth.impose_box_backs`).
 
 A head fitted with fronts (``front``; `mvracklay fit-box-depth --front`) also gives, per column, a
@@ -40,8 +40,8 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.fastops import avg_pool2, mean_row_pairs
-from network.parallax import RATIOS, plane_sweep, relative_costs
+from network.heads.parallax import RATIOS, plane_sweep, relative_costs
+from network.model.fastops import avg_pool2, mean_row_pairs
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres
@@ -124,7 +124,7 @@ class BoxDepthHead(nn.Module):
 
 class ParallaxHistory:
     """One sequence's last canonical images and camera steps; `add` gives a frame's plane-sweep costs
-    (`network.parallax.plane_sweep`) against the frames `PARALLAX_BASELINES` back, on the 1/2 map's grid.
+    (`network.heads.parallax.plane_sweep`) against the frames `PARALLAX_BASELINES` back, on the 1/2 map's grid.
 
     A box's top and side faces lie behind the rack front, so between two frames they move by less than
     the front does (``rho = d / (d + z)`` of it); which swept plane matches tells their depth ``z``. A
@@ -161,7 +161,7 @@ def head_inputs(
 ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """One frame's head inputs: window ``(R, c1 + 3 [+ P], WINDOW_ROWS, W)`` and extras ``(R, D + 2, D)``, float32.
 
-    ``window``: ``(R, c1, WINDOW_ROWS, W)`` 1/2-map samples (`network.model.SlotHeads.window`);
+    ``window``: ``(R, c1, WINDOW_ROWS, W)`` 1/2-map samples (`network.model.net.SlotHeads.window`);
     ``top``/``front``: ``(R, 3, D, D)`` logits (box offsets applied); ``anchors``: ``(R,)`` canonical rows
     (NaN: no slot); ``distance``: camera to rack front, metres; ``parallax``: `ParallaxHistory` maps
     sampled the same way, ``(R, P, WINDOW_ROWS, W)`` (option `box_parallax`). Rounded through fp16, as
@@ -184,7 +184,7 @@ def head_inputs(
 def frame_head_inputs(
     out: dict[str, torch.Tensor], view: CanonicalView, distance: float
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """`head_inputs` of one `network.infer.Predictor` output (its box window, logits, anchors and, for a
+    """`head_inputs` of one `network.inference.predictor.Predictor` output (its box window, logits, anchors and, for a
     head that reads them, parallax maps)."""
     return head_inputs(
         out["box_window"], out["top"], out["front"], out["anchors"], view, distance, out.get("box_parallax")
@@ -289,7 +289,7 @@ class BoxDepthReader:
     get its ``(R, D)`` back depths (metres behind the rack front, `RowMap`; NaN: not shown enough yet).
 
     `backs` looks the maps up for any camera position later, so a reader fed a whole sequence gives
-    every frame what all the frames showed (`network.infer.Predictor`, ``whole_sequence``).
+    every frame what all the frames showed (`network.inference.predictor.Predictor`, ``whole_sequence``).
     """
 
     def __init__(self, spec: LayoutSpec, make_map: Callable[[], RowMap] = RowMap) -> None:

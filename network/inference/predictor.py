@@ -23,9 +23,6 @@ from layouts import VIEWS, Intrinsics, LayoutSpec
 from layouts.boxdepth import impose_box_backs
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth, impose_rack_depth
-from network.backedge import DepthReader
-from network.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
-from network.calibrate import apply_box_offset
 from network.data import (
     DEFAULT_DISTANCE,
     canonical_image,
@@ -34,10 +31,13 @@ from network.data import (
     sequence_angles,
     to_tensor,
 )
-from network.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
-from network.model import MVRackLay, board_peaks, head_outputs
-from network.motion import camera_shift, motion_signature
-from network.roll import PRIME_FRAMES, CameraLeveller, check_angle
+from network.heads.backedge import DepthReader
+from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
+from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
+from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
+from network.model.motion import camera_shift, motion_signature
+from network.model.net import MVRackLay, board_peaks, head_outputs
+from network.training.calibrate import apply_box_offset
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -99,23 +99,23 @@ class Predictor:
 
     Rack depth: ``rack_depth`` (metres, known) is given to every frame; otherwise a model with a
     back-edge head reads it from the boards' back edges over the frames so far
-    (`network.backedge.DepthReader`), unless ``read_depth`` is False. Each output then carries
+    (`network.heads.backedge.DepthReader`), unless ``read_depth`` is False. Each output then carries
     ``"rack_depth"`` (metres, NaN while unknown), which `frame_layouts` imposes on the top view.
 
     Box depths: a model with a box-depth head reads each box's depth and carries what the frames
-    have shown along the row (`network.boxdepth.BoxDepthReader`, the camera's motion read from the
+    have shown along the row (`network.heads.boxdepth.BoxDepthReader`, the camera's motion read from the
     images), unless ``read_depth`` is False. Each output then carries ``"box_back"`` ``(R, D)``
     (metres behind the rack front per model column, NaN where none is known), which `frame_layouts`
     imposes on every predicted box once the rack depth is known. A head that also reads parallax
     (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
-    output (`network.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading;
+    output (`network.heads.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading;
     ``box_inputs_from`` then skips the maps of the frames before it (they still enter the history): a fit
     that keeps none of their slots need not pay for their plane sweeps. ``trunk_from`` (streaming, not
     reading) goes further: the frames before it are not run through the network at all (their outputs are
     empty dicts), they only enter the motion estimate and the parallax history, and the memory starts at
     that frame.
 
-    The camera's step along the row is read from the images once per frame (`network.motion.camera_shift`)
+    The camera's step along the row is read from the images once per frame (`network.model.motion.camera_shift`)
     and given to the memory, the parallax and the readers alike.
 
     ``whole_sequence``: the rack depth and the box depths come from every frame of the sequence, not
@@ -127,12 +127,12 @@ class Predictor:
 
     ``fuse_tau``: each frame's logits are averaged with its neighbours' (the frames so far; with
     ``whole_sequence`` the later ones too), shifted by the camera motion the images show and weighted by
-    ``exp(-frames apart / fuse_tau)`` (`network.fusion`); 0 (the default) leaves every frame alone. The depth heads
+    ``exp(-frames apart / fuse_tau)`` (`network.inference.fusion`); 0 (the default) leaves every frame alone. The depth heads
     read each frame's own outputs; the fused logits are what the frame's outputs then carry.
 
     ``roll``: the camera's roll about its optical axis (degrees, the image content turned
     counter-clockwise), levelled in the canonical warp: a number if known, ``"auto"`` to read it
-    from the frames (`network.roll.CameraLeveller`; ``self.leveller.rolls`` lists each frame's), None
+    from the frames (`network.inference.roll.CameraLeveller`; ``self.leveller.rolls`` lists each frame's), None
     (the default) for the camera's recorded roll (a generated sequence's, `SequenceCamera`), else a
     level camera. ``pitch`` (optical axis tilted up > 0) and ``yaw`` (turned right > 0): the same;
     reading them (``"auto"``) needs the intrinsics.
@@ -228,7 +228,7 @@ class Predictor:
 
     def _primed(self, frames: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
         """``frames`` as they come; when a pitch or yaw is read, the leveller first reads the first few
-        (`network.roll.CameraLeveller.prime`), so the first frames are not levelled by a guess."""
+        (`network.inference.roll.CameraLeveller.prime`), so the first frames are not levelled by a guess."""
         lev = self.leveller
         if lev is None or not lev.read[1:].any():
             yield from frames
@@ -335,7 +335,7 @@ class Predictor:
 
     @torch.no_grad()
     def _box_logits(self, out: dict[str, torch.Tensor], i: int) -> torch.Tensor:
-        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.boxdepth`)."""
+        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.heads.boxdepth`)."""
         win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
         return self.model.box_logits(win.to(self.device), extra.to(self.device))
 

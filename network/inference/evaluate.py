@@ -17,8 +17,8 @@ from tqdm import tqdm
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer
 from network.data import SequenceLike, board_rows, check_spec_compatible, sequence_angles
-from network.infer import Predictor, frame_layouts, rack_depth_source, sequence_camera
-from network.model import MVRackLay
+from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera
+from network.model.net import MVRackLay
 
 
 def evaluate_sequences(
@@ -41,11 +41,11 @@ def evaluate_sequences(
 
     ``true_anchors`` places the shelf slots at the ground truth's boards instead of the row head's:
     what the decoders score when the boards are found perfectly (an analysis, not a result).
-    ``flip`` averages each frame with its mirror image (`network.infer.Predictor`); ``read_depth``
+    ``flip`` averages each frame with its mirror image (`network.inference.predictor.Predictor`); ``read_depth``
     False keeps the top views' rack depth as decoded when the model could read it from back edges;
-    ``whole_sequence`` reads the depths from every frame of a sequence (`network.infer.Predictor`);
-    ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.fusion`; 0 = off);
-    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.roll`; None: each sequence's
+    ``whole_sequence`` reads the depths from every frame of a sequence (`network.inference.predictor.Predictor`);
+    ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.inference.fusion`; 0 = off);
+    ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.inference.roll`; None: each sequence's
     recorded roll, 0 for a level camera), ``pitch`` / ``yaw`` a tilt (degrees, up > 0) / turn (degrees,
     right > 0), the same.
     """
@@ -63,7 +63,7 @@ def evaluate_sequences(
         anchors = (
             (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
         )
-        pred = Predictor(  # angles None: the sequence's recorded ones (`network.infer.SequenceCamera`)
+        pred = Predictor(  # angles None: the sequence's recorded ones (`network.inference.predictor.SequenceCamera`)
             model,
             sequence_camera(seq),
             anchors,

@@ -1,10 +1,10 @@
-"""Fitting the upright head (`network.uprights`) to a trained model, the rest of the network frozen.
+"""Fitting the upright head (`network.heads.uprights`) to a trained model, the rest of the network frozen.
 
 The head reads row-pooled pyramid features, so one pass of the frozen trunk per frame gives all it
 needs: `cache_features` runs it once over the training sequences, `train_head` fits the head to the
 columns where the generator's semantic and depth images show front and rear uprights of the mapped
 row (`waresynth.visibility.upright_faces`, sampled at the canonical pixels), and `depth_errors`
-measures what matters, the rack depth the uprights give (`network.backedge.DepthReader`) per frame,
+measures what matters, the rack depth the uprights give (`network.heads.backedge.DepthReader`) per frame,
 over the frames so far and over a whole sequence.
 """
 
@@ -21,10 +21,10 @@ from tqdm import tqdm
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.data import frame_camera
-from network.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
-from network.infer import Predictor, sequence_camera
-from network.model import MVRackLay
-from network.uprights import UprightHead, pool_columns
+from network.heads.uprights import UprightHead, pool_columns
+from network.inference.predictor import Predictor, sequence_camera
+from network.model.net import MVRackLay
+from network.training.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
 from waresynth.dataset import require_level_camera
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
@@ -76,7 +76,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     total = sum(len(range(0, s.num_frames, every)) for s in sequences)
     if not total:
         raise InputError("no frames to fit the upright head on")
-    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.fit_backedge)
+    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_backedge)
     target = np.zeros((total, 2, view.width), np.float32)
     inside = np.zeros((total, view.width), bool)
     seq_ids, dists, depths = np.zeros(total, np.int64), np.zeros(total), np.zeros(total)

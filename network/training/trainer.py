@@ -9,7 +9,7 @@ and elapsed time; a checkpoint taken inside an epoch (``checkpoint_every``, Ctrl
 same place in the epoch's seeded window order, so a killed and resumed run trains on the same
 windows as an uninterrupted one.
 
-Under torchrun (`network.distributed`) the model and discriminators are wrapped in
+Under torchrun (`network.training.distributed`) the model and discriminators are wrapped in
 `DistributedDataParallel`: every rank draws its own share of windows, gradients are averaged, and
 only rank 0 validates and writes checkpoints, metrics and progress bars. Elapsed time is the
 slowest rank's, so the learning rate and the minute budget agree on every rank.
@@ -36,7 +36,11 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
 from network.data import WindowDataset, check_jpeg
-from network.distributed import (
+from network.inference.evaluate import evaluate_sequences, score
+from network.model.net import ModelConfig, MVRackLay, build_discriminators
+from network.model.resnet import load_imagenet_weights
+from network.precision import check_precision, forward_autocast
+from network.training.distributed import (
     DistEnv,
     ListSampler,
     all_reduce,
@@ -45,8 +49,7 @@ from network.distributed import (
     rank_indices,
     state_fingerprint,
 )
-from network.evaluate import evaluate_sequences, score
-from network.losses import (
+from network.training.losses import (
     consistency_loss,
     lsgan_discriminator_loss,
     lsgan_generator_loss,
@@ -54,9 +57,6 @@ from network.losses import (
     row_loss,
     supervised_loss,
 )
-from network.model import ModelConfig, MVRackLay, build_discriminators
-from network.precision import check_precision, forward_autocast
-from network.resnet import load_imagenet_weights
 
 
 @dataclass
@@ -199,7 +199,7 @@ class Trainer:
     """Owns the model, optimisers and run folder; `fit` trains until the epochs or minutes run out.
 
     ``dist_env`` places the process in a torchrun job (the process group must already be
-    initialised, see `network.distributed.init_process_group`); None = one process.
+    initialised, see `network.training.distributed.init_process_group`); None = one process.
     """
 
     def __init__(
@@ -221,7 +221,7 @@ class Trainer:
         self.mcfg, self.tcfg = model_cfg, train_cfg
         self.env = dist_env or DistEnv()
         if self.env.enabled and not (torch.distributed.is_available() and torch.distributed.is_initialized()):
-            raise RuntimeError("distributed training: call network.distributed.init_process_group first")
+            raise RuntimeError("distributed training: call network.training.distributed.init_process_group first")
         self.is_main = self.env.is_main
         self.device = device_for(self.env, train_cfg.device)
         self.out = Path(out)

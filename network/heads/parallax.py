@@ -9,9 +9,9 @@ frame before, shifted by ``rho * dx`` for a few ratios rho, matches the current 
 scene lies at the matching depth: a box's side face and top running back, the back uprights and
 board edges, the back wall. `plane_sweep` returns those matching costs (a cost volume, one map per
 ratio); `ParallaxNet` turns them into features for the top view's depth rows
-(`network.model.SlotHeads`), the one thing a single frame shows only through faces a few pixels tall.
+(`network.model.net.SlotHeads`), the one thing a single frame shows only through faces a few pixels tall.
 
-``dx`` comes from `network.motion.camera_shift` (the images alone) or from the caller (odometry).
+``dx`` comes from `network.model.motion.camera_shift` (the images alone) or from the caller (odometry).
 A frame without a predecessor (a sequence start) has ``dx = 0``: every ratio matches equally and
 the cost volume is zero, so the features carry nothing, as for a camera that does not move.
 """
@@ -25,7 +25,7 @@ from torch import nn
 from layouts.canonical import CanonicalView
 
 #: ``d / (d + z)`` of the swept planes: at d = 2.5 m, z from 1.35 m behind the front to 0.5 m in front; ratios
-#: above 1 also take up an error of the image motion estimate (`network.motion`)
+#: above 1 also take up an error of the image motion estimate (`network.model.motion`)
 RATIOS = (1.25, 1.2, 1.15, 1.1, 1.05, 1.0, 0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.65)
 
 

@@ -23,13 +23,13 @@ the row head. A slot without an anchor is background.
 
 The temporal block works in layout space: a slot's coarse top- and front-view maps of consecutive
 frames differ by the camera's motion along the row. The motion is read from the canonical images
-themselves (`network.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
+themselves (`network.model.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
 frame, so a memory cell stays on one piece of shelf (how deep a box is shows on its side faces or
 top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
 trained ``racklay`` weights. As an option (``ModelConfig.parallax``), sequence variants also read
-depth from the motion parallax with the frame before (`network.parallax`), added to the top view
+depth from the motion parallax with the frame before (`network.heads.parallax`), added to the top view
 the same zero-initialised way; and (``ModelConfig.geo_top``) any variant's top view can also sample
-the features where each cell's 3D points project (`network.geotop`), added the same way.
+the features where each cell's 3D points project (`network.heads.geotop`), added the same way.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).
@@ -48,17 +48,17 @@ from torch import nn
 from layouts import NUM_CLASSES, VIEWS, LayoutSpec
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network import frozen
-from network.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
-from network.boxdepth import BOX_WIDTH, BoxDepthHead, window_rows
-from network.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
-from network.convlstm import StackedConvLSTM, State
-from network.fastops import avg_pool2, up2
-from network.geotop import GeometricTop
-from network.motion import camera_shift, motion_signature
-from network.parallax import RATIOS, ParallaxNet, plane_sweep
-from network.resnet import ResNet18Encoder
-from network.uprights import UprightHead, pool_columns
+from network.heads.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
+from network.heads.boxdepth import BOX_WIDTH, BoxDepthHead, window_rows
+from network.heads.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
+from network.heads.geotop import GeometricTop
+from network.heads.parallax import RATIOS, ParallaxNet, plane_sweep
+from network.heads.uprights import UprightHead, pool_columns
+from network.inference import frozen
+from network.model.convlstm import StackedConvLSTM, State
+from network.model.fastops import avg_pool2, up2
+from network.model.motion import camera_shift, motion_signature
+from network.model.resnet import ResNet18Encoder
 
 #: variant -> (sequence length, uses the ConvLSTM, uses discriminators)
 VARIANTS: dict[str, tuple[int, bool, bool]] = {
@@ -74,7 +74,7 @@ ARCH = "anchored"
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
-#: channels of the plane-sweep features (`network.parallax.ParallaxNet`)
+#: channels of the plane-sweep features (`network.heads.parallax.ParallaxNet`)
 PARALLAX_CHANNELS = 16
 #: the top view's band of image rows around a board: this far above the front window, and below the board (metres)
 BAND_ABOVE = 0.15
@@ -97,18 +97,18 @@ class ModelConfig:
     lstm_layers: int = 2  #: ConvLSTM layers of the slot memory (sequence variants)
     memory_hidden: int = 32  #: ConvLSTM channels of the slot memory
     decoder_width: int = 32
-    align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.motion`)
-    parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.parallax`)
-    geo_top: bool = False  #: top view also samples features where each cell's 3D points project (`network.geotop`)
+    align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.model.motion`)
+    parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.heads.parallax`)
+    geo_top: bool = False  #: top view also samples features where each cell's 3D points project (`network.heads.geotop`)
     back_edges: bool = (
-        False  #: a head finds the boards' back edges, from which the rack depth is read (`network.backedge`)
+        False  #: a head finds the boards' back edges, from which the rack depth is read (`network.heads.backedge`)
     )
-    uprights: bool = False  #: a head marks front and rear uprights, which also give the rack depth (`network.uprights`)
-    box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.boxdepth`)
-    box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.boxdepth`)
-    box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.boxdepth`)
-    box_width: int = BOX_WIDTH  #: that head's channels (`network.boxdepth.BoxDepthHead`)
-    box_front: bool = False  #: that head also reads each box's front (`network.boxdepth.FRONT_BINS`)
+    uprights: bool = False  #: a head marks front and rear uprights, which also give the rack depth (`network.heads.uprights`)
+    box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.heads.boxdepth`)
+    box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.heads.boxdepth`)
+    box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.heads.boxdepth`)
+    box_width: int = BOX_WIDTH  #: that head's channels (`network.heads.boxdepth.BoxDepthHead`)
+    box_front: bool = False  #: that head also reads each box's front (`network.heads.boxdepth.FRONT_BINS`)
     arch: str = ARCH
 
     def __post_init__(self) -> None:
@@ -242,12 +242,12 @@ class SlotFeatures:
     front: torch.Tensor  #: (N*R, dw, D/2, D/2) coarse front-view map
     fine: torch.Tensor  #: (N*R, c1, D, D) fine front-window samples of the 1/2 map
     valid: torch.Tensor  #: (N, R) bool: the slot has an anchor
-    motion: torch.Tensor | None = None  #: (N, 2, H, W) `network.motion.motion_signature` of the images
+    motion: torch.Tensor | None = None  #: (N, 2, H, W) `network.model.motion.motion_signature` of the images
     back: torch.Tensor | None = (
-        None  #: (N, H) back-edge logits (`network.backedge.BackEdgeHead`), if the model has the head
+        None  #: (N, H) back-edge logits (`network.heads.backedge.BackEdgeHead`), if the model has the head
     )
-    window: torch.Tensor | None = None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.boxdepth`
-    uprights: torch.Tensor | None = None  #: (N, 2, W) upright logits (`network.uprights.UprightHead`), with the head
+    window: torch.Tensor | None = None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.heads.boxdepth`
+    uprights: torch.Tensor | None = None  #: (N, 2, W) upright logits (`network.heads.uprights.UprightHead`), with the head
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
@@ -306,7 +306,7 @@ class RowHead(nn.Module):
     """Logits ``(N, H)`` over canonical rows: does the top edge of a visible shelf board's front lie here?
 
     Boards are horizontal in the canonical image (the camera does not roll), so the evidence is
-    pooled across columns (mean and max, `network.backedge.pool_rows`) and reasoned about along the rows.
+    pooled across columns (mean and max, `network.heads.backedge.pool_rows`) and reasoned about along the rows.
     """
 
     def __init__(self, c1: int, c2: int, height: int) -> None:
@@ -427,7 +427,7 @@ class SlotHeads(nn.Module):
         self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, par: torch.Tensor | None = None
     ) -> SlotFeatures:
         """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames
-        (``par``: `network.parallax.ParallaxNet` maps, added to the top view's depth rows)."""
+        (``par``: `network.heads.parallax.ParallaxNet` maps, added to the top view's depth rows)."""
         n, r = anchors.shape
         d, dc = self.spec.size, self.dc
         valid = torch.isfinite(anchors)
@@ -447,7 +447,7 @@ class SlotHeads(nn.Module):
 
     def window(self, p1: torch.Tensor, anchors: torch.Tensor) -> torch.Tensor:
         """The 1/2 map ``(N, c1, H/2, W/2)`` over each slot's front window, every column of it:
-        ``(N, R, c1, rows, W/2)`` (rows: the front view's in groups, `network.boxdepth.WINDOW_ROWS`; a slot
+        ``(N, R, c1, rows, W/2)`` (rows: the front view's in groups, `network.heads.boxdepth.WINDOW_ROWS`; a slot
         without an anchor samples the image's middle)."""
         n, r = anchors.shape
         a = torch.where(torch.isfinite(anchors), anchors, torch.full_like(anchors, self.view.height / 2))
@@ -490,7 +490,7 @@ class SlotMemory(nn.Module):
     of ``x_extent / (D/4)``, ~19 cm) and fed to the ConvLSTM in frame order; its output, upsampled, is
     added back through a zero-initialised 1x1 convolution, so a fresh memory leaves the single-frame
     network's outputs unchanged. The layout frame moves with the camera, so with ``align`` the state
-    is shifted by the camera motion read from the images (`network.motion`) before each frame: a
+    is shifted by the camera motion read from the images (`network.model.motion`) before each frame: a
     memory cell then stays on the same piece of shelf, and what an earlier viewpoint showed (a box's
     side face, its top) is where the current frame needs it. Without ``align`` the 3x3 gates must
     learn to follow the motion themselves.
@@ -609,7 +609,7 @@ class MVRackLay(nn.Module):
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
         self.uprights = UprightHead(2 * (fine + coarse), cfg.input_width) if cfg.uprights else None
-        #: fitted on the frozen network (`network.fit_boxdepth`); inputs: `network.boxdepth.head_inputs`
+        #: fitted on the frozen network (`network.training.fit_boxdepth`); inputs: `network.heads.boxdepth.head_inputs`
         c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
         self.box_depth = (
             BoxDepthHead(
@@ -630,16 +630,16 @@ class MVRackLay(nn.Module):
             if cfg.use_lstm
             else None
         )
-        #: per view, subtracted from the box logit by `network.infer.Predictor` (`network.calibrate`;
+        #: per view, subtracted from the box logit by `network.inference.predictor.Predictor` (`network.training.calibrate`;
         #: not part of the weights: a checkpoint's record carries it)
         self.box_logit_offset: dict[str, float] = {v: 0.0 for v in VIEWS}
-        #: metres added to every rack depth the reader reads (`network.calibrate.fit_rack_depth_offset`;
+        #: metres added to every rack depth the reader reads (`network.training.calibrate.fit_rack_depth_offset`;
         #: a checkpoint's record carries it)
         self.rack_depth_offset = 0.0
         #: at inference on the CPU the trunk, the slot maps and the box-depth head run as frozen graphs
-        #: (`network.frozen`); False: always the modules
+        #: (`network.inference.frozen`); False: always the modules
         self.frozen_graphs = True
-        #: the trunk graph's precision, fp32 or bf16 (`network.frozen.set_precision`)
+        #: the trunk graph's precision, fp32 or bf16 (`network.inference.frozen.set_precision`)
         self.graph_precision = "fp32"
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
@@ -651,12 +651,12 @@ class MVRackLay(nn.Module):
 
     def maps(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The pyramid maps ``(p1, p2)`` (1/2 and 1/4 scale) of frames ``(N, 3, H, W)``; at inference on the CPU
-        through the trunk's frozen graph (`network.frozen`; ``self.frozen_graphs = False`` turns them off)."""
+        through the trunk's frozen graph (`network.inference.frozen`; ``self.frozen_graphs = False`` turns them off)."""
         self._check(images)
         return frozen.maps(self, images)
 
     def pooled_rows(self, images: torch.Tensor) -> torch.Tensor:
-        """The row heads' input for frames ``(N, 3, H, W)``: `network.backedge.pool_rows` of the pyramid."""
+        """The row heads' input for frames ``(N, 3, H, W)``: `network.heads.backedge.pool_rows` of the pyramid."""
         return pool_rows(*self.maps(images))
 
     def frame_features(
@@ -703,8 +703,8 @@ class MVRackLay(nn.Module):
         return feats, rows, anchors
 
     def box_logits(self, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
-        """The box-depth head's logits on `network.boxdepth.head_inputs` (at inference on the CPU through
-        its frozen graph, `network.frozen`)."""
+        """The box-depth head's logits on `network.heads.boxdepth.head_inputs` (at inference on the CPU through
+        its frozen graph, `network.inference.frozen`)."""
         if self.box_depth is None:
             raise InputError("this model has no box-depth head (mvracklay fit-box-depth adds one)")
         return frozen.run(self, "box_depth", _box_head, win, extra)
@@ -806,7 +806,7 @@ def slot_maps(
     m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, *par: torch.Tensor
 ) -> tuple[torch.Tensor, ...]:
     """`SlotHeads.coarse` of ``m.slots`` as tensors ``(top, front, fine)`` (``par``: the parallax maps, if
-    any): the slot heads' part of a frame that `network.frozen` runs as a graph."""
+    any): the slot heads' part of a frame that `network.inference.frozen` runs as a graph."""
     f = m.slots.coarse(p1, p2, anchors, par[0] if par else None)
     return f.top, f.front, f.fine
 

@@ -1,6 +1,6 @@
 """Geometric top view: image features lifted onto the top view's cells by projecting 3D points.
 
-The top view's column transform (`network.model.ColumnTransform`) maps each canonical column's
+The top view's column transform (`network.model.net.ColumnTransform`) maps each canonical column's
 band of rows to depth rows and never mixes columns. A side face of a box, seen off the optical
 axis, and the back edges of a rack lie in *other* image columns than the front face above them:
 a point ``Z`` metres behind the rack front at lateral ``X`` lands at ``X * rho`` with

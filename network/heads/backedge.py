@@ -12,10 +12,10 @@ it; a board above shows its underside (one board thickness lower). So each board
 and front row give the rack depth, and a sequence gives many boards.
 
 `BackEdgeHead` finds back-edge rows: a 1-D network like the row head's, on the same column-pooled
-pyramid features, trained with the rest of the network frozen (`network.fit_backedge`).
+pyramid features, trained with the rest of the network frozen (`network.training.fit_backedge`).
 `DepthReader` turns its probabilities into a depth: it scores every depth hypothesis by the
 back-edge log-probability where each board's back edge would then fall, sums the scores over the
-frames seen so far, and returns the best hypothesis; `network.infer.Predictor` imposes it on the top
+frames seen so far, and returns the best hypothesis; `network.inference.predictor.Predictor` imposes it on the top
 views (`layouts.rackdepth.impose_rack_depth`).
 """
 
@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from layouts.canonical import CanonicalView
-from network.uprights import BACK_EDGE_WEIGHT, upright_depth_scores
+from network.heads.uprights import BACK_EDGE_WEIGHT, upright_depth_scores
 
 #: board thickness assumed for the underside of boards above the camera (the generator draws 4-8 cm)
 NOMINAL_THICKNESS = 0.06
@@ -145,12 +145,12 @@ def frame_depth_scores(
 
 class DepthReader:
     """The rack depth of one sequence, from each frame's back-edge probabilities and board rows and, with
-    an upright head, its front and rear upright probabilities (`network.uprights`).
+    an upright head, its front and rear upright probabilities (`network.heads.uprights`).
 
-    `add` accumulates a frame's `frame_depth_scores` (times `network.uprights.BACK_EDGE_WEIGHT` when
-    the frame's uprights are given) and `network.uprights.upright_depth_scores`; `depth` is the best
+    `add` accumulates a frame's `frame_depth_scores` (times `network.heads.uprights.BACK_EDGE_WEIGHT` when
+    the frame's uprights are given) and `network.heads.uprights.upright_depth_scores`; `depth` is the best
     hypothesis so far (None before any board or upright has given evidence) plus ``offset`` metres (the
-    reader's measured bias undone, `network.calibrate.fit_rack_depth_offset`), at most ``z_extent``. One
+    reader's measured bias undone, `network.training.calibrate.fit_rack_depth_offset`), at most ``z_extent``. One
     reader per sequence (one rack row).
     """
 

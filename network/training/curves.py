@@ -1,7 +1,7 @@
 """Learning curves as a PNG (validation mIoU against training minutes), drawn with Pillow alone.
 
 `plot_curves` reads runs' ``metrics.jsonl`` (warm-started runs shifted by their source's minutes) and draws one panel per view x class (top/front x
-rack/box), one line per run. ``python -m network.curves [--from X] [--x {cpu-minutes,wall-minutes,steps}] OUT.png LABEL=RUN_DIR ...``
+rack/box), one line per run. ``python -m network.training.curves [--from X] [--x {cpu-minutes,wall-minutes,steps}] OUT.png LABEL=RUN_DIR ...``
 does it from the shell (``--from`` keeps the points from that x on).
 """
 
@@ -146,7 +146,7 @@ X_AXES = {"cpu-minutes": "train_cpu_minutes", "wall-minutes": "train_wall_minute
 
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m network.curves",
+        prog="python -m network.training.curves",
         description="Draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG.",
     )
     ap.add_argument("out", metavar="OUT.png", help="PNG to write")
@@ -166,7 +166,7 @@ def main(argv: list[str]) -> int:
     try:
         plot_curves(runs, args.out, x_key=X_AXES[args.x], x_from=args.x_from)
     except InputError as e:
-        print(f"network.curves: error: {e}", file=sys.stderr)
+        print(f"network.training.curves: error: {e}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}")
     return 0

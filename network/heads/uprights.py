@@ -12,8 +12,8 @@ the image edges; and a busy background has no structure that keeps that pairing 
 
 `UprightHead` marks, per canonical column, front and rear uprights of the mapped row: a 1-D network
 along the columns on row-pooled pyramid features (`pool_columns`), fitted with the rest of the
-network frozen (`network.fit_uprights`). `upright_depth_scores` turns one frame's marks into a
-log-likelihood over rack depths; `network.backedge.DepthReader` sums it over the frames with the
+network frozen (`network.training.fit_uprights`). `upright_depth_scores` turns one frame's marks into a
+log-likelihood over rack depths; `network.heads.backedge.DepthReader` sums it over the frames with the
 back-edge scores (weighted `BACK_EDGE_WEIGHT`: the uprights read the depth better, measured in docs/network.md).
 """
 

@@ -3,10 +3,10 @@
 A stretch of shelf is seen from several viewpoints as the camera passes, and each view errs a little
 differently. Each frame's decided logits (both views, every slot) are averaged with those of the
 frames before it (and, over a recorded sequence, after it), each shifted by the camera's motion
-along the row into the frame's own columns (`network.model.shift_columns`: the layout frame moves
+along the row into the frame's own columns (`network.model.net.shift_columns`: the layout frame moves
 with the camera) and weighted by ``exp(-|frames apart| / tau)`` over the columns each frame saw. A
 short ``tau`` (1 frame, `FUSE_TAU`: weights 1, 0.37, 0.14, ...) keeps what this frame shows in charge
-and the camera motion read from the images (`network.motion`) precise enough: that reading drifts
+and the camera motion read from the images (`network.model.motion`) precise enough: that reading drifts
 by a few millimetres a frame, and a long window smears the layouts (docs/network.md, *Neighbouring
 frames fused*).
 It is off unless asked for (``--fuse-frames``): the layouts gain, but the maps stitched from them lose
@@ -28,7 +28,7 @@ import torch.nn.functional as F
 
 from layouts import VIEWS
 from layouts.errors import InputError
-from network.model import shift_columns
+from network.model.net import shift_columns
 
 #: frames; each neighbour's weight is exp(-frames apart / tau); chosen on the tuning sets (what a bare
 #: ``--fuse-frames`` gives; off by default: the stitched maps lose by it, docs/network.md)
@@ -58,7 +58,7 @@ def check_tau(tau: float, name: str = "fuse_tau") -> float:
 def seen_columns(signature: torch.Tensor, size: int) -> torch.Tensor:
     """``(size,)`` float 0/1: the layout columns whose canonical pixels are mostly inside the source image.
 
-    ``signature``: one frame's `network.motion.motion_signature` ``(1, 2, H, W)``; the canonical image
+    ``signature``: one frame's `network.model.motion.motion_signature` ``(1, 2, H, W)``; the canonical image
     spans the layouts' X extent, so its columns map onto the layout columns.
     """
     cols = signature[0, 1].amax(0)  # (W,) 1 where the column holds source pixels

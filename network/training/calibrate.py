@@ -8,10 +8,10 @@ against a true 0.47 m on the held-out set). Subtracting an offset from the box l
 argmax undoes that prior shift (``log 2 = 0.69`` would undo it exactly for a perfectly fitted
 model); `fit_box_offsets` picks the offset per view that maximises that view's mean rack and box
 mIoU over a grid, on a tuning set (never the held-out set one reports on). The offsets live in the
-checkpoint's record (``box_logit_offset``) and `network.infer.Predictor` applies them, so every
+checkpoint's record (``box_logit_offset``) and `network.inference.predictor.Predictor` applies them, so every
 consumer of predictions (evaluate, predict, run) gets the calibrated decision.
 
-The rack depth read from the uprights and back edges (`network.backedge.DepthReader`) is biased too, on
+The rack depth read from the uprights and back edges (`network.heads.backedge.DepthReader`) is biased too, on
 scenes its heads were not fitted on: shallow by a centimetre or so (docs/network.md). `fit_rack_depth_offset` measures that bias on a tuning set with
 known rack depths (the median of read minus true over the frames with a reading) and returns its negative,
 which the record carries as ``rack_depth_offset`` (metres) and the reader adds to every reading.
@@ -30,7 +30,7 @@ from tqdm import tqdm
 from layouts import BOX, VIEWS
 from layouts.errors import InputError
 from layouts.metrics import METRIC_CLASSES, LayoutMetrics
-from network.model import MVRackLay
+from network.model.net import MVRackLay
 
 #: offsets tried by `fit_box_offsets` (logit units)
 GRID: tuple[float, ...] = tuple(round(0.25 * k, 2) for k in range(11))  # 0 .. 2.5
@@ -76,8 +76,8 @@ def _tuning_outputs(
     model: MVRackLay, sequences: list[Any], every: int, mode: str, flip: bool, progress: bool, desc: str
 ) -> Iterator[tuple[int, int, dict[str, torch.Tensor]]]:
     """``(sequence index, frame index, outputs)`` of every ``every``-th frame of ``sequences``, each run whole by
-    `network.infer.Predictor` (``mode``, flip-averaged with ``flip``, no fusion), with a progress bar."""
-    from network.infer import Predictor, sequence_camera  # infer imports this module
+    `network.inference.predictor.Predictor` (``mode``, flip-averaged with ``flip``, no fusion), with a progress bar."""
+    from network.inference.predictor import Predictor, sequence_camera  # infer imports this module
 
     if not sequences:
         raise InputError("calibration needs at least one sequence with ground truth")
@@ -116,9 +116,9 @@ def fit_box_offsets(
 
     Returns ``{"box_logit_offset": {view: best}, "scores": {view: {offset: {"rack", "box"}}}, "frames"}``;
     best = the largest mean of the view's rack and box mIoU (ties: the smaller offset). ``flip``
-    scores flip-averaged logits (`network.infer.Predictor`).
+    scores flip-averaged logits (`network.inference.predictor.Predictor`).
     """
-    from network.infer import logits_to_layout, resize_logits  # infer imports this module
+    from network.inference.predictor import logits_to_layout, resize_logits  # infer imports this module
 
     if not grid or any(not math.isfinite(g) or abs(g) > LIMIT for g in grid):
         raise InputError(f"offset grid must hold numbers in [-{LIMIT}, {LIMIT}], got {grid}")
@@ -171,12 +171,12 @@ def fit_rack_depth_offset(
 ) -> dict[str, Any]:
     """The offset that centres ``model``'s rack-depth reading on ``sequences``' true rack depths.
 
-    Streams each generated sequence as `network.infer.Predictor` does (the depth from the frames so far,
+    Streams each generated sequence as `network.inference.predictor.Predictor` does (the depth from the frames so far,
     every frame run, every ``every``-th one counted) with the offset at 0, and returns
     ``{"rack_depth_offset": -median(read - true), "frames", "error_before", "error_after", "mode",
     "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading).
     """
-    from network.fit_backedge import rack_row
+    from network.training.fit_backedge import rack_row
 
     if model.back is None and model.uprights is None:
         raise InputError("the model reads no rack depth (it has neither the back-edge nor the upright head)")

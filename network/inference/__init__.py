@@ -1,0 +1,2 @@
+"""Inference: the streaming/windowed predictor, frozen CPU graphs, frame fusion, camera levelling and
+Table I evaluation."""
