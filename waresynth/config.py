@@ -31,24 +31,6 @@ TEXTURES: dict[str, tuple[str, ...]] = {
     "wall": ("plain", "bricks", "panels", "noise"),
 }
 
-#: the camera rotation's keys (``camera.*`` ranges, and each sequence's ``meta.json`` camera record)
-CAMERA_ANGLE_KEYS = ("roll_deg", "pitch_deg", "yaw_deg")
-
-
-def camera_angles(record: Any, source: str) -> tuple[float, float, float]:
-    """A sequence's camera rotation (roll, pitch, yaw) in degrees from its camera record (``meta.json``'s
-    ``camera``, an export's ``cameras.json`` entry); 0 where a key is missing (written when the camera
-    could not rotate: it was level)."""
-    record = record if isinstance(record, dict) else {}
-    out = []
-    for k in CAMERA_ANGLE_KEYS:
-        v = record.get(k, 0.0)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_ROLL_DEG:
-            raise InputError(f"{source}: camera {k} must be a number of degrees within +-{MAX_ROLL_DEG:g}, got {v!r}")
-        out.append(float(v))
-    return out[0], out[1], out[2]
-
-
 _INF = math.inf
 #: Allowed value range per key ("*" matches any density preset name) and whether it is an integer.
 _BOUNDS: dict[str, tuple[float, float, bool]] = {

@@ -16,12 +16,12 @@ from typing import Any
 import numpy as np
 
 from layouts.camera import Intrinsics
+from layouts.camera_record import camera_angles
 from layouts.canonical import camera_rotation
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.spec import LayoutSpec
-from waresynth.config import camera_angles
 from waresynth.imageio import read_png
 
 SPLITS = ("train", "val", "test")

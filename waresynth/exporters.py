@@ -40,6 +40,7 @@ from scipy import ndimage
 from tqdm import tqdm
 
 from layouts.camera import Intrinsics
+from layouts.camera_record import CAMERA_ANGLE_KEYS, camera_angles
 from layouts.codecs import RACKLAY_CODES, FrameLayouts, from_racklay, to_racklay, validate_stack
 from layouts.errors import InputError
 from layouts.fileio import (
@@ -51,7 +52,6 @@ from layouts.fileio import (
     load_npy,
 )
 from layouts.spec import LayoutSpec
-from waresynth.config import CAMERA_ANGLE_KEYS, camera_angles
 from waresynth.dataset import check_frame_index
 
 EXPORT_FORMATS: tuple[str, ...] = ("coco", "yolo", "racklay")

@@ -23,11 +23,12 @@ import numpy as np
 from tqdm import tqdm
 
 from layouts.camera import Intrinsics
+from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
-from waresynth.config import CAMERA_ANGLE_KEYS, draw_hfov, load_config
+from waresynth.config import draw_hfov, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png

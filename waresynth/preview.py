@@ -18,10 +18,10 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 from tqdm import tqdm
 
+from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.classes import BOX, CLASS_COLOURS, CLASS_NAMES, SHELF, colourise
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from waresynth.config import CAMERA_ANGLE_KEYS
 from waresynth.semantics import NUM_SEMANTIC, SEMANTIC_COLOURS, SEMANTIC_NAMES, colourise_semantic
 
 # ----------------------------------------------------------------------------- geometry

@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from layouts.camera import Intrinsics
+from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.canonical import camera_rotation
 from layouts.errors import InputError
 from waresynth import semantics as sem
-from waresynth.config import CAMERA_ANGLE_KEYS
 
 #: Renderer texture patterns by name.
 PATTERNS: dict[str, int] = {
