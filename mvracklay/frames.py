@@ -22,11 +22,11 @@ import numpy as np
 from PIL import Image
 
 from layouts import Intrinsics
+from layouts.camera_record import camera_angles, lens_from_record
 from layouts.canonical import FILL_RGB
-from layouts.errors import InputError, LayoutError
+from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
-from waresynth.config import camera_angles
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
@@ -238,15 +238,6 @@ def _camera_record(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise InputError(f"--camera {p}: want a JSON object with fx, fy, cx, cy (and width, height)")
     return d
-
-
-def lens_from_record(d: dict[str, Any], where: str) -> Lens | None:
-    """The distortion an intrinsics record gives beside fx..cy (None: none, or all zero); bad values: `InputError`."""
-    try:
-        lens = Lens.from_dict(d, where)
-    except LayoutError as e:
-        raise InputError(str(e)) from None
-    return None if lens is None or lens.is_pinhole else lens
 
 
 def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:

@@ -15,13 +15,14 @@ import torch
 from tqdm import tqdm
 
 from layouts import Intrinsics
+from layouts.camera_record import camera_angles, lens_from_record
 from layouts.canonical import FILL_RGB
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
-from mvracklay.frames import camera_warning, lens_from_record
+from mvracklay.frames import camera_warning
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.inference.frozen import add_precision_option, use_precision
@@ -30,7 +31,6 @@ from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predicto
 from network.inference.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
 from network.model.net import MVRackLay
 from network.training.distributed import single_process_device
-from waresynth.config import camera_angles
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
