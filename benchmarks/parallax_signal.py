@@ -2,7 +2,6 @@
 """How much depth the plane sweep of `network.heads.parallax` finds in two frames, with no learning at all.
 
     .venv/bin/python benchmarks/parallax_signal.py data/heldout128 [--sequences 12] [--gap 1] [--true-motion]
-    .venv/bin/python benchmarks/parallax_signal.py data/heldout128 --checkpoint runs/RUN/best.pt
 
 For frame pairs ``gap`` frames apart (every 2nd frame), both frames are warped into the model's
 canonical view, the camera step is read from the images (`network.model.motion`; ``--true-motion``: from
@@ -11,10 +10,6 @@ the poses), and `network.heads.parallax.plane_sweep` scores every swept plane. E
 pixel's depth from the generator's depth image), on the 30 % of pixels whose cost varies most over
 the planes (the textured ones). Prints the correlation and the mean best plane per band of true
 rho: what a per-pixel reading finds before any network aggregates it.
-
-``--checkpoint`` (a model trained with ``--parallax``) instead scores that model streamed over
-every sequence (Table I mIoU, columns in view) as it is and with its parallax branch's output
-zeroed: what the branch is worth.
 """
 
 from __future__ import annotations
@@ -29,30 +24,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.canonical import CanonicalView  # noqa: E402
-from network.checkpoint import load_model  # noqa: E402
 from network.data import canonical_image, frame_camera, to_tensor  # noqa: E402
 from network.heads.parallax import RATIOS, plane_sweep  # noqa: E402
-from network.inference.evaluate import evaluate_sequences  # noqa: E402
 from network.model.motion import camera_shift, motion_signature  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 BANDS = ((0.6, 0.75), (0.75, 0.85), (0.85, 0.95), (0.95, 1.1))
-
-
-def branch_worth(checkpoint: Path, data: Path) -> None:
-    """Streamed held-out mIoU of a parallax model with its branch on and zeroed."""
-    model, _ = load_model(checkpoint)
-    if model.parallax is None:
-        raise SystemExit(f"{checkpoint}: was not trained with --parallax")
-    seqs = open_dataset(data).sequences()
-    print(f"{checkpoint} on {data}, streamed, mIoU columns in view: top rack / top box / front rack / front box")
-    for label in ("as trained", "parallax zeroed"):
-        if label == "parallax zeroed":
-            torch.nn.init.zeros_(model.slots.par_out.weight)
-            torch.nn.init.zeros_(model.slots.par_out.bias)
-        v = evaluate_sequences(model, seqs, mode="stream", progress=False)["visible"]
-        figs = " / ".join(f"{100 * v[w][c]['miou']:.1f}" for w in ("top", "front") for c in ("rack", "box"))
-        print(f"  {label:16s} {figs}")
 
 
 def main() -> None:
@@ -62,13 +39,9 @@ def main() -> None:
     ap.add_argument("--gap", type=int, default=1, help="frames between the two of a pair")
     ap.add_argument("--size", type=int, default=128, help="canonical image size (square)")
     ap.add_argument("--true-motion", action="store_true", help="camera steps from the poses, not the images")
-    ap.add_argument("--checkpoint", type=Path, help="a --parallax model: score it with and without its branch")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     torch.set_num_threads(max(1, args.threads))
-    if args.checkpoint is not None:
-        branch_worth(args.checkpoint, args.data)
-        return
     if args.gap < 1 or args.sequences < 1:
         ap.error("--gap and --sequences must be >= 1")
     ds = open_dataset(args.data)

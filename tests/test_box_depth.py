@@ -376,38 +376,6 @@ def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkp
     assert "box_parallax" not in next(iter(Predictor(loaded, rack_depth=0.8, read_depth=False).run(frames)))
 
 
-def test_the_row_profile_reads_where_an_edge_lies_along_the_window():
-    """Windows with one bright row, at row 10 or at row 20 (both beyond the pooled convolutions' reach of the
-    window's borders), and a depth bin that depends on which: pooling over rows cannot tell them apart, the
-    row profile can."""
-    from network.heads.boxdepth import WINDOW_ROWS, BoxDepthHead
-
-    g = torch.Generator().manual_seed(0)
-    n, w = 32, 16
-    where = torch.randint(0, 2, (n,), generator=g)
-    win = torch.zeros(n, 2, WINDOW_ROWS, w)
-    win[torch.arange(n), 0, torch.where(where == 1, 20, 10)] = 1.0
-    extra = torch.zeros(n, 1, w)
-    target = torch.where(where == 1, 3, 12)[:, None].expand(n, w)
-
-    def fitted_loss(row_profile: bool) -> float:
-        torch.manual_seed(0)
-        head = BoxDepthHead(2, 1, width=8, row_profile=row_profile)
-        opt = torch.optim.Adam(head.parameters(), lr=1e-2)
-        for _ in range(150):
-            loss = torch.nn.functional.cross_entropy(head(win, extra)[:, :-1], target)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        head.eval()
-        with torch.no_grad():
-            return float(torch.nn.functional.cross_entropy(head(win, extra)[:, :-1], target))
-
-    pooled, profiled = fitted_loss(False), fitted_loss(True)
-    assert pooled > 0.5  # about ln 2: a coin toss between the two bins
-    assert profiled < 0.1
-
-
 def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     keep = tmp_path / "cache"
     part = keep / part_name(tiny_dataset)
@@ -420,10 +388,6 @@ def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, t
     a, b = (load_checkpoint(tmp_path / f"{k}.pt")[0]["model"] for k in "ab")
     heads = [k for k in a if k.startswith("box_depth.")]
     assert heads and all(torch.equal(a[k], b[k]) for k in heads)  # same inputs, same seed: the same head
-    assert main([*args, "--out", str(tmp_path / "c.pt"), "--row-profile", *common]) == 0  # another head design
-    c = load_model(tmp_path / "c.pt")[0]
-    assert c.cfg.box_row_profile and c.box_depth.profile is not None
-    assert "reused the inputs" in capsys.readouterr().out
     assert main([*args, "--out", str(tmp_path / "w.pt"), "--head-width", "12", *common]) == 0  # a narrower head
     w = load_model(tmp_path / "w.pt")[0]
     assert w.cfg.box_width == 12 and w.box_depth.conv2d[0][0].out_channels == 12 and w.box_depth.out.in_channels == 24

@@ -52,18 +52,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--hidden", type=int, default=m.hidden, help="channels of the reduced 1/32 map")
     g.add_argument("--memory-hidden", type=int, default=m.memory_hidden, help="ConvLSTM channels of the slot memory")
     g.add_argument("--decoder-width", type=int, default=m.decoder_width, help="channels of the layout decoders")
-    g.add_argument(
-        "--parallax",
-        action="store_true",
-        help="sequence variants: the top view also reads depth from the parallax between each frame and the one "
-        "before (a plane sweep over the canonical images; network/heads/parallax.py)",
-    )
-    g.add_argument(
-        "--geo-top",
-        action="store_true",
-        help="the top view also samples image features where each top-view cell's 3D points project "
-        "(perspective placed by geometry, so off-axis side faces reach their own cells; network/heads/geotop.py)",
-    )
     g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
     g.add_argument(
         "--init-from",
@@ -236,8 +224,6 @@ def run(args: argparse.Namespace) -> int:
         hidden=args.hidden,
         decoder_width=args.decoder_width,
         memory_hidden=args.memory_hidden,
-        parallax=args.parallax,
-        geo_top=args.geo_top,
     )
     tcfg = TrainConfig(
         frames_per_step=args.frames_per_step,

@@ -25,7 +25,7 @@ DESCRIPTION = (
     "The inputs are cached on disk (about 4.4 GB per thousand 12-frame scenes at 256x256, 2.4 GB at 128x128; "
     "--cache-dir puts them where there is room) and removed at the end; --keep-cache DIR keeps them, one part "
     "per --data folder, and a later fit of the same checkpoint with --keep-cache DIR reuses the parts of the "
-    "folders it shares (another seed, more epochs, --row-profile or one more dataset without the hour-long "
+    "folders it shares (another seed, more epochs, --head-width or one more dataset without the hour-long "
     "passes already made). The pass streams one frame after another: --cache-workers 2 splits it over two "
     "processes of one thread each (nearly twice the frames per minute of one process on two threads), and "
     "--cache-only stops after it, so the fit can run later on one thread beside other work."
@@ -54,11 +54,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--parallax", action="store_true",
         help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
         "the rack front move less than the front as the camera moves); a cache ~2.4x as large, slower inference",
-    )  # fmt: skip
-    p.add_argument(
-        "--row-profile", action="store_true",
-        help="the head also reads its window's rows through a learned profile over the rows, keeping where a box's "
-        "top or side face lies along the height (pooling over rows alone discards it)",
     )  # fmt: skip
     p.add_argument(
         "--front", action="store_true",
@@ -169,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
-        row_profile=args.row_profile, keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
+        keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
         pass_minutes=args.pass_minutes, width=args.head_width, front=args.front,
     )  # fmt: skip
     print(
@@ -190,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = args.out or args.checkpoint
     info = {"data": [str(d) for d in args.data], **jpeg_record(args), **summary}
-    cfg_out = box_head_config(model.cfg, args.parallax, args.row_profile, args.head_width, args.front)
+    cfg_out = box_head_config(model.cfg, args.parallax, args.head_width, args.front)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
     if args.json:

@@ -34,7 +34,7 @@ HEADS = (
     ("box_depth", "box_depth", "box_depth"),
 )
 #: model-config flags that belong to the box-depth head
-BOX_OPTIONS = ("box_parallax", "box_row_profile", "box_width", "box_front")
+BOX_OPTIONS = ("box_parallax", "box_width", "box_front")
 
 
 def graft(heads_path: Path, net_path: Path, out: Path, only: tuple[str, ...] = ()) -> list[str]:

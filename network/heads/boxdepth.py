@@ -71,22 +71,9 @@ def window_rows(layout_size: int) -> int:
 class BoxDepthHead(nn.Module):
     """Per slot: window ``(c2d, WINDOW_ROWS, W)`` + column extras ``(c1d, D)`` -> ``(len(BINS) + 1, D)`` logits
     (the back-depth bins, then the shown logit; with ``front``, then the front bins). A 2-D block over the window, its rows pooled (mean and
-    max), then a dilated 1-D block along the columns.
+    max), then a dilated 1-D block along the columns."""
 
-    ``row_profile``: the rows are also read by a learned profile (a convolution spanning all
-    ``rows`` rows of each column, `window_rows`), which keeps *where* along the window's height an edge lies: a
-    box's top face or side face gives its depth through its rows relative to the board and the box top,
-    which pooling alone discards."""
-
-    def __init__(
-        self,
-        c2d: int,
-        c1d: int,
-        width: int = BOX_WIDTH,
-        row_profile: bool = False,
-        rows: int = WINDOW_ROWS,
-        front: bool = False,
-    ) -> None:
+    def __init__(self, c2d: int, c1d: int, width: int = BOX_WIDTH, front: bool = False) -> None:
         super().__init__()
         self.c2d, self.c1d = c2d, c1d
         self.front = front  #: the logits end with the front bins (`FRONT_BINS`, `split_logits`)
@@ -98,13 +85,8 @@ class BoxDepthHead(nn.Module):
 
         self.conv2d = nn.Sequential(block(c2d, width, (1, 1)), block(width, width, (1, 2)), block(width, width, (2, 4)))
         self.conv2d.to(memory_format=torch.channels_last)  # measured: 17 -> 11 ms per frame on 2 CPU threads
-        self.profile = (
-            nn.Sequential(nn.Conv2d(width, width, (rows, 1)), nn.BatchNorm2d(width), nn.ReLU(inplace=True))
-            if row_profile
-            else None
-        )
         w1 = 2 * width
-        pooled = (3 if row_profile else 2) * width
+        pooled = 2 * width
 
         def block1(cin: int, cout: int, dil: int) -> nn.Sequential:
             return nn.Sequential(
@@ -116,8 +98,7 @@ class BoxDepthHead(nn.Module):
 
     def forward(self, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
         x = self.conv2d(win.contiguous(memory_format=torch.channels_last))
-        parts = [x.mean(2), x.amax(2)] + ([] if self.profile is None else [self.profile(x).squeeze(2)])
-        x = torch.cat(parts, 1)  # (N, 2w or 3w, W)
+        x = torch.cat([x.mean(2), x.amax(2)], 1)  # (N, 2w, W)
         x = F.avg_pool1d(x, x.shape[-1] // extra.shape[-1]) if x.shape[-1] != extra.shape[-1] else x
         return self.out(self.conv1d(torch.cat([x, extra], 1)))
 

@@ -8,8 +8,8 @@ full ``dx`` (whatever the camera, since canonical pixels have a fixed size on th
 frame before, shifted by ``rho * dx`` for a few ratios rho, matches the current frame where the
 scene lies at the matching depth: a box's side face and top running back, the back uprights and
 board edges, the back wall. `plane_sweep` returns those matching costs (a cost volume, one map per
-ratio); `ParallaxNet` turns them into features for the top view's depth rows
-(`network.model.net.SlotHeads`), the one thing a single frame shows only through faces a few pixels tall.
+ratio), which the box-depth head reads (`network.heads.boxdepth.ParallaxHistory`, option ``box_parallax``):
+a box's depth, which a single frame shows only through faces a few pixels tall.
 
 ``dx`` comes from `network.model.motion.camera_shift` (the images alone) or from the caller (odometry).
 A frame without a predecessor (a sequence start) has ``dx = 0``: every ratio matches equally and
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import torch
 import torch.nn.functional as F
-from torch import nn
 
 from layouts.canonical import CanonicalView
 
@@ -89,30 +88,3 @@ def relative_costs(cost: torch.Tensor) -> torch.Tensor:
     planes (which plane matches best) and that mean (how much texture there is to match), x10 (unit scale)."""
     mean = cost.mean(1, keepdim=True)
     return torch.cat([cost - mean, mean], 1) * 10.0
-
-
-class ParallaxNet(nn.Module):
-    """Cost volume -> ``channels`` feature maps at half the image's resolution (the 1/2 map's grid).
-
-    Input: `relative_costs` of the volume (which plane matches best, and how much texture there is
-    to match), scaled for the first batch norm.
-    """
-
-    def __init__(self, channels: int = 16) -> None:
-        super().__init__()
-        k = len(RATIOS)
-        self.channels = channels
-        self.net = nn.Sequential(
-            nn.Conv2d(k + 1, channels, 3, padding=1, bias=False),
-            nn.BatchNorm2d(channels),
-            nn.ReLU(True),
-            nn.Conv2d(channels, channels, 3, stride=2, padding=1, bias=False),
-            nn.BatchNorm2d(channels),
-            nn.ReLU(True),
-            nn.Conv2d(channels, channels, 3, padding=1, bias=False),
-            nn.BatchNorm2d(channels),
-            nn.ReLU(True),
-        )
-
-    def forward(self, cost: torch.Tensor) -> torch.Tensor:
-        return self.net(relative_costs(cost))

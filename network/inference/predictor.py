@@ -185,8 +185,8 @@ class Predictor:
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         memory = model.memory
-        #: the model reads the camera's step (its aligned memory, its parallax): streaming gives it `_inputs`' own
-        self._model_motion = model.parallax is not None or (memory is not None and memory.view is not None)
+        #: the model reads the camera's step (its aligned memory): streaming gives it `_inputs`' own
+        self._model_motion = memory is not None and memory.view is not None
         self.whole_sequence = bool(whole_sequence)
         # an angle not given is the camera's recorded one (a generated sequence's, `SequenceCamera`), else 0
         recorded = getattr(self.camera, "angles", (0.0, 0.0, 0.0))
@@ -398,24 +398,21 @@ class Predictor:
 
     def _window(self, inputs: Iterable[Inputs], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
         m, t_len = self.model, self.cfg.seq_len
-        images: deque[torch.Tensor] = deque(maxlen=t_len + 1)  # the window and the frame before it
+        images: deque[torch.Tensor] = deque(maxlen=t_len)
         anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
         cached: deque = deque(maxlen=t_len)
-        last: torch.Tensor | None = None  # the frame before (the parallax's partner)
-        for i, (x, a, _) in enumerate(inputs):  # each window's fresh memory reads its own steps
+        for x, a, _ in inputs:  # each window's fresh memory reads its own steps
             if recompute:  # the naive form: the whole window through the model again
                 if not images:
-                    images.extend([x] * (t_len + 1))
+                    images.extend([x] * t_len)
                     anchors.extend([a] * t_len)
                 images.append(x)
                 anchors.append(a)
                 given = None if a is None else torch.stack(list(anchors), 1)
-                win = list(images)
-                out = m(torch.stack(win[1:], 1), given, before=None if i == 0 else win[0])
+                out = m(torch.stack(list(images), 1), given)
                 yield {k: o[0, -1] for k, o in out.items()}
                 continue
-            feats, rows, anc = m.frame_features(x, a, last)  # per-frame work, shared by the windows it is in
-            last = x
+            feats, rows, anc = m.frame_features(x, a)  # per-frame work, shared by the windows it is in
             if not cached:
                 cached.extend([feats] * t_len)
             cached.append(feats)

@@ -26,10 +26,7 @@ frames differ by the camera's motion along the row. The motion is read from the 
 themselves (`network.model.motion`, no pose needed) and the ConvLSTM state is shifted by it before each
 frame, so a memory cell stays on one piece of shelf (how deep a box is shows on its side faces or
 top only from some viewpoints). It starts as an exact no-op, so a sequence model starts from
-trained ``racklay`` weights. As an option (``ModelConfig.parallax``), sequence variants also read
-depth from the motion parallax with the frame before (`network.heads.parallax`), added to the top view
-the same zero-initialised way; and (``ModelConfig.geo_top``) any variant's top view can also sample
-the features where each cell's 3D points project (`network.heads.geotop`), added the same way.
+trained ``racklay`` weights.
 
 Variants (`VARIANTS`): ``mvracklay-disc-4`` (default), ``mvracklay-disc-8``, ``mvracklay-4``
 (no discriminators) and ``racklay`` (single frame, no ConvLSTM).
@@ -51,8 +48,6 @@ from layouts.errors import InputError
 from network.heads.backedge import BackEdgeHead, pool_rows, row_net, rows_from_net
 from network.heads.boxdepth import BOX_WIDTH, BoxDepthHead, window_rows
 from network.heads.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
-from network.heads.geotop import GeometricTop
-from network.heads.parallax import RATIOS, ParallaxNet, plane_sweep
 from network.heads.uprights import UprightHead, pool_columns
 from network.inference import frozen
 from network.model.convlstm import StackedConvLSTM, State
@@ -70,12 +65,12 @@ VARIANTS: dict[str, tuple[int, bool, bool]] = {
 DEFAULT_VARIANT = "mvracklay-disc-4"
 #: the decoder design; records of other designs are refused with a line saying so
 ARCH = "anchored"
+#: model options of earlier versions that no shipped model used; a record may still name them, switched off
+RETIRED_FLAGS = ("parallax", "geo_top", "box_row_profile")
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
-#: channels of the plane-sweep features (`network.heads.parallax.ParallaxNet`)
-PARALLAX_CHANNELS = 16
 #: the top view's band of image rows around a board: this far above the front window, and below the board (metres)
 BAND_ABOVE = 0.15
 BAND_BELOW = 0.30
@@ -97,16 +92,19 @@ class ModelConfig:
     lstm_layers: int = 2  #: ConvLSTM layers of the slot memory (sequence variants)
     memory_hidden: int = 32  #: ConvLSTM channels of the slot memory
     decoder_width: int = 32
-    align_memory: bool = True  #: shift the slot memory by the camera motion read from the images (`network.model.motion`)
-    parallax: bool = False  #: top view also reads depth from the parallax with the frame before (`network.heads.parallax`)
-    geo_top: bool = False  #: top view also samples features where each cell's 3D points project (`network.heads.geotop`)
+    align_memory: bool = (
+        True  #: shift the slot memory by the camera motion read from the images (`network.model.motion`)
+    )
     back_edges: bool = (
         False  #: a head finds the boards' back edges, from which the rack depth is read (`network.heads.backedge`)
     )
-    uprights: bool = False  #: a head marks front and rear uprights, which also give the rack depth (`network.heads.uprights`)
+    uprights: bool = (
+        False  #: a head marks front and rear uprights, which also give the rack depth (`network.heads.uprights`)
+    )
     box_depth: bool = False  #: a head reads each box's depth, carried along the row (`network.heads.boxdepth`)
-    box_parallax: bool = False  #: that head also reads plane-sweep costs against earlier frames (`network.heads.boxdepth`)
-    box_row_profile: bool = False  #: that head also reads its window's rows by a learned profile (`network.heads.boxdepth`)
+    box_parallax: bool = (
+        False  #: that head also reads plane-sweep costs against earlier frames (`network.heads.boxdepth`)
+    )
     box_width: int = BOX_WIDTH  #: that head's channels (`network.heads.boxdepth.BoxDepthHead`)
     box_front: bool = False  #: that head also reads each box's front (`network.heads.boxdepth.FRONT_BINS`)
     arch: str = ARCH
@@ -126,14 +124,10 @@ class ModelConfig:
                 raise InputError(f"{name} must be a positive integer, got {v!r}")
         if not isinstance(self.align_memory, bool):
             raise InputError(f"align_memory must be true or false, got {self.align_memory!r}")
-        flags = ("parallax", "geo_top", "back_edges", "uprights", "box_depth", "box_parallax", "box_row_profile",
-                 "box_front")  # fmt: skip
-        for name in flags:
+        for name in ("back_edges", "uprights", "box_depth", "box_parallax", "box_front"):
             if not isinstance(getattr(self, name), bool):
                 raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if self.parallax and not self.use_lstm:
-            raise InputError(f"parallax needs a sequence variant (frames before this one); {self.variant} has none")
-        for name in ("box_parallax", "box_row_profile", "box_front"):
+        for name in ("box_parallax", "box_front"):
             if getattr(self, name) and not self.box_depth:
                 raise InputError(f"{name} is part of the box-depth head; it needs box_depth")
         if not self.use_lstm:  # no memory to align: one value, so records from before the flag still match
@@ -185,6 +179,9 @@ class ModelConfig:
                 )
             del d["temporal_residual"]  # single-frame models are unchanged
         d.setdefault("align_memory", False)  # written before the memory was aligned: it never was
+        for name in RETIRED_FLAGS:  # options of earlier versions: records name them, off
+            if d.pop(name, False) is not False:
+                raise InputError(f"{source}: {name!r} is on, an option this version no longer has: retrain without it")
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
@@ -246,8 +243,12 @@ class SlotFeatures:
     back: torch.Tensor | None = (
         None  #: (N, H) back-edge logits (`network.heads.backedge.BackEdgeHead`), if the model has the head
     )
-    window: torch.Tensor | None = None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.heads.boxdepth`
-    uprights: torch.Tensor | None = None  #: (N, 2, W) upright logits (`network.heads.uprights.UprightHead`), with the head
+    window: torch.Tensor | None = (
+        None  #: (N, R, c1, rows, W) front windows of the 1/2 map, for `network.heads.boxdepth`
+    )
+    uprights: torch.Tensor | None = (
+        None  #: (N, 2, W) upright logits (`network.heads.uprights.UprightHead`), with the head
+    )
 
     def select(self, n: int, i: int) -> SlotFeatures:
         """Frame ``i`` of ``n`` consecutive frames' features flattened as (frame, batch) -> that frame's."""
@@ -385,14 +386,6 @@ class SlotHeads(nn.Module):
         self.register_buffer("front_coarse", self._heights(self.dc), persistent=False)
         self.register_buffer("front_fine", self._heights(d), persistent=False)
         self.register_buffer("band", self._band(self.band_rows), persistent=False)
-        if cfg.parallax:  # the plane-sweep features on the same band, sampled on the 1/2 map's finer rows
-            self.par_rows = self._band_rows(2)
-            self.register_buffer("par_band", self._band(self.par_rows), persistent=False)
-            self.par_col = ColumnTransform(PARALLAX_CHANNELS, self.par_rows, dw, self.dc)
-            self.par_out = nn.Conv2d(dw, dw, 1)  # zero-initialised: a warm start computes what its source did
-            nn.init.zeros_(self.par_out.weight)
-            nn.init.zeros_(self.par_out.bias)
-        self.geo = GeometricTop(cs, dw, view, spec, self.dc) if cfg.geo_top else None
 
     def _band_rows(self, stride: int) -> int:
         """Rows sampled on the top view's band from a map of ``stride`` canonical pixels per row (~1.3 each)."""
@@ -423,11 +416,8 @@ class SlotHeads(nn.Module):
         c = fmap.shape[1]
         return s.view(n, c, r, rows, cols).transpose(1, 2).reshape(n * r, c, rows, cols)
 
-    def coarse(
-        self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, par: torch.Tensor | None = None
-    ) -> SlotFeatures:
-        """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames
-        (``par``: `network.heads.parallax.ParallaxNet` maps, added to the top view's depth rows)."""
+    def coarse(self, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> SlotFeatures:
+        """Per-slot coarse layout-space maps of both views (and the fine samples) of a batch of frames."""
         n, r = anchors.shape
         d, dc = self.spec.size, self.dc
         valid = torch.isfinite(anchors)
@@ -437,10 +427,6 @@ class SlotHeads(nn.Module):
         fc = self._sample(q, a, self.front_coarse, dc)
         fc = self.front_c(torch.cat([fc, elev.expand(-1, 1, dc, dc)], 1))
         tb = self.col(self._sample(q, a, self.band, dc))
-        if par is not None:
-            tb = tb + self.par_out(self.par_col(self._sample(par, a, self.par_band, dc)))
-        if self.geo is not None:
-            tb = tb + self.geo(q, a)
         tc = self.top_c(torch.cat([tb, elev.expand(-1, 1, dc, dc)], 1))
         ff = self._sample(p1, a, self.front_fine, d)  # (N*R, c1, D, D)
         return SlotFeatures(tc, fc, ff, valid)
@@ -475,12 +461,10 @@ class SlotHeads(nn.Module):
 
 @dataclass
 class MemoryState:
-    """What streaming carries from frame to frame: the ConvLSTM state and the last frame's motion
-    signature (and, for the parallax, its image)."""
+    """What streaming carries from frame to frame: the ConvLSTM state and the last frame's motion signature."""
 
     lstm: State
     motion: torch.Tensor | None
-    image: torch.Tensor | None = None
 
 
 class SlotMemory(nn.Module):
@@ -616,15 +600,12 @@ class MVRackLay(nn.Module):
                 c2d,
                 cfg.spec.size + 2,
                 width=cfg.box_width,
-                row_profile=cfg.box_row_profile,
-                rows=window_rows(cfg.spec.size),
                 front=cfg.box_front,
             )  # fmt: skip
             if cfg.box_depth
             else None
         )
         self.slots = SlotHeads(cfg, fine, coarse)
-        self.parallax = ParallaxNet(PARALLAX_CHANNELS) if cfg.parallax else None
         self.memory = (
             SlotMemory(cfg.decoder_width, cfg.memory_hidden, cfg.lstm_layers, cfg.view if cfg.align_memory else None)
             if cfg.use_lstm
@@ -663,36 +644,17 @@ class MVRackLay(nn.Module):
         self,
         images: torch.Tensor,
         anchors: torch.Tensor | None = None,
-        prev: torch.Tensor | None = None,
-        dx: torch.Tensor | None = None,
     ) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
-        """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``.
-
-        Anchors are the given ones, else the row head's. With the parallax, ``prev`` ``(N, 3, H, W)``
-        are the frames before (None: none, as at a sequence start) and ``dx`` ``(N,)`` the camera's
-        steps from them (metres; None: read from the images).
-        """
+        """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``
+        (the given ones, else the row head's)."""
         p1, p2 = self.maps(images)
         pooled = pool_rows(p1, p2)
         rows = self.rows.from_pooled(pooled)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
         sig = motion_signature(images) if self.memory is not None and self.memory.view is not None else None
-        par = None
-        if self.parallax is not None:
-            view = self.cfg.view
-            n, _, h, w = images.shape
-            if prev is None:  # no frame before: every plane matches, nothing to read
-                cost = images.new_zeros(n, len(RATIOS), h, w)
-            else:
-                if dx is None:
-                    dx = camera_shift(
-                        motion_signature(prev), sig if sig is not None else motion_signature(images), view
-                    )
-                cost = plane_sweep(images, prev, dx.to(images.device), view)
-            par = self.parallax(cost)
         fn = slot_maps_windows if self.box_depth is not None else slot_maps
-        maps = frozen.run(self, "slots", fn, p1, p2, anchors, *(() if par is None else (par,)))
+        maps = frozen.run(self, "slots", fn, p1, p2, anchors)
         feats = SlotFeatures(*maps[:3], torch.isfinite(anchors), motion=sig)
         if self.back is not None:
             feats.back = self.back(pooled)
@@ -721,7 +683,6 @@ class MVRackLay(nn.Module):
         images: torch.Tensor,
         anchors: torch.Tensor | None = None,
         grad_frames: int | None = None,
-        before: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Logits of a window ``(B, T, 3, H, W)``, every frame's (slot memory over the window in order).
 
@@ -729,8 +690,6 @@ class MVRackLay(nn.Module):
         work (encoder to slot features) runs without gradients and the outputs (logits, rows,
         anchors) are the k last frames'. The memory's gradients still reach back over all T frames,
         so what an early frame shows can pay at a late one, at a fraction of a long window's cost.
-        ``before`` ``(B, 3, H, W)``: the frame before the window, for the first frame's parallax
-        (None: it has none).
         """
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
@@ -744,19 +703,9 @@ class MVRackLay(nn.Module):
         a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
         skip = t - grad_frames if grad_frames is not None else 0  # warm-up frames: no gradients, no outputs
         warm = b * skip
-        prev = dx = None
-        if self.parallax is not None:  # each frame's predecessor in the window (the first: ``before`` or none)
-            prev = torch.cat([x[:b] if before is None else before.to(x.dtype), x[:-b]])
-            sig = motion_signature(x)  # the predecessors' are the same frames', one step back
-            first = sig[:b] if before is None else motion_signature(before)
-            dx = camera_shift(torch.cat([first, sig[:-b]]), sig, self.cfg.view)
-            if before is None:
-                dx[:b] = 0.0
 
         def part(sl: slice) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
-            return self.frame_features(
-                x[sl], None if a is None else a[sl], None if prev is None else prev[sl], None if dx is None else dx[sl]
-            )
+            return self.frame_features(x[sl], None if a is None else a[sl])
 
         if warm:
             with torch.no_grad():
@@ -789,12 +738,9 @@ class MVRackLay(nn.Module):
             motion = torch.as_tensor(motion, dtype=torch.float32, device=image.device).reshape(-1)
             if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
                 raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
-        prev = None if state is None else state.image
-        feats, rows, anchors = self.frame_features(image, anchors, prev, None if prev is None else motion)
+        feats, rows, anchors = self.frame_features(image, anchors)
         if self.memory is not None:
             feats, state = self.memory.step(feats, state, motion)
-            if self.parallax is not None:
-                state.image = image
         out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors
@@ -802,20 +748,16 @@ class MVRackLay(nn.Module):
         return out, state
 
 
-def slot_maps(
-    m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, *par: torch.Tensor
-) -> tuple[torch.Tensor, ...]:
-    """`SlotHeads.coarse` of ``m.slots`` as tensors ``(top, front, fine)`` (``par``: the parallax maps, if
-    any): the slot heads' part of a frame that `network.inference.frozen` runs as a graph."""
-    f = m.slots.coarse(p1, p2, anchors, par[0] if par else None)
+def slot_maps(m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """`SlotHeads.coarse` of ``m.slots`` as tensors ``(top, front, fine)``: the slot heads' part of a frame
+    that `network.inference.frozen` runs as a graph."""
+    f = m.slots.coarse(p1, p2, anchors)
     return f.top, f.front, f.fine
 
 
-def slot_maps_windows(
-    m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor, *par: torch.Tensor
-) -> tuple[torch.Tensor, ...]:
+def slot_maps_windows(m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """`slot_maps` and the box-depth head's windows (`SlotHeads.window`)."""
-    return (*slot_maps(m, p1, p2, anchors, *par), m.slots.window(p1, anchors))
+    return (*slot_maps(m, p1, p2, anchors), m.slots.window(p1, anchors))
 
 
 def _box_head(m: Any, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:

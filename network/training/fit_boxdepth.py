@@ -86,27 +86,21 @@ class FitConfig:
 
 
 def box_head_config(
-    cfg: ModelConfig, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH, front: bool = False
+    cfg: ModelConfig, parallax: bool = False, width: int = BOX_WIDTH, front: bool = False
 ) -> ModelConfig:
-    """``cfg`` with a box-depth head of that kind (``parallax``: it reads the plane-sweep maps; ``row_profile``:
-    `BoxDepthHead`'s row profile; ``width``: its channels; ``front``: it also reads each box's front): what a
-    fitted head's checkpoint records."""
-    return replace(
-        cfg, box_depth=True, box_parallax=parallax, box_row_profile=row_profile, box_width=width, box_front=front
-    )
+    """``cfg`` with a box-depth head of that kind (``parallax``: it reads the plane-sweep maps; ``width``: its
+    channels; ``front``: it also reads each box's front): what a fitted head's checkpoint records."""
+    return replace(cfg, box_depth=True, box_parallax=parallax, box_width=width, box_front=front)
 
 
-def with_box_head(
-    model: MVRackLay, parallax: bool = False, row_profile: bool = False, width: int = BOX_WIDTH, front: bool = False
-) -> MVRackLay:
+def with_box_head(model: MVRackLay, parallax: bool = False, width: int = BOX_WIDTH, front: bool = False) -> MVRackLay:
     """``model`` itself if it has a box-depth head of that kind (``parallax``: it reads the plane-sweep maps;
-    ``row_profile``: `BoxDepthHead`'s row profile; ``width``: its channels; ``front``: it reads fronts too), else
-    a copy with a fresh one (same weights otherwise)."""
+    ``width``: its channels; ``front``: it reads fronts too), else a copy with a fresh one (same weights
+    otherwise)."""
     cfg = model.cfg
-    kind = (cfg.box_parallax, cfg.box_row_profile, cfg.box_width, cfg.box_front)
-    if model.box_depth is not None and kind == (parallax, row_profile, width, front):
+    if model.box_depth is not None and (cfg.box_parallax, cfg.box_width, cfg.box_front) == (parallax, width, front):
         return model
-    out = MVRackLay(box_head_config(cfg, parallax, row_profile, width, front))
+    out = MVRackLay(box_head_config(cfg, parallax, width, front))
     state = {k: v for k, v in model.state_dict().items() if not k.startswith("box_depth.")}
     missing, unexpected = out.load_state_dict(state, strict=False)
     if unexpected or any(not k.startswith("box_depth.") for k in missing):
@@ -634,7 +628,6 @@ def fit_box_depth(
     cache_dir: Path | None = None,
     progress: bool = True,
     parallax: bool = False,
-    row_profile: bool = False,
     keep_cache: Path | None = None,
     choice: FrameChoice = FrameChoice(),
     workers: int = 1,
@@ -643,7 +636,7 @@ def fit_box_depth(
     front: bool = False,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
     """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
-    `network.heads.boxdepth.ParallaxHistory`; ``row_profile``, ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
+    `network.heads.boxdepth.ParallaxHistory`; ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
     checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
     end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
     (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
@@ -656,7 +649,7 @@ def fit_box_depth(
     check_pass_minutes(pass_minutes, keep_cache)
     t0 = time.perf_counter()
     check_width(width)
-    model = _ready(model, train, choice, workers, parallax, row_profile, width, front)
+    model = _ready(model, train, choice, workers, parallax, width, front)
     streamed = len(train)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
@@ -669,17 +662,14 @@ def fit_box_depth(
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
-        head = BoxDepthHead(
-            first.win.shape[1], first.extra.shape[1], width=width, row_profile=row_profile, rows=first.win.shape[2],
-            front=front,
-        )  # fmt: skip
+        head = BoxDepthHead(first.win.shape[1], first.extra.shape[1], width=width, front=front)
         losses = train_head(head, data, cfg, progress)
         summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
         del data, first  # the memory maps closed before the temporary folder goes
     if pass_minutes is not None:
         summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
     summary.update(
-        row_profile=row_profile, width=width, front=front, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
+        width=width, front=front, epochs=cfg.epochs, seed=cfg.seed, lr=cfg.lr, weight_decay=cfg.weight_decay,
         fit_precision=cfg.precision, losses=losses,
         cache_minutes=(t1 - t0) / 60, fit_minutes=(time.perf_counter() - t1) / 60,
     )  # fmt: skip
@@ -700,7 +690,7 @@ def keep_box_inputs(
     same checkpoint: the pass can then take every core and the fit one thread beside other work. Returns the
     summary of the cache (slots, shown fraction, minutes)."""
     t0 = time.perf_counter()
-    model = _ready(model, train, choice, workers, parallax, False)
+    model = _ready(model, train, choice, workers, parallax)
     data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
     summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
     del data
@@ -733,7 +723,6 @@ def _ready(
     choice: FrameChoice,
     workers: int,
     parallax: bool,
-    row_profile: bool,
     width: int = BOX_WIDTH,
     front: bool = False,
 ) -> MVRackLay:
@@ -746,7 +735,7 @@ def _ready(
     longest = max(choice.streamed(s) for s in train)
     if choice.from_frame >= longest:
         raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
-    return with_box_head(model, parallax, row_profile, width, front)
+    return with_box_head(model, parallax, width, front)
 
 
 def _summary(
