@@ -3,7 +3,7 @@
 1. Generates one seeded WareSynth sequence with the embedded default config (resumable: a
    complete sequence on disk is reused, byte-identical).
 2. Writes a preview sheet of its middle frame (RGB, depth, semantics, layouts) as a PNG.
-3. Runs `mvracklay run` on it with the shipped model (weights/mvracklay-disc-4.pt) or
+3. Runs `mvracklay run` on it with the shipped model (`mvracklay.models`, mvracklay-disc-4) or
    ``--checkpoint``; without a trained model it reconstructs from the generator's ground-truth
    layouts instead (`mvracklay reconstruct`) and says so.
 4. Prints the free space per shelf and the reconstruction accuracy against the generator's
@@ -21,6 +21,7 @@ from pathlib import Path
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
+from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 
 DEFAULT_OUT = Path("out/demo")
 DEFAULT_SEED = 2026
@@ -37,7 +38,7 @@ def parse_args(argv: Seq[str] | None) -> argparse.Namespace:
     p.add_argument("--frames", type=int, default=50, help="frames in the sequence")
     p.add_argument("--size", type=int, default=256, help="image width and height in pixels")
     p.add_argument("--layout-size", type=int, default=128, help="ground-truth layout resolution D")
-    p.add_argument("--checkpoint", type=Path, help="model checkpoint (default: the shipped weights, if any)")
+    p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP} (default: the shipped model, if any)")
     p.add_argument("--ground-truth", action="store_true", help="reconstruct from ground-truth layouts, no network")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     return p.parse_args(argv)
@@ -73,7 +74,7 @@ def main(argv: Seq[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace, cli_main) -> int:
     from mvracklay.commands.eval_reconstruction import evaluate_sequence
-    from mvracklay.pipeline import DEFAULT_CHECKPOINT, REPO_ROOT
+    from mvracklay.pipeline import DEFAULT_CHECKPOINT
     from stitching.free_space import format_table, free_space
     from stitching.warehouse_map import WarehouseMap
     from waresynth.dataset import open_dataset
@@ -116,9 +117,9 @@ def _run(args: argparse.Namespace, cli_main) -> int:
         _banner(f"3/4 reconstruct from the GROUND-TRUTH layouts ({why})")
         if ckpt is None and not args.ground_truth:
             print(
-                f"{DEFAULT_CHECKPOINT.relative_to(REPO_ROOT)} is absent, so this shows the stitching on perfect "
-                "layouts, not the network. Train one with 'mvracklay train' (docs/network.md) and pass "
-                "--checkpoint, or ship it as weights/mvracklay-disc-4.pt."
+                f"{DEFAULT_CHECKPOINT.name} is absent from {DEFAULT_CHECKPOINT.parent}, so this shows the stitching "
+                "on perfect layouts, not the network. Train one with 'mvracklay train' (docs/network.md) and pass "
+                f"--checkpoint, or ship it as {DEFAULT_CHECKPOINT.name} in mvracklay/models/."
             )
         rc = cli_main(["reconstruct", str(seq.root), "--out", str(run_dir), *quiet])
         layouts = seq.layout_folder

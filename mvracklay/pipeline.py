@@ -32,6 +32,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from layouts.rackdepth import check_rack_depth
+from mvracklay import models
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
@@ -47,8 +48,7 @@ from stitching.lift import LiftConfig
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.warehouse_map import WarehouseMap
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_CHECKPOINT = REPO_ROOT / "weights" / "mvracklay-disc-4.pt"
+DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
 RRD_MAX_WIDTH = 640
 
@@ -125,18 +125,16 @@ class RunResult:
 
 
 def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
-    """The checkpoint to run: ``path``, else the shipped weights (one-line error when there are none)."""
+    """The checkpoint to run: ``path`` (or a shipped model's name), else the shipped default model
+    (one-line error when there is none)."""
     if path is None:
         if not DEFAULT_CHECKPOINT.is_file():
             raise InputError(
-                f"no trained model shipped ({DEFAULT_CHECKPOINT.relative_to(REPO_ROOT)} is absent): "
+                f"no trained model shipped ({DEFAULT_CHECKPOINT.name} is absent from {DEFAULT_CHECKPOINT.parent}): "
                 "train one with 'mvracklay train' (see docs/network.md) and pass --checkpoint PATH"
             )
         return DEFAULT_CHECKPOINT
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"--checkpoint {p}: file not found")
-    return p
+    return models.resolve_checkpoint(path)
 
 
 def stitch_config(cfg: RunConfig) -> StitchConfig:

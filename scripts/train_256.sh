@@ -13,8 +13,8 @@
 #   4. Table I on the held-out set (windowed; streaming for the sequence model), raw and with box
 #      decision offsets chosen on the tuning set.
 #
-# The shipped weights/mvracklay-disc-4-256.pt is step 3's mvracklay-disc-4, calibrated in step 4, exported with
-# `mvracklay train --export runs/mvracklay-disc-4-256/calibrated.pt --out weights/mvracklay-disc-4-256.pt`.
+# The shipped mvracklay/models/mvracklay-disc-4-256.pt is step 3's mvracklay-disc-4, calibrated in step 4, exported with
+# `mvracklay train --export runs/mvracklay-disc-4-256/calibrated.pt --out mvracklay/models/mvracklay-disc-4-256.pt`.
 #
 # Re-running skips finished data and continues runs from RUN/last.pt. Override the folders with
 # DATA=... RUNS=...; STAGE=1 stops after stage 1, STAGE=2 after stage 2. A smoke check of the whole

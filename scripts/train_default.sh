@@ -13,7 +13,7 @@
 #   3. Table I of every model on the held-out set, raw and with box decision offsets chosen on a
 #      tuning set (seed 303; `mvracklay calibrate`) (windowed, as in the paper; streaming too for the
 #      default), the depth-projection baseline, reconstruction accuracy from predicted vs ground-truth layouts;
-#   4. learning curves PNG, inference benchmark, fp16 weights for weights/.
+#   4. learning curves PNG, inference benchmark, fp16 weights for mvracklay/models/.
 #
 # "Minutes" are wall-clock minutes spent in optimiser steps (data loading and validation not counted).
 # Every step resumes: re-running skips finished sequences and continues runs from RUN/last.pt.
@@ -32,7 +32,7 @@ TRAIN_SEQUENCES=${TRAIN_SEQUENCES:-1000 2500 3000}
 HELDOUT_SEQUENCES=${HELDOUT_SEQUENCES:-24}
 HELDOUT_FRAMES=${HELDOUT_FRAMES:-50}
 TUNE_SEQUENCES=${TUNE_SEQUENCES:-8}
-WEIGHTS=${WEIGHTS:-weights/mvracklay-disc-4.pt}
+WEIGHTS=${WEIGHTS:-mvracklay/models/mvracklay-disc-4.pt}
 CURVES=${CURVES:-docs/network_curves.png}
 COMMON=(--epochs 1000 --steps-per-epoch 250 --val-sequences 20 --val-frames 12 --seed 0 --quiet)
 

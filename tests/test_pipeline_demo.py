@@ -10,7 +10,7 @@ TINY = ["--frames", "6", "--size", "64", "--layout-size", "32", "--seed", "3", "
 
 
 def test_demo_without_shipped_model_uses_ground_truth(tmp_path: Path, capsys, monkeypatch):
-    monkeypatch.setattr(pipeline, "DEFAULT_CHECKPOINT", pipeline.REPO_ROOT / "weights" / "absent-model.pt")
+    monkeypatch.setattr(pipeline, "DEFAULT_CHECKPOINT", tmp_path / "absent-model.pt")
     out = tmp_path / "demo"
     assert demo_job.main(["--out", str(out), *TINY]) == 0
     text = capsys.readouterr().out

@@ -90,7 +90,7 @@ def test_missing_checkpoint(tmp_path: Path, capsys):
 
 
 def test_no_shipped_weights(tmp_path: Path, capsys, monkeypatch):
-    monkeypatch.setattr(pipeline, "DEFAULT_CHECKPOINT", pipeline.REPO_ROOT / "weights" / "absent-model.pt")
+    monkeypatch.setattr(pipeline, "DEFAULT_CHECKPOINT", tmp_path / "absent-model.pt")
     src = _frames(tmp_path / "ok", [(64, 64)] * 2)
     out = tmp_path / "out"
     _fails(["run", str(src), "--out", str(out)], capsys, "no trained model", "mvracklay train", "--checkpoint")

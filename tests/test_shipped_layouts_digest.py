@@ -48,7 +48,7 @@ def compute(tmp: Path) -> dict[str, str]:
     _cli("generate", str(data), "--sequences", "1", "--frames", "6", "--size", "256", "--seed", "11")
     seq = next(p for p in sorted(data.iterdir()) if p.is_dir() and (p / "meta.json").is_file())
     _cli("run", str(seq), "--out", str(tmp / "run"), "--no-rrd", "--threads", "1", "--quiet")
-    _cli("predict", str(seq), "--checkpoint", str(ROOT / "weights" / "mvracklay-disc-4-256.pt"),
+    _cli("predict", str(seq), "--checkpoint", "mvracklay-disc-4-256",
          "--out", str(tmp / "pred256"), "--threads", "1", "--quiet")  # fmt: skip
     return {"run_default": layout_digest(tmp / "run" / "layouts"), "predict_256": layout_digest(tmp / "pred256")}
 

@@ -14,6 +14,7 @@ import numpy as np
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
+from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from network.inference.fusion import add_fuse_option, check_tau
 from network.inference.roll import add_roll_option, resolve_angles
 from stitching.detect import visible_range
@@ -41,8 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layouts", default="gt", help="'gt' or a layout folder (single sequence only)")
     p.add_argument(
         "--checkpoint",
-        type=Path,
-        help="predict each sequence's layouts with this model (e.g. weights/mvracklay-disc-4.pt) and score those",
+        type=checkpoint_arg,
+        help=f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those",
     )
     p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
     p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")

@@ -12,6 +12,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from layouts.metrics import format_table
 from layouts.rackdepth import NO_DEPTH_READ_HELP
+from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from network.checkpoint import load_model
 from network.inference.evaluate import evaluate_sequences
 from network.inference.frozen import add_precision_option, trunk_precision, use_precision
@@ -32,7 +33,7 @@ ORDER = 31
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
+    p.add_argument("--checkpoint", type=checkpoint_arg, required=True, help=CHECKPOINT_HELP)
     p.add_argument(
         "--data",
         type=Path,

@@ -23,6 +23,7 @@ from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
 from mvracklay.frames import camera_warning
+from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE, ImageFolderSequence
 from network.inference.frozen import add_precision_option, use_precision
@@ -50,7 +51,7 @@ ORDER = 32
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seq_dir", type=Path, metavar="SEQ_DIR", help="generated sequence folder or image folder")
-    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint, e.g. weights/mvracklay-disc-4.pt")
+    p.add_argument("--checkpoint", type=checkpoint_arg, required=True, help=CHECKPOINT_HELP)
     p.add_argument("--out", type=Path, required=True, help="layout folder to write")
     p.add_argument(
         "--mode", choices=["stream", "window"], default="stream",

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
+from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
 from network.inference.frozen import add_precision_option
 from network.inference.fusion import add_fuse_option
 from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP
@@ -35,8 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument(
         "--checkpoint",
-        type=Path,
-        help="model checkpoint (.pt); default: the shipped weights/mvracklay-disc-4.pt",
+        type=checkpoint_arg,
+        help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}",
     )
     p.add_argument(
         "--camera",
