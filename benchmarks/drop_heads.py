@@ -21,7 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from graft_heads import BOX_OPTIONS, HEADS, write_with_heads  # noqa: E402
+from mvracklay.training.graft import BOX_OPTIONS, HEADS, write_with_heads  # noqa: E402
 
 from layouts.errors import InputError  # noqa: E402
 from network.checkpoint import load_checkpoint  # noqa: E402

@@ -1,5 +1,5 @@
-"""``mvracklay calibrate``: choose a checkpoint's per-view box-logit offsets, or its rack-depth offset, on a
-tuning set."""
+"""Stage ``calibrate`` of ``mvracklay train``: choose a checkpoint's per-view box-logit offsets, or its
+rack-depth offset, on a tuning set."""
 
 from __future__ import annotations
 
@@ -25,7 +25,6 @@ DESCRIPTION = (
     "median over the frames, streamed; a generated tuning set) and stores the offset that undoes it as "
     "rack_depth_offset (metres), added to every reading from then on. The weights are not changed."
 )
-ORDER = 33
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,4 @@
-"""What `fit-back-edges` and `fit-uprights` share: their options and the depth errors they print."""
+"""What the `fit-back-edges` and `fit-uprights` stages share: their options and the depth errors they print."""
 
 from __future__ import annotations
 

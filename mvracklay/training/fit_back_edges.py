@@ -1,10 +1,10 @@
-"""``mvracklay fit-back-edges``: give a trained checkpoint the head that reads the rack depth."""
+"""Stage ``fit-back-edges`` of ``mvracklay train``: give a trained checkpoint the head that reads the rack depth."""
 
 from __future__ import annotations
 
 import argparse
 
-from mvracklay.commands._depth_heads import add_fit_arguments, run_fit
+from mvracklay.training.depth_heads import add_fit_arguments, run_fit
 
 NAME = "fit-back-edges"
 HELP = "fit the back-edge head (reads the rack depth from the shelf boards' back edges) to a trained checkpoint"
@@ -15,7 +15,6 @@ DESCRIPTION = (
     "predict, run and evaluate then read the rack depth from the back edges over the frames seen so far "
     "and redraw the top views at it (--no-depth-read turns that off). Validation prints the depth's error."
 )
-ORDER = 34
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,4 +1,4 @@
-"""``mvracklay fit-box-depth``: give a trained checkpoint the head that reads each box's depth."""
+"""Stage ``fit-box-depth`` of ``mvracklay train``: give a trained checkpoint the head that reads each box's depth."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.commands._depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
+from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
 from network.inference.frozen import add_precision_option, use_precision
 from network.training.fit_boxdepth import FitConfig
@@ -30,7 +30,6 @@ DESCRIPTION = (
     "processes of one thread each (nearly twice the frames per minute of one process on two threads), and "
     "--cache-only stops after it, so the fit can run later on one thread beside other work."
 )
-ORDER = 35
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

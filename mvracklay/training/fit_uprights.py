@@ -1,10 +1,11 @@
-"""``mvracklay fit-uprights``: give a trained checkpoint the head that reads the rack depth from its uprights."""
+"""Stage ``fit-uprights`` of ``mvracklay train``: give a trained checkpoint the head that reads the rack depth
+from its uprights."""
 
 from __future__ import annotations
 
 import argparse
 
-from mvracklay.commands._depth_heads import add_fit_arguments, run_fit
+from mvracklay.training.depth_heads import add_fit_arguments, run_fit
 
 NAME = "fit-uprights"
 HELP = "fit the upright head (reads the rack depth from the racks' front and rear uprights) to a trained checkpoint"
@@ -16,7 +17,6 @@ DESCRIPTION = (
     "rack depth from the uprights (with the back edges, when the checkpoint has that head) over the frames "
     "seen so far (--whole-sequence: over all of them). Validation prints the depth's error."
 )
-ORDER = 34.5
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

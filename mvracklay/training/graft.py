@@ -1,31 +1,24 @@
-#!/usr/bin/env python3
-"""A fine-tuned network with the depth heads of the file it was fine-tuned from, copied as they are.
+"""Stage ``graft`` of ``mvracklay train``: a network with the depth heads of another checkpoint, copied as they are.
 
-    .venv/bin/python benchmarks/graft_heads.py weights/mvracklay-disc-4.pt runs/fov/fovr/best.pt runs/fov/fovr/grafted.pt
-    mvracklay evaluate --checkpoint runs/fov/fovr/grafted.pt --data data/heldout128-ss2-fov51 --split all
-
-The back-edge, upright and box-depth heads are fitted with the network frozen (`mvracklay fit-*`), on
-the features of that network. After ``train --init-from HEADS`` has moved the network a little, those
-heads no longer match it exactly; refitting them costs hours at 256x256. This writes NET's weights and
-record with HEADS' head weights, head flags and fit records beside them (the box decision offsets stay
-NET's; the rack-depth offset goes with the rack heads, HEADS' where one is copied), so that ``evaluate``
-measures what carrying the heads over without refitting costs. The record says where the heads came from (``heads_grafted_from``, ``heads_grafted``). ``--only FLAG ...`` copies
-some of the heads and leaves NET its own others (NET with refitted heads, one of them swapped back).
+The back-edge, upright and box-depth heads are fitted with the network frozen (the ``fit-*`` stages), on
+the features of that network. Fitted apart (each on its own copy of one network), or after
+``train --init-from HEADS`` has moved the network a little, they are joined here: this writes NET's
+weights and record with HEADS' head weights, head flags and fit records beside them (the box decision
+offsets stay NET's; the rack-depth offset goes with the rack heads, HEADS' where one is copied). The
+record says where the heads came from (``heads_grafted_from``, ``heads_grafted``). ``--only FLAG ...``
+copies some of the heads and leaves NET its own others.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from layouts.errors import InputError  # noqa: E402
-from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint  # noqa: E402
-from network.model.net import ModelConfig  # noqa: E402
+from layouts.errors import InputError
+from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint
+from network.model.net import ModelConfig
 
 #: (model-config flag, state-dict prefix, record key) of each head fitted after training
 HEADS = (
@@ -88,24 +81,22 @@ def write_with_heads(
     save_checkpoint(out, {**rest, "model": state}, {**kept, "model_config": cfg.to_dict(), **notes})
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("heads", type=Path, help="checkpoint with fitted depth heads (e.g. weights/mvracklay-disc-4.pt)")
-    ap.add_argument("net", type=Path, help="a network fine-tuned from it (train --init-from HEADS)")
-    ap.add_argument("out", type=Path, help="checkpoint to write")
-    ap.add_argument(
+NAME = "graft"
+HELP = "copy the depth heads of one checkpoint onto another network (e.g. fine-tuned from it, or fitted apart)"
+DESCRIPTION = __doc__.split("\n\n")[0]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--heads", type=Path, required=True, help="checkpoint with fitted depth heads")
+    p.add_argument("--net", type=Path, required=True, help="the network to give them (e.g. train --init-from HEADS)")
+    p.add_argument("--out", type=Path, required=True, help="checkpoint to write")
+    p.add_argument(
         "--only", nargs="+", choices=[h[0] for h in HEADS], default=[],
         help="copy only these heads; NET keeps its own others (to measure which head a difference comes from)",
     )  # fmt: skip
-    args = ap.parse_args(argv)
-    try:
-        copied = graft(args.heads, args.net, args.out, tuple(args.only))
-    except InputError as e:
-        print(f"graft_heads: error: {e}", file=sys.stderr)
-        return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    copied = graft(args.heads, args.net, args.out, tuple(args.only))
     print(f"wrote {args.out}: {args.net.name}'s network with {', '.join(copied)} from {args.heads}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

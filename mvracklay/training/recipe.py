@@ -1,0 +1,350 @@
+"""Recipes of ``mvracklay train``: a TOML file naming the data to generate and the stages to run in order.
+
+A recipe is read with `tomllib`, changed by ``--set PATH=VALUE`` overrides, and checked whole before
+anything runs: every problem is one line naming the file, the stage and the key (unknown keys are
+refused). Values may hold placeholders, ``{out}`` (the run folder), ``{repo}`` (the project folder),
+``{recipe_dir}``, ``{precision}``, ``{data.NAME}`` (a data folder) and ``{NAME}`` (a ``[vars]`` entry).
+docs/training.md describes the format.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from layouts.errors import InputError
+
+TOP_KEYS = ("description", "precision", "workers", "vars", "data", "budget", "stages")
+DATA_KEYS = {"folder": str, "sequences": int, "frames": int, "size": int, "seed": int, "config": str, "layout_size": int}
+DATA_REQUIRED = ("folder", "sequences", "frames", "size", "seed")
+BUDGET_KEYS = ("total", "margin", "fit_ratio", "prior", "count")
+STAGE_KEYS = ("stage", "id", "minutes", "group", "lane", "skip", "unless_exists", "log", "args", "options")
+#: the option a stage's ``minutes`` sets
+MINUTES_OPTION = {"train": "minutes", "fit-box-depth": "pass-minutes"}
+PRECISIONS = ("auto", "bf16", "fp32")
+PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.\-]*)\}")
+REPO = Path(__file__).resolve().parents[2]
+
+
+@dataclass
+class DataSpec:
+    """One generated dataset: ``mvracklay generate FOLDER --sequences ... --seed ...``."""
+
+    name: str
+    folder: str
+    sequences: int
+    frames: int
+    size: int
+    seed: int
+    config: str = ""
+    layout_size: int | None = None
+
+
+@dataclass
+class Stage:
+    """One stage of a recipe as written (values not yet resolved)."""
+
+    index: int
+    name: str
+    id: str
+    options: dict[str, Any] = field(default_factory=dict)
+    minutes: Any = None
+    group: str | None = None
+    lane: int | None = None
+    skip: bool = False
+    unless_exists: str | None = None
+    log: str | None = None
+    args: list[Any] = field(default_factory=list)
+
+
+@dataclass
+class Recipe:
+    path: Path
+    description: str
+    precision: str
+    workers: int
+    vars: dict[str, Any]
+    data: dict[str, DataSpec]
+    budget: dict[str, Any] | None
+    stages: list[Stage]
+
+    @property
+    def name(self) -> str:
+        return self.path.stem
+
+
+def shipped_recipes() -> list[str]:
+    """The names of the recipes shipped in mvracklay/recipes/."""
+    folder = resources.files("mvracklay") / "recipes"
+    return sorted(p.name[: -len(".toml")] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def find_recipe(name_or_file: str) -> Path:
+    """``NAME`` of a shipped recipe, or the path of a recipe file; one line if it is neither."""
+    shipped = resources.files("mvracklay") / "recipes" / f"{name_or_file}.toml"
+    if "/" not in name_or_file and not name_or_file.endswith(".toml") and shipped.is_file():
+        return Path(str(shipped))
+    path = Path(name_or_file)
+    if path.is_file():
+        return path
+    raise InputError(
+        f"--recipe {name_or_file}: neither a shipped recipe ({', '.join(shipped_recipes())}) nor a file"
+    )
+
+
+def parse_value(text: str) -> Any:
+    """An override's VALUE: a TOML value (number, bool, list, quoted string), else the text itself."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(raw: dict[str, Any], overrides: list[str], path: Path) -> None:
+    """Apply ``--set PATH=VALUE`` overrides to the recipe as read; one line per bad one."""
+    problems = []
+    stages = {(s.get("id") or s.get("stage")): s for s in raw.get("stages", []) if isinstance(s, dict)}
+    for item in overrides:
+        key, eq, text = item.partition("=")
+        parts = key.split(".")
+        if not eq or not all(parts):
+            problems.append(f"--set {item}: not PATH=VALUE")
+            continue
+        value = parse_value(text)
+        if parts[0] in ("precision", "workers", "description") and len(parts) == 1:
+            raw[parts[0]] = value
+        elif parts[0] == "vars" and len(parts) == 2:
+            if parts[1] not in raw.get("vars", {}):
+                problems.append(f"--set {key}: {path} has no var {parts[1]!r}")
+                continue
+            raw["vars"][parts[1]] = value
+        elif parts[0] == "data" and len(parts) == 3:
+            if parts[1] not in raw.get("data", {}):
+                problems.append(f"--set {key}: {path} has no data {parts[1]!r}")
+                continue
+            raw["data"][parts[1]][parts[2]] = value
+        elif parts[0] == "budget" and len(parts) == 2:
+            if not isinstance(raw.get("budget"), dict):
+                problems.append(f"--set {key}: {path} has no [budget]")
+                continue
+            raw["budget"][parts[1]] = value
+        elif parts[0] == "stage" and len(parts) == 3:
+            stage = stages.get(parts[1])
+            if stage is None:
+                problems.append(f"--set {key}: {path} has no stage with id {parts[1]!r} (ids: {', '.join(stages)})")
+                continue
+            if parts[2] in STAGE_KEYS and parts[2] not in ("stage", "id", "options"):
+                stage[parts[2]] = value
+            else:
+                stage.setdefault("options", {})[parts[2]] = value
+        else:
+            problems.append(
+                f"--set {key}: not precision, workers, vars.NAME, data.NAME.KEY, budget.KEY or stage.ID.KEY"
+            )
+    if problems:
+        raise InputError("\n".join(problems))
+
+
+def load_recipe(name_or_file: str, overrides: list[str] | None = None) -> Recipe:
+    """Read, override and check a recipe's structure (the stages' options are checked by `check_options`)."""
+    path = find_recipe(name_or_file)
+    try:
+        raw = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: not TOML: {e}") from None
+    apply_overrides(raw, list(overrides or []), path)
+    problems: list[str] = []
+    for key in raw:
+        if key not in TOP_KEYS:
+            problems.append(f"{path}: unknown key {key!r} (known: {', '.join(TOP_KEYS)})")
+    precision = raw.get("precision", "auto")
+    if precision not in PRECISIONS:
+        problems.append(f"{path}: key 'precision': one of {', '.join(PRECISIONS)}, got {precision!r}")
+    workers = raw.get("workers", 1)
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+        problems.append(f"{path}: key 'workers': a whole number >= 1, got {workers!r}")
+    variables = raw.get("vars", {})
+    if not isinstance(variables, dict):
+        problems.append(f"{path}: key 'vars': a table")
+        variables = {}
+    data = _data_specs(raw.get("data", {}), path, problems)
+    stages = _stages(raw.get("stages", []), path, problems)
+    budget = raw.get("budget")
+    if budget is not None:
+        _check_budget(budget, stages, path, problems)
+    if problems:
+        raise InputError("\n".join(problems))
+    return Recipe(path, str(raw.get("description", "")), precision, workers, variables, data, budget, stages)
+
+
+def _data_specs(raw: Any, path: Path, problems: list[str]) -> dict[str, DataSpec]:
+    if not isinstance(raw, dict):
+        problems.append(f"{path}: key 'data': a table of [data.NAME] tables")
+        return {}
+    out = {}
+    for name, spec in raw.items():
+        where = f"{path}: data {name!r}"
+        if not isinstance(spec, dict):
+            problems.append(f"{where}: a table with {', '.join(DATA_REQUIRED)}")
+            continue
+        bad = False
+        for key, value in spec.items():
+            kind = DATA_KEYS.get(key)
+            if kind is None:
+                problems.append(f"{where}: unknown key {key!r} (known: {', '.join(DATA_KEYS)})")
+                bad = True
+            elif not isinstance(value, kind) or isinstance(value, bool):
+                problems.append(f"{where}: key {key!r}: {kind.__name__} expected, got {value!r}")
+                bad = True
+            elif kind is int and value < (0 if key == "seed" else 1):
+                problems.append(f"{where}: key {key!r}: must be >= {0 if key == 'seed' else 1}, got {value}")
+                bad = True
+        missing = [k for k in DATA_REQUIRED if k not in spec]
+        if missing:
+            problems.append(f"{where}: missing key(s) {', '.join(missing)}")
+        elif not bad:
+            out[name] = DataSpec(name, **spec)
+    return out
+
+
+def _stages(raw: Any, path: Path, problems: list[str]) -> list[Stage]:
+    if not isinstance(raw, list) or not raw:
+        problems.append(f"{path}: no [[stages]]")
+        return []
+    out: list[Stage] = []
+    ids: dict[str, int] = {}
+    for n, entry in enumerate(raw, 1):
+        if not isinstance(entry, dict) or not isinstance(entry.get("stage"), str):
+            problems.append(f"{path}: stage {n}: key 'stage' (the stage's name) missing")
+            continue
+        sid = entry.get("id", entry["stage"])
+        where = f"{path}: stage {n} ({sid})"
+        for key in entry:
+            if key not in STAGE_KEYS:
+                problems.append(f"{where}: unknown key {key!r} (known: {', '.join(STAGE_KEYS)})")
+        if not isinstance(sid, str) or not sid or "." in sid:
+            problems.append(f"{where}: key 'id': a name without dots")
+        elif sid in ids:
+            problems.append(f"{where}: id {sid!r} is stage {ids[sid]}'s too; give the stage an 'id' of its own")
+        ids[sid] = n
+        stage = Stage(n, entry["stage"], str(sid), options=entry.get("options", {}))
+        for key, kinds in (("group", str), ("lane", int), ("skip", bool), ("unless_exists", str), ("log", str)):
+            if key in entry:
+                if not isinstance(entry[key], kinds) or (kinds is int and isinstance(entry[key], bool)):
+                    problems.append(f"{where}: key {key!r}: {kinds.__name__} expected, got {entry[key]!r}")
+                else:
+                    setattr(stage, key, entry[key])
+        if not isinstance(stage.options, dict):
+            problems.append(f"{where}: key 'options': a table")
+            stage.options = {}
+        args = entry.get("args", [])
+        if not isinstance(args, list):
+            problems.append(f"{where}: key 'args': a list")
+        else:
+            stage.args = args
+        if "minutes" in entry:
+            stage.minutes = entry["minutes"]
+            _check_minutes(stage, where, problems)
+        out.append(stage)
+    seen_groups: set[str] = set()
+    for prev, stage in zip([None, *out], out):
+        if stage.group and stage.group != (prev.group if prev else None):
+            if stage.group in seen_groups:
+                problems.append(f"{path}: stage {stage.index} ({stage.id}): group {stage.group!r} is not contiguous")
+            seen_groups.add(stage.group)
+        if stage.lane is not None and not stage.group:
+            problems.append(f"{path}: stage {stage.index} ({stage.id}): key 'lane' needs a 'group'")
+    return out
+
+
+def _check_minutes(stage: Stage, where: str, problems: list[str]) -> None:
+    option = MINUTES_OPTION.get(stage.name)
+    if option is None:
+        problems.append(f"{where}: key 'minutes': only the {' and '.join(MINUTES_OPTION)} stages take minutes")
+        return
+    if option in stage.options:
+        problems.append(f"{where}: key 'minutes' and option {option!r} both given")
+    values = stage.minutes.values() if isinstance(stage.minutes, dict) else [stage.minutes]
+    if isinstance(stage.minutes, dict) and set(stage.minutes) - {"bf16", "fp32"}:
+        problems.append(f"{where}: key 'minutes': a table takes bf16 and fp32, got {', '.join(stage.minutes)}")
+    for v in values:
+        budget = v == "budget" and stage.name == "fit-box-depth"
+        if not budget and (not isinstance(v, int | float) or isinstance(v, bool) or v < 0):
+            problems.append(
+                f"{where}: key 'minutes': a number >= 0, a {{bf16 = .., fp32 = ..}} table"
+                + (" or \"budget\"" if stage.name == "fit-box-depth" else "")
+                + f", got {v!r}"
+            )
+
+
+def _check_budget(budget: Any, stages: list[Stage], path: Path, problems: list[str]) -> None:
+    where = f"{path}: [budget]"
+    if not isinstance(budget, dict):
+        problems.append(f"{where}: a table")
+        return
+    for key in budget:
+        if key not in BUDGET_KEYS:
+            problems.append(f"{where}: unknown key {key!r} (known: {', '.join(BUDGET_KEYS)})")
+    for key in ("total", "margin"):
+        v = budget.get(key, 0.0 if key == "margin" else None)
+        if not isinstance(v, int | float) or isinstance(v, bool) or v < 0:
+            problems.append(f"{where}: key {key!r}: a number of minutes >= 0, got {v!r}")
+    ratio = budget.get("fit_ratio", 0.0)
+    for v in ratio.values() if isinstance(ratio, dict) else [ratio]:
+        if not isinstance(v, int | float) or isinstance(v, bool) or v < 0:
+            problems.append(f"{where}: key 'fit_ratio': a number >= 0 or a {{bf16, fp32}} table, got {v!r}")
+    names = {s.id for s in stages} | {s.group for s in stages if s.group}
+    for name in budget.get("count", []):
+        if name not in names:
+            problems.append(f"{where}: key 'count': {name!r} is no stage id or group of the recipe")
+    if not isinstance(budget.get("prior", []), list):
+        problems.append(f"{where}: key 'prior': a list of checkpoints whose training minutes count")
+
+
+class Context:
+    """Resolves a recipe's placeholders for one run folder and precision."""
+
+    def __init__(self, recipe: Recipe, out: Path, precision: str) -> None:
+        self.recipe = recipe
+        self.values: dict[str, Any] = {
+            "out": str(out),
+            "repo": str(REPO),
+            "recipe_dir": str(recipe.path.resolve().parent),
+            "precision": precision,
+        }
+        self.values.update({f"data.{n}": d.folder for n, d in recipe.data.items()})
+        self._vars = dict(recipe.vars)
+        for name in list(self._vars):
+            self.values[name] = self.resolve(self._vars[name], f"vars.{name}", (name,))
+        for n, d in recipe.data.items():
+            self.values[f"data.{n}"] = d.folder = self.resolve(d.folder, f"data.{n}.folder")
+            d.config = self.resolve(d.config, f"data.{n}.config")
+
+    def resolve(self, value: Any, where: str, chain: tuple[str, ...] = ()) -> Any:
+        """``value`` with its placeholders filled (a string that is one placeholder takes the value's type)."""
+        if isinstance(value, list):
+            return [self.resolve(v, where, chain) for v in value]
+        if not isinstance(value, str):
+            return value
+        whole = PLACEHOLDER.fullmatch(value)
+        if whole:
+            return self._lookup(whole.group(1), where, chain)
+        return PLACEHOLDER.sub(lambda m: str(self._lookup(m.group(1), where, chain)), value)
+
+    def _lookup(self, name: str, where: str, chain: tuple[str, ...]) -> Any:
+        if name in chain:
+            raise InputError(f"{self.recipe.path}: {where}: placeholders refer to each other ({' -> '.join(chain)})")
+        if name in self.values:
+            return self.values[name]
+        if name in self._vars:  # a var not resolved yet (vars may refer to later ones)
+            self.values[name] = self.resolve(self._vars[name], f"vars.{name}", (*chain, name))
+            return self.values[name]
+        raise InputError(f"{self.recipe.path}: {where}: unknown placeholder {{{name}}}")
+
+    def by_precision(self, value: Any) -> Any:
+        """A ``{bf16 = .., fp32 = ..}`` table's entry for this run's precision; any other value as it is."""
+        return value[self.values["precision"]] if isinstance(value, dict) else value
