@@ -1,10 +1,10 @@
 #!/usr/bin/env python3
 """What the box-depth head buys the top view: per frame, where it says shown, and carried along the row.
 
-    .venv/bin/python benchmarks/box_depth_reader.py CKPT --eval data/heldout256 [--sequences N] [--every 2]
+    .venv/bin/python research/box_depth_reader.py CKPT --eval data/heldout256 [--sequences N] [--every 2]
 
 CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`, `network.heads.boxdepth`).
-`benchmarks/box_top_faces.py` measured, on the shipped predictions, that the true depth of every box
+`research/box_top_faces.py` measured, on the shipped predictions, that the true depth of every box
 whose depth the frame shows (any face) would lift the 256x256 top box from 66.8 to 75.0, and of every
 box some frame so far showed, to 81.2; this prints how much of that the head reads.
 
@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from box_top_faces import Table, seen_in  # noqa: E402  (benchmarks/, the script's own folder)
+from box_top_faces import Table, seen_in  # noqa: E402  (research/, the script's own folder)
 
 from layouts.boxdepth import box_parts  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402

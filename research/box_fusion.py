@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How the box-depth head's per-frame readings are best fused along the row: Table I's top view per rule.
 
-    .venv/bin/python benchmarks/box_fusion.py CKPT DATA [--mode window] [--sequences N]
+    .venv/bin/python research/box_fusion.py CKPT DATA [--mode window] [--sequences N]
 
 CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`). The model runs once over
 DATA (as `mvracklay evaluate`: the rack depth read, windowed by default); each frame's head logits

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What reading each box's depth from its own top face could buy the top view, and what any face could.
 
-    .venv/bin/python benchmarks/box_top_faces.py weights/mvracklay-disc-4-256.pt data/heldout256 [--every 2]
+    .venv/bin/python research/box_top_faces.py mvracklay/models/mvracklay-disc-4-256.pt data/heldout256 [--every 2]
 
 A box whose top lies below the camera shows its top face in the canonical view (`layouts.canonical`)
 between two horizontal edges: the front edge, at its front, and the back edge, at its back ``Z``
@@ -28,7 +28,7 @@ scores the top view (Table I mIoU, columns in view) of:
   it**: the predicted boxes whose stack's depth the frame shows (`waresynth.visibility`: its visible
   pixels reach 90 % of its depth, through a top face, a side face in a gap or the back edge), or any
   frame so far did, get the true depth: the ceilings of a single-frame reader of every face and of a
-  sequence reader, on these predictions (`benchmarks/layout_ceilings.py` gives them on the truth's
+  sequence reader, on these predictions (`research/layout_ceilings.py` gives them on the truth's
   layouts).
 """
 

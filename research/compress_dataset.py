@@ -2,8 +2,8 @@
 """A copy of a generated dataset whose RGB frames went through JPEG at ``--quality Q``, as footage from a
 compressing camera or a video file shows them (blocks, ringing at edges, smeared colour).
 
-    .venv/bin/python benchmarks/compress_dataset.py data/heldout128-ss2 data/heldout128-ss2-q50 --quality 50
-    mvracklay evaluate --checkpoint weights/mvracklay-disc-4.pt --data data/heldout128-ss2-q50 --split all
+    .venv/bin/python research/compress_dataset.py data/heldout128-ss2 data/heldout128-ss2-q50 --quality 50
+    mvracklay evaluate --checkpoint mvracklay/models/mvracklay-disc-4.pt --data data/heldout128-ss2-q50 --split all
 
 Each ``SEQ/rgb/*.png`` is encoded as a baseline JPEG (Pillow, 4:2:0 chroma) and decoded again, and
 stored back as PNG so the copy stays a generated dataset; everything else (layouts, depth, semantics,

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """A copy of a generated dataset as a camera with lens distortion would have filmed it: every RGB frame distorted.
 
-    .venv/bin/python benchmarks/distort_dataset.py data/heldout128-ss2 data/heldout128-ss2-k010 --k1 -0.10
-    mvracklay evaluate --checkpoint weights/mvracklay-disc-4.pt --data data/heldout128-ss2-k010 --split all
-    .venv/bin/python benchmarks/distort_dataset.py data/heldout128-ss2 data/heldout128-ss2-k010u --k1 -0.10 --undistort
+    .venv/bin/python research/distort_dataset.py data/heldout128-ss2 data/heldout128-ss2-k010 --k1 -0.10
+    mvracklay evaluate --checkpoint mvracklay/models/mvracklay-disc-4.pt --data data/heldout128-ss2-k010 --split all
+    .venv/bin/python research/distort_dataset.py data/heldout128-ss2 data/heldout128-ss2-k010u --k1 -0.10 --undistort
 
 Every ``SEQ/rgb/*.png`` (a pinhole render) is resampled to what a lens with the sequence's intrinsics and
 the given Brown-Conrady coefficients (OpenCV's k1, k2, p1, p2, k3; `layouts.lens`) shows; the parts of

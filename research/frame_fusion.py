@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Would averaging views help? Table I of per-frame predictions fused over the last K frames.
 
-    .venv/bin/python benchmarks/frame_fusion.py runs/mvracklay-disc-4/calibrated.pt data/tune128 [--k 1 2 4 8]
+    .venv/bin/python research/frame_fusion.py runs/mvracklay-disc-4/calibrated.pt data/tune128 [--k 1 2 4 8]
 
 Each frame's class probabilities (streaming, box offsets of the checkpoint applied) are shifted
 by the *true* camera motion into the current frame's layout columns (a column is
@@ -19,7 +19,7 @@ fused with weights exp(-frames apart / T) (T = 0: each frame alone), the camera 
 images (the same figures as ``evaluate --fuse-frames T``) or, with ``--motion truth``, the true steps;
 ``--whole-sequence`` takes the later frames and the depths from all frames too.
 
-    .venv/bin/python benchmarks/frame_fusion.py weights/mvracklay-disc-4-256.pt data/tune256 --tau 0 1 2 4 --motion truth
+    .venv/bin/python research/frame_fusion.py mvracklay/models/mvracklay-disc-4-256.pt data/tune256 --tau 0 1 2 4 --motion truth
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What a known rack depth buys: Table I of a checkpoint's layouts as predicted and with the rack depth imposed.
 
-    .venv/bin/python benchmarks/known_rack_depth.py weights/mvracklay-disc-4.pt data/heldout128 [--every 2]
+    .venv/bin/python research/known_rack_depth.py mvracklay/models/mvracklay-disc-4.pt data/heldout128 [--every 2]
 
 Runs the model (streaming) over every sequence of a generated dataset and scores Table I (columns
 in view, mIoU in percent) of its layouts as decoded and after `layouts.rackdepth.impose_rack_depth`

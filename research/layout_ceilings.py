@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What the layouts allow: Table I of two oracles built from the ground truth itself.
 
-    .venv/bin/python benchmarks/layout_ceilings.py data/heldout128 [--size 64] [--every 5]
+    .venv/bin/python research/layout_ceilings.py data/heldout128 [--size 64] [--every 5]
 
 * **resampled to D**: the ground truth resampled to the model's layout size (class area) and back
   (nearest): the ceiling a model predicting at that D can reach.

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where a checkpoint's layout errors come from: its predictions with one part replaced by the truth.
 
-    .venv/bin/python benchmarks/layout_errors.py runs/mvracklay-disc-4/best.pt data/heldout128 [--every 2]
+    .venv/bin/python research/layout_errors.py runs/mvracklay-disc-4/best.pt data/heldout128 [--every 2]
 
 Runs the model (streaming, row-head anchors) over every sequence and scores Table I
 (`layouts.metrics.FrameScorer`, columns in view, mIoU in percent) of:

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How much a sequence model's slot memory changes its layouts.
 
-    .venv/bin/python benchmarks/memory_use.py runs/mvracklay-disc-4/best.pt data/heldout128 [--sequences 6]
+    .venv/bin/python research/memory_use.py runs/mvracklay-disc-4/best.pt data/heldout128 [--sequences 6]
 
 Streams every frame of the first sequences twice through the same weights: once carrying the
 memory from frame to frame (as `mvracklay predict` does), once with a fresh memory at every frame

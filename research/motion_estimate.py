@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How well `network.model.motion` reads the camera's motion along the row from consecutive frames.
 
-    .venv/bin/python benchmarks/motion_estimate.py data/heldout128 [--sequences 24] [--size 128]
+    .venv/bin/python research/motion_estimate.py data/heldout128 [--sequences 24] [--size 128]
 
 Each frame is warped into the canonical view (as the model sees it), the motion between
 consecutive frames is estimated from the images alone and compared with the ground-truth camera

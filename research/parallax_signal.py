@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How much depth the plane sweep of `network.heads.parallax` finds in two frames, with no learning at all.
 
-    .venv/bin/python benchmarks/parallax_signal.py data/heldout128 [--sequences 12] [--gap 1] [--true-motion]
+    .venv/bin/python research/parallax_signal.py data/heldout128 [--sequences 12] [--gap 1] [--true-motion]
 
 For frame pairs ``gap`` frames apart (every 2nd frame), both frames are warped into the model's
 canonical view, the camera step is read from the images (`network.model.motion`; ``--true-motion``: from

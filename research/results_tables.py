@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Print the README's results tables (Markdown) from the JSON files `scripts/train_default.sh` writes.
 
-    .venv/bin/python scripts/results_tables.py runs
+    .venv/bin/python research/results_tables.py runs
 
 Table I: mIoU / "mAP" (mean pixel precision) in percent, per-(frame, slot) averages over the
 columns in view, for every trained variant, the depth-projection baseline, and the paper's figures

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """What a rolled camera costs, and what reading its roll (`--roll auto`) gives back: Table I on turned frames.
 
-    .venv/bin/python benchmarks/roll_robustness.py weights/mvracklay-disc-4.pt data/heldout128 --rolls 0 2 5
+    .venv/bin/python research/roll_robustness.py mvracklay/models/mvracklay-disc-4.pt data/heldout128 --rolls 0 2 5
 
 Every frame of the dataset is turned by the roll (degrees, counter-clockwise about the principal
 point, as a camera rolled the other way would see it; the corners the turn uncovers take the

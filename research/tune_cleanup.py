@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Choose the stitching clean-up for network output: box F1 of a grid of `StitchConfig` settings.
 
-    .venv/bin/python benchmarks/tune_cleanup.py runs/mvracklay-disc-4/calibrated.pt data/tune128
+    .venv/bin/python research/tune_cleanup.py runs/mvracklay-disc-4/calibrated.pt data/tune128
 
 Predicts every sequence of a *tuning* set once (streaming, the checkpoint's box offsets applied),
 then stitches the same layouts with every combination of box-mask openings (0-2), merge support

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """A copy of a generated dataset as a rolled, pitched or yawed camera would have filmed it: every RGB frame turned.
 
-    .venv/bin/python benchmarks/turn_dataset.py data/heldout128 data/heldout128-roll5 --roll 5
-    mvracklay eval-reconstruction data/heldout128-roll5 --checkpoint weights/mvracklay-disc-4.pt --noisy --roll auto
-    .venv/bin/python benchmarks/turn_dataset.py data/heldout128 data/heldout128-yaw3 --yaw 3
+    .venv/bin/python research/turn_dataset.py data/heldout128 data/heldout128-roll5 --roll 5
+    mvracklay eval-reconstruction data/heldout128-roll5 --checkpoint mvracklay/models/mvracklay-disc-4.pt --noisy --roll auto
+    .venv/bin/python research/turn_dataset.py data/heldout128 data/heldout128-yaw3 --yaw 3
 
 Every ``SEQ/rgb/*.png`` is seen by the camera tilted up ``--pitch`` and turned right ``--yaw`` degrees
 (`network.inference.roll.tilt_frame`, a homography), then rolled ``--roll`` degrees counter-clockwise about the

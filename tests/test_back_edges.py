@@ -249,34 +249,3 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     assert load_checkpoint(tmp_path / "only.pt")[1]["heads_grafted"] == ["back_edges"]
     assert graft_heads.main([str(heads), str(net), str(tmp_path / "up.pt"), "--only", "uprights"]) == 2
     assert not (tmp_path / "up.pt").exists()
-
-
-def test_dropping_a_files_heads_keeps_the_rest_bit_for_bit(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
-    """benchmarks/drop_heads.py: the heads named are gone (weights, flag, fit record), all else unchanged."""
-    import importlib.util
-    from pathlib import Path
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "drop_heads.py"
-    spec = importlib.util.spec_from_file_location("drop_heads", script)
-    drop_heads = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(drop_heads)
-    both = tmp_path / "both.pt"
-    common = ["--data", str(tiny_dataset), "--epochs", "1", "--threads", "1", "--quiet"]
-    assert main(["fit-back-edges", "--checkpoint", str(tiny_checkpoint), *common, "--out", str(both)]) == 0
-    assert main(["fit-uprights", "--checkpoint", str(both), *common]) == 0
-    payload, record = load_checkpoint(both)
-    out = tmp_path / "rack.pt"
-    assert drop_heads.main([str(both), str(out), "--heads", "uprights"]) == 0
-    got, rec = load_checkpoint(out)
-    assert rec["model_config"]["uprights"] is False and "uprights" not in rec and rec["heads_dropped"] == ["uprights"]
-    assert rec["model_config"]["back_edges"] is True and rec["back_edges"] == record["back_edges"]
-    kept = {k: v for k, v in payload["model"].items() if not k.startswith("uprights.")}
-    assert len(kept) < len(payload["model"]) and set(got["model"]) == set(kept)
-    assert all(torch.equal(got["model"][k], v) for k, v in kept.items())
-    model = load_model(out)[0]
-    assert model.uprights is None and model.back is not None
-    # a head the file lacks: one line, nothing written
-    capsys.readouterr()
-    assert drop_heads.main([str(out), str(tmp_path / "none.pt"), "--heads", "uprights", "box_depth"]) == 2
-    assert "has none of the heads uprights, box_depth" in capsys.readouterr().err
-    assert not (tmp_path / "none.pt").exists()

@@ -17,7 +17,6 @@ from layouts.canonical import FILL_RGB
 from layouts.errors import InputError, LayoutError
 from layouts.lens import Lens, covering_intrinsics, distort_image, undistort_image
 from mvracklay.frames import load_lens, open_source, resolve_lens
-from waresynth.dataset import open_dataset
 
 INTR = Intrinsics(300.0, 280.0, 120.3, 131.7, 256, 240)
 BARREL = Lens(k1=-0.15, k2=0.03, p1=0.001, p2=-0.002)
@@ -109,30 +108,17 @@ def test_run_undistorts_footage_through_the_camera_files_lens(tiny_dataset: Path
         load_lens(bad)
 
 
-def test_distorted_dataset_copy_records_the_lens_and_run_reads_it(tiny_dataset: Path, tmp_path: Path):
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "distort_dataset.py"
-    meta_src = (tiny_dataset / "seq_00000" / "meta.json").read_bytes()
-    run = [sys.executable, str(script), str(tiny_dataset), str(tmp_path / "k20"), "--k1", "-0.2"]
-    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
-    assert (tiny_dataset / "seq_00000" / "meta.json").read_bytes() == meta_src  # never written through
-    src, got = open_dataset(tiny_dataset).sequences()[0], open_dataset(tmp_path / "k20").sequences()[0]
-    zoomed = covering_intrinsics(src.intrinsics, Lens(k1=-0.2))
-    assert got.intrinsics == zoomed and got.meta["intrinsics"]["k1"] == -0.2
-    assert np.array_equal(got.rgb(2), distort_image(src.rgb(2), src.intrinsics, Lens(k1=-0.2), FILL_RGB, zoomed))
-    assert np.array_equal(got.layouts(2).top, src.layouts(2).top)
-    assert open_source(tmp_path / "k20" / "seq_00000").lens == Lens(k1=-0.2)  # run undistorts it unasked
-    back = subprocess.run([*run[:3], str(tmp_path / "k20u"), "--k1", "-0.2", "--undistort"], capture_output=True)
-    assert back.returncode == 0
-    assert "k1" not in json.loads((tmp_path / "k20u" / "seq_00000" / "meta.json").read_text())["intrinsics"]
-    zoom = subprocess.run([*run[:3], str(tmp_path / "k20z"), "--k1", "-0.2", "--zoom-only"], capture_output=True)
-    assert zoom.returncode == 0
-    got = open_dataset(tmp_path / "k20z").sequences()[0]
-    assert got.intrinsics == zoomed and "k1" not in got.meta["intrinsics"]
-    assert np.array_equal(got.rgb(2), distort_image(src.rgb(2), src.intrinsics, Lens(), FILL_RGB, zoomed))
-    both = subprocess.run([*run, "--undistort", "--zoom-only"], capture_output=True, text=True)
-    assert both.returncode != 0 and "exclude" in both.stderr
-    none = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
-    assert none.returncode != 0 and "--k1" in none.stderr and not (tmp_path / "none").exists()
+def test_a_sequence_whose_record_gives_a_lens_is_undistorted_unasked(tiny_dataset: Path, tmp_path: Path):
+    import shutil
+
+    seq = tmp_path / "seq"
+    shutil.copytree(tiny_dataset / "seq_00000", seq)
+    meta = json.loads((seq / "meta.json").read_text())
+    meta["intrinsics"]["k1"] = -0.2  # as a calibrated camera's record gives it
+    (seq / "meta.json").write_text(json.dumps(meta))
+    src = open_source(seq)
+    assert src.lens == Lens(k1=-0.2) and resolve_lens(src) == Lens(k1=-0.2)  # run undistorts it unasked
+    assert open_source(tiny_dataset / "seq_00000").lens is None
 
 
 def test_predict_takes_the_lens_beside_its_intrinsics(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):

@@ -355,29 +355,3 @@ def test_a_bad_roll_pitch_or_yaw_option_fails_in_one_line(tiny_dataset, tiny_che
             err = capsys.readouterr().err.strip().splitlines()
             assert len(err) == 1 and opt in err[0] and "sideways" in err[0]
         assert not (tmp_path / "r").exists() and not (tmp_path / "p").exists()
-
-
-def test_turn_dataset_writes_a_turned_copy_and_leaves_the_source_alone(tiny_dataset, tmp_path):
-    import subprocess
-    import sys
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "turn_dataset.py"
-    src_png = sorted((tiny_dataset / "seq_00000" / "rgb").glob("*.png"))[0]
-    before = src_png.read_bytes()
-    dst = tmp_path / "turned"
-    run = [sys.executable, str(script), str(tiny_dataset), str(dst), "--roll", "3"]
-    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
-    assert src_png.read_bytes() == before  # the hard-linked copy never wrote through
-    seq = open_dataset(dst).sequences()[0]
-    orig = open_dataset(tiny_dataset).sequences()[0]
-    assert np.array_equal(seq.rgb(0), _turn(orig.rgb(0), 3.0, orig.intrinsics))
-    assert np.array_equal(seq.layouts(0).top, orig.layouts(0).top)
-    assert json.loads((dst / "TURNED.json").read_text())["roll_deg"] == 3.0
-    again = subprocess.run(run, capture_output=True, text=True)
-    assert again.returncode != 0 and "exists" in again.stderr
-    yawed = subprocess.run([*run[:3], str(tmp_path / "yawed"), "--yaw", "2"], capture_output=True, text=True)
-    assert yawed.returncode == 0, yawed.stderr
-    seq = open_dataset(tmp_path / "yawed").sequences()[0]
-    assert np.array_equal(seq.rgb(0), tilt_frame(orig.rgb(0), orig.intrinsics, yaw_deg=2.0))
-    nothing = subprocess.run([*run[:3], str(tmp_path / "none")], capture_output=True, text=True)
-    assert nothing.returncode != 0 and "--yaw" in nothing.stderr and not (tmp_path / "none").exists()

@@ -163,28 +163,3 @@ def test_motion_blur_smears_along_the_row_about_the_frames_position():
     assert min(err, key=err.get) == 0
     with pytest.raises(InputError, match="sensor.motion_blur"):
         load_config({"sensor": {"motion_blur": [0.0, 1.5]}})
-
-
-def test_compressed_copy_passes_the_frames_through_jpeg(tiny_dataset, tmp_path):
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    from waresynth.dataset import open_dataset
-
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "compress_dataset.py"
-    src_png = tiny_dataset / "seq_00000" / "rgb" / "000000.png"
-    before = src_png.read_bytes()
-    run = [sys.executable, str(script), str(tiny_dataset), str(tmp_path / "q30"), "--quality", "30"]
-    assert subprocess.run(run, capture_output=True, text=True).returncode == 0
-    assert src_png.read_bytes() == before  # the source is never written through its hard links
-    src, got = open_dataset(tiny_dataset).sequences()[0], open_dataset(tmp_path / "q30").sequences()[0]
-    a, b = src.rgb(3).astype(float), got.rgb(3).astype(float)
-    assert 0.5 < np.abs(a - b).mean() < 12.0  # changed, not destroyed
-    # JPEG's 8x8 blocks: steps across block borders outweigh steps inside blocks
-    step = np.abs(np.diff((b - a).mean(-1), axis=1)).mean(0)
-    assert step[7::8].mean() > step[np.arange(step.size) % 8 != 7].mean()
-    np.testing.assert_array_equal(got.depth(3), src.depth(3))
-    np.testing.assert_array_equal(got.layouts(3).top, src.layouts(3).top)
-    again = subprocess.run(run, capture_output=True, text=True)
-    assert again.returncode != 0 and "exists" in again.stderr
