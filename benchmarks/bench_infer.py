@@ -10,7 +10,7 @@ passes is the figure least disturbed by other processes; the median is printed b
 
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --precision bf16
-    python benchmarks/bench_infer.py --device cuda --checkpoint weights/mvracklay-disc-4.pt   # on a GPU
+    python benchmarks/bench_infer.py --device cuda --checkpoint mvracklay-disc-4   # on a GPU
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.fileio import atomic_write_json  # noqa: E402
+from mvracklay.models import checkpoint_arg  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference import frozen  # noqa: E402
 from network.inference.fusion import add_fuse_option  # noqa: E402
@@ -71,7 +72,11 @@ def _where(device: torch.device, threads: int) -> str:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkpoint", type=Path, help="use this checkpoint's config (and weights)")
+    ap.add_argument(
+        "--checkpoint",
+        type=checkpoint_arg,
+        help="use this checkpoint's config (and weights): a path or a shipped model's name",
+    )
     ap.add_argument("--variant", choices=sorted(VARIANTS), default="mvracklay-disc-4")
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 256], help="square input sizes")
     ap.add_argument("--threads", type=int, default=2)

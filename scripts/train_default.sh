@@ -119,8 +119,8 @@ calibrate mvracklay-4
 warm_start mvracklay-disc-8
 table1 mvracklay-disc-8 table1_window
 calibrate mvracklay-disc-8
-#    The README's two tables, from the JSON files above.
-$PY scripts/results_tables.py "$RUNS" | tee "$RUNS/tables.md"
+#    The README's two tables come from the JSON files above: `research/results_tables.py "$RUNS"` (a research
+#    tool, outside the recipe).
 
 # 4. Curves, speed, shipped weights.
 CURVE_RUNS=("racklay=$RUNS/racklay" "mvracklay-4=$RUNS/mvracklay-4" "mvracklay-disc-4=$RUNS/mvracklay-disc-4"

@@ -4,7 +4,7 @@ and where a frame shows the row's front and rear uprights (`upright_faces`).
 A stack's depth (its extent along Z) shows in an image only through a top face, a side face seen
 through a gap, or its back edge. A stack counts as *seen* in a frame when its visible pixels
 (instance image) reach, by the depth image, at least `SEEN` of the way from its front face to its
-back. `benchmarks/layout_ceilings.py` scores oracles built on it, and training can weight the
+back. `research/layout_ceilings.py` scores oracles built on it, and training can weight the
 top-view loss toward the stacks whose depth a window has shown (`network.data.WindowDataset`).
 """
 

@@ -2,7 +2,7 @@
 
 The top-view decoder places a box's front well but reads its back (its depth along Z) poorly: a
 box's depth shows in an image only through a top face, a side face in a gap or its back edge
-(`waresynth.visibility`), and `benchmarks/box_top_faces.py` measured that the true depth of every
+(`waresynth.visibility`), and `research/box_top_faces.py` measured that the true depth of every
 box some frame so far showed would lift the 256x256 top-view box mIoU by 14 points.
 
 `BoxDepthHead` reads, per shelf slot, the 1/2-scale pyramid map sampled over the slot's front
@@ -275,7 +275,7 @@ class BoxDepthReader:
 
     def __init__(self, spec: LayoutSpec, make_map: Callable[[], RowMap] = RowMap) -> None:
         self.spec = spec  #: the model's layouts (the head's columns)
-        self.make_map = make_map  #: one slot's map (`RowMap`; benchmarks/box_fusion.py passes other rules)
+        self.make_map = make_map  #: one slot's map (`RowMap`; research/box_fusion.py passes other rules)
         self.camera_x = 0.0  #: metres along the row since the first frame
         self.maps: dict[int, RowMap] = {}
         self.front_maps: dict[int, RowMap] = {}  #: per slot, the fronts of a head with fronts (`FRONT_BINS`)

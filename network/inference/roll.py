@@ -93,7 +93,7 @@ def tilt_frame(rgb: np.ndarray, intr: Intrinsics, pitch_deg: float = 0.0, yaw_de
 
     A pure rotation, so one homography ``K R K^-1`` from the tilted camera's pixels to the level
     one's (``R = Ry(yaw) Rx(pitch)``, `layouts.canonical.camera_rotation`); the uncovered parts take the canonical fill colour. For
-    robustness checks (`benchmarks/roll_robustness.py --axis`).
+    robustness checks (`research/roll_robustness.py --axis`).
     """
     k = intr.matrix
     h = k @ camera_rotation(0.0, float(pitch_deg), float(yaw_deg)) @ np.linalg.inv(k)
@@ -110,7 +110,7 @@ def turn_frame(rgb: np.ndarray, roll_deg: float, cx: float, cy: float) -> np.nda
     """``rgb`` as a camera rolled ``roll_deg`` would show it: turned counter-clockwise about ``(cx, cy)``.
 
     The corners the turn uncovers take the canonical fill colour (a real camera would see more of
-    the scene there). For robustness checks of the levelling (`benchmarks/roll_robustness.py`).
+    the scene there). For robustness checks of the levelling (`research/roll_robustness.py`).
     """
     im = Image.fromarray(np.ascontiguousarray(rgb)).rotate(
         float(roll_deg), resample=Image.BILINEAR, center=(float(cx), float(cy)), fillcolor=FILL_RGB

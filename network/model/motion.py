@@ -19,7 +19,7 @@ motion where the background lies within one camera distance behind; the range dr
 lock onto a wrong repeat of the uprights), once the bands at the bottom (top) whose motion grows
 toward the image edge by more than `SHEAR` per band are peeled off: the floor (a ceiling), which
 comes nearer the camera row by row. Below a pixel of motion the whole image's estimate stands.
-On the 24 held-out sequences (`benchmarks/motion_estimate.py data/heldout128`) this is off by
+On the 24 held-out sequences (`research/motion_estimate.py data/heldout128`) this is off by
 0.4 cm per frame (median) and reads 0.996 of the camera's path (median), where one Hann-windowed
 correlation of the whole image was off by 2.3 cm and read 0.75.
 It needs no pose, so prediction on a user's footage uses it as training does. The slot memory
