@@ -12,11 +12,8 @@ succeeds, so a failed run leaves OUT as it was.
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import struct
-import subprocess
 import sys
 import time
 from collections import deque
@@ -30,10 +27,10 @@ from tqdm import tqdm
 from layouts import Intrinsics
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_bytes
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
+from mvracklay.outputs import OUTPUTS, publish, spawn_viewer, staging_dir, write_glb  # noqa: F401 (spawn_viewer, write_glb: re-exported)
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.inference.frozen import trunk_precision, use_precision
@@ -41,15 +38,14 @@ from network.inference.fusion import check_tau
 from network.inference.predictor import MODES, Predictor, frame_layouts
 from network.inference.roll import angle_warnings, check_angle, resolve_angles
 from network.precision import check_precision
+from network.training.distributed import single_process_device
 from stitching import rerun_log
-from stitching.export_gltf import export_glb, map_cuboids
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.warehouse_map import WarehouseMap
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
-OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
 RRD_MAX_WIDTH = 640
 
 
@@ -80,6 +76,7 @@ class RunConfig:
     board_thickness: float = 0.06
     threads: int = 2
     precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.inference.frozen.set_precision`)
+    device: str = "auto"  #: auto (the GPU when CUDA is present), cpu or cuda
     progress: bool = True
 
     def validate(self) -> None:
@@ -103,6 +100,8 @@ class RunConfig:
         if self.threads < 1:
             raise InputError(f"--threads must be >= 1, got {self.threads}")
         check_precision(self.precision)
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
 
 
 @dataclass
@@ -141,61 +140,6 @@ def stitch_config(cfg: RunConfig) -> StitchConfig:
     if cfg.opening:
         return StitchConfig.noisy(board_thickness=cfg.board_thickness)
     return StitchConfig(lift=LiftConfig(board_thickness=cfg.board_thickness))
-
-
-def staging_dir(out: Path) -> Path:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
-    if stage.exists():
-        shutil.rmtree(stage)
-    stage.mkdir()
-    return stage
-
-
-def publish(stage: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
-    """Move the staged outputs into OUT, replacing those of an earlier run.
-
-    Of the ``managed`` names, an earlier run's output this run did not write is removed (it would
-    be stale); nothing else in OUT is touched.
-    """
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    made = {p.name for p in stage.iterdir()}
-    for name in managed:
-        old = out / name
-        if name not in made and old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old)
-        elif name not in made and (old.exists() or old.is_symlink()):
-            old.unlink()
-    for item in sorted(stage.iterdir()):
-        dst = out / item.name
-        if dst.is_dir() and not dst.is_symlink():
-            shutil.rmtree(dst)
-        elif dst.exists() or dst.is_symlink():
-            dst.unlink()
-        os.replace(item, dst)
-    stage.rmdir()
-
-
-def empty_glb_bytes() -> bytes:
-    """A valid binary glTF holding one empty scene (trimesh refuses to export a scene without meshes)."""
-    doc = {
-        "asset": {"version": "2.0", "generator": "mvracklay (empty map)"},
-        "scene": 0,
-        "scenes": [{"name": "warehouse"}],
-    }
-    body = json.dumps(doc, separators=(",", ":"), sort_keys=True).encode()
-    body += b" " * (-len(body) % 4)
-    return b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", len(body)) + b"JSON" + body
-
-
-def write_glb(wmap: WarehouseMap, path: Path) -> None:
-    """`stitching.export_gltf.export_glb`, or an empty scene when the map holds no shelf or box."""
-    if map_cuboids(wmap):
-        export_glb(wmap, path)
-    else:
-        atomic_write_bytes(path, empty_glb_bytes())
 
 
 def _thumbnail(rgb: np.ndarray) -> np.ndarray:
@@ -244,6 +188,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     ckpt = resolve_checkpoint(cfg.checkpoint)
     torch.set_num_threads(cfg.threads)
     model, record = load_model(ckpt)
+    model.to(single_process_device("run", cfg.device))
     use_precision(model, cfg.precision)
     intr, intr_source = resolve_intrinsics(source, cfg.camera)
     lens = resolve_lens(source, cfg.camera)
@@ -413,13 +358,3 @@ def _angle_source(used: float | str | None, asked: object) -> str:
     if not used:
         return "level"
     return "recorded" if asked is None else "given"
-
-
-def spawn_viewer(rrd: Path) -> None:
-    """Open the Rerun viewer on a written recording (detached; the run does not wait for it)."""
-    exe = Path(sys.executable).with_name("rerun")
-    cmd = [str(exe), str(rrd)] if exe.is_file() else [sys.executable, "-m", "rerun", str(rrd)]
-    try:
-        subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    except OSError as e:
-        raise InputError(f"cannot start the Rerun viewer ({e}); open the recording with: rerun {rrd}") from None

@@ -5,8 +5,21 @@ Outputs a `WarehouseMap` (JSON), a ``.glb`` (`stitching.export_gltf`), a Rerun r
 (`stitching.rerun_log`) and free-space answers (`stitching.free_space`). See docs/stitching.md.
 """
 
-from stitching.pipeline import Reconstruction, StitchConfig, Stitcher, folder_frames, reconstruct
-from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
+from importlib import import_module
+
+#: where each name of `__all__` lives, imported on first use (a free-space query reads a map without loading
+#: the image-processing code)
+_WHERE = {
+    **dict.fromkeys(("Reconstruction", "StitchConfig", "Stitcher", "folder_frames", "reconstruct"), "pipeline"),
+    **dict.fromkeys(("MapBox", "MapRack", "MapShelf", "StepRecord", "WarehouseMap"), "warehouse_map"),
+}
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(import_module(f"stitching.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'stitching' has no attribute {name!r}")
+
 
 __all__ = [
     "MapBox",

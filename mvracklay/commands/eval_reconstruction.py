@@ -8,20 +8,19 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
-from layouts.rackdepth import NO_DEPTH_READ_HELP, check_rack_depth
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from network.inference.fusion import add_fuse_option, check_tau
-from network.inference.roll import add_roll_option, resolve_angles
-from stitching.detect import visible_range
-from stitching.evaluate import EvalResult, covered_range, evaluate_map, origin_from_record
-from stitching.pipeline import StitchConfig, Stitcher
-from stitching.synthetic import degrade
-from stitching.warehouse_map import WarehouseMap
+from mvracklay.options import NO_DEPTH_READ_HELP, add_device_option, add_fuse_option, add_quiet_option, add_roll_option
+
+if TYPE_CHECKING:
+    from stitching.evaluate import EvalResult
+    from stitching.pipeline import StitchConfig
+    from stitching.warehouse_map import WarehouseMap
 
 NAME = "eval-reconstruction"
 HELP = "reconstruct sequences and score them against the generator's ground-truth cuboids"
@@ -34,7 +33,8 @@ DESCRIPTION = (
     "--checkpoint scores the network instead: each sequence's layouts are predicted (streaming by default), "
     "then stitched and scored the same way (add --noisy for the clean-up settings meant for network output)."
 )
-ORDER = 62
+GROUP = "models"
+ORDER = 33
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,6 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
     p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")
+    add_device_option(p, "with --checkpoint: auto = the GPU when CUDA is present")
     p.add_argument(
         "--rack-depth",
         metavar="M|scene",
@@ -67,7 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--drop-frame", type=int, default=-1, help="degrade: leave this frame index out")
     p.add_argument("--seed", type=int, default=0, help="seed of the degradation")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p, "no progress bar")
 
 
 @dataclass(frozen=True)
@@ -91,6 +92,11 @@ def evaluate_sequence(
     wmap: WarehouseMap | None = None,
 ) -> tuple[EvalResult, WarehouseMap]:
     """Stitch ``seq`` (a waresynth Sequence) from ``folder`` (default: its ground truth) and score it."""
+    from stitching.detect import visible_range
+    from stitching.evaluate import covered_range, evaluate_map, origin_from_record
+    from stitching.pipeline import Stitcher
+    from stitching.synthetic import degrade
+
     folder = folder or seq.layout_folder
     deg = deg or Degrade()
     indices = [i for i in folder.indices() if i != deg.drop_frame]
@@ -161,6 +167,8 @@ def _sequences(path: Path, split: str | None, limit: int):
 
 def _rack_depth_option(text: str | None) -> float | str | None:
     """``--rack-depth``: None, ``'scene'``, or a positive number of metres (one-line error otherwise)."""
+    from layouts.rackdepth import check_rack_depth
+
     if text is None or text == "scene":
         return text
     try:
@@ -174,6 +182,9 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from mvracklay.commands.reconstruct import resolve_layouts, stitch_config
+    from network.inference.fusion import check_tau
+    from network.inference.roll import resolve_angles
+    from stitching.warehouse_map import WarehouseMap
 
     path = Path(args.path)
     if not path.is_dir():
@@ -198,12 +209,14 @@ def run(args: argparse.Namespace) -> int:
         import torch
 
         from network.checkpoint import load_model
+        from network.training.distributed import single_process_device
 
         if args.threads < 1:
             raise InputError(f"--threads must be >= 1, got {args.threads}")
         check_tau(args.fuse_frames, "--fuse-frames")
         torch.set_num_threads(args.threads)
         model, record = load_model(args.checkpoint)
+        model.to(single_process_device(NAME, args.device))
     results = []
     with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
         for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):

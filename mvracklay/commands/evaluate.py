@@ -5,22 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-import torch
-
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_json, nan_to_null
-from layouts.metrics import format_table
-from layouts.rackdepth import NO_DEPTH_READ_HELP
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from network.checkpoint import load_model
-from network.inference.evaluate import evaluate_sequences
-from network.inference.frozen import add_precision_option, trunk_precision, use_precision
-from network.inference.fusion import add_fuse_option, check_tau
-from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.inference.roll import ANGLES, add_roll_option, check_angle, describe_angles
-from network.training.distributed import single_process_device
-from network.training.trainer import open_data
+from mvracklay.options import (
+    FLIP_HELP,
+    NO_DEPTH_READ_HELP,
+    WHOLE_SEQUENCE_HELP,
+    add_device_option,
+    add_fuse_option,
+    add_precision_option,
+    add_quiet_option,
+    add_roll_option,
+)
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -29,6 +25,7 @@ DESCRIPTION = (
     "per-(frame, slot) averaged mIoU and 'mAP' (mean pixel precision, as RackLay defines it) and the "
     "pooled figures, over the columns in view and over all cells."
 )
+GROUP = "models"
 ORDER = 31
 
 
@@ -50,19 +47,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     add_precision_option(p)
-    p.add_argument(
-        "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
-    )
+    add_device_option(p)
     p.add_argument(
         "--true-anchors",
         action="store_true",
         help="analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
     )
     p.add_argument("--json", type=Path, help="also write the full result as JSON here")
-    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
+    add_quiet_option(p, "hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    import torch
+
+    from layouts.fileio import atomic_write_json, nan_to_null
+    from layouts.metrics import format_table
+    from network.checkpoint import load_model
+    from network.inference.evaluate import evaluate_sequences
+    from network.inference.frozen import trunk_precision, use_precision
+    from network.inference.fusion import check_tau
+    from network.inference.roll import ANGLES, check_angle, describe_angles
+    from network.training.distributed import single_process_device
+    from network.training.trainer import open_data
+
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")

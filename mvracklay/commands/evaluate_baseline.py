@@ -5,13 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tqdm import tqdm
-
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_json, nan_to_null
-from layouts.metrics import FrameScorer, format_table
-from mvracklay.baselines.depth_projection import depth_projection_layouts
-from waresynth.dataset import open_dataset, require_level_camera
+from mvracklay.options import add_quiet_option
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -20,6 +15,7 @@ DESCRIPTION = (
     "layouts (no learning, no amodal reasoning: see mvracklay/baselines/depth_projection.py) and score them "
     "like 'mvracklay evaluate' does a checkpoint: what seeing alone gives."
 )
+GROUP = "models"
 ORDER = 32
 
 
@@ -28,11 +24,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--json", type=Path, help="also write the result as JSON here")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p, "no progress bar")
 
 
 def evaluate_depth_projection(sequences, max_frames: int | None = None, progress: bool = True) -> dict:
     """``{"all": table, "visible": table, "frames": n}`` of the baseline over ``sequences``."""
+    from tqdm import tqdm
+
+    from layouts.metrics import FrameScorer
+    from mvracklay.baselines.depth_projection import depth_projection_layouts
+    from waresynth.dataset import require_level_camera
+
     scorer = FrameScorer()
     total = sum(s.num_frames if not max_frames else min(s.num_frames, max_frames) for s in sequences)
     frames = 0
@@ -52,6 +54,10 @@ def evaluate_depth_projection(sequences, max_frames: int | None = None, progress
 
 
 def run(args: argparse.Namespace) -> int:
+    from layouts.fileio import atomic_write_json, nan_to_null
+    from layouts.metrics import format_table
+    from waresynth.dataset import open_dataset
+
     if args.max_frames < 0:
         raise InputError(f"--max-frames must be >= 0, got {args.max_frames}")
     ds = open_dataset(args.data)

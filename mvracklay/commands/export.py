@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from mvracklay.options import add_quiet_option
+
 NAME = "export"
 HELP = "export a WareSynth dataset as COCO instance segmentation, YOLO detection or RackLay layouts"
 DESCRIPTION = (
@@ -14,7 +16,8 @@ DESCRIPTION = (
     "and splits/ with RackLay index lists and MVRackLay temporal lists. The export is built beside OUT and "
     "moved into place when complete; the same dataset always gives the same bytes."
 )
-ORDER = 25
+GROUP = "data"
+ORDER = 22
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="yolo labels: boxes (detect) or polygons (segment)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists and is not empty")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p, "no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,8 +7,6 @@ import json
 from pathlib import Path
 
 from layouts.errors import InputError
-from stitching.free_space import fits, format_table, free_space, parse_box
-from stitching.warehouse_map import WarehouseMap
 
 NAME = "free-space"
 HELP = "free space per shelf of a warehouse.json, and where a box of a given size fits"
@@ -18,7 +16,8 @@ DESCRIPTION = (
     "occupancy and a confidence. With --box WxDxH (metres) it also lists the shelves and the X ranges "
     "(map frame, metres from the first camera position) where the box's centre can go."
 )
-ORDER = 61
+GROUP = "use"
+ORDER = 12
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -31,6 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stitching.free_space import fits, format_table, free_space, parse_box
+    from stitching.warehouse_map import WarehouseMap
+
     path = Path(args.map)
     if not path.is_file():
         raise InputError(f"{path}: map file not found")

@@ -6,10 +6,13 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from layouts.spec import LayoutSpec
+from mvracklay.options import add_quiet_option
 
 NAME = "generate"
-ORDER = 10
+GROUP = "data"
+ORDER = 20
+#: what `mvracklay` says when the command is interrupted
+RESUME = "re-run the same command to resume: complete sequences are kept"
 HELP = "generate a synthetic warehouse dataset (WareSynth) with ground-truth layouts"
 DESCRIPTION = (
     "Render camera sequences along procedurally generated rack rows: RGB, depth, semantic and "
@@ -62,10 +65,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
         "join the shards with `mvracklay merge-shards`",
     )
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_quiet_option(p, "hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
+    from layouts.spec import LayoutSpec
     from waresynth.dataset import open_dataset
     from waresynth.generate import generate_dataset
 
@@ -104,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         config=config,
         workers=args.workers,
         overwrite=args.overwrite,
-        progress=not args.no_progress,
+        progress=not args.quiet,
         shard=shard,
     )
     ds = open_dataset(root)
@@ -123,6 +127,6 @@ def run(args: argparse.Namespace) -> int:
             # A re-run (resume) of the same command: the export was made from this same dataset.
             print(f"{dest}: exists, kept (pass --overwrite to export again)")
             return 0
-        out = export_dataset(root, dest, args.format, overwrite=args.overwrite, progress=not args.no_progress)
+        out = export_dataset(root, dest, args.format, overwrite=args.overwrite, progress=not args.quiet)
         print(f"{out}: {args.format} export")
     return 0

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.options import add_quiet_option
 
 NAME = "inspect"
 HELP = "summarise a WareSynth dataset and write a preview sheet (PNG) of one frame"
@@ -14,7 +15,8 @@ DESCRIPTION = (
     "class pixel fractions, boxes per shelf) and write a PNG sheet of one frame: RGB, depth, semantic "
     "classes, box instances and the top/front layouts of every shelf slot."
 )
-ORDER = 20
+GROUP = "data"
+ORDER = 21
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -30,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="measure pixel fractions on at most N frames spread evenly over the dataset",
     )
     p.add_argument("--no-sheet", action="store_true", help="print the summary only")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p, "no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,8 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from mvracklay.options import add_quiet_option
+
 NAME = "merge-shards"
-ORDER = 11
+GROUP = "data"
+ORDER = 23
+#: what `mvracklay` says when the command is interrupted
+RESUME = "re-run the same command to resume"
 HELP = "join dataset shards written by `generate --shard I/N` into one dataset with one manifest"
 DESCRIPTION = (
     "Check that the SHARD_DIRs were generated with the same settings and together hold every sequence "
@@ -24,14 +29,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="hard-link the files instead of moving the folders (the shards stay usable; copies across filesystems)",
     )
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_quiet_option(p, "hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
     from waresynth.dataset import open_dataset
     from waresynth.shards import merge_shards
 
-    root = merge_shards(args.out, args.shards, link=args.link, progress=not args.no_progress)
+    root = merge_shards(args.out, args.shards, link=args.link, progress=not args.quiet)
     ds = open_dataset(root)
     counts = {s: len(ds.sequences(s)) for s in ("train", "val", "test")}
     print(

@@ -8,30 +8,29 @@ import sys
 from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-import torch
-from tqdm import tqdm
-
-from layouts import Intrinsics
-from layouts.camera_record import camera_angles, lens_from_record
-from layouts.canonical import FILL_RGB
-from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
-from layouts.fileio import load_json
-from layouts.lens import Lens, undistort_frame
-from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP, check_rack_depth
-from mvracklay.frames import camera_warning
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from network.checkpoint import load_model
-from network.data import DEFAULT_DISTANCE, ImageFolderSequence
-from network.inference.frozen import add_precision_option, use_precision
-from network.inference.fusion import add_fuse_option, check_tau
-from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP, Predictor, frame_layouts
-from network.inference.roll import add_roll_option, angle_warnings, describe_angles, resolve_angles
-from network.model.net import MVRackLay
-from network.training.distributed import single_process_device
+from mvracklay.options import (
+    FLIP_HELP,
+    NO_DEPTH_READ_HELP,
+    RACK_DEPTH_HELP,
+    WHOLE_SEQUENCE_HELP,
+    add_device_option,
+    add_fuse_option,
+    add_hidden_alias,
+    add_precision_option,
+    add_quiet_option,
+    add_roll_option,
+)
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from layouts import Intrinsics
+    from layouts.lens import Lens
+    from network.model.net import MVRackLay
 
 NAME = "predict"
 HELP = "predict top/front layouts for every frame of a sequence or image folder"
@@ -42,11 +41,12 @@ DESCRIPTION = (
     "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
     "Every frame is warped into the model's canonical view with the camera intrinsics and the "
     "camera-to-rack distance, which also give the visible columns: from meta.json when present, else "
-    "--intrinsics / --distance, else the camera and mean distance the model was trained with. One image "
+    "--camera / --distance, else the camera and mean distance the model was trained with. One image "
     "cannot tell how far the racks are, so a wrong distance scales the layouts (and the map) by "
     "true / assumed distance: pass --distance when you know it."
 )
-ORDER = 32
+GROUP = "use"
+ORDER = 13
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,10 +60,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--layout-size", type=int, default=0, help="D of the written layouts (0 = the model's)")
     p.add_argument(
-        "--intrinsics",
-        help="fx,fy,cx,cy in pixels of the input images, or a JSON file with them (and a lens's distortion "
-        "beside them, OpenCV's k1, k2, p1, p2, k3: every frame is then undistorted first)",
+        "--camera",
+        metavar="FILE|fx,fy,cx,cy",
+        help="the camera intrinsics: a JSON file (as `run --camera`: fx, fy, cx, cy, width, height and a lens's "
+        "distortion beside them, OpenCV's k1, k2, p1, p2, k3: every frame is then undistorted first), or fx,fy,cx,cy "
+        "in pixels of the input images",
     )
+    add_hidden_alias(p, "--intrinsics", "camera")
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
     )
@@ -74,28 +77,39 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_roll_option(p)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     add_precision_option(p)
-    p.add_argument(
-        "--device", choices=["auto", "cpu", "cuda"], default="auto", help="auto = the GPU when CUDA is present"
-    )
-    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
+    add_device_option(p)
+    add_quiet_option(p, "hide the progress bar")
 
 
 def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
-    """``--intrinsics``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any)."""
+    """``--camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any)."""
+    from layouts import Intrinsics
+    from layouts.camera_record import lens_from_record
+    from layouts.fileio import load_json
+
     path = Path(text)
     if path.suffix == ".json" or path.is_file():
         d = load_json(path)
         d = d.get("intrinsics", d) if isinstance(d, dict) else d
         intr = Intrinsics.from_dict(d, str(path))
-        return intr, lens_from_record(d, f"--intrinsics {path}")
+        return intr, lens_from_record(d, f"--camera {path}")
     try:
         fx, fy, cx, cy = (float(v) for v in text.split(","))
     except ValueError:
-        raise InputError(f"--intrinsics: want fx,fy,cx,cy or a JSON file, got {text!r}") from None
+        raise InputError(f"--camera: want a JSON file or fx,fy,cx,cy, got {text!r}") from None
     return Intrinsics(fx, fy, cx, cy, width, height), None
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from layouts.rackdepth import check_rack_depth
+    from network.checkpoint import load_model
+    from network.inference.frozen import use_precision
+    from network.inference.fusion import check_tau
+    from network.inference.roll import resolve_angles
+    from network.training.distributed import single_process_device
+
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
@@ -118,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         mode=args.mode,
         flip=args.flip_average,
         layout_size=args.layout_size,
-        intrinsics=args.intrinsics,
+        intrinsics=args.camera,
         distance=args.distance,
         rack_depth=args.rack_depth,
         read_depth=not args.no_depth_read,
@@ -167,6 +181,21 @@ def predict_folder(
     recorded roll (0 for a level camera), else read from the frames; ``pitch`` / ``yaw``: the camera's
     tilt (up > 0) / turn (right > 0), the same.
     """
+    import numpy as np
+    from tqdm import tqdm
+
+    from layouts import Intrinsics
+    from layouts.camera_record import camera_angles, lens_from_record
+    from layouts.canonical import FILL_RGB
+    from layouts.codecs import FrameLayouts, LayoutFolder
+    from layouts.fileio import load_json
+    from layouts.lens import undistort_frame
+    from layouts.rackdepth import check_rack_depth
+    from mvracklay.frames import camera_warning
+    from network.data import DEFAULT_DISTANCE, ImageFolderSequence
+    from network.inference.predictor import Predictor, frame_layouts
+    from network.inference.roll import angle_warnings, describe_angles, resolve_angles
+
     meta = None
     if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
         meta = load_json(seq_dir / "meta.json")

@@ -7,13 +7,14 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from layouts.codecs import LayoutFolder, read_layout_spec
 from layouts.errors import InputError
-from mvracklay.pipeline import publish, staging_dir, write_glb
-from stitching.lift import LiftConfig
-from stitching.merge import MergeConfig
-from stitching.pipeline import StitchConfig, Stitcher
+from mvracklay.options import add_quiet_option, add_spawn_option
+
+if TYPE_CHECKING:
+    from stitching.pipeline import StitchConfig
 
 NAME = "reconstruct"
 HELP = "stitch per-frame layouts of a sequence into a 3D map: warehouse.json, .glb and .rrd"
@@ -24,7 +25,8 @@ DESCRIPTION = (
     "layout folder (spec.json + NNNNNN.npz, e.g. written by `mvracklay predict`). Writes "
     "OUT/warehouse.json, OUT/warehouse.glb and OUT/warehouse.rrd."
 )
-ORDER = 60
+GROUP = "use"
+ORDER = 11
 #: what reconstruct writes (an OUT/layouts folder, e.g. from `run`, is never touched)
 MAP_OUTPUTS = ("warehouse.json", "warehouse.glb", "warehouse.rrd")
 
@@ -46,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="clean-up for network output (StitchConfig.noisy: box-mask openings, small boxes and rarely seen boxes dropped)",
     )
     p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
-    p.add_argument("--spawn", action="store_true", help="open the Rerun viewer instead of writing the .rrd")
+    add_spawn_option(p)
     p.add_argument("--no-rgb", action="store_true", help="do not log RGB frames to Rerun")
     p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
     p.add_argument(
@@ -55,7 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=0,
         help="keep the per-frame camera steps of only the last N frames in the map (0 = all); bounds memory on endless streams",
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_quiet_option(p, "no progress bar")
 
 
 def open_sequence(seq_dir: Path):
@@ -93,6 +95,11 @@ def origin_of(seq, first_index: int) -> tuple[float, float, float] | None:
 
 
 def stitch_config(args: argparse.Namespace) -> StitchConfig:
+    """The stitching settings ``--board-thickness``, ``--keep-steps`` and ``--noisy`` ask for."""
+    from stitching.lift import LiftConfig
+    from stitching.merge import MergeConfig
+    from stitching.pipeline import StitchConfig
+
     if not (args.board_thickness >= 0 and args.board_thickness < 1):
         raise InputError(f"--board-thickness must be in [0, 1) metres, got {args.board_thickness}")
     keep = getattr(args, "keep_steps", 0)
@@ -106,11 +113,15 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from mvracklay.outputs import publish, spawn_viewer, staging_dir
+
     seq_dir = Path(args.seq_dir)
     if not seq_dir.is_dir():
         raise InputError(f"{seq_dir}: folder not found")
     if args.map_every < 1:
         raise InputError(f"--map-every must be >= 1, got {args.map_every}")
+    if args.spawn and args.no_rrd:
+        raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
     folder = resolve_layouts(seq_dir, args.layouts)
     indices = folder.indices()
     if not indices:
@@ -136,23 +147,25 @@ def run(args: argparse.Namespace) -> int:
     publish(out, final_out, managed=MAP_OUTPUTS)
     print(
         f"wrote {final_out / 'warehouse.json'}, {final_out / 'warehouse.glb'}"
-        + ("" if args.no_rrd or args.spawn else f", {final_out / 'warehouse.rrd'}")
+        + ("" if args.no_rrd else f", {final_out / 'warehouse.rrd'}")
     )
+    if args.spawn:
+        spawn_viewer(final_out / "warehouse.rrd")
     return 0
 
 
 def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: list[int], out: Path) -> None:
     from tqdm import tqdm
 
+    from mvracklay.outputs import write_glb
     from stitching import rerun_log
+    from stitching.pipeline import Stitcher
 
     origin = origin_of(seq, indices[0])
     stitcher = Stitcher(folder.spec, stitch_config(args))
     rec = None
-    if not args.no_rrd or args.spawn:
-        rec = rerun_log.start(
-            "mvracklay-reconstruct", save=None if args.spawn else out / "warehouse.rrd", spawn=args.spawn
-        )
+    if not args.no_rrd:
+        rec = rerun_log.start("mvracklay-reconstruct", save=out / "warehouse.rrd")
     cam_y = cam_z = None
     if seq is not None and origin is not None:
         p0 = seq.frame(indices[0])["camera_position"]

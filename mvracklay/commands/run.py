@@ -6,12 +6,24 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from layouts.rackdepth import NO_DEPTH_READ_HELP, RACK_DEPTH_HELP
 from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
-from network.inference.frozen import add_precision_option
-from network.inference.fusion import add_fuse_option
-from network.inference.predictor import FLIP_HELP, WHOLE_SEQUENCE_HELP
-from network.inference.roll import add_roll_option, describe_angles
+from mvracklay.options import (
+    CAMERA_JSON_HELP,
+    FLIP_HELP,
+    FUSE_TAU,
+    NO_DEPTH_READ_HELP,
+    RACK_DEPTH_HELP,
+    WHOLE_SEQUENCE_HELP,
+    add,
+    add_device_option,
+    add_fuse_option,
+    add_help_all_option,
+    add_precision_option,
+    add_quiet_option,
+    add_roll_option,
+    add_spawn_option,
+    read_config,
+)
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -28,56 +40,90 @@ DESCRIPTION = (
     "field of view, principal point at the centre) at the frame size. No ground truth is needed. A failed run "
     "leaves OUT as it was."
 )
+GROUP = "use"
 ORDER = 10
+
+
+#: ``--quality``: the inference settings each preset sets (under a --config file and the command line).
+#: default: today's online settings (streaming; the depths read from the frames so far); offline: every
+#: frame's depths, test-time flip and neighbouring frames fused (layouts once the whole input is read, about
+#: half the frame rate); fast: the decoder's own depths (no back-edge / box-depth reading, ~1.3x the frame
+#: rate measured at 256x256), the recording without RGB and its map every 10th frame
+PRESETS: dict[str, dict[str, object]] = {
+    "fast": {"no_depth_read": True, "no_rgb": True, "map_every": 10},
+    "default": {},
+    "offline": {"whole_sequence": True, "flip_average": True, "fuse_frames": FUSE_TAU},
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="INPUT", help="sequence folder, image folder or video file")
-    p.add_argument("--out", required=True, type=Path, help="output folder")
-    p.add_argument(
-        "--checkpoint",
-        type=checkpoint_arg,
-        help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}",
-    )
-    p.add_argument(
-        "--camera",
-        type=Path,
-        help="JSON with the camera intrinsics: fx, fy, cx, cy in pixels and the width, height they refer to; "
-        "with a lens's distortion beside them (OpenCV's k1, k2, p1, p2, k3, as a calibration gives), every "
-        "frame is undistorted before the network (~13 ms a 640x360 frame; wider ones shrunk to 640 first)",
-    )
-    p.add_argument("--mode", choices=["stream", "window"], default="stream", help="network inference mode")
-    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
-    p.add_argument("--max-frames", type=int, default=0, help="process at most N frames (0 = all)")
+    p.add_argument("--out", type=Path, help="output folder (required)")
+    p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
+    p.add_argument("--camera", type=Path, help=CAMERA_JSON_HELP)
     p.add_argument(
         "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
     )
-    p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
-    p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
-    p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
-    add_fuse_option(p)
-    add_roll_option(p)
-    p.add_argument("--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)")
-    p.add_argument("--spawn", action="store_true", help="open the Rerun viewer on OUT/warehouse.rrd when done")
-    p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
-    p.add_argument("--no-rgb", action="store_true", help="do not log the RGB frames to Rerun")
-    p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
     p.add_argument(
-        "--no-opening",
-        action="store_true",
-        help="stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)",
+        "--quality",
+        choices=tuple(PRESETS),
+        help="preset: default (online, as the network streams), offline (every frame's depths, test-time flip "
+        "and fused neighbours: best layouts, about half the speed), fast (the decoder's own depths, a lighter "
+        "recording); default: default",
     )
-    p.add_argument("--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)")
+    p.add_argument(
+        "--config",
+        type=Path,
+        metavar="FILE",
+        help='JSON or TOML file of options by their long names, e.g. {"rack-depth": 1.1, "quality": "offline"}; '
+        "options given here win over the file's, the file's over the --quality preset's",
+    )
+    add_device_option(p)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for the network")
-    add_precision_option(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_spawn_option(p)
+    add_quiet_option(p)
+    add_help_all_option(p)
+    more = {"hidden": True}  # the rest: config-file keys, still parseable (--help-all shows them)
+    add(p, "--mode", choices=["stream", "window"], default="stream", help="network inference mode", **more)
+    add(p, "--max-frames", type=int, default=0, help="process at most N frames (0 = all)", **more)
+    add(p, "--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP, **more)
+    add(p, "--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP, **more)
+    add(p, "--whole-sequence", action=argparse.BooleanOptionalAction, default=False, help=WHOLE_SEQUENCE_HELP, **more)
+    add(p, "--flip-average", action=argparse.BooleanOptionalAction, default=False, help=FLIP_HELP, **more)
+    add_fuse_option(p, **more)
+    add_roll_option(p, **more)
+    add(p, "--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)", **more)
+    add_precision_option(p, **more)
+    add(p, "--no-rrd", action="store_true", help="do not write warehouse.rrd", **more)
+    add(p, "--no-rgb", action="store_true", help="do not log the RGB frames to Rerun", **more)
+    add(p, "--map-every", type=int, default=1, help="log the growing map to Rerun every N frames", **more)
+    add(p, "--no-opening", action="store_true", **more,
+        help="stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)")  # fmt: skip
+    add(p, "--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)", **more)
+    hidden = [a.option_strings[0][2:] for a in p._actions if a.help == argparse.SUPPRESS and hasattr(a, "full_help")]
+    p.epilog = (
+        f"More options, by their long names in a --config file (or as --NAME here): {', '.join(hidden)}. "
+        "--help-all explains them; docs/cli.md the presets and config files."
+    )
+
+
+def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict[str, object]:
+    """The defaults ``--quality`` and ``--config`` give (the command line is parsed again over them)."""
+    from_file = read_config(args.config, parser) if args.config is not None else {}
+    quality = args.quality or from_file.pop("quality", None) or "default"
+    from_file.pop("quality", None)
+    return {**PRESETS[quality], **from_file, "quality": quality}
 
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
-    from mvracklay.pipeline import RunConfig, run_pipeline, spawn_viewer
+    from mvracklay.outputs import spawn_viewer
+    from mvracklay.pipeline import RunConfig, run_pipeline
+    from network.inference.roll import describe_angles
     from stitching.free_space import format_table
 
+    if args.out is None:
+        raise InputError("--out is required (on the command line or as 'out' in the --config file)")
     if args.spawn and args.no_rrd:
         raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
     cfg = RunConfig(
@@ -102,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
         board_thickness=args.board_thickness,
         threads=args.threads,
         precision=args.precision,
+        device=args.device,
         progress=not args.quiet,
     )
     cfg.validate()

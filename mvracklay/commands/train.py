@@ -28,9 +28,9 @@ DESCRIPTION = (
     "command again goes on at the stage it reached; --dry-run prints the stages and their arguments; "
     "see docs/training.md."
 )
-GROUP = "models"
 ORDER = 30
-RESUME = "re-run with --resume to continue from RUN/last.pt"  #: what `mvracklay` says when interrupted
+#: what `mvracklay` says when interrupted
+RESUME = "re-run with --resume to continue from RUN/last.pt; a --recipe run: the same command again"
 #: the options of this command that go with --recipe (the others belong to the plain training run)
 RECIPE_OPTIONS = ("recipe", "set", "dry_run", "out", "quiet")
 
