@@ -10,8 +10,8 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from mvracklay.options import FLIP_HELP
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
-from network.inference.predictor import FLIP_HELP
 from network.training.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 
 NAME = "calibrate"

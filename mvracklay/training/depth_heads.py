@@ -12,7 +12,8 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from network.inference.frozen import add_precision_option, trunk_precision, use_precision
+from mvracklay.options import add_precision_option
+from network.inference.frozen import trunk_precision, use_precision
 
 
 def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:

@@ -9,9 +9,10 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from mvracklay.options import add_precision_option
 from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
-from network.inference.frozen import add_precision_option, use_precision
+from network.inference.frozen import use_precision
 from network.training.fit_boxdepth import FitConfig
 
 NAME = "fit-box-depth"

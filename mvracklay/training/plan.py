@@ -59,6 +59,8 @@ def _flag_values(key: str, value: Any, action: argparse.Action, where: str) -> l
         if not isinstance(value, bool):
             raise InputError(f"{where}: option {key!r} is a switch: true or false, got {value!r}")
         return [flag] if value else []
+    if action.nargs == "?" and value is True:
+        return [flag]  # an option whose value may be left out (e.g. --fuse-frames)
     if isinstance(value, bool):
         raise InputError(f"{where}: option {key!r} takes a value, not {str(value).lower()}")
     if value is None or value == "" or value == []:
@@ -128,6 +130,14 @@ def check_steps(ctx: Context, out: Path, quiet: bool) -> list[Step]:
             msg = str(e)
             where = f"{ctx.recipe.path}: stage {stage.index} ({stage.id})"
             problems.append(msg if msg.startswith(str(ctx.recipe.path)) else f"{where}: {msg}")
+    for n, need in enumerate(ctx.recipe.requires):
+        try:
+            path = Path(ctx.resolve(need, f"requires[{n}]"))
+        except InputError as e:
+            problems.append(str(e))
+            continue
+        if not path.exists():
+            problems.append(f"{ctx.recipe.path}: key 'requires': {path} is missing")
     for spec in ctx.recipe.data.values():
         if spec.config and not Path(spec.config).is_file():
             problems.append(f"{ctx.recipe.path}: data {spec.name!r}: key 'config': {spec.config} is no file")

@@ -18,7 +18,7 @@ from typing import Any
 
 from layouts.errors import InputError
 
-TOP_KEYS = ("description", "precision", "workers", "vars", "data", "budget", "stages")
+TOP_KEYS = ("description", "precision", "workers", "requires", "vars", "data", "budget", "defaults", "stages")
 DATA_KEYS = {"folder": str, "sequences": int, "frames": int, "size": int, "seed": int, "config": str, "layout_size": int}
 DATA_REQUIRED = ("folder", "sequences", "frames", "size", "seed")
 BUDGET_KEYS = ("total", "margin", "fit_ratio", "prior", "count")
@@ -68,6 +68,7 @@ class Recipe:
     precision: str
     workers: int
     vars: dict[str, Any]
+    requires: list[str]
     data: dict[str, DataSpec]
     budget: dict[str, Any] | None
     stages: list[Stage]
@@ -171,14 +172,20 @@ def load_recipe(name_or_file: str, overrides: list[str] | None = None) -> Recipe
     if not isinstance(variables, dict):
         problems.append(f"{path}: key 'vars': a table")
         variables = {}
+    requires = raw.get("requires", [])
+    if not isinstance(requires, list) or not all(isinstance(r, str) for r in requires):
+        problems.append(f"{path}: key 'requires': a list of paths that must exist before the recipe runs")
+        requires = []
     data = _data_specs(raw.get("data", {}), path, problems)
     stages = _stages(raw.get("stages", []), path, problems)
+    _merge_defaults(raw.get("defaults", {}), stages, path, problems)
     budget = raw.get("budget")
     if budget is not None:
         _check_budget(budget, stages, path, problems)
     if problems:
         raise InputError("\n".join(problems))
-    return Recipe(path, str(raw.get("description", "")), precision, workers, variables, data, budget, stages)
+    description = str(raw.get("description", ""))
+    return Recipe(path, description, precision, workers, variables, requires, data, budget, stages)
 
 
 def _data_specs(raw: Any, path: Path, problems: list[str]) -> dict[str, DataSpec]:
@@ -259,6 +266,21 @@ def _stages(raw: Any, path: Path, problems: list[str]) -> list[Stage]:
         if stage.lane is not None and not stage.group:
             problems.append(f"{path}: stage {stage.index} ({stage.id}): key 'lane' needs a 'group'")
     return out
+
+
+def _merge_defaults(defaults: Any, stages: list[Stage], path: Path, problems: list[str]) -> None:
+    """``[defaults.STAGE]``: options every stage of that kind takes unless it sets them itself."""
+    if not isinstance(defaults, dict) or not all(isinstance(v, dict) for v in defaults.values()):
+        problems.append(f"{path}: key 'defaults': [defaults.STAGE] tables of options")
+        return
+    names = {s.name for s in stages}
+    for name in defaults:
+        if name not in names:
+            problems.append(f"{path}: [defaults.{name}]: the recipe has no {name!r} stage")
+    for stage in stages:
+        given = {k.replace("_", "-") for k in stage.options}
+        extra = {k: v for k, v in defaults.get(stage.name, {}).items() if k.replace("_", "-") not in given}
+        stage.options = {**extra, **stage.options}
 
 
 def _check_minutes(stage: Stage, where: str, problems: list[str]) -> None:

@@ -110,8 +110,11 @@ class Runner:
                     ratio = self.ctx.by_precision(b.get("fit_ratio", 0.0))
                     self.say(
                         f"{INDENT}<budget> = ({b.get('total')} - minutes spent - {b.get('margin', 0)}) / (1 + {ratio})"
-                        f", spent = {' + '.join([*(f'prior {p}' for p in b.get('prior', [])), *b.get('count', [])])}"
+                        f", spent = {' + '.join([*(f'prior {p}' for p in self.prior_paths()), *b.get('count', [])])}"
                     )
+
+    def prior_paths(self) -> list[str]:
+        return [str(self.ctx.resolve(p, "[budget] prior")) for p in (self.recipe.budget or {}).get("prior", [])]
 
     # -- running ---------------------------------------------------------------------------------------
 
