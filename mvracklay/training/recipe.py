@@ -19,7 +19,15 @@ from typing import Any
 from layouts.errors import InputError
 
 TOP_KEYS = ("description", "precision", "workers", "requires", "vars", "data", "budget", "defaults", "stages")
-DATA_KEYS = {"folder": str, "sequences": int, "frames": int, "size": int, "seed": int, "config": str, "layout_size": int}
+DATA_KEYS = {
+    "folder": str,
+    "sequences": int,
+    "frames": int,
+    "size": int,
+    "seed": int,
+    "config": str,
+    "layout_size": int,
+}
 DATA_REQUIRED = ("folder", "sequences", "frames", "size", "seed")
 BUDGET_KEYS = ("total", "margin", "fit_ratio", "prior", "count")
 STAGE_KEYS = ("stage", "id", "minutes", "group", "lane", "skip", "unless_exists", "log", "args", "options")
@@ -92,9 +100,7 @@ def find_recipe(name_or_file: str) -> Path:
     path = Path(name_or_file)
     if path.is_file():
         return path
-    raise InputError(
-        f"--recipe {name_or_file}: neither a shipped recipe ({', '.join(shipped_recipes())}) nor a file"
-    )
+    raise InputError(f"--recipe {name_or_file}: neither a shipped recipe ({', '.join(shipped_recipes())}) nor a file")
 
 
 def parse_value(text: str) -> Any:
@@ -298,7 +304,7 @@ def _check_minutes(stage: Stage, where: str, problems: list[str]) -> None:
         if not budget and (not isinstance(v, int | float) or isinstance(v, bool) or v < 0):
             problems.append(
                 f"{where}: key 'minutes': a number >= 0, a {{bf16 = .., fp32 = ..}} table"
-                + (" or \"budget\"" if stage.name == "fit-box-depth" else "")
+                + (' or "budget"' if stage.name == "fit-box-depth" else "")
                 + f", got {v!r}"
             )
 

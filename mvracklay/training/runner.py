@@ -100,7 +100,11 @@ class Runner:
                 self.say(INDENT + shell_line("generate", generate_argv(spec, self.recipe.workers, self.quiet)))
         for unit in self.units():
             for n, step in unit:
-                note = " (finished)" if step.stage.id in done else f" (skipped: {step.skip_reason})" * bool(step.skip_reason)
+                note = (
+                    " (finished)"
+                    if step.stage.id in done
+                    else f" (skipped: {step.skip_reason})" * bool(step.skip_reason)
+                )
                 lane = f", lane {step.stage.lane}" if step.stage.lane is not None else ""
                 side = f" [group {step.stage.group}{lane}: side by side]" if step.stage.group else ""
                 self.say(f"[{n}/{self.count}] {step.stage.name} ({step.stage.id}){side}{note}")
@@ -155,7 +159,9 @@ class Runner:
         log = self.out / "logs" / "generate.log"
         t0 = time.monotonic()
         for spec in specs:
-            self.say(f"{INDENT}{spec.folder} ({spec.sequences} x {spec.frames} frames, {spec.size} px, seed {spec.seed})")
+            self.say(
+                f"{INDENT}{spec.folder} ({spec.sequences} x {spec.frames} frames, {spec.size} px, seed {spec.seed})"
+            )
             argv = generate_argv(spec, self.recipe.workers, self.quiet)
             self.call(1, "generate", "generate", argv, log, fresh=False)
         minutes = (time.monotonic() - t0) / 60
@@ -250,7 +256,9 @@ class Runner:
             raise InputError(f"group {group}: {e}") from None
         for k, members in lanes.items():
             for n, st in members:
-                self.say(f"[{n}/{self.count}] {st.stage.name} ({st.stage.id}) ... side by side (group {group}, lane {k})")
+                self.say(
+                    f"[{n}/{self.count}] {st.stage.name} ({st.stage.id}) ... side by side (group {group}, lane {k})"
+                )
         t0 = time.monotonic()
         procs = [self.start_lane(group, i, members) for i, members in enumerate(lanes.values())]
         failures = []
@@ -298,7 +306,10 @@ class Runner:
         for r in sorted(self.rows, key=lambda r: r.number):
             took = f"{r.minutes:6.1f} min" if r.minutes is not None else "       -  "
             outputs = ", ".join(r.outputs)
-            self.say(f"  [{r.number}/{self.count}] {r.name:<19} {r.id:<22} {took}  {r.status}" + (f"  {outputs}" if outputs else ""))
+            self.say(
+                f"  [{r.number}/{self.count}] {r.name:<19} {r.id:<22} {took}  {r.status}"
+                + (f"  {outputs}" if outputs else "")
+            )
 
 
 def last_line(path: Path) -> str:

@@ -118,7 +118,7 @@ class python(_Stage):  # noqa: N801
         rest = args.args[1:] if args.args[:1] == ["--"] else args.args
         cmd = [sys.executable, *(["-m", args.module] if args.module else [str(args.script)]), *rest]
         sys.stdout.flush()
-        done = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
         sys.stdout.write(done.stdout)
         sys.stderr.write(done.stderr)
         if done.returncode:

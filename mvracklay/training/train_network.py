@@ -25,6 +25,8 @@ DESCRIPTION = (
     "rank 0 writing checkpoints and metrics; see docs/distributed.md. "
     "--export CKPT writes a fp16 weights-only copy of a checkpoint to --out."
 )
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--data",
