@@ -21,8 +21,8 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes, atomic_write_json
+from network.inference.decision import check_depth_offset, check_offsets
 from network.model.net import ModelConfig, MVRackLay
-from network.training.calibrate import check_depth_offset, check_offsets
 
 FORMAT = "mvracklay-checkpoint"
 FORMAT_VERSION = 1

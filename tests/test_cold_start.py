@@ -1,4 +1,4 @@
-"""The box-depth fit's cold start: the frames before the kept ones skip the network (`Predictor(trunk_from=)`,
+"""The box-depth fit's cold start: the frames before the kept ones skip the network (`HeadInputPredictor(trunk_from=)`,
 `fit-box-depth --cold-start`), entering only the motion estimate and the parallax history."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import PARALLAX_CHANNELS
 from network.inference.predictor import Predictor, sequence_camera
 from network.training.fit_boxdepth import FrameChoice, cache_inputs, with_box_head
+from network.training.head_inputs import HeadInputPredictor
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
 
@@ -32,7 +33,7 @@ def test_frames_before_trunk_from_skip_the_network_and_the_memory_starts_there(p
     step = model.step
     model.step = lambda *a, **kw: calls.append(1) or step(*a, **kw)
     try:
-        cold = list(Predictor(model, camera, read_depth=False, box_inputs=True, box_inputs_from=k, trunk_from=k)
+        cold = list(HeadInputPredictor(model, camera, read_depth=False, box_inputs_from=k, trunk_from=k)
                     .stream(frames))  # fmt: skip
     finally:
         del model.step
@@ -41,21 +42,21 @@ def test_frames_before_trunk_from_skip_the_network_and_the_memory_starts_there(p
     for a, b in zip(cold[k:], fresh):  # the network's outputs: a stream begun at frame k
         for v in VIEWS:
             torch.testing.assert_close(a[v], b[v], rtol=0, atol=0)
-    warm = list(Predictor(model, camera, read_depth=False, box_inputs=True, box_inputs_from=k).stream(frames))
+    warm = list(HeadInputPredictor(model, camera, read_depth=False, box_inputs_from=k).stream(frames))
     for a, b in zip(cold[k:], warm[k:]):  # the parallax history holds the skipped frames all the same
         torch.testing.assert_close(a["box_parallax"], b["box_parallax"], rtol=0, atol=0)
 
 
 def test_trunk_from_is_refused_where_it_cannot_hold(parallax_model, tiny_dataset):
     camera = sequence_camera(open_dataset(tiny_dataset).sequences()[0])
-    base = {"read_depth": False, "box_inputs": True, "box_inputs_from": 2}
+    base = {"read_depth": False, "box_inputs_from": 2}
     for extra, word in (({"trunk_from": 3}, "trunk_from must be"), ({"trunk_from": True}, "trunk_from must be"),
                         ({"trunk_from": 2, "flip": True}, "not with flip"),
                         ({"trunk_from": 2, "fuse_tau": 1.0}, "not with flip")):  # fmt: skip
         with pytest.raises(InputError, match=word):
-            Predictor(parallax_model, camera, **{**base, **extra})
+            HeadInputPredictor(parallax_model, camera, **{**base, **extra})
     with pytest.raises(InputError, match="windowed mode"):
-        Predictor(parallax_model, camera, **base, trunk_from=1).window([])
+        HeadInputPredictor(parallax_model, camera, **base, trunk_from=1).window([])
 
 
 def test_a_cold_cache_keeps_the_same_slots_and_targets_and_keys_its_own_cache(

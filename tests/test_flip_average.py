@@ -8,9 +8,9 @@ import torch
 from tiny_net import tiny_config
 
 from layouts import VIEWS, LayoutSpec
+from network.inference.decision import apply_box_offset
 from network.inference.predictor import Predictor
 from network.model.net import MVRackLay
-from network.training.calibrate import apply_box_offset
 from network.training.toy import ToySequence
 
 SPEC = LayoutSpec(num_slots=2, size=16)

@@ -15,9 +15,9 @@ from layouts import BOX, VIEWS
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint, load_model, save_checkpoint
+from network.inference.decision import apply_box_offset, check_offsets
 from network.inference.evaluate import evaluate_sequences
 from network.inference.predictor import Predictor, sequence_camera
-from network.training.calibrate import apply_box_offset, check_offsets
 from waresynth.dataset import open_dataset
 
 

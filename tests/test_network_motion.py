@@ -14,6 +14,7 @@ from network.inference.predictor import Predictor
 from network.model.motion import MAX_SHIFT, camera_shift, motion_signature
 from network.model.net import ModelConfig, MVRackLay, shift_columns
 from network.training.fit_boxdepth import with_box_head
+from network.training.head_inputs import HeadInputPredictor
 from network.training.toy import ToySequence
 from tests.test_network_model import ANCHORS, tiny
 from tests.tiny_net import tiny_config
@@ -208,7 +209,7 @@ def test_a_given_camera_step_replaces_the_image_estimate():
 def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_its_own(monkeypatch):
     """`Predictor` reads the camera's step once per frame and gives it to the memory: the same outputs
     as `MVRackLay.step` reading the steps itself, one estimate per frame after the first, none in the
-    model; the mirrored pass of ``flip`` still reads its own. ``box_inputs_from`` is checked by name."""
+    model; the mirrored pass of ``flip`` still reads its own. `HeadInputPredictor`'s ``box_inputs_from`` is checked by name."""
     spec = LayoutSpec(size=16)
     torch.manual_seed(4)
     model = with_box_head(MVRackLay(tiny_config(spec)).eval(), parallax=True)
@@ -233,7 +234,7 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
 
     monkeypatch.setattr("network.inference.predictor.camera_shift", counted("infer"))
     monkeypatch.setattr("network.model.net.camera_shift", counted("model"))
-    got = list(Predictor(model, read_depth=False, box_inputs=True).stream(frames))
+    got = list(HeadInputPredictor(model, read_depth=False).stream(frames))
     assert calls == {"infer": 4, "model": 0}
     for g, w in zip(got, want):
         for v in VIEWS:
@@ -246,6 +247,6 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
     assert calls["infer"] == 0 and calls["model"] > 0
     for bad in (-1, 1.5, True):
         with pytest.raises(InputError, match="box_inputs_from"):
-            Predictor(model, read_depth=False, box_inputs=True, box_inputs_from=bad)
+            HeadInputPredictor(model, read_depth=False, box_inputs_from=bad)
     with pytest.raises(InputError, match="box_inputs_from"):
-        Predictor(model, rack_depth=0.8, box_inputs_from=2)  # the head reads: it needs every frame's maps
+        HeadInputPredictor(model, rack_depth=0.8, box_inputs_from=2)  # the head reads: it needs every frame's maps

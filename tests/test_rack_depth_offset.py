@@ -12,8 +12,8 @@ import pytest
 from layouts.errors import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint, load_model
+from network.inference.decision import DEPTH_OFFSET_LIMIT, check_depth_offset
 from network.inference.predictor import Predictor, rack_depth_source, sequence_camera
-from network.training.calibrate import DEPTH_OFFSET_LIMIT, check_depth_offset
 from waresynth.dataset import open_dataset
 
 

@@ -33,11 +33,11 @@ from network.data import (
 )
 from network.heads.backedge import DepthReader
 from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
+from network.inference.decision import apply_box_offset
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
 from network.model.motion import camera_shift, motion_signature
 from network.model.net import MVRackLay, board_peaks, head_outputs
-from network.training.calibrate import apply_box_offset
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -108,12 +108,8 @@ class Predictor:
     (metres behind the rack front per model column, NaN where none is known), which `frame_layouts`
     imposes on every predicted box once the rack depth is known. A head that also reads parallax
     (`box_parallax` in the model config) gets each frame's plane-sweep maps, ``"box_parallax"`` in the
-    output (`network.heads.boxdepth.ParallaxHistory`), also when ``box_inputs`` asks for them without reading;
-    ``box_inputs_from`` then skips the maps of the frames before it (they still enter the history): a fit
-    that keeps none of their slots need not pay for their plane sweeps. ``trunk_from`` (streaming, not
-    reading) goes further: the frames before it are not run through the network at all (their outputs are
-    empty dicts), they only enter the motion estimate and the parallax history, and the memory starts at
-    that frame.
+    output (`network.heads.boxdepth.ParallaxHistory`). (Fitting that head reads its inputs through
+    `network.training.head_inputs.HeadInputPredictor`.)
 
     The camera's step along the row is read from the images once per frame (`network.model.motion.camera_shift`)
     and given to the memory, the parallax and the readers alike.
@@ -146,9 +142,6 @@ class Predictor:
         flip: bool = False,
         rack_depth: float | None = None,
         read_depth: bool = True,
-        box_inputs: bool = False,
-        box_inputs_from: int = 0,
-        trunk_from: int = 0,
         whole_sequence: bool = False,
         fuse_tau: float = 0.0,
         roll: float | str | None = None,
@@ -166,22 +159,11 @@ class Predictor:
             bool(read_depth) and rack_depth is None and (model.back is not None or model.uprights is not None)
         )
         self.reads_box_depth = bool(read_depth) and model.box_depth is not None
-        #: each frame's parallax maps for the box-depth head are made (it reads them; or asked for, to fit it)
-        self.box_parallax = (self.reads_box_depth or bool(box_inputs)) and self.cfg.box_parallax
-        if not isinstance(box_inputs_from, int) or isinstance(box_inputs_from, bool) or box_inputs_from < 0:
-            raise InputError(f"box_inputs_from must be a frame index >= 0, got {box_inputs_from!r}")
-        if box_inputs_from and self.reads_box_depth:
-            raise InputError(
-                "box_inputs_from is for fitting the box-depth head: a reading head needs every frame's maps"
-            )
-        self.box_inputs_from = box_inputs_from
-        if not isinstance(trunk_from, int) or isinstance(trunk_from, bool) or not 0 <= trunk_from <= box_inputs_from:
-            raise InputError(f"trunk_from must be a frame index from 0 to box_inputs_from, got {trunk_from!r}")
-        if trunk_from and (flip or whole_sequence or fuse_tau or self.reads_depth):
-            raise InputError(
-                "trunk_from is for fitting the box-depth head: not with flip, whole_sequence, fuse_tau or a depth read"
-            )
-        self.trunk_from = trunk_from  #: frames before it skip the network (`stream` only)
+        #: each frame's parallax maps for the box-depth head are made (it reads them)
+        self.box_parallax = self.reads_box_depth and self.cfg.box_parallax
+        #: the frames before these skip the head's parallax maps, and the network (`stream` only): 0 here, set
+        #: by `network.training.head_inputs.HeadInputPredictor`
+        self.box_inputs_from = self.trunk_from = 0
         self.fuse_tau = check_tau(fuse_tau)
         self._tracks_motion = self.reads_box_depth or self.box_parallax or self.fuse_tau > 0
         memory = model.memory

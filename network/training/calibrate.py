@@ -8,7 +8,8 @@ against a true 0.47 m on the held-out set). Subtracting an offset from the box l
 argmax undoes that prior shift (``log 2 = 0.69`` would undo it exactly for a perfectly fitted
 model); `fit_box_offsets` picks the offset per view that maximises that view's mean rack and box
 mIoU over a grid, on a tuning set (never the held-out set one reports on). The offsets live in the
-checkpoint's record (``box_logit_offset``) and `network.inference.predictor.Predictor` applies them, so every
+checkpoint's record (``box_logit_offset``) and `network.inference.predictor.Predictor` applies them
+(`network.inference.decision`), so every
 consumer of predictions (evaluate, predict, run) gets the calibrated decision.
 
 The rack depth read from the uprights and back edges (`network.heads.backedge.DepthReader`) is biased too, on
@@ -27,49 +28,16 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from layouts import BOX, VIEWS
+from layouts import VIEWS
 from layouts.errors import InputError
 from layouts.metrics import METRIC_CLASSES, LayoutMetrics
+from network.inference.decision import LIMIT, apply_box_offset, check_depth_offset
+from network.inference.predictor import Predictor, logits_to_layout, resize_logits, sequence_camera
 from network.model.net import MVRackLay
+from network.training.fit_backedge import rack_row
 
 #: offsets tried by `fit_box_offsets` (logit units)
 GRID: tuple[float, ...] = tuple(round(0.25 * k, 2) for k in range(11))  # 0 .. 2.5
-#: offsets outside this range are refused (they would erase or flood the box class)
-LIMIT = 5.0
-#: rack-depth offsets beyond this many metres are refused: a reader that far off is broken, not biased
-DEPTH_OFFSET_LIMIT = 0.2
-
-
-def check_offsets(value: Any, source: str) -> dict[str, float]:
-    """``{"top": float, "front": float}`` from a record value (None = no calibration: zeros)."""
-    if value is None:
-        return {v: 0.0 for v in VIEWS}
-    if not isinstance(value, dict) or set(value) != set(VIEWS):
-        raise InputError(f"{source}: box_logit_offset must be an object with keys {list(VIEWS)}, got {value!r}")
-    out = {}
-    for v in VIEWS:
-        x = value[v]
-        if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) or abs(x) > LIMIT:
-            raise InputError(f"{source}: box_logit_offset[{v!r}] must be a number in [-{LIMIT}, {LIMIT}], got {x!r}")
-        out[v] = float(x)
-    return out
-
-
-def check_depth_offset(value: Any, source: str) -> float:
-    """A record's ``rack_depth_offset`` in metres (None: not calibrated, 0), or a one-line `InputError`."""
-    if value is None:
-        return 0.0
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float))
-        or not math.isfinite(value)
-        or abs(value) > DEPTH_OFFSET_LIMIT
-    ):
-        raise InputError(
-            f"{source}: rack_depth_offset must be a number of metres in [-{DEPTH_OFFSET_LIMIT}, "
-            f"{DEPTH_OFFSET_LIMIT}], got {value!r}"
-        )
-    return float(value)
 
 
 def _tuning_outputs(
@@ -77,8 +45,6 @@ def _tuning_outputs(
 ) -> Iterator[tuple[int, int, dict[str, torch.Tensor]]]:
     """``(sequence index, frame index, outputs)`` of every ``every``-th frame of ``sequences``, each run whole by
     `network.inference.predictor.Predictor` (``mode``, flip-averaged with ``flip``, no fusion), with a progress bar."""
-    from network.inference.predictor import Predictor, sequence_camera  # infer imports this module
-
     if not sequences:
         raise InputError("calibration needs at least one sequence with ground truth")
     bar = tqdm(total=sum(s.num_frames for s in sequences), desc=desc, unit="frame", disable=not progress, leave=False)
@@ -91,15 +57,6 @@ def _tuning_outputs(
                     yield k, i, out
     finally:
         bar.close()
-
-
-def apply_box_offset(logits: torch.Tensor, offset: float) -> torch.Tensor:
-    """``(..., 3, D, D)`` logits with ``offset`` subtracted from the box class (a new tensor)."""
-    if offset == 0.0:
-        return logits
-    shift = torch.zeros(logits.shape[-3], dtype=logits.dtype, device=logits.device)
-    shift[BOX] = offset
-    return logits - shift.view(-1, 1, 1)
 
 
 def fit_box_offsets(
@@ -118,8 +75,6 @@ def fit_box_offsets(
     best = the largest mean of the view's rack and box mIoU (ties: the smaller offset). ``flip``
     scores flip-averaged logits (`network.inference.predictor.Predictor`).
     """
-    from network.inference.predictor import logits_to_layout, resize_logits  # infer imports this module
-
     if not grid or any(not math.isfinite(g) or abs(g) > LIMIT for g in grid):
         raise InputError(f"offset grid must hold numbers in [-{LIMIT}, {LIMIT}], got {grid}")
     saved = dict(model.box_logit_offset)
@@ -176,8 +131,6 @@ def fit_rack_depth_offset(
     ``{"rack_depth_offset": -median(read - true), "frames", "error_before", "error_after", "mode",
     "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading).
     """
-    from network.training.fit_backedge import rack_row
-
     if model.back is None and model.uprights is None:
         raise InputError("the model reads no rack depth (it has neither the back-edge nor the upright head)")
     truths = [rack_row(seq, "the rack-depth offset")[0] for seq in sequences]  # all checked before streaming

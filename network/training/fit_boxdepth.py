@@ -51,9 +51,10 @@ from network.heads.boxdepth import (
     frame_head_inputs,
     split_logits,
 )
-from network.inference.predictor import Predictor, sequence_camera
+from network.inference.predictor import sequence_camera
 from network.model.net import ModelConfig, MVRackLay
 from network.precision import check_precision, forward_autocast
+from network.training.head_inputs import HeadInputPredictor
 
 
 @dataclass(frozen=True)
@@ -202,7 +203,7 @@ class FrameChoice:
     memory, the parallax history and what has been seen). Fewer frames per scene buy more scenes for the same
     minutes, and the head is short of scenes rather than of frames (docs/network.md).
 
-    ``cold``: the frames before ``from_frame`` skip the network (`network.inference.predictor.Predictor`'s ``trunk_from``):
+    ``cold``: the frames before ``from_frame`` skip the network (`network.training.head_inputs.HeadInputPredictor`'s ``trunk_from``):
     they only enter the motion estimate, the parallax history and what has been seen, and the memory starts
     at ``from_frame``. The network's memory changes few of its cells, and a skipped frame costs a fraction
     of a streamed one, so the same minutes cover more scenes again."""
@@ -288,8 +289,8 @@ def stream_slots(
         camera = sequence_camera(seq)
         seen = labels(seq)
         depth = float(seq.scene()["row"]["depth"])
-        pred = Predictor(  # each frame's own layouts; no plane sweeps for the frames whose slots are not kept
-            model, camera, read_depth=False, box_inputs=True, box_inputs_from=choice.from_frame, fuse_tau=0,
+        pred = HeadInputPredictor(  # each frame's own layouts; no plane sweeps for the frames whose slots are not kept
+            model, camera, read_depth=False, box_inputs_from=choice.from_frame, fuse_tau=0,
             trunk_from=choice.from_frame if choice.cold else 0,
         )  # fmt: skip
         for i, out in enumerate(pred.stream(seq.rgb(j) for j in range(choice.streamed(seq)))):
