@@ -16,6 +16,7 @@ from layouts.errors import InputError
 from layouts.rackdepth import depth_rows
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.data import DEFAULT_DISTANCE, row_target
 from network.heads.backedge import (
@@ -163,10 +164,10 @@ def test_the_head_learns_back_edges(tiny_checkpoint, tiny_dataset):
 
 def test_fit_back_edges_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "with_head.pt"
-    args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
     # a bf16 trunk pass
     flags = ["--epochs", "2", "--out", str(out), "--threads", "1", "--quiet", "--precision", "bf16"]
-    assert main([*args, "--val", str(tiny_dataset), *flags]) == 0
+    assert run_stage("fit-back-edges", [*args, "--val", str(tiny_dataset), *flags]) == 0
     said = capsys.readouterr().out
     assert "val   rack depth error" in said and f"wrote {out}" in said
     payload, record = load_checkpoint(out)
@@ -188,7 +189,7 @@ def test_fit_back_edges_writes_a_model_that_reads_the_depth(tiny_checkpoint, tin
     meta = WarehouseMap.load(tmp_path / "s" / "warehouse.json").meta
     assert meta["rack_depth_source"] == "decoder" and meta["rack_depth"] is None
     capsys.readouterr()
-    assert main([*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    assert run_stage("fit-back-edges", [*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--epochs" in err
 
@@ -206,19 +207,15 @@ def test_fitting_needs_generated_ground_truth(tiny_checkpoint):
 
 
 def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_dataset, tmp_path):
-    """benchmarks/graft_heads.py: the network's tensors from NET, the heads' from HEADS, flags and fit records."""
-    import importlib.util
-    from pathlib import Path
-
+    """The graft stage: the network's tensors from NET, the heads' from HEADS, flags and fit records."""
     from network.checkpoint import save_checkpoint
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "graft_heads.py"
-    spec = importlib.util.spec_from_file_location("graft_heads", script)
-    graft_heads = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(graft_heads)
+    def graft(heads, net, out, *only):
+        return run_stage("graft", ["--heads", heads, "--net", net, "--out", out, *(["--only", *only] if only else [])])
+
     heads = tmp_path / "heads.pt"
-    args = ["fit-back-edges", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
-    assert main([*args, "--out", str(heads), "--threads", "1", "--quiet"]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
+    assert run_stage("fit-back-edges", [*args, "--out", str(heads), "--threads", "1", "--quiet"]) == 0
     # a "fine-tuned" network: the tiny one with every weight moved
     payload, record = load_checkpoint(tiny_checkpoint)
     moved = {k: (v + 0.01 if v.is_floating_point() else v) for k, v in payload["model"].items()}
@@ -227,7 +224,7 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     record["rack_depth_offset"] = 0.03  # measured on NET's own rack heads: it goes when HEADS' come
     save_checkpoint(net, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": moved}, record)
     out = tmp_path / "grafted.pt"
-    assert graft_heads.main([str(heads), str(net), str(out)]) == 0
+    assert graft(str(heads), str(net), str(out)) == 0
     got, rec = load_checkpoint(out)
     h_payload, h_record = load_checkpoint(heads)
     assert "rack_depth_offset" not in rec
@@ -235,7 +232,7 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     save_checkpoint(
         heads, {k: v for k, v in h_payload.items() if k != "record_json"}, {**h_rest, "rack_depth_offset": -0.01}
     )
-    assert graft_heads.main([str(heads), str(net), str(tmp_path / "g2.pt")]) == 0
+    assert graft(str(heads), str(net), str(tmp_path / "g2.pt")) == 0
     assert load_model(tmp_path / "g2.pt")[0].rack_depth_offset == -0.01  # HEADS' offset comes with its heads
     assert rec["model_config"]["back_edges"] is True and rec["back_edges"] == h_record["back_edges"]
     assert rec["heads_grafted_from"] == str(heads)
@@ -243,9 +240,9 @@ def test_grafting_a_files_heads_onto_a_fine_tuned_network(tiny_checkpoint, tiny_
     back = [k for k in h_payload["model"] if k.startswith("back.")]
     assert back and all(torch.equal(got["model"][k], h_payload["model"][k]) for k in back)
     assert load_model(out)[0].back is not None
-    assert graft_heads.main([str(net), str(net), str(tmp_path / "none.pt")]) == 2  # no heads to copy
+    assert graft(str(net), str(net), str(tmp_path / "none.pt")) == 2  # no heads to copy
     # --only: some of the heads (here the one it has), or none when HEADS lacks those asked for
-    assert graft_heads.main([str(heads), str(net), str(tmp_path / "only.pt"), "--only", "back_edges"]) == 0
+    assert graft(str(heads), str(net), str(tmp_path / "only.pt"), "back_edges") == 0
     assert load_checkpoint(tmp_path / "only.pt")[1]["heads_grafted"] == ["back_edges"]
-    assert graft_heads.main([str(heads), str(net), str(tmp_path / "up.pt"), "--only", "uprights"]) == 2
+    assert graft(str(heads), str(net), str(tmp_path / "up.pt"), "uprights") == 2
     assert not (tmp_path / "up.pt").exists()

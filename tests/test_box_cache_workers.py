@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from layouts.errors import InputError
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.training.fit_boxdepth import (
     CACHE_FIELDS,
@@ -87,13 +87,13 @@ def test_a_pass_past_its_deadline_streams_each_process_s_first_sequence_only(tin
 
 
 def test_pass_minutes_fits_on_the_sequences_streamed_in_time(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
-    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--frames", "3",
+    base = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--frames", "3",
             "--epochs", "1", "--threads", "1", "--cache-workers", "2", "--quiet"]  # fmt: skip
-    assert main([*base, "--pass-minutes", "1e-9", "--out", str(tmp_path / "cut.pt")]) == 0
+    assert run_stage("fit-box-depth", [*base, "--pass-minutes", "1e-9", "--out", str(tmp_path / "cut.pt")]) == 0
     assert "sequences (of 3: the pass stopped at --pass-minutes 1e-09)" in capsys.readouterr().out
     cut = load_checkpoint(tmp_path / "cut.pt")[1]["box_depth"]
     assert (cut["train_sequences"], cut["sequences_given"], cut["pass_minutes"]) == (2, 3, 1e-9)
-    assert main([*base, "--pass-minutes", "60", "--out", str(tmp_path / "all.pt")]) == 0
+    assert run_stage("fit-box-depth", [*base, "--pass-minutes", "60", "--out", str(tmp_path / "all.pt")]) == 0
     assert "the pass stopped" not in capsys.readouterr().out
     whole = load_checkpoint(tmp_path / "all.pt")[1]["box_depth"]
     assert (whole["train_sequences"], whole["sequences_given"]) == (3, 3)
@@ -118,49 +118,65 @@ def test_a_failing_process_stops_the_pass_with_one_line(tiny_checkpoint, tiny_da
 
 def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     keep = tmp_path / "cache"
-    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
+    base = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
             "--frames", "4", "--from-frame", "1", "--epochs", "1", "--threads", "1", "--quiet"]  # fmt: skip
     made = ["--cache-only", "--cache-workers", "2", "--keep-cache", str(keep), "--out", str(tmp_path / "no.pt")]
-    assert main([*base, *made, "--json", str(tmp_path / "cache.json")]) == 0
+    assert run_stage("fit-box-depth", [*base, *made, "--json", str(tmp_path / "cache.json")]) == 0
     out = capsys.readouterr().out
     assert out.startswith("made the inputs of ") and not (tmp_path / "no.pt").exists()  # no head, no checkpoint
     summary = json.loads((tmp_path / "cache.json").read_text())
     assert summary["cache_workers"] == 2 and summary["train_sequences"] == 3 and summary["train_slots"] > 0
     record = json.loads((keep / part_name(tiny_dataset) / "cache.json").read_text())
     assert len(record["shards"]) == 2 and sum(record["shards"]) == record["slots"] == summary["train_slots"]
-    assert main([*base, *made]) == 0 and capsys.readouterr().out.startswith("found the inputs of ")
-    assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "kept.pt")]) == 0
+    assert run_stage("fit-box-depth", [*base, *made]) == 0 and capsys.readouterr().out.startswith(
+        "found the inputs of "
+    )
+    assert run_stage("fit-box-depth", [*base, "--keep-cache", str(keep), "--out", str(tmp_path / "kept.pt")]) == 0
     assert f"reused the inputs cached in {keep} for 1 of 1 data folders" in capsys.readouterr().out
-    assert main([*base, "--out", str(tmp_path / "plain.pt")]) == 0  # one pass in one process, a temporary cache
+    assert (
+        run_stage("fit-box-depth", [*base, "--out", str(tmp_path / "plain.pt")]) == 0
+    )  # one pass in one process, a temporary cache
     kept, plain = (load_checkpoint(tmp_path / f"{k}.pt") for k in ("kept", "plain"))
     heads = [k for k in plain[0]["model"] if k.startswith("box_depth.")]
     assert heads and all(torch.equal(kept[0]["model"][k], plain[0]["model"][k]) for k in heads)
     assert kept[1]["box_depth"]["train_slots"] == plain[1]["box_depth"]["train_slots"] == summary["train_slots"]
     assert (kept[1]["box_depth"]["lr"], kept[1]["box_depth"]["weight_decay"]) == (2e-3, 1e-2)  # the defaults
     fit = ["--keep-cache", str(keep), "--lr", "1e-2", "--weight-decay", "0", "--out", str(tmp_path / "tuned.pt")]
-    assert main([*base, *fit]) == 0 and "reused the inputs" in capsys.readouterr().out  # other settings, no pass
+    assert (
+        run_stage("fit-box-depth", [*base, *fit]) == 0 and "reused the inputs" in capsys.readouterr().out
+    )  # other settings, no pass
     tuned = load_checkpoint(tmp_path / "tuned.pt")
     assert (tuned[1]["box_depth"]["lr"], tuned[1]["box_depth"]["weight_decay"]) == (1e-2, 0.0)
     assert not all(torch.equal(tuned[0]["model"][k], plain[0]["model"][k]) for k in heads)
     lost = shard_name(int(np.argmax(record["shards"])))  # a shard with slots loses a file: one line, no traceback
     (keep / part_name(tiny_dataset) / lost / "win.npy").unlink()
-    assert main([*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
+    assert run_stage("fit-box-depth", [*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and lost in err and "remove the folder" in err
 
 
 def test_a_bf16_pass_and_fit_keep_a_cache_of_their_own(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
-    base = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
+    base = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
             "--frames", "4", "--from-frame", "1", "--epochs", "2", "--threads", "1", "--quiet"]  # fmt: skip
     fp32, bf16 = tmp_path / "fp32", tmp_path / "bf16"
-    assert main([*base, "--keep-cache", str(fp32), "--out", str(tmp_path / "a.pt")]) == 0
+    assert run_stage("fit-box-depth", [*base, "--keep-cache", str(fp32), "--out", str(tmp_path / "a.pt")]) == 0
     capsys.readouterr()
-    assert main([*base, "--keep-cache", str(fp32), "--precision", "bf16", "--out", str(tmp_path / "x.pt")]) == 2
+    assert (
+        run_stage(
+            "fit-box-depth", [*base, "--keep-cache", str(fp32), "--precision", "bf16", "--out", str(tmp_path / "x.pt")]
+        )
+        == 2
+    )
     # the float32 pass's inputs are not the bf16 pass's: refused, one error line (a CPU without native bf16
     # also prints a warning line before it)
     errors = [x for x in capsys.readouterr().err.splitlines() if ": error: " in x]
     assert len(errors) == 1 and "trunk precision" in errors[0] and not (tmp_path / "x.pt").exists()
-    assert main([*base, "--keep-cache", str(bf16), "--precision", "bf16", "--out", str(tmp_path / "b.pt")]) == 0
+    assert (
+        run_stage(
+            "fit-box-depth", [*base, "--keep-cache", str(bf16), "--precision", "bf16", "--out", str(tmp_path / "b.pt")]
+        )
+        == 0
+    )
     a, b = (load_checkpoint(tmp_path / f"{k}.pt") for k in "ab")
     assert (a[1]["box_depth"]["precision"], a[1]["box_depth"]["fit_precision"]) == ("fp32", "fp32")
     assert (b[1]["box_depth"]["precision"], b[1]["box_depth"]["fit_precision"]) == ("bf16", "bf16")
@@ -184,8 +200,8 @@ def test_a_bf16_pass_and_fit_keep_a_cache_of_their_own(tiny_checkpoint, tiny_dat
     ],
 )
 def test_cache_options_are_checked_on_one_line(tiny_checkpoint, tiny_dataset, tmp_path, capsys, extra, needle):
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--quiet", *extra]
-    assert main(args) == 2
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--quiet", *extra]
+    assert run_stage("fit-box-depth", args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and needle in err
 

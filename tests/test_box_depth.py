@@ -19,6 +19,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
 from network.inference.predictor import Predictor, frame_layouts
@@ -275,9 +276,12 @@ def test_the_fit_refuses_an_unknown_precision_on_one_line():
 
 def test_fit_box_depth_writes_a_model_that_reads_box_depths(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "with_head.pt"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
     common = ["--threads", "1", "--quiet"]
-    assert main([*args, "--epochs", "1", "--out", str(out), "--cache-dir", str(tmp_path), *common]) == 0
+    assert (
+        run_stage("fit-box-depth", [*args, "--epochs", "1", "--out", str(out), "--cache-dir", str(tmp_path), *common])
+        == 0
+    )
     assert f"wrote {out}" in capsys.readouterr().out
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith("box-depth-")] == []  # the cache is removed
     payload, record = load_checkpoint(out)
@@ -286,7 +290,7 @@ def test_fit_box_depth_writes_a_model_that_reads_box_depths(tiny_checkpoint, tin
     assert all(torch.equal(payload["model"][k], v) for k, v in src["model"].items())  # the trunk is untouched
     assert load_model(out)[0].box_depth is not None
     again = tmp_path / "again.pt"  # refitting a model with the head replaces the head
-    assert main(["fit-box-depth", "--checkpoint", str(out), "--data", str(tiny_dataset), "--epochs", "1",
+    assert run_stage("fit-box-depth", ["--checkpoint", str(out), "--data", str(tiny_dataset), "--epochs", "1",
                  "--out", str(again), *common]) == 0  # fmt: skip
     assert load_model(again)[0].box_depth is not None
     seq = sorted(p for p in tiny_dataset.iterdir() if p.name.startswith("seq_"))[0]
@@ -296,7 +300,7 @@ def test_fit_box_depth_writes_a_model_that_reads_box_depths(tiny_checkpoint, tin
     assert main(["run", str(seq), "--out", str(tmp_path / "r"), "--no-rrd", "--quiet", *run]) == 0
     assert WarehouseMap.load(tmp_path / "r" / "warehouse.json").meta["box_depth_source"] == "read"
     capsys.readouterr()
-    assert main([*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    assert run_stage("fit-box-depth", [*args, "--epochs", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--epochs" in err
 
@@ -308,8 +312,8 @@ def test_fitting_needs_depth_instance_and_scene(tiny_checkpoint, tmp_path, capsy
 
     for i in range(2):
         Image.fromarray(np.zeros((64, 64, 3), np.uint8)).save(photos / f"{i:03d}.png")
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(photos), "--quiet"]
-    assert main(args) == 2
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(photos), "--quiet"]
+    assert run_stage("fit-box-depth", args) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "photos" in err
 
@@ -363,8 +367,8 @@ def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkp
     np.testing.assert_array_equal(data.win[:, : ref.win.shape[1]], ref.win)  # the other inputs are the same
     assert np.abs(data.win[:, ref.win.shape[1] :].astype(np.float32)).max() > 0  # the camera moved: costs differ
     out = tmp_path / "par.pt"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax"]
-    assert main([*args, "--epochs", "1", "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax"]
+    assert run_stage("fit-box-depth", [*args, "--epochs", "1", "--out", str(out), "--threads", "1", "--quiet"]) == 0
     loaded = load_model(out)[0]
     assert loaded.cfg.box_parallax and load_checkpoint(out)[1]["box_depth"]["parallax"] is True
     seq = seqs[0]
@@ -379,27 +383,31 @@ def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkp
 def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     keep = tmp_path / "cache"
     part = keep / part_name(tiny_dataset)
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1"]
     common = ["--threads", "1", "--quiet", "--keep-cache", str(keep)]
-    assert main([*args, "--out", str(tmp_path / "a.pt"), *common]) == 0
+    assert run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "a.pt"), *common]) == 0
     assert "reused the inputs" not in capsys.readouterr().out and (part / "cache.json").is_file()
-    assert main([*args, "--out", str(tmp_path / "b.pt"), *common]) == 0
+    assert run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "b.pt"), *common]) == 0
     assert f"reused the inputs cached in {keep} for 1 of 1 data folders" in capsys.readouterr().out
     a, b = (load_checkpoint(tmp_path / f"{k}.pt")[0]["model"] for k in "ab")
     heads = [k for k in a if k.startswith("box_depth.")]
     assert heads and all(torch.equal(a[k], b[k]) for k in heads)  # same inputs, same seed: the same head
-    assert main([*args, "--out", str(tmp_path / "w.pt"), "--head-width", "12", *common]) == 0  # a narrower head
+    assert (
+        run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "w.pt"), "--head-width", "12", *common]) == 0
+    )  # a narrower head
     w = load_model(tmp_path / "w.pt")[0]
     assert w.cfg.box_width == 12 and w.box_depth.conv2d[0][0].out_channels == 12 and w.box_depth.out.in_channels == 24
     assert "reused the inputs" in capsys.readouterr().out
-    assert main([*args, "--out", str(tmp_path / "v.pt"), "--head-width", "2", *common]) == 2
+    assert run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "v.pt"), "--head-width", "2", *common]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--head-width must be an integer >= 4, got 2" in err
-    assert main([*args, "--out", str(tmp_path / "d.pt"), "--parallax", *common]) == 2  # other inputs: refused
+    assert (
+        run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "d.pt"), "--parallax", *common]) == 2
+    )  # other inputs: refused
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and str(part) in err and "another" in err
     (part / "cache.json").unlink()  # an unfinished cache is made again, not used
-    assert main([*args, "--out", str(tmp_path / "e.pt"), *common]) == 0
+    assert run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "e.pt"), *common]) == 0
     assert "reused the inputs" not in capsys.readouterr().out and (part / "cache.json").is_file()
 
 
@@ -414,14 +422,22 @@ def test_a_kept_cache_grows_by_one_part_per_data_folder(tiny_checkpoint, tiny_da
         progress=False,
     )  # fmt: skip
     keep = tmp_path / "cache"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--epochs", "1", "--threads", "1", "--quiet"]
-    assert main([*args, "--data", str(tiny_dataset), "--out", str(tmp_path / "a.pt"), "--keep-cache", str(keep)]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--epochs", "1", "--threads", "1", "--quiet"]
+    assert (
+        run_stage(
+            "fit-box-depth",
+            [*args, "--data", str(tiny_dataset), "--out", str(tmp_path / "a.pt"), "--keep-cache", str(keep)],
+        )
+        == 0
+    )
     capsys.readouterr()
     both = ["--data", str(tiny_dataset), str(more)]
-    assert main([*args, *both, "--out", str(tmp_path / "b.pt"), "--keep-cache", str(keep)]) == 0
+    assert run_stage("fit-box-depth", [*args, *both, "--out", str(tmp_path / "b.pt"), "--keep-cache", str(keep)]) == 0
     assert "for 1 of 2 data folders" in capsys.readouterr().out
     assert sorted(p.name for p in keep.iterdir()) == sorted([part_name(tiny_dataset), part_name(more)])
-    assert main([*args, *both, "--out", str(tmp_path / "c.pt")]) == 0  # one temporary cache of both
+    assert (
+        run_stage("fit-box-depth", [*args, *both, "--out", str(tmp_path / "c.pt")]) == 0
+    )  # one temporary cache of both
     b, c = (load_checkpoint(tmp_path / f"{k}.pt")[0]["model"] for k in "bc")
     heads = [k for k in b if k.startswith("box_depth.")]
     assert heads and all(torch.equal(b[k], c[k]) for k in heads)
@@ -430,7 +446,7 @@ def test_a_kept_cache_grows_by_one_part_per_data_folder(tiny_checkpoint, tiny_da
     for f in old.iterdir():
         f.rename(keep / f.name)
     old.rmdir()
-    assert main([*args, *both, "--out", str(tmp_path / "d.pt"), "--keep-cache", str(keep)]) == 0
+    assert run_stage("fit-box-depth", [*args, *both, "--out", str(tmp_path / "d.pt"), "--keep-cache", str(keep)]) == 0
     assert "for 2 of 2 data folders" in capsys.readouterr().out and (old / "cache.json").is_file()
     d = load_checkpoint(tmp_path / "d.pt")[0]["model"]
     assert all(torch.equal(b[k], d[k]) for k in heads)
@@ -455,18 +471,22 @@ def test_a_frame_choice_streams_the_first_frames_and_keeps_the_later_ones(
         np.testing.assert_array_equal(b, a[: len(b)])
         np.testing.assert_array_equal(c, b[len(b) - len(c) :])
     keep = tmp_path / "cache"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1",
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1",
             "--threads", "1", "--quiet", "--keep-cache", str(keep)]  # fmt: skip
-    assert main([*args, "--frames", "4", "--from-frame", "2", "--out", str(tmp_path / "a.pt")]) == 0
+    assert (
+        run_stage("fit-box-depth", [*args, "--frames", "4", "--from-frame", "2", "--out", str(tmp_path / "a.pt")]) == 0
+    )
     record = load_checkpoint(tmp_path / "a.pt")[1]["box_depth"]
     assert (record["frames"], record["from_frame"]) == (4, 2)
     capsys.readouterr()
-    assert main([*args, "--out", str(tmp_path / "b.pt")]) == 2  # every frame: another cache's inputs, refused
+    assert (
+        run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "b.pt")]) == 2
+    )  # every frame: another cache's inputs, refused
     assert "another" in capsys.readouterr().err
     too_late = ["--from-frame", "8"]  # the tiny sequences have 8 frames: none would be kept
     for bad, word in ((["--frames", "0"], "--frames"), (["--frames", "2", "--from-frame", "2"], "--from-frame"),
                       (too_late, "at most 8 frames")):  # fmt: skip
-        assert main([*args, *bad, "--out", str(tmp_path / "c.pt")]) == 2
+        assert run_stage("fit-box-depth", [*args, *bad, "--out", str(tmp_path / "c.pt")]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and word in err
 

@@ -9,7 +9,7 @@ import torch
 
 from layouts import VIEWS
 from layouts.errors import InputError
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import PARALLAX_CHANNELS
 from network.inference.predictor import Predictor, sequence_camera
@@ -77,15 +77,17 @@ def test_a_cold_cache_keeps_the_same_slots_and_targets_and_keys_its_own_cache(
     assert FrameChoice(5, 2).key() == {"frames": 5, "from_frame": 2}  # caches kept before keep their keys
 
     keep = tmp_path / "kept"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1",
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1",
             "--threads", "1", "--quiet", "--keep-cache", str(keep), "--frames", "4", "--from-frame", "2"]  # fmt: skip
-    assert main([*args, "--cold-start", "--out", str(tmp_path / "a.pt")]) == 0
+    assert run_stage("fit-box-depth", [*args, "--cold-start", "--out", str(tmp_path / "a.pt")]) == 0
     assert load_checkpoint(tmp_path / "a.pt")[1]["box_depth"]["cold"] is True
     capsys.readouterr()
-    assert main([*args, "--out", str(tmp_path / "b.pt")]) == 2  # a warm fit: another cache's inputs, refused
+    assert (
+        run_stage("fit-box-depth", [*args, "--out", str(tmp_path / "b.pt")]) == 2
+    )  # a warm fit: another cache's inputs, refused
     assert "another" in capsys.readouterr().err
-    bad = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--cold-start",
+    bad = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--cold-start",
            "--out", str(tmp_path / "c.pt")]  # fmt: skip
-    assert main(bad) == 2
+    assert run_stage("fit-box-depth", bad) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--cold-start" in err and "--from-frame" in err

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from layouts import InputError
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.data import CompressedSequence, compress_share, jpeg_round_trip
 from network.training.fit_boxdepth import cache_key, part_name
 from waresynth.dataset import open_dataset
@@ -51,24 +51,24 @@ def test_a_cache_key_names_the_quality_of_compressed_sequences_only(tiny_dataset
 def test_fits_record_the_setting_and_refuse_bad_flags(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     base = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "1", "--quiet"]
     jpeg = ["--jpeg", "1.0", "--jpeg-quality", "35", "35"]
-    assert main(["fit-back-edges", *base, *jpeg, "--out", str(tmp_path / "be.pt")]) == 0
+    assert run_stage("fit-back-edges", [*base, *jpeg, "--out", str(tmp_path / "be.pt")]) == 0
     assert json.loads((tmp_path / "be.json").read_text())["back_edges"]["jpeg_quality"] == [35, 35]
     keep = tmp_path / "cache"
-    assert main(["fit-box-depth", *base, *jpeg, "--keep-cache", str(keep), "--out", str(tmp_path / "bd.pt")]) == 0
+    assert run_stage("fit-box-depth", [*base, *jpeg, "--keep-cache", str(keep), "--out", str(tmp_path / "bd.pt")]) == 0
     rec = json.loads((tmp_path / "bd.json").read_text())["box_depth"]
     assert rec["jpeg"] == 1.0 and rec["jpeg_quality"] == [35, 35]
     # the kept inputs are those of compressed frames: a fit on sharp ones is refused them, not handed them
     key = json.loads((keep / part_name(tiny_dataset) / "cache.json").read_text())["key"]
     assert all(k[-1] == 35 for k in key["sequences"])
     capsys.readouterr()
-    assert main(["fit-box-depth", *base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
+    assert run_stage("fit-box-depth", [*base, "--keep-cache", str(keep), "--out", str(tmp_path / "x.pt")]) == 2
     assert "another" in capsys.readouterr().err
     for cmd in ("fit-back-edges", "fit-uprights", "fit-box-depth"):
         for bad, flag in (
             (["--jpeg", "nan"], "--jpeg "),
             (["--jpeg", "0.5", "--jpeg-quality", "0", "20"], "--jpeg-quality"),
         ):
-            assert main([cmd, *base, *bad, "--out", str(tmp_path / "bad.pt")]) == 2
+            assert run_stage(cmd, [*base, *bad, "--out", str(tmp_path / "bad.pt")]) == 2
             err = capsys.readouterr().err.strip()
             assert len(err.splitlines()) == 1 and flag in err, (cmd, err)
     assert not (tmp_path / "bad.pt").exists()

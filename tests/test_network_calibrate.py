@@ -13,7 +13,7 @@ import torch
 
 from layouts import BOX, VIEWS
 from layouts.errors import InputError
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model, save_checkpoint
 from network.inference.decision import apply_box_offset, check_offsets
 from network.inference.evaluate import evaluate_sequences
@@ -46,8 +46,8 @@ def calibrated(tiny_checkpoint: Path, tiny_dataset: Path, tmp_path_factory: pyte
     """The tiny checkpoint calibrated with the CLI on the tiny dataset (every frame scored)."""
     out = tmp_path_factory.mktemp("cal") / "cal.pt"
     scores = out.with_name("scores.json")
-    args = ["calibrate", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--out", str(out)]
-    assert main([*args, "--every", "1", "--threads", "1", "--quiet", "--json", str(scores)]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--out", str(out)]
+    assert run_stage("calibrate", [*args, "--every", "1", "--threads", "1", "--quiet", "--json", str(scores)]) == 0
     return {"path": out, "scores": json.loads(scores.read_text())}
 
 
@@ -105,7 +105,7 @@ def test_predictor_applies_the_recorded_offset(tiny_checkpoint: Path, tiny_datas
 
 def test_calibrate_bad_input_is_one_line(tiny_checkpoint: Path, tmp_path: Path, capsys) -> None:
     shutil.copy(tiny_checkpoint, tmp_path / "c.pt")
-    assert main(["calibrate", "--checkpoint", str(tmp_path / "c.pt"), "--data", str(tmp_path / "nope")]) == 2
+    assert run_stage("calibrate", ["--checkpoint", str(tmp_path / "c.pt"), "--data", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0]
 
@@ -116,7 +116,9 @@ def test_calibrate_in_place_updates_the_record_and_its_json(
     ckpt = tmp_path / "c.pt"
     shutil.copy(tiny_checkpoint, ckpt)
     shutil.copy(tiny_checkpoint.with_suffix(".json"), ckpt.with_suffix(".json"))
-    assert main(["calibrate", "--checkpoint", str(ckpt), "--data", str(tiny_dataset), "--every", "4", "--quiet"]) == 0
+    assert (
+        run_stage("calibrate", ["--checkpoint", str(ckpt), "--data", str(tiny_dataset), "--every", "4", "--quiet"]) == 0
+    )
     record = load_checkpoint(ckpt)[1]
     beside = json.loads(ckpt.with_suffix(".json").read_text())
     assert record["box_logit_offset"] == beside["box_logit_offset"] and set(record["box_logit_offset"]) == set(VIEWS)

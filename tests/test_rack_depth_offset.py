@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from layouts.errors import InputError
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.inference.decision import DEPTH_OFFSET_LIMIT, check_depth_offset
 from network.inference.predictor import Predictor, rack_depth_source, sequence_camera
@@ -42,8 +42,8 @@ def readings(path: Path, data: Path) -> list[tuple[float, float]]:
 def with_heads(tiny_checkpoint: Path, tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The tiny network with a fitted upright head (it reads a rack depth)."""
     out = tmp_path_factory.mktemp("rd") / "uprights.pt"
-    args = ["fit-uprights", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "2"]
-    assert main([*args, "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--epochs", "2"]
+    assert run_stage("fit-uprights", [*args, "--out", str(out), "--threads", "1", "--quiet"]) == 0
     return out
 
 
@@ -60,8 +60,13 @@ def test_calibrate_centres_the_reading_and_every_reading_moves_by_it(
     err = np.array([r - t for r, t in before if np.isfinite(r)])
     assert err.size and np.ptp(err) > 0  # depths read, errors that differ
     out, scores = tmp_path / "cal.pt", tmp_path / "cal.json"
-    args = ["calibrate", "--target", "rack-depth", "--checkpoint", str(with_heads), "--data", str(tiny_dataset)]
-    assert main([*args, "--every", "1", "--out", str(out), "--json", str(scores), "--threads", "1", "--quiet"]) == 0
+    args = ["--target", "rack-depth", "--checkpoint", str(with_heads), "--data", str(tiny_dataset)]
+    assert (
+        run_stage(
+            "calibrate", [*args, "--every", "1", "--out", str(out), "--json", str(scores), "--threads", "1", "--quiet"]
+        )
+        == 0
+    )
     assert "rack depth: offset" in capsys.readouterr().out
     model, record = load_model(out)
     offset = record["rack_depth_offset"]
@@ -85,13 +90,13 @@ def test_calibrate_centres_the_reading_and_every_reading_moves_by_it(
     # a refitted rack head drops the offset (it was measured on the old one)
     refit = tmp_path / "refit.pt"
     common = ["--data", str(tiny_dataset), "--epochs", "1", "--threads", "1", "--quiet"]
-    assert main(["fit-back-edges", "--checkpoint", str(out), *common, "--out", str(refit)]) == 0
+    assert run_stage("fit-back-edges", ["--checkpoint", str(out), *common, "--out", str(refit)]) == 0
     assert "rack_depth_offset" not in load_checkpoint(refit)[1] and load_model(refit)[0].rack_depth_offset == 0.0
 
 
 def test_a_model_that_reads_no_depth_is_refused(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
-    args = ["calibrate", "--target", "rack-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
-    assert main([*args, "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    args = ["--target", "rack-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    assert run_stage("calibrate", [*args, "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "reads no rack depth" in err
     assert not (tmp_path / "x.pt").exists()

@@ -11,6 +11,7 @@ from layouts.canonical import CanonicalView
 from layouts.codecs import LayoutFolder
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.backedge import DepthReader, depth_hypotheses
 from network.heads.uprights import REAR_FACE, UprightHead, column_offsets, upright_depth_scores
@@ -131,9 +132,13 @@ def test_the_head_learns_the_generators_uprights(tiny_checkpoint, tiny_dataset):
 
 def test_fit_uprights_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "with_uprights.pt"
-    args = ["fit-uprights", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset)]
     assert (
-        main([*args, "--val", str(tiny_dataset), "--epochs", "2", "--out", str(out), "--threads", "1", "--quiet"]) == 0
+        run_stage(
+            "fit-uprights",
+            [*args, "--val", str(tiny_dataset), "--epochs", "2", "--out", str(out), "--threads", "1", "--quiet"],
+        )
+        == 0
     )
     said = capsys.readouterr().out
     assert "val   rack depth error from the uprights" in said and "marks precision / recall" in said
@@ -148,6 +153,6 @@ def test_fit_uprights_writes_a_model_that_reads_the_depth(tiny_checkpoint, tiny_
     assert main(["run", str(seq), "--out", str(tmp_path / "r"), "--no-rrd", "--quiet", *common]) == 0
     assert WarehouseMap.load(tmp_path / "r" / "warehouse.json").meta["rack_depth_source"] == "read"
     capsys.readouterr()
-    assert main([*args, "--sequences", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
+    assert run_stage("fit-uprights", [*args, "--sequences", "0", "--out", str(tmp_path / "x.pt"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--sequences" in err
