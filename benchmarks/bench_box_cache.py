@@ -30,8 +30,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.errors import InputError  # noqa: E402
 from layouts.fileio import atomic_write_json  # noqa: E402
+from mvracklay.models import checkpoint_arg  # noqa: E402
+from mvracklay.options import add_precision_option  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
-from network.inference.frozen import add_precision_option, trunk_precision, use_precision  # noqa: E402
+from network.inference.frozen import trunk_precision, use_precision  # noqa: E402
 from network.training.fit_boxdepth import FrameChoice, cache_part, with_box_head  # noqa: E402
 from network.training.trainer import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
@@ -39,7 +41,9 @@ from waresynth.visibility import SeenTracker  # noqa: E402
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("checkpoint", type=Path, help="a trained checkpoint (its trunk is streamed)")
+    ap.add_argument(
+        "checkpoint", type=checkpoint_arg, help="a trained checkpoint or a shipped model's name (its trunk is streamed)"
+    )
     ap.add_argument("data", type=Path, help="a generated dataset folder (scenes with depth and instances)")
     ap.add_argument("--sequences", type=int, default=20, help="scenes streamed (the first ones)")
     ap.add_argument("--frames", type=int, help="stream only each scene's first N frames (default: all)")
