@@ -1,5 +1,7 @@
 # The two set-up commands (see README): `make demo` runs the main job, `make test` the tests.
-.PHONY: setup demo test lint bench
+# `make wheel` builds the installable package (code + shipped models) into build/wheel/;
+# `make bench` times the main job's stages on this machine (a few minutes).
+.PHONY: setup demo test lint bench wheel
 
 setup:
 	bash scripts/setup.sh
@@ -12,3 +14,15 @@ test: setup
 
 lint: setup
 	.venv/bin/ruff check .
+
+bench: setup
+	.venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --checkpoint mvracklay-disc-4
+	.venv/bin/python benchmarks/bench_stitch.py --sequences 2
+	.venv/bin/python benchmarks/bench_long_aisle.py --frames 1000 --no-memory
+
+# a fresh build folder each time: setuptools copies into build/lib without clearing it, so a module
+# deleted since the last build would otherwise still ship
+wheel: setup
+	rm -rf build
+	.venv/bin/python -m pip wheel . --no-deps --no-build-isolation -q -w build/wheel
+	@ls -l build/wheel/*.whl
