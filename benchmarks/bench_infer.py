@@ -28,11 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
+from mvracklay.options import add_fuse_option, add_precision_option, add_roll_option  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference import frozen  # noqa: E402
-from network.inference.fusion import add_fuse_option  # noqa: E402
 from network.inference.predictor import Predictor  # noqa: E402
-from network.inference.roll import add_roll_option  # noqa: E402
 from network.model.net import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
 
 
@@ -97,7 +96,7 @@ def main() -> int:
         action="store_true",
         help="run the network's modules, not its frozen graphs (network/inference/frozen.py), to see what they buy",
     )
-    frozen.add_precision_option(ap)
+    add_precision_option(ap)
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     try:

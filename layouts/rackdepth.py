@@ -20,20 +20,6 @@ from layouts.errors import InputError
 from layouts.raster import fill_rect
 from layouts.spec import LayoutSpec
 
-#: the ``--rack-depth`` option's help, shared by the commands that take it
-RACK_DEPTH_HELP = (
-    "known rack depth in metres (racking spec sheet or one tape measure): each shelf's top-view footprint is "
-    "redrawn that deep and its boxes move with the front edge; the model's own reading of the depth is its "
-    "largest top-view error; unset, the layouts keep the depth the model reads"
-)
-
-#: the ``--no-depth-read`` option's help, shared by the commands that offer it
-NO_DEPTH_READ_HELP = (
-    "keep the depths the top-view decoder draws; by default a model with a back-edge head reads the rack depth "
-    "from the shelf boards' back edges over the frames so far and redraws the top views at it, and a model with "
-    "a box-depth head moves each box's back to the depth the frames so far showed"
-)
-
 
 def check_rack_depth(depth: float, spec: LayoutSpec | None = None, name: str = "--rack-depth") -> float:
     """``depth`` as a float if it is a positive number of metres (and, given ``spec``, fits its top view),

@@ -26,7 +26,6 @@ off.
 
 from __future__ import annotations
 
-import argparse
 import copy
 import sys
 import warnings
@@ -37,7 +36,7 @@ from weakref import WeakKeyDictionary
 import torch
 from torch import nn
 
-from network.precision import PRECISIONS, check_precision, cpu_has_native_bf16
+from network.precision import check_precision, cpu_has_native_bf16
 
 
 class Part(NamedTuple):
@@ -73,18 +72,6 @@ def set_precision(model: nn.Module, precision: str) -> None:
     the module docstring) wherever its graphs apply; one line naming the option when it is neither."""
     check_precision(precision)
     model.graph_precision = precision
-
-
-PRECISION_HELP = (
-    "the trunk's arithmetic at inference on the CPU: fp32 or bf16, where the CPU computes bf16 natively "
-    "(AVX512-BF16, AMX) the trunk in about half the time (a frame ~1.2x as fast), its features ~1.5 %% off fp32's; "
-    "emulated and far slower elsewhere"
-)
-
-
-def add_precision_option(p: argparse.ArgumentParser, more: str = "") -> None:
-    """``--precision`` (`set_precision`) for a command that runs a trained network (``more``: added to its help)."""
-    p.add_argument("--precision", choices=PRECISIONS, default="fp32", help=PRECISION_HELP + more)
 
 
 def precision_warning(precision: str) -> str | None:

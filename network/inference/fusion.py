@@ -18,7 +18,6 @@ layouts' X extent is dropped from the running sums (a camera that turns back sta
 
 from __future__ import annotations
 
-import argparse
 import copy
 import math
 from collections.abc import Sequence
@@ -33,21 +32,6 @@ from network.model.net import shift_columns
 #: frames; each neighbour's weight is exp(-frames apart / tau); chosen on the tuning sets (what a bare
 #: ``--fuse-frames`` gives; off by default: the stitched maps lose by it, docs/network.md)
 FUSE_TAU = 1.0
-#: the ``--fuse-frames`` option's help, one text for every command that offers it
-FUSE_HELP = (
-    "average each frame's layouts with its neighbours' along the row, shifted by the camera motion read from the "
-    f"images, weights exp(-frames apart / TAU) (TAU {FUSE_TAU:g} when none is given; off by default). Measured: "
-    "+0.2-0.9 top box mIoU held out, but the stitched maps lose 0.01-0.03 box precision and recall at TAU 1"
-)
-
-
-def add_fuse_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--fuse-frames [TAU]`` on a command: 0 (off) unless given, `FUSE_TAU` when given bare."""
-    p.add_argument(
-        "--fuse-frames", type=float, nargs="?", const=FUSE_TAU, default=0.0, metavar="TAU", help=prefix + FUSE_HELP
-    )
-
-
 def check_tau(tau: float, name: str = "fuse_tau") -> float:
     """``tau`` as a float, or an InputError naming ``name`` (the argument or option)."""
     if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau) or tau < 0:

@@ -42,18 +42,6 @@ from network.model.net import MVRackLay, board_peaks, head_outputs
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
 HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax")
-#: the options' help, one text for every command that offers it
-WHOLE_SEQUENCE_HELP = (
-    "read the rack depth and box depths from every frame of the sequence, not only the frames so far "
-    "(offline: layouts come once the whole sequence is read, ~0.3 MB held per frame; measured +0.2-1.4 top "
-    "rack, +0.3-1.5 top box mIoU)"
-)
-#: the ``--flip-average`` option's help, one text for every command that offers it
-FLIP_HELP = (
-    "also run every frame mirrored left-right and average the logits (test-time flip; measured on the "
-    "held-out set: +0.3 to +0.8 mIoU per view and class, at half the frame rate)"
-)
-
 #: frame index -> (intrinsics or None for the default 60 deg camera, camera-to-rack distance in metres)
 CameraFn = Callable[[int], tuple[Intrinsics | None, float]]
 #: one frame's canonical image ``(1, 3, H, W)``, its shelf anchors ``(1, R)`` (None: the row head's) and the

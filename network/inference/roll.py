@@ -37,7 +37,6 @@ wrong moves the levelled frame along the row.
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import numpy as np
@@ -500,35 +499,6 @@ class CameraLeveller:
         """The angles read from the frames, by name (``{"roll": [...]}``), frame by frame."""
         lists = (self.rolls, self.pitches, self.yaws)
         return {w: list(v) for w, v, r in zip(ANGLES, lists, self.read) if r}
-
-
-ROLL_HELP = (
-    "the camera's roll about its optical axis, levelled before the network: 'auto' reads it from the frames "
-    "(the edges of boards, uprights and boxes), a number gives it in degrees (the image turned counter-clockwise), "
-    "0 takes the camera as level. Default (as for --pitch and --yaw): a generated sequence's recorded angle (0 "
-    "unless its config turned the camera), auto for other footage"
-)
-
-
-PITCH_HELP = (
-    "the camera's pitch, levelled before the network: 'auto' reads it from the frames (the uprights' lean "
-    "across the image), a number gives it in degrees (optical axis tilted up > 0; e.g. from the mount or an "
-    "IMU), 0 takes it as level. Default as --roll"
-)
-
-
-YAW_HELP = (
-    "the camera's yaw, levelled before the network: 'auto' reads it from the frames (the boards' convergence), "
-    "a number gives it in degrees (turned right > 0, away from square to the racks; e.g. from the mount), 0 "
-    "takes it as level. Default as --roll"
-)
-
-
-def add_roll_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--roll``, ``--pitch``, ``--yaw`` (``auto|DEG``; None unless given: `resolve_angles` picks the source's default)."""
-    p.add_argument("--roll", default=None, metavar="auto|DEG", help=prefix + ROLL_HELP)
-    p.add_argument("--pitch", default=None, metavar="auto|DEG", help=prefix + PITCH_HELP)
-    p.add_argument("--yaw", default=None, metavar="auto|DEG", help=prefix + YAW_HELP)
 
 
 def resolve_angles(
