@@ -1,0 +1,178 @@
+"""Recipes of `mvracklay train --recipe`: the shipped ones check and dry-run, a bad one is refused up front
+with one line per problem (file, stage, key), overrides, and the budget's arithmetic."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from layouts.errors import InputError
+from mvracklay.cli import main
+from mvracklay.training import budget
+from mvracklay.training.recipe import load_recipe, parse_value, shipped_recipes
+from mvracklay.training.stages import STAGE_MODULES, option_actions
+
+GOOD = """
+description = "two stages"
+precision = "fp32"
+[vars]
+run = "{out}/net"
+epochs = ""
+[data.train]
+folder = "{out}/data"
+sequences = 2
+frames = 4
+size = 64
+seed = 1
+[[stages]]
+stage = "train"
+minutes = 0.5
+[stages.options]
+data = ["{data.train}"]
+out = "{run}"
+[[stages]]
+stage = "fit-box-depth"
+minutes = "budget"
+[stages.options]
+checkpoint = "{run}/best.pt"
+data = ["{data.train}"]
+epochs = "{epochs}"
+parallax = true
+[budget]
+total = 10
+margin = 1
+fit_ratio = {bf16 = 1, fp32 = 3}
+count = ["train"]
+"""
+
+
+def dry_run(recipe: str, out: Path, capsys, *extra: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    rc = main(["train", "--recipe", recipe, "--out", str(out), "--dry-run", *extra])
+    got = capsys.readouterr()
+    return rc, got.out, got.err
+
+
+def test_the_shipped_recipes_check_and_dry_run(tmp_path, capsys) -> None:
+    assert {"smoke", "default-128", "default-256", "budget-256"} <= set(shipped_recipes())
+    for name in shipped_recipes():
+        rc, out, err = dry_run(name, tmp_path / name, capsys)
+        assert rc == 0, err
+        assert out.startswith(f"recipe {name} ") and "train --data" in out
+        assert all("--resume" in line for line in out.splitlines() if line.strip().startswith("train --data"))
+    rc, out, _ = dry_run(
+        "budget-256", tmp_path / "b", capsys, "--set", "stage.stage2.minutes=0.3", "--set", "precision=fp32"
+    )
+    assert "--minutes 0.3" in out and "--precision fp32" in out and "--pass-minutes <budget>" in out
+    assert "<budget> = (120 - minutes spent - 1.5) / (1 + 1.3)" in out  # fp32's fit ratio
+    assert "racklay256-stage1.pt + stage2 + rack-heads + box-depth" in out
+    assert not (tmp_path / "b").exists()  # a dry run writes nothing
+
+
+def test_a_recipe_file_runs_by_path_and_empty_values_leave_the_stage_default(tmp_path, capsys) -> None:
+    path = tmp_path / "mine.toml"
+    path.write_text(GOOD)
+    rc, out, err = dry_run(str(path), tmp_path / "r", capsys)
+    assert rc == 0, err
+    assert f"generate {tmp_path}/r/data --sequences 2 --frames 4 --size 64 --seed 1" in out
+    box = next(line for line in out.splitlines() if line.strip().startswith("fit-box-depth"))
+    assert "--epochs" not in box and "--parallax" in box  # an empty var: the stage's own default
+    assert "(10 - minutes spent - 1) / (1 + 3)" in out
+    rc, out, _ = dry_run(str(path), tmp_path / "r", capsys, "--set", "vars.epochs=3", "--set", "data.train.seed=9")
+    assert rc == 0 and "--epochs 3" in out and "--seed 9" in out
+
+
+def test_a_bad_recipe_is_refused_with_one_line_per_problem(tmp_path, capsys) -> None:
+    path = tmp_path / "bad.toml"
+    text = GOOD.replace('precision = "fp32"', 'precision = "fp32"\ncolour = 1')
+    text = text.replace("parallax = true", "parallax = true\nwarp-speed = 9\nepochs-x = 1")
+    text = text.replace('[[stages]]\nstage = "train"', '[[stages]]\nstage = "train"\nwhen = 1')
+    text = text.replace("seed = 1", "seed = 1\nshape = 2")
+    text += '\n[[stages]]\nstage = "teleport"\n'
+    path.write_text(text)
+    rc, out, err = dry_run(str(path), tmp_path / "r", capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and out == ""
+    assert any("unknown key 'colour'" in ln for ln in lines)
+    assert any("data 'train': unknown key 'shape'" in ln for ln in lines)
+    assert any("stage 1 (train): unknown key 'when'" in ln for ln in lines)
+    assert len(lines) == 3 and all(str(path) in ln for ln in lines)  # structure first, all of it at once
+    path.write_text(
+        GOOD.replace("parallax = true", "parallax = true\nwarp-speed = 9") + '[[stages]]\nstage = "teleport"\n'
+    )
+    rc, _, err = dry_run(str(path), tmp_path / "r", capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 2 and all(str(path) in ln for ln in lines)
+    assert "stage 2 (fit-box-depth): unknown option 'warp-speed'" in lines[0]
+    assert "stage 3 (teleport): unknown stage 'teleport'" in lines[1]
+
+
+@pytest.mark.parametrize(
+    ("change", "words"),
+    [
+        (("parallax = true", "parallax = 3"), "option 'parallax' is a switch"),
+        (('out = "{run}"', 'out = "{nowhere}"'), "unknown placeholder {nowhere}"),
+        (("minutes = 0.5", 'minutes = "lots"'), "key 'minutes'"),
+        (('count = ["train"]', 'count = ["training"]'), "'training' is no stage id or group"),
+        (('[[stages]]\nstage = "fit-box-depth"', '[[stages]]\nstage = "fit-box-depth"\nid = "train"'), "id 'train'"),
+        (('epochs = "{epochs}"', 'epochs = "many"'), "argument --epochs: invalid int value"),
+    ],
+)
+def test_each_kind_of_problem_names_its_key(tmp_path, change, words) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(GOOD.replace(*change))
+    from mvracklay.training.runner import run_recipe
+
+    with pytest.raises(InputError, match=r"bad\.toml") as e:
+        run_recipe(str(path), tmp_path / "r", [], dry_run=True)
+    assert words in str(e.value)
+
+
+def test_overrides_and_training_options_with_a_recipe(tmp_path, capsys) -> None:
+    for bad, words in (
+        ("stage.nope.lr=1", "no stage with id 'nope'"),
+        ("vars.nope=1", "no var 'nope'"),
+        ("colour=red", "not precision, workers"),
+        ("novalue", "not PATH=VALUE"),
+    ):
+        rc, _, err = dry_run("smoke", tmp_path / "r", capsys, "--set", bad)
+        assert rc == 2 and words in err and len(err.strip().splitlines()) == 1, err
+    rc, _, err = dry_run("smoke", tmp_path / "r", capsys, "--lr", "0.1")
+    assert rc == 2 and "--lr: not with --recipe" in err
+    rc, _, err = dry_run("no-such-recipe", tmp_path / "r", capsys)
+    assert rc == 2 and "no-such-recipe" in err and "smoke" in err
+    assert main(["train", "--out", str(tmp_path / "r"), "--set", "vars.x=1"]) == 2
+    assert parse_value("0.3") == 0.3 and parse_value("[1, 2]") == [1, 2] and parse_value("a/b.pt") == "a/b.pt"
+    assert parse_value("{bf16 = 1, fp32 = 2}") == {"bf16": 1, "fp32": 2}
+
+
+def test_the_budget_shares_the_minutes_left_between_the_pass_and_the_fit(tmp_path) -> None:
+    rule = {"total": 120, "margin": 1.5, "prior": ["{w}"], "count": ["stage2", "rack-heads"]}
+    (tmp_path / "w.json").write_text(json.dumps({"train_wall_minutes": 80.0}))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "last.json").write_text(json.dumps({"train_wall_minutes": 7.0}))
+    parts = budget.spent(rule, lambda v: str(tmp_path / "w.pt"), {"stage2": str(run)}, {"rack-heads": 10.0})
+    assert parts == {"prior:w.pt": 80.0, "stage2": 7.0, "rack-heads": 10.0, "total": 97.0}
+    assert budget.pass_minutes(rule, 0.95, parts["total"]) == pytest.approx((120 - 97 - 1.5) / 1.95)
+    with pytest.raises(InputError, match="118.6 of 120 minutes spent, none left"):
+        budget.pass_minutes(rule, 0.95, 118.6)
+    line = budget.write_record(rule, parts, tmp_path / "budget.json")
+    assert (
+        line.startswith("97.0 of 120 minutes spent")
+        and json.loads((tmp_path / "budget.json").read_text())["budget"] == 120
+    )
+    with pytest.raises(InputError, match="over the budget of 120"):
+        budget.write_record(rule, {**parts, "total": 121.0}, None)
+
+
+def test_every_stage_has_a_parser_whose_options_have_help() -> None:
+    for name in STAGE_MODULES:
+        actions = option_actions(name)
+        assert actions and all((a.help or "").strip() for a in actions.values()), name
+    with pytest.raises(InputError, match="unknown stage 'nope'"):
+        option_actions("nope")
+    recipe = load_recipe("smoke")
+    assert [s.id for s in recipe.stages][:3] == ["train", "calibrate", "back-edges"]
