@@ -12,7 +12,7 @@ from layouts import BOX
 from layouts.boxdepth import box_parts, impose_box_backs
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
-from mvracklay.cli import main
+from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, FRONT_BINS, BoxDepthHead, BoxDepthReader, front_reading, reading, split_logits
 from network.inference.evaluate import box_depth_source
@@ -121,8 +121,8 @@ def test_the_head_learns_fronts(tiny_checkpoint, tiny_dataset, tmp_path):
 
 def test_fit_box_depth_front_round_trips_and_moves_the_fronts(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
     out = tmp_path / "front.pt"
-    args = ["fit-box-depth", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--front"]
-    assert main([*args, "--epochs", "1", "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--front"]
+    assert run_stage("fit-box-depth", [*args, "--epochs", "1", "--out", str(out), "--threads", "1", "--quiet"]) == 0
     payload, record = load_checkpoint(out)
     assert record["model_config"]["box_front"] is True and record["box_depth"]["front"] is True
     model = load_model(out)[0]

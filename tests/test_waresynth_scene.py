@@ -89,8 +89,8 @@ def test_block_fill_matches_exact_ray_casting():
 
 
 def test_shipped_no_sparse_config_never_draws_the_sparse_preset():
-    """scripts/configs/no_sparse.json (the budget script's BOX_CONFIG) keeps the other presets and drops sparse."""
-    path = Path(__file__).resolve().parents[1] / "scripts" / "configs" / "no_sparse.json"
+    """mvracklay/recipes/no_sparse.json (a generator config for budget-256's box scenes) drops the sparse preset."""
+    path = Path(__file__).resolve().parents[1] / "mvracklay" / "recipes" / "no_sparse.json"
     drawn = {_scene(seed, config=path)[0].density for seed in range(40)}
     assert "sparse" not in drawn
     assert len(drawn) >= 2
