@@ -32,7 +32,8 @@ from mvracklay.options import add_fuse_option, add_precision_option, add_roll_op
 from network.checkpoint import load_model  # noqa: E402
 from network.inference import frozen  # noqa: E402
 from network.inference.predictor import Predictor  # noqa: E402
-from network.model.net import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+from network.model.config import VARIANTS, ModelConfig  # noqa: E402
+from network.model.net import MVRackLay  # noqa: E402
 
 
 def sync(device: torch.device) -> None:

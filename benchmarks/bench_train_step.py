@@ -27,7 +27,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import VIEWS, LayoutSpec  # noqa: E402
-from network.model.net import VARIANTS, ModelConfig, MVRackLay  # noqa: E402
+from network.model.config import VARIANTS, ModelConfig  # noqa: E402
+from network.model.net import MVRackLay  # noqa: E402
 from network.precision import PRECISIONS, forward_autocast  # noqa: E402
 from network.training.losses import row_loss, supervised_loss  # noqa: E402
 

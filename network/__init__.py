@@ -1,10 +1,23 @@
-"""The MVRackLay network: model, losses, training, Table I evaluation and streaming inference.
+"""The MVRackLay network: the model, its depth heads, streaming inference, and training.
 
-Entry points: `network.model.net.MVRackLay` / `ModelConfig` / `VARIANTS`, `network.training.trainer.Trainer`,
-`network.inference.evaluate.evaluate_sequences`, `network.inference.predictor.Predictor`, `network.checkpoint`
-(`load_model`, `save_checkpoint`, `export_weights`). See docs/network.md.
+Subpackages, each importing only those before it (tests/test_network_layers.py checks the arrows):
+
+* `network.model` – the network itself: `config` (`ModelConfig`, `VARIANTS`), `net` (`MVRackLay`), its
+  parts (`resnet` encoder, `decoders`, `memory` with `convlstm`, `discriminator`) and the camera motion read
+  from the images (`motion`).
+* `network.heads` – the heads that read depth (`backedge`, `uprights`: the rack depth; `boxdepth` with the
+  plane sweep of `parallax`: each box's depth) and the readers that carry their readings along the row.
+* `network.inference` – running a model: `predictor` (`Predictor`), `decision` (the record's calibrated
+  offsets), `frozen` (CPU graphs), `fusion` (frame fusion), `roll` (camera levelling), `evaluate` (Table I).
+* `network.training` – making one: `trainer` (`Trainer`), `losses`, `distributed`, `curves`, `toy`,
+  `calibrate`, and the fits of the heads on a frozen model (`fit_backedge`, `fit_uprights`, `fit_boxdepth`,
+  whose inputs come from `head_inputs`).
+
+On top: `network.data` (datasets and the canonical warp), `network.checkpoint` (`load_model`,
+`save_checkpoint`, `export_weights`) and `network.precision`. See docs/network.md.
 """
 
-from network.model.net import DEFAULT_VARIANT, VARIANTS, ModelConfig, MVRackLay
+from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
+from network.model.net import MVRackLay
 
 __all__ = ["DEFAULT_VARIANT", "VARIANTS", "ModelConfig", "MVRackLay"]

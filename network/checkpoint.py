@@ -22,7 +22,8 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes, atomic_write_json
 from network.inference.decision import check_depth_offset, check_offsets
-from network.model.net import ModelConfig, MVRackLay
+from network.model.config import ModelConfig
+from network.model.net import MVRackLay
 
 FORMAT = "mvracklay-checkpoint"
 FORMAT_VERSION = 1

@@ -29,7 +29,8 @@ from network.heads.backedge import (
     frame_depth_scores,
 )
 from network.inference.predictor import Predictor, frame_layouts
-from network.model.net import ModelConfig, MVRackLay
+from network.model.config import ModelConfig
+from network.model.net import MVRackLay
 from network.training.fit_backedge import FitConfig, cache_features, train_head
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset

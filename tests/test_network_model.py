@@ -9,7 +9,10 @@ from tiny_net import cached_and_naive_windows, tiny_config
 
 from layouts import VIEWS, InputError, LayoutSpec
 from network.inference.predictor import predict_layouts
-from network.model.net import VARIANTS, ModelConfig, MVRackLay, anchors_from_rows, build_discriminators
+from network.model.config import VARIANTS, ModelConfig
+from network.model.decoders import anchors_from_rows
+from network.model.discriminator import build_discriminators
+from network.model.net import MVRackLay
 from network.model.resnet import ResNet18Encoder, load_imagenet_weights
 
 SPEC = LayoutSpec(num_slots=2, size=16)

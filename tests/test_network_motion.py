@@ -11,8 +11,10 @@ from layouts import VIEWS, InputError
 from layouts.canonical import CanonicalView
 from layouts.spec import LayoutSpec
 from network.inference.predictor import Predictor
+from network.model.config import ModelConfig
+from network.model.memory import shift_columns
 from network.model.motion import MAX_SHIFT, camera_shift, motion_signature
-from network.model.net import ModelConfig, MVRackLay, shift_columns
+from network.model.net import MVRackLay
 from network.training.fit_boxdepth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
 from network.training.toy import ToySequence
@@ -233,7 +235,7 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
         return shift
 
     monkeypatch.setattr("network.inference.predictor.camera_shift", counted("infer"))
-    monkeypatch.setattr("network.model.net.camera_shift", counted("model"))
+    monkeypatch.setattr("network.model.memory.camera_shift", counted("model"))
     got = list(HeadInputPredictor(model, read_depth=False).stream(frames))
     assert calls == {"infer": 4, "model": 0}
     for g, w in zip(got, want):

@@ -13,7 +13,9 @@ from tiny_net import tiny_config
 from layouts import InputError, LayoutSpec
 from network.checkpoint import export_weights, init_weights_from, load_checkpoint, load_model, save_checkpoint
 from network.inference.evaluate import evaluate_sequences
-from network.model.net import ModelConfig, MVRackLay, build_discriminators
+from network.model.config import ModelConfig
+from network.model.discriminator import build_discriminators
+from network.model.net import MVRackLay
 from network.training.toy import ToySequence
 from network.training.trainer import TrainConfig, Trainer
 

@@ -9,7 +9,7 @@ from tiny_net import tiny_config
 from layouts import InputError, LayoutSpec
 from layouts.canonical import CanonicalView
 from network.heads.parallax import RATIOS, box_mean3, plane_sweep, relative_costs, shifted_costs
-from network.model.net import RETIRED_FLAGS, ModelConfig
+from network.model.config import RETIRED_FLAGS, ModelConfig
 
 VIEW = CanonicalView(64, 32, 3.0)
 

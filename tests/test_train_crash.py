@@ -16,7 +16,7 @@ from tiny_net import tiny_config
 from layouts import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
-from network.model.net import ModelConfig
+from network.model.config import ModelConfig
 from network.training.trainer import TrainConfig, Trainer, open_data
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,8 @@ import torch
 
 from layouts import InputError
 from network.checkpoint import load_checkpoint, load_model
-from network.model.net import ModelConfig, build_discriminators
+from network.model.config import ModelConfig
+from network.model.discriminator import build_discriminators
 from network.training.distributed import DistEnv, device_for, rank_indices, single_process_device
 from network.training.trainer import weights_fingerprint
 

@@ -10,7 +10,7 @@ from test_network_train import seqs, tiny
 
 from layouts import InputError
 from network.checkpoint import load_checkpoint
-from network.model.net import ModelConfig
+from network.model.config import ModelConfig
 from network.training.trainer import TrainConfig, Trainer
 
 

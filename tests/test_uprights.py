@@ -16,7 +16,8 @@ from network.checkpoint import load_checkpoint, load_model
 from network.heads.backedge import DepthReader, depth_hypotheses
 from network.heads.uprights import REAR_FACE, UprightHead, column_offsets, upright_depth_scores
 from network.inference.predictor import Predictor
-from network.model.net import ModelConfig, MVRackLay
+from network.model.config import ModelConfig
+from network.model.net import MVRackLay
 from network.training.fit_backedge import FitConfig
 from network.training.fit_uprights import cache_features, train_head, upright_targets
 from stitching.warehouse_map import WarehouseMap

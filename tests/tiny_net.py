@@ -9,7 +9,7 @@ TINY_NET: list[str] = [
 
 def tiny_config(spec, variant: str = "mvracklay-disc-4", **options):
     """The `ModelConfig` of `TINY_NET` for ``spec`` (64x64 input), with model ``options`` (e.g. ``parallax``)."""
-    from network.model.net import ModelConfig
+    from network.model.config import ModelConfig
 
     return ModelConfig(
         variant=variant,

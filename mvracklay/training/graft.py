@@ -18,7 +18,7 @@ from typing import Any
 
 from layouts.errors import InputError
 from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint
-from network.model.net import ModelConfig
+from network.model.config import ModelConfig
 
 #: (model-config flag, state-dict prefix, record key) of each head fitted after training
 HEADS = (

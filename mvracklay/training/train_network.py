@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from layouts.errors import InputError
-from network.model.net import DEFAULT_VARIANT, VARIANTS, ModelConfig
+from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
 from network.training.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
 from network.training.trainer import TrainConfig, Trainer, default_model_config, open_data

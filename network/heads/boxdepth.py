@@ -142,7 +142,7 @@ def head_inputs(
 ) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
     """One frame's head inputs: window ``(R, c1 + 3 [+ P], WINDOW_ROWS, W)`` and extras ``(R, D + 2, D)``, float32.
 
-    ``window``: ``(R, c1, WINDOW_ROWS, W)`` 1/2-map samples (`network.model.net.SlotHeads.window`);
+    ``window``: ``(R, c1, WINDOW_ROWS, W)`` 1/2-map samples (`network.model.decoders.SlotHeads.window`);
     ``top``/``front``: ``(R, 3, D, D)`` logits (box offsets applied); ``anchors``: ``(R,)`` canonical rows
     (NaN: no slot); ``distance``: camera to rack front, metres; ``parallax``: `ParallaxHistory` maps
     sampled the same way, ``(R, P, WINDOW_ROWS, W)`` (option `box_parallax`). Rounded through fp16, as

@@ -3,7 +3,7 @@
 A stretch of shelf is seen from several viewpoints as the camera passes, and each view errs a little
 differently. Each frame's decided logits (both views, every slot) are averaged with those of the
 frames before it (and, over a recorded sequence, after it), each shifted by the camera's motion
-along the row into the frame's own columns (`network.model.net.shift_columns`: the layout frame moves
+along the row into the frame's own columns (`network.model.memory.shift_columns`: the layout frame moves
 with the camera) and weighted by ``exp(-|frames apart| / tau)`` over the columns each frame saw. A
 short ``tau`` (1 frame, `FUSE_TAU`: weights 1, 0.37, 0.14, ...) keeps what this frame shows in charge
 and the camera motion read from the images (`network.model.motion`) precise enough: that reading drifts
@@ -27,7 +27,7 @@ import torch.nn.functional as F
 
 from layouts import VIEWS
 from layouts.errors import InputError
-from network.model.net import shift_columns
+from network.model.memory import shift_columns
 
 #: frames; each neighbour's weight is exp(-frames apart / tau); chosen on the tuning sets (what a bare
 #: ``--fuse-frames`` gives; off by default: the stitched maps lose by it, docs/network.md)

@@ -36,8 +36,9 @@ from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_i
 from network.inference.decision import apply_box_offset
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
+from network.model.decoders import board_peaks
 from network.model.motion import camera_shift, motion_signature
-from network.model.net import MVRackLay, board_peaks, head_outputs
+from network.model.net import MVRackLay, head_outputs
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``

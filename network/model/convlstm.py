@@ -3,7 +3,7 @@
 `StackedConvLSTM.step` advances one frame carrying the state; windows and streaming both run
 through it, so streaming inference (one encoder pass per frame) gives exactly the outputs of a
 window over the same prefix. The model runs it over each shelf slot's layout-space
-features (`network.model.net.SlotMemory`).
+features (`network.model.memory.SlotMemory`).
 """
 
 from __future__ import annotations

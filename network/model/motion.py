@@ -23,7 +23,7 @@ On the 24 held-out sequences (`research/motion_estimate.py data/heldout128`) thi
 0.4 cm per frame (median) and reads 0.996 of the camera's path (median), where one Hann-windowed
 correlation of the whole image was off by 2.3 cm and read 0.75.
 It needs no pose, so prediction on a user's footage uses it as training does. The slot memory
-(`network.model.net.SlotMemory`) shifts its state by it before each frame.
+(`network.model.memory.SlotMemory`) shifts its state by it before each frame.
 """
 
 from __future__ import annotations

@@ -26,7 +26,8 @@ from layouts.errors import InputError
 from network.data import board_rows, row_target
 from network.heads.backedge import BackEdgeHead, DepthReader, back_edge_rows
 from network.inference.predictor import Predictor, sequence_camera
-from network.model.net import MVRackLay, board_peaks
+from network.model.decoders import board_peaks
+from network.model.net import MVRackLay
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,8 @@ from network.heads.boxdepth import (
     split_logits,
 )
 from network.inference.predictor import sequence_camera
-from network.model.net import ModelConfig, MVRackLay
+from network.model.config import ModelConfig
+from network.model.net import MVRackLay
 from network.precision import check_precision, forward_autocast
 from network.training.head_inputs import HeadInputPredictor
 

@@ -37,7 +37,9 @@ from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
 from network.data import WindowDataset, check_jpeg
 from network.inference.evaluate import evaluate_sequences, score
-from network.model.net import ModelConfig, MVRackLay, build_discriminators
+from network.model.config import ModelConfig
+from network.model.discriminator import build_discriminators
+from network.model.net import MVRackLay
 from network.model.resnet import load_imagenet_weights
 from network.precision import check_precision, forward_autocast
 from network.training.distributed import (
