@@ -248,7 +248,10 @@ class Runner:
                 self.rows.append(Row(n, st.stage.name, st.stage.id, f"skipped: {st.skip_reason}"))
                 continue
             lanes.setdefault(st.stage.id if st.stage.lane is None else st.stage.lane, []).append((n, st))
-        if not lanes:
+        if not lanes:  # all finished before; a kill between the last and the group's record leaves it unset
+            if group not in self.state.read()["groups"]:
+                done = [self.state.finished(st.stage.id) for _, st in unit]
+                self.state.mark_group(group, max((d["minutes"] for d in done if d), default=0.0))
             return
         try:
             lanes = {k: [(n, self.resolved(st)) for n, st in v] for k, v in lanes.items()}
