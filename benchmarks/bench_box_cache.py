@@ -1,8 +1,8 @@
 """Speed of the box-depth head's cache pass: frames/s streamed and slots kept per second.
 
-`mvracklay fit-box-depth` spends most of its minutes streaming the frozen network over the training
+The `fit-box-depth` stage of a training recipe spends most of its minutes streaming the frozen network over the training
 scenes (`network.training.fit_boxdepth.cache_inputs`); the scenes a fixed number of minutes holds is what the
-head's quality follows (docs/network.md, *The heads inside the training budget*). This times that pass
+head's quality follows (docs/training.md, *The budget (budget-256)*). This times that pass
 alone on the first ``--sequences`` scenes of ``--data``, streaming their first ``--frames`` frames and
 keeping the slots from ``--from-frame`` on, as the fit does; the best of ``--repeats`` passes is the
 figure least disturbed by other processes. ``--workers N`` splits the pass over N processes of one

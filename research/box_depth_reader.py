@@ -3,7 +3,7 @@
 
     .venv/bin/python research/box_depth_reader.py CKPT --eval data/heldout256 [--sequences N] [--every 2]
 
-CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`, `network.heads.boxdepth`).
+CKPT is a checkpoint with the box-depth head (the `fit-box-depth` stage of a training recipe, `network.heads.boxdepth`).
 `research/box_top_faces.py` measured, on the shipped predictions, that the true depth of every box
 whose depth the frame shows (any face) would lift the 256x256 top box from 66.8 to 75.0, and of every
 box some frame so far showed, to 81.2; this prints how much of that the head reads.
@@ -76,7 +76,7 @@ def run(model, seqs, every: int) -> list[dict]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("checkpoint", type=Path, help="a checkpoint with the box-depth head (mvracklay fit-box-depth)")
+    ap.add_argument("checkpoint", type=Path, help="a checkpoint with the box-depth head (fit-box-depth stage)")
     ap.add_argument("--eval", type=Path, required=True, help="generated evaluation scenes (depth, instance, scene)")
     ap.add_argument("--sequences", type=int, default=None, help="only the first N evaluation sequences")
     ap.add_argument("--every", type=int, default=2, help="score every N-th frame (all frames are run)")
@@ -85,7 +85,7 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     model, _ = load_model(args.checkpoint)
     if model.box_depth is None:
-        ap.error(f"{args.checkpoint}: no box-depth head (fit one with mvracklay fit-box-depth)")
+        ap.error(f"{args.checkpoint}: no box-depth head (a training recipe's fit-box-depth stage fits one)")
     seqs = open_dataset(args.eval).sequences()[: args.sequences]
     frames = run(model.eval(), seqs, args.every)
     print(f"{args.eval}: {len(frames)} frames of {len(seqs)} sequences; top view, mIoU")

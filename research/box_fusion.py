@@ -3,7 +3,7 @@
 
     .venv/bin/python research/box_fusion.py CKPT DATA [--mode window] [--sequences N]
 
-CKPT is a checkpoint with the box-depth head (`mvracklay fit-box-depth`). The model runs once over
+CKPT is a checkpoint with the box-depth head (a training recipe's `fit-box-depth` stage). The model runs once over
 DATA (as `mvracklay evaluate`: the rack depth read, windowed by default); each frame's head logits
 and camera step are kept, and every rule below rebuilds the carried backs from them, over the frames
 so far and over the whole sequence, then scores the top view (columns in view, mIoU):
@@ -20,7 +20,7 @@ so far and over the whole sequence, then scores the top view (columns in view, m
   frames have not shown the depth enough yet, instead of the decoder's (box depths are drawn apart from
   anything a frame shows, so before one shows it a constant is the best guess it could make).
 
-A head that reads fronts (`fit-box-depth --front`) has its fronts carried and imposed as the
+A head that reads fronts (the `fit-box-depth` stage's `--front`) has its fronts carried and imposed as the
 pipeline does, under every rule.
 
 Every rule gives each box one back, boxes side by side in one component told apart where the front
@@ -158,7 +158,7 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     model, _ = load_model(args.checkpoint)
     if model.box_depth is None:
-        ap.error(f"{args.checkpoint}: no box-depth head (fit one with mvracklay fit-box-depth)")
+        ap.error(f"{args.checkpoint}: no box-depth head (a training recipe's fit-box-depth stage fits one)")
     seqs = open_dataset(args.data).sequences(None)[: args.sequences]
     runs = []
     for seq in tqdm(seqs, desc="sequences"):

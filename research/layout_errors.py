@@ -37,7 +37,7 @@ the test of `layout_ceilings.py`): in this frame, only in an earlier one, or nev
 read well where this frame sees it but not where only an earlier frame did points at the memory;
 read badly in both, at the per-frame reading. ``--read-depth`` scores the layouts after the
 checkpoint's depth heads redraw them (what `mvracklay evaluate` scores by default) instead of the
-decoder's own; for a box-depth head that reads fronts (`fit-box-depth --front`) it adds a line with the
+decoder's own; for a box-depth head that reads fronts (the `fit-box-depth` stage's `--front`) it adds a line with the
 decoder's box fronts kept (the head's backs and rack depth still applied): what the head's fronts are worth.
 """
 

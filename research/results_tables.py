@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Print the README's results tables (Markdown) from the JSON files `scripts/train_default.sh` writes.
+"""Print the README's results tables (Markdown) from the JSON files the default-128 recipe writes.
 
     .venv/bin/python research/results_tables.py runs
 

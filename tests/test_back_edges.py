@@ -1,5 +1,5 @@
 """The rack depth read from the boards' back edges: geometry, the reader, the head in the model,
-inference that imposes it, and `mvracklay fit-back-edges`."""
+inference that imposes it, and the `fit-back-edges` stage."""
 
 from __future__ import annotations
 

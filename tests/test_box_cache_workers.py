@@ -1,5 +1,5 @@
 """The box-depth head's streamed pass split over processes (`network.training.fit_boxdepth.cache_part`) and
-`mvracklay fit-box-depth --cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
+the `fit-box-depth` stage's `--cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
 fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own; a pass
 cut by the clock (--pass-minutes) fits on what it streamed."""
 

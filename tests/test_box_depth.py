@@ -1,5 +1,5 @@
 """Each box's depth read by a head and carried along the row: the redraw, the carried map, the head in
-the model and inference, the fit, and `mvracklay fit-box-depth`."""
+the model and inference, the fit, and the `fit-box-depth` stage."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """A box-depth head that also reads each box's front: the logits' layout, the fronts imposed on the
-top view, carried along the row, fitted, and round-tripped through `mvracklay fit-box-depth --front`."""
+top view, carried along the row, fitted, and round-tripped through the `fit-box-depth` stage's `--front`."""
 
 from __future__ import annotations
 

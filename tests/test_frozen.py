@@ -111,7 +111,7 @@ def test_changed_weights_rebuild_the_graph(monkeypatch):
 
 
 def test_a_head_fitted_on_the_frozen_trunk_rebuilds_its_graph_alone(monkeypatch):
-    """As `mvracklay fit-box-depth` does: only the box-depth head's weights move; its graph follows them."""
+    """As the `fit-box-depth` stage does: only the box-depth head's weights move; its graph follows them."""
     model = _model(box_depth=True)
     win = torch.rand(3, model.box_depth.c2d, 8, 32)
     extra = torch.rand(3, model.box_depth.c1d, model.cfg.spec.size)

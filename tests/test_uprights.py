@@ -1,5 +1,5 @@
 """The rack depth read from the rear uprights: geometry, the head in the model, the reader (alone and
-with the back edges), the targets from the generator, the fit and `mvracklay fit-uprights`."""
+with the back edges), the targets from the generator, the fit and the `fit-uprights` stage."""
 
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ raised to its shown probability (`RowMap`), the camera's X summed from the steps
 (NaN where the frames have not shown it enough yet); `network.inference.predictor.frame_layouts` moves every predicted box's back
 there (`layouts.boxdepth.impose_box_backs`).
 
-A head fitted with fronts (``front``; `mvracklay fit-box-depth --front`) also gives, per column, a
+A head fitted with fronts (``front``; the `fit-box-depth` stage's `--front`) also gives, per column, a
 distribution over the box's front behind the rack front (`FRONT_BINS`: the stack's setback, a few
 centimetres the decoder reads loosely); the reader fuses those the same way, every frame counting once
 (a front shows in every frame that sees the box), and each frame's ``"box_front"`` ``(R, D)`` moves

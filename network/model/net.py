@@ -154,7 +154,7 @@ class MVRackLay(nn.Module):
         """The box-depth head's logits on `network.heads.boxdepth.head_inputs` (at inference on the CPU through
         its frozen graph, `network.inference.frozen`)."""
         if self.box_depth is None:
-            raise InputError("this model has no box-depth head (mvracklay fit-box-depth adds one)")
+            raise InputError("this model has no box-depth head (the fit-box-depth stage of a training recipe adds one)")
         return frozen.run(self, "box_depth", _box_head, win, extra)
 
     def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
