@@ -221,7 +221,7 @@ def test_inspect_says_the_camera_is_turned(turned_dataset):
 
 
 def test_a_racklay_export_carries_the_rotation(turned_dataset, tmp_path):
-    from waresynth.exporters import export_racklay, load_racklay_export
+    from waresynth.exporters.racklay import export_racklay, load_racklay_export
 
     out = export_racklay(turned_dataset[1], tmp_path / "rl", progress=False)
     seqs = load_racklay_export(out).sequences()

@@ -15,18 +15,11 @@ from layouts.fileio import atomic_save_npy
 from mvracklay.cli import main
 from waresynth import semantics
 from waresynth.dataset import open_dataset
-from waresynth.exporters import (
-    CATEGORIES,
-    MIN_COMPONENT_PIXELS,
-    export_dataset,
-    frame_objects,
-    instance_table,
-    load_racklay_export,
-    mask_bbox,
-    mask_to_rle,
-    rle_counts,
-    yolo_box,
-)
+from waresynth.exporters import export_dataset
+from waresynth.exporters.coco import mask_to_rle, rle_counts
+from waresynth.exporters.objects import CATEGORIES, MIN_COMPONENT_PIXELS, frame_objects, instance_table, mask_bbox
+from waresynth.exporters.racklay import load_racklay_export
+from waresynth.exporters.yolo import yolo_box
 
 
 @pytest.fixture(scope="module")

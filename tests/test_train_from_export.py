@@ -16,7 +16,8 @@ from mvracklay.cli import main
 from network.data import WindowDataset
 from network.training.trainer import open_data
 from waresynth.dataset import open_dataset
-from waresynth.exporters import RACKLAY_CAMERAS, RACKLAY_MANIFEST, export_dataset
+from waresynth.exporters import export_dataset
+from waresynth.exporters.racklay import RACKLAY_CAMERAS, RACKLAY_MANIFEST
 
 
 @pytest.fixture(scope="module")

@@ -143,7 +143,7 @@ def open_data(root: str | Path):
     ``spec``, ``image_size`` and ``sequences(split)``; one-line error if it is neither."""
     # the dataset readers are the one allowed waresynth import
     from waresynth.dataset import open_dataset
-    from waresynth.exporters import RACKLAY_MANIFEST, load_racklay_export
+    from waresynth.exporters.racklay import RACKLAY_MANIFEST, load_racklay_export
 
     root = Path(root)
     if not root.is_dir():
