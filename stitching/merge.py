@@ -9,18 +9,7 @@ the camera path, one `StepRecord` per frame (``MergeConfig.keep_steps = None``, 
 (`stitching.xindex.XIndex`), so a frame's cost depends on what is near it, not on how much of the
 row is already mapped (time grows linearly with the frame count on a long aisle).
 
-Fusion rules per box (frame boxes are matched to map boxes of the same slot one-to-one by the
-Hungarian assignment on footprint overlap, each extent normalised by the smaller box so a box cut
-by the image border still matches its whole self):
-
-* an edge seen whole (not cut) is averaged over its whole observations; an edge only ever seen
-  cut grows outwards (min / max) as more of the box comes into view, but never makes the box
-  wider than the layout's X extent (a longer "box" is a merged blob, not a box);
-* the oriented footprint (centre, width, depth, yaw) averages whole observations only;
-* depth range, height and confidence average all observations (cut ones weigh less);
-* a map box counts how often it was inside the visible range (``seen``) and how often it was
-  observed; boxes observed in fewer than ``min_support`` of those frames are dropped at the end
-  (noise blobs of single frames), as are boxes never observed whole with a low confidence.
+Each map box is a `stitching.fused_box.FusedBox` (its fusion rules are described there).
 """
 
 from __future__ import annotations
@@ -35,12 +24,12 @@ from scipy.optimize import linear_sum_assignment
 
 from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
+from stitching.fused_box import FusedBox, dedup_boxes
 from stitching.lift import FrameBox, FrameReconstruction
 from stitching.shift import Edges, ShiftConfig, correlate_shift, vote_offset
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
 from stitching.xindex import XIndex
 
-CUT_WEIGHT = 0.3
 RACK_SLOT = 1000  # slot code offset for rack-end edges, so they only pair with rack ends
 
 
@@ -102,122 +91,6 @@ class StepStats:
         }
 
 
-class _Box:
-    """Accumulator of one map box (global X)."""
-
-    __slots__ = (
-        "slot",
-        "x0",
-        "x1",
-        "nl",
-        "nr",
-        "z0",
-        "z1",
-        "wz",
-        "h",
-        "n_full",
-        "cx",
-        "cz",
-        "w",
-        "d",
-        "c4",
-        "s4",
-        "n_obs",
-        "n_seen",
-        "conf",
-        "ident",
-    )
-
-    def __init__(self, fb: FrameBox, off: float):
-        self.slot = fb.slot
-        self.x0, self.x1 = fb.x0 + off, fb.x1 + off
-        self.nl = 0 if fb.cut_left else 1
-        self.nr = 0 if fb.cut_right else 1
-        self.z0 = self.z1 = self.h = self.wz = 0.0
-        self.n_full = 0
-        self.cx = self.cz = self.w = self.d = self.c4 = self.s4 = 0.0
-        self.n_obs = 0
-        self.n_seen = 1
-        self.conf = 0.0
-        self.ident = -1  # position in its slot's box list (set by MapBuilder)
-        self._fuse_common(fb, off)
-
-    @property
-    def width(self) -> float:
-        return self.x1 - self.x0
-
-    @property
-    def depth(self) -> float:
-        return self.z1 - self.z0
-
-    def _fuse_common(self, fb: FrameBox, off: float) -> None:
-        whole = not (fb.cut_left or fb.cut_right)
-        wt = 1.0 if whole else CUT_WEIGHT
-        t = self.wz + wt
-        self.z0 = (self.z0 * self.wz + fb.z0 * wt) / t
-        self.z1 = (self.z1 * self.wz + fb.z1 * wt) / t
-        self.h = (self.h * self.wz + fb.height * wt) / t
-        self.wz = t
-        self.n_obs += 1
-        self.conf += fb.confidence
-        if whole:
-            yaw, w, d = fb.yaw, fb.w, fb.d
-            if self.n_full:
-                # Align to the running yaw modulo 90 degrees (a rectangle's yaw is ambiguous there).
-                mean = math.atan2(self.s4, self.c4) / 4
-                k = round((yaw - mean) / (math.pi / 2))
-                yaw -= k * math.pi / 2
-                if k % 2:
-                    w, d = d, w
-            n = self.n_full
-            self.cx = (self.cx * n + fb.cx + off) / (n + 1)
-            self.cz = (self.cz * n + fb.cz) / (n + 1)
-            self.w = (self.w * n + w) / (n + 1)
-            self.d = (self.d * n + d) / (n + 1)
-            self.c4 += math.cos(4 * yaw)
-            self.s4 += math.sin(4 * yaw)
-            self.n_full = n + 1
-
-    def fuse(self, fb: FrameBox, off: float) -> None:
-        x0, x1 = fb.x0 + off, fb.x1 + off
-        if not fb.cut_left:
-            self.x0 = x0 if self.nl == 0 else (self.x0 * self.nl + x0) / (self.nl + 1)
-            self.nl += 1
-        elif self.nl == 0:
-            self.x0 = min(self.x0, x0)
-        if not fb.cut_right:
-            self.x1 = x1 if self.nr == 0 else (self.x1 * self.nr + x1) / (self.nr + 1)
-            self.nr += 1
-        elif self.nr == 0:
-            self.x1 = max(self.x1, x1)
-        self._fuse_common(fb, off)
-
-    def limit_width(self, max_w: float, min_w: float) -> None:
-        """Keep the X extent within ``[min_w, max_w]``: a cut edge stops growing at ``max_w`` (whole
-        edges hold); edges averaged from different observations never cross (at least ``min_w``)."""
-        if self.x1 - self.x0 < min_w:
-            c = (self.x0 + self.x1) / 2
-            self.x0, self.x1 = c - min_w / 2, c + min_w / 2
-            return
-        if self.x1 - self.x0 <= max_w:
-            return
-        if self.nl and not self.nr:
-            self.x1 = self.x0 + max_w
-        elif self.nr and not self.nl:
-            self.x0 = self.x1 - max_w
-        else:
-            c = (self.x0 + self.x1) / 2
-            self.x0, self.x1 = c - max_w / 2, c + max_w / 2
-
-    def cuboid_params(self) -> tuple[float, float, float, float, float]:
-        """(cx, cz, w, d, yaw) of the fused footprint."""
-        if self.n_full:
-            yaw = math.atan2(self.s4, self.c4) / 4
-            if abs(yaw) > 1e-3:
-                return self.cx, self.cz, self.w, self.d, yaw
-        return (self.x0 + self.x1) / 2, (self.z0 + self.z1) / 2, self.width, self.depth, 0.0
-
-
 class MapBuilder:
     """Streaming stitcher: call `add` once per frame in order, then `build` for the `WarehouseMap`."""
 
@@ -234,7 +107,7 @@ class MapBuilder:
         self.board_thickness = board_thickness
         R = spec.num_slots
         self.dx = spec.x_extent / spec.size
-        self.boxes: list[list[_Box]] = [[] for _ in range(R)]
+        self.boxes: list[list[FusedBox]] = [[] for _ in range(R)]
         # Shelf evidence strip: bins of width dx, global bin index = g0 + position.
         self.g0 = 0
         self.votes = np.zeros((R, 0), np.int32)
@@ -308,12 +181,12 @@ class MapBuilder:
                 rows.append((slot + RACK_SLOT, side, x, math.nan, 0.0, 0.0, 0.0, n))
         return _edges(rows)
 
-    def _boxes_near(self, r: int, lo: float, hi: float) -> list[_Box]:
+    def _boxes_near(self, r: int, lo: float, hi: float) -> list[FusedBox]:
         """Slot ``r``'s map boxes that may overlap ``[lo, hi]`` (a superset), in creation order."""
         boxes = self.boxes[r]
         return [boxes[i] for i in self._box_index[r].query(lo - self._max_w, hi)]
 
-    def _add_box(self, r: int, m: _Box) -> None:
+    def _add_box(self, r: int, m: FusedBox) -> None:
         m.ident = len(self.boxes[r])
         self._box_index[r].add(m.ident, m.x0)
         self.boxes[r].append(m)
@@ -409,7 +282,7 @@ class MapBuilder:
             self._merge_slot(r, fbs, near, off)
         return step
 
-    def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[_Box], off: float) -> None:
+    def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[FusedBox], off: float) -> None:
         if not fbs:
             return
         matched: dict[int, int] = {}
@@ -434,7 +307,7 @@ class MapBuilder:
                 # A second piece of an already matched box (a split detection): fuse, never duplicate.
                 m = near[int(np.argmax(score[i]))]
             else:
-                self._add_box(r, _Box(f, off))
+                self._add_box(r, FusedBox(f, off))
                 continue
             m.fuse(f, off)
             m.limit_width(self.spec.x_extent, self.dx)
@@ -504,10 +377,10 @@ class MapBuilder:
                 rack_ranges.append((x0, x1))
         # Board heights from the fused clear heights: H_0 = 0, H_{r+1} = H_r + clear_r + thickness.
         boards = np.concatenate([[0.0], np.cumsum(self.clear + self.board_thickness)])[:R]
-        boxes_out: list[list[tuple[float, _Box]]] = [[] for _ in range(len(rack_ranges))]
+        boxes_out: list[list[tuple[float, FusedBox]]] = [[] for _ in range(len(rack_ranges))]
         rack_starts = [x0 for x0, _ in rack_ranges]
         for r in range(R):
-            for m in _dedup(self.boxes[r], cfg.match_score):
+            for m in dedup_boxes(self.boxes[r], cfg.match_score):
                 if m.n_obs < cfg.min_support * max(m.n_seen, 1):
                     continue
                 mean_conf = m.conf / m.n_obs
@@ -548,34 +421,6 @@ class MapBuilder:
         meta = dict(meta or {})
         meta.setdefault("step_summary", self.step_stats.to_dict())
         return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta)
-
-
-def _overlap(a: _Box, b: _Box) -> float:
-    ix = min(a.x1, b.x1) - max(a.x0, b.x0)
-    iz = min(a.z1, b.z1) - max(a.z0, b.z0)
-    if ix <= 0 or iz <= 0:
-        return 0.0
-    return ix / max(min(a.width, b.width), 1e-6) * iz / max(min(a.depth, b.depth), 1e-6)
-
-
-def _dedup(boxes: list[_Box], thr: float) -> list[_Box]:
-    """Drop boxes that overlap a better-observed box by ``thr`` or more (kept box absorbs the count).
-
-    The host is the first kept box (in keeping order) that overlaps enough; only kept boxes whose
-    X range can overlap are tested (an X index), so this is near-linear in the number of boxes.
-    """
-    order = sorted(boxes, key=lambda m: (-m.n_obs, m.x0))
-    kept: list[_Box] = []
-    index = XIndex()
-    max_w = max((m.width for m in boxes), default=0.0)
-    for m in order:
-        host = next((kept[i] for i in index.query(m.x0 - max_w, m.x1) if _overlap(kept[i], m) >= thr), None)
-        if host is None:
-            index.add(len(kept), m.x0)
-            kept.append(m)
-        else:
-            host.n_seen = max(host.n_seen, m.n_seen)
-    return sorted(kept, key=lambda m: m.x0)
 
 
 def _nearest_range(ranges: list[tuple[float, float]], starts: list[float], x: float) -> int:

@@ -3,8 +3,9 @@
 Every exporter (modules `coco`, `yolo` and `racklay`; the frame objects they annotate in `objects`,
 the staging folder and other shared parts in `staging`) reads the dataset with
 `waresynth.dataset.open_dataset`, builds the whole export in a temporary sibling folder and renames
-it into place at the end, so an interrupted run leaves no half export under the final name. Output bytes depend only on the dataset (no dates, no absolute
-paths, sorted JSON keys), so the same dataset always exports to the same bytes.
+it into place at the end, so an interrupted run leaves no half export under the final name. Output
+bytes depend only on the dataset (no dates, no absolute paths, sorted JSON keys), so the same
+dataset always exports to the same bytes.
 
 Formats (see docs/export.md for the folder trees):
 
