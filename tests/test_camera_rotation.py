@@ -14,7 +14,7 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from waresynth.config import load_config
 from waresynth.render import Renderer
-from waresynth.scene import build_scene
+from waresynth.scene_builder import build_scene
 
 INTR = Intrinsics.from_fov(96, 72, 60.0)
 

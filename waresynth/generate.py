@@ -33,7 +33,7 @@ from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
 from waresynth.render import Renderer
-from waresynth.scene import build_scene
+from waresynth.scene_builder import build_scene
 
 SPLITS = ("train", "val", "test")
 MANIFEST = "manifest.json"

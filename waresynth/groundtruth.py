@@ -1,7 +1,7 @@
 """Ground-truth layouts per frame, rasterised from the scene model with `layouts.raster.fill_rect`.
 
 Slot r is the r-th visible shelf level counted from the lowest (visibility rule in
-docs/conventions.md, see `waresynth.scene.level_visible`). Top view: each rack's board footprint
+docs/conventions.md, see `waresynth.scene_builder.level_visible`). Top view: each rack's board footprint
 (x range x depth) is shelf, each stack's yawed footprint is box. Front view: board x range x
 clear height (the window clips it at ``h_extent``) is shelf; each stack's x extent (of its yawed
 footprint) x its stack height is box.

@@ -1,0 +1,421 @@
+"""Sampling of a `waresynth.scene.Scene`: the rack row, its boxes, the background, lighting and camera path.
+
+Everything is built from one ``numpy.random.Generator`` and the effective config, so a sequence seed
+fully determines its scene. The stages of `build_scene` draw from the generator in a fixed order
+(row and camera, racks, background, floor and wall, light and sensor, camera rotation, motion blur):
+changing that order changes every generated dataset.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from layouts.camera import Intrinsics
+from layouts.camera_record import CAMERA_ANGLE_KEYS
+from layouts.errors import InputError
+from waresynth import semantics as sem
+from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
+
+
+def _u(rng: np.random.Generator, r: list[float]) -> float:
+    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
+
+
+def _i(rng: np.random.Generator, r: list[int]) -> int:
+    return int(rng.integers(int(r[0]), int(r[1]) + 1))
+
+
+def _colour(rng: np.random.Generator, palette: list[list[float]], jitter: float) -> tuple[float, float, float]:
+    base = np.asarray(palette[int(rng.integers(len(palette)))], np.float64) / 255.0
+    c = np.clip(base * (1.0 + rng.uniform(-jitter, jitter, 3)), 0.0, 1.0)
+    return (float(c[0]), float(c[1]), float(c[2]))
+
+
+def _choice(rng: np.random.Generator, items: list[str]) -> str:
+    return items[int(rng.integers(len(items)))]
+
+
+def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: float, clear: float) -> bool:
+    """Generator rule: the board edge (h = 0) and half the clear height project inside the image rows."""
+    for h in (0.0, clear / 2):
+        v = intr.cy + intr.fy * (cam_height - level - h) / distance
+        if not 0.0 <= v < intr.height:
+            return False
+    return True
+
+
+class _Builder:
+    """Accumulates parts, materials and instance ids while the scene is built."""
+
+    def __init__(self) -> None:
+        self.parts: list[Part] = []
+        self.materials: list[Material] = []
+        self.instances: list[dict[str, Any]] = []
+
+    def material(self, m: Material) -> int:
+        self.materials.append(m)
+        return len(self.materials) - 1
+
+    def instance(self, obj_id: str, semantic: int) -> int:
+        iid = len(self.instances) + 1
+        if iid > 65535:
+            raise InputError("scene has more than 65535 objects; reduce the row length (frames x step)")
+        self.instances.append({"instance_id": iid, "id": obj_id, "semantic": sem.SEMANTIC_NAMES[semantic]})
+        return iid
+
+    def cuboid(self, center, size, semantic: int, instance: int, material: int, yaw: float = 0.0) -> None:
+        self.parts.append(
+            Part(
+                tuple(float(c) for c in center), tuple(float(s) for s in size), float(yaw), semantic, instance, material
+            )
+        )
+
+
+# ----------------------------------------------------------------------------- row
+def _sample_levels(rng: np.random.Generator, cfg: dict[str, Any]) -> tuple[list[float], float, float]:
+    rc = cfg["rack"]
+    n = _i(rng, rc["levels"])
+    thickness = _u(rng, rc["board_thickness"])
+    levels = [_u(rng, rc["first_level"])]
+    for _ in range(n - 1):
+        levels.append(levels[-1] + _u(rng, rc["spacing"]))
+    top = levels[-1] + _u(rng, rc["top_clearance"])
+    return levels, thickness, top
+
+
+def _clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
+    out = []
+    for k, lv in enumerate(levels):
+        nxt = levels[k + 1] - thickness if k + 1 < len(levels) else top
+        out.append(nxt - lv)
+    return out
+
+
+def _place_boxes(
+    rng: np.random.Generator,
+    b: _Builder,
+    cfg: dict[str, Any],
+    preset: dict[str, Any],
+    shelf: Shelf,
+    x_lo: float,
+    x_hi: float,
+    z_front: float,
+    depth: float,
+    level: float,
+    semantic: int,
+    record: bool,
+    shared_instance: int,
+) -> None:
+    """Fill one board left to right with stacks whose yawed footprints stay on the board."""
+    bc = cfg["boxes"]
+    cursor = x_lo + _u(rng, preset["gap"])
+    n_stack = 0
+    limit = shelf.clear_height - bc["head_room"]
+    while True:
+        w, d, h = _u(rng, bc["width"]), _u(rng, bc["depth"]), _u(rng, bc["height"])
+        yaw = math.radians(_u(rng, [-bc["yaw_deg"], bc["yaw_deg"]])) if rng.random() < bc["yaw_probability"] else 0.0
+        setback = _u(rng, bc["setback"])
+        c, s = abs(math.cos(yaw)), abs(math.sin(yaw))
+        # Keep the footprint on the board: shrink the depth if needed.
+        max_hz = (depth - setback - 0.02) / 2
+        if 0.5 * (s * w + c * d) > max_hz:
+            d = max((2 * max_hz - s * w) / max(c, 1e-6), 0.0)
+        hx = 0.5 * (c * w + s * d)
+        hz = 0.5 * (s * w + c * d)
+        if cursor + 2 * hx > x_hi:
+            break
+        empty = rng.random() < preset["empty_probability"]
+        count = 1
+        while count < bc["max_stack"] and rng.random() < preset["stack_probability"]:
+            count += 1
+        if h > limit:
+            h = limit
+        count = max(1, min(count, int(limit // h))) if h > 0 else 0
+        if not empty and d >= 0.05 and h >= 0.05:
+            cx, cz = cursor + hx, z_front + setback + hz
+            stack_id = f"{shelf.id}/stack_{n_stack:03d}"
+            colour = _colour(rng, bc["colours"], bc["colour_jitter"])
+            pattern = PATTERNS[_choice(rng, bc["textures"])]
+            refl = _u(rng, bc["reflectance"])
+            mat = b.material(Material(colour, pattern, refl, w))
+            for k in range(count):
+                bid = f"{shelf.id}/box_{len(shelf.boxes):03d}"
+                center = (cx, -(level + (k + 0.5) * h), cz)
+                iid = b.instance(bid, semantic) if record else shared_instance
+                b.cuboid(center, (w, h, d), semantic, iid, mat, yaw)
+                if record:
+                    shelf.boxes.append(Box(bid, center, (w, h, d), yaw, stack_id, k, iid))
+            n_stack += 1
+        cursor += 2 * hx + _u(rng, preset["gap"])
+
+
+def _build_rack_parts(
+    rng: np.random.Generator,
+    b: _Builder,
+    cfg: dict[str, Any],
+    preset: dict[str, Any],
+    rack: Rack,
+    levels: list[float],
+    thickness: float,
+    top: float,
+    uw: float,
+    rack_mat: int,
+    board_mat: int,
+    semantics: tuple[int, int, int],
+    record: bool,
+    shared_instance: int = 0,
+) -> None:
+    """Uprights, top beams, boards and boxes of one rack (the mapped row or a background rack)."""
+    rack_sem, shelf_sem, box_sem = semantics
+    x0, x1, zf, dp = rack.x_min, rack.x_max, rack.z_front, rack.depth
+    beam = 0.08
+    height = top + beam
+    rid = rack.instance_id if record else shared_instance
+    # Uprights stand 3 mm proud of the boards and beams are slimmer, so no two faces are coplanar
+    # (coplanar faces would make the semantic/instance ids at their overlap arbitrary).
+    proud = 0.003
+    for x in (x0 + uw / 2, x1 - uw / 2):
+        for z in (zf + uw / 2, zf + dp - uw / 2):
+            b.cuboid((x, -height / 2, z), (uw + 2 * proud, height, uw + 2 * proud), rack_sem, rid, rack_mat)
+    for z in (zf + uw / 2, zf + dp - uw / 2):
+        b.cuboid(((x0 + x1) / 2, -(top + beam / 2), z), (x1 - x0 - 2 * uw, beam, uw * 0.8), rack_sem, rid, rack_mat)
+    clears = _clear_heights(levels, thickness, top)
+    for k, (lv, ch) in enumerate(zip(levels, clears)):
+        sid = f"{rack.id}/shelf_{k:02d}"
+        iid = b.instance(sid, shelf_sem) if record else shared_instance
+        shelf = Shelf(sid, k, -lv, thickness, ch, iid)
+        b.cuboid(
+            ((x0 + x1) / 2, -(lv - thickness / 2), zf + dp / 2), (x1 - x0, thickness, dp), shelf_sem, iid, board_mat
+        )
+        _place_boxes(
+            rng, b, cfg, preset, shelf, x0 + uw + 0.03, x1 - uw - 0.03, zf, dp, lv, box_sem,
+            record, shared_instance,
+        )  # fmt: skip
+        if record:
+            rack.shelves.append(shelf)
+
+
+@dataclass
+class _Row:
+    """The mapped row as sampled: shared shelf heights, the racks along X and what the background reuses."""
+
+    levels: list[float]
+    thickness: float
+    top: float
+    depth: float
+    upright_width: float = 0.0
+    preset: dict[str, Any] = field(default_factory=dict)  #: the box-density preset drawn for the scene
+    density: str = ""
+    board_mat: int = -1
+    racks: list[Rack] = field(default_factory=list)
+    gaps: list[tuple[float, float]] = field(default_factory=list)  #: X ranges between neighbouring racks
+
+
+def _sample_row_camera(
+    rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intrinsics, frames: int
+) -> tuple[_Row, Camera, list[int]]:
+    """Row heights (shared by every rack of the row), a camera that sees 1..R of them, and its path."""
+    cc, rc = cfg["camera"], cfg["rack"]
+    for _ in range(200):
+        levels, thickness, top = _sample_levels(rng, cfg)
+        clears = _clear_heights(levels, thickness, top)
+        distance = _u(rng, cc["distance"])
+        cam_h = _u(rng, cc["height"])
+        visible = [k for k in range(len(levels)) if level_visible(intrinsics, cam_h, distance, levels[k], clears[k])]
+        if visible:
+            break
+    else:
+        raise InputError("config: camera.height/distance and rack levels never make a shelf visible; widen the ranges")
+    depth = _u(rng, rc["depth"])
+    step = _u(rng, cc["step"]) * (-1.0 if rng.random() < cc["reverse_probability"] else 1.0)
+    cam_z = Z_FRONT - distance
+    xs = np.arange(frames, dtype=np.float64) * step + 0.0  # no -0.0
+    positions = np.stack([xs, np.full(frames, -cam_h), np.full(frames, cam_z)], axis=1)
+    return _Row(levels, thickness, top, depth), Camera(intrinsics, cam_h, distance, step, positions), visible
+
+
+def _build_row(rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: _Row, camera: Camera) -> None:
+    """Racks along X covering the view of every frame (the row end may show at either end)."""
+    rc = cfg["rack"]
+    xs, intrinsics = camera.positions[:, 0], camera.intrinsics
+    half_view = (camera.distance + row.depth) * intrinsics.width / (2 * intrinsics.fx)
+    x_start = float(xs.min()) - half_view - _u(rng, [-0.8, 2.0])
+    x_end = float(xs.max()) + half_view + _u(rng, [-0.8, 2.0])
+    weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in sorted(cfg["boxes"]["density"])], np.float64)
+    row.density = sorted(cfg["boxes"]["density"])[int(rng.choice(len(weights), p=weights / weights.sum()))]
+    row.preset = cfg["boxes"]["density"][row.density]
+    rack_colour = _colour(rng, rc["colours"], rc["colour_jitter"])
+    rack_mat = b.material(Material(rack_colour, PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05))
+    row.board_mat = b.material(
+        Material(_colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS["wood"], 0.05, 1.0)
+    )
+    row.upright_width = _u(rng, rc["upright_width"])
+    x = x_start
+    while x < x_end:
+        width = _u(rng, rc["width"])
+        rid = f"rack_{len(row.racks):02d}"
+        rack = Rack(rid, x, x + width, Z_FRONT, row.depth, b.instance(rid, sem.RACK))
+        _build_rack_parts(
+            rng, b, cfg, row.preset, rack, row.levels, row.thickness, row.top, row.upright_width, rack_mat,
+            row.board_mat, (sem.RACK, sem.SHELF, sem.BOX), True,
+        )  # fmt: skip
+        row.racks.append(rack)
+        gap = _u(rng, rc["wide_gap"]) if rng.random() < rc["wide_gap_probability"] else _u(rng, rc["gap"])
+        row.gaps.append((x + width, x + width + gap))
+        x += width + gap
+    row.gaps.pop()
+
+
+def _build_background(
+    rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: _Row
+) -> tuple[bool, list[dict[str, Any]], float]:
+    """A bare wall close behind, or a busy warehouse (background racks, props, far wall); props beside the
+    row ends either way. Returns (busy, the clutter records, the wall's Z before it makes room)."""
+    rc, bgc = cfg["rack"], cfg["background"]
+    row_x0, row_x1 = row.racks[0].x_min, row.racks[-1].x_max
+    busy = rng.random() < bgc["busy_probability"]
+    clutter: list[dict[str, Any]] = []
+    back = Z_FRONT + row.depth
+    wall_z = back + _u(rng, bgc["busy_wall_distance"] if busy else bgc["wall_distance"])
+
+    def prop(kind: str, center, size, yaw: float = 0.0) -> None:
+        cid = f"clutter_{len(clutter):03d}"
+        iid = b.instance(cid, sem.CLUTTER)
+        col = _colour(rng, cfg["boxes"]["colours"] + rc["board_colours"], 0.15)
+        mat = b.material(Material(col, PATTERNS["noise"], 0.05, 0.3))
+        b.cuboid(center, size, sem.CLUTTER, iid, mat, yaw)
+        clutter.append(
+            {"id": cid, "kind": kind, "center": [float(v) for v in center], "size": [float(v) for v in size],
+             "yaw": float(yaw), "instance_id": iid}
+        )  # fmt: skip
+
+    if busy:
+        bz = back + _u(rng, bgc["background_rack_distance"])
+        bdepth = min(_u(rng, rc["depth"]), max(wall_z - bz - 0.2, 0.3))
+        blevels, bthick, btop = _sample_levels(rng, cfg)
+        bmat = b.material(Material(_colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS["plain"], 0.3, 0.05))
+        bx = row_x0 - _u(rng, [0.0, 2.0])
+        while bx < row_x1 + 2.0:
+            width = _u(rng, rc["width"])
+            cid = f"clutter_{len(clutter):03d}"
+            iid = b.instance(cid, sem.CLUTTER)
+            brack = Rack(cid, bx, bx + width, bz, bdepth, iid)
+            _build_rack_parts(
+                rng, b, cfg, row.preset, brack, blevels, bthick, btop, row.upright_width, bmat, row.board_mat,
+                (sem.CLUTTER, sem.CLUTTER, sem.CLUTTER), False, iid,
+            )  # fmt: skip
+            clutter.append(
+                {"id": cid, "kind": "background_rack", "center": [bx + width / 2, -(btop + 0.08) / 2, bz + bdepth / 2],
+                 "size": [width, btop + 0.08, bdepth], "yaw": 0.0, "instance_id": iid}
+            )  # fmt: skip
+            bx += width + _u(rng, rc["gap"])
+        for g0, g1 in row.gaps:
+            for _ in range(_i(rng, bgc["props_per_gap"])):
+                w, h, d = _u(rng, [0.3, 1.0]), _u(rng, [0.2, 1.2]), _u(rng, [0.3, 0.8])
+                zc = back + 0.2 + d / 2 + _u(rng, [0.0, max(bz - back - 0.4 - d, 0.0)])
+                prop("prop", ((g0 + g1) / 2 + _u(rng, [-0.5, 0.5]), -h / 2, zc), (w, h, d), _u(rng, [-0.5, 0.5]))
+    for end, sign in ((row_x0, -1.0), (row_x1, 1.0)):
+        for _ in range(_i(rng, bgc["end_props"])):
+            w, h, d = _u(rng, [0.4, 1.2]), _u(rng, [0.15, 1.5]), _u(rng, [0.4, 1.2])
+            xc = end + sign * (0.3 + w / 2 + _u(rng, [0.0, 2.5]))
+            zc = Z_FRONT + 0.2 + d / 2 + _u(rng, [0.0, max(wall_z - Z_FRONT - 0.5 - d, 0.0)])
+            prop("end_prop", (xc, -h / 2, zc), (w, h, d), _u(rng, [-0.6, 0.6]))
+    return busy, clutter, wall_z
+
+
+def _build_floor_wall(
+    rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: _Row, camera: Camera, wall_z: float
+) -> list[dict[str, Any]]:
+    """Floor and back wall: large thin cuboids with procedural textures. Nothing may stand behind
+    the wall (the renderer treats it as the farthest surface), so it moves back if needed."""
+    far = max(
+        p.center[2] + 0.5 * (abs(math.sin(p.yaw)) * p.size[0] + abs(math.cos(p.yaw)) * p.size[2]) for p in b.parts
+    )
+    wall_z = max(wall_z, far + 0.05)
+    fc, wc = cfg["floor"], cfg["wall"]
+    xs = camera.positions[:, 0]
+    row_x0, row_x1 = row.racks[0].x_min, row.racks[-1].x_max
+    span0, span1 = min(row_x0, float(xs.min())) - 40.0, max(row_x1, float(xs.max())) + 40.0
+    walls: list[dict[str, Any]] = []
+    fid = b.instance("floor", sem.FLOOR)
+    fmat = b.material(
+        Material(
+            _colour(rng, fc["colours"], fc["colour_jitter"]),
+            PATTERNS[_choice(rng, fc["textures"])],
+            0.1,
+            _u(rng, [0.5, 1.2]),
+        )
+    )
+    fz0 = (Z_FRONT - camera.distance) - 5.0
+    fcenter, fsize = ((span0 + span1) / 2, 0.05, (fz0 + wall_z) / 2), (span1 - span0, 0.1, wall_z - fz0)
+    b.cuboid(fcenter, fsize, sem.FLOOR, fid, fmat)
+    wid = b.instance("wall_00", sem.WALL)
+    wmat = b.material(
+        Material(
+            _colour(rng, wc["colours"], wc["colour_jitter"]),
+            PATTERNS[_choice(rng, wc["textures"])],
+            0.02,
+            _u(rng, [0.8, 1.5]),
+        )
+    )
+    wall_h = 14.0
+    wcenter, wsize = ((span0 + span1) / 2, -wall_h / 2, wall_z + 0.05), (span1 - span0, wall_h, 0.1)
+    b.cuboid(wcenter, wsize, sem.WALL, wid, wmat)
+    for name, iid, c, s in (("floor", fid, fcenter, fsize), ("wall_00", wid, wcenter, wsize)):
+        walls.append({"id": name, "kind": name.split("_")[0], "center": list(c), "size": list(s), "instance_id": iid})
+    return walls
+
+
+def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intrinsics, frames: int) -> Scene:
+    """Sample a whole scene and camera path for one sequence from ``rng`` and the effective config."""
+    cc = cfg["camera"]
+    b = _Builder()
+    row, camera, visible = _sample_row_camera(rng, cfg, intrinsics, frames)
+    _build_row(rng, b, cfg, row, camera)
+    busy, clutter, wall_z = _build_background(rng, b, cfg, row)
+    walls = _build_floor_wall(rng, b, cfg, row, camera, wall_z)
+
+    xs = camera.positions[:, 0]
+    lc, sc = cfg["lighting"], cfg["sensor"]
+    light = {
+        "position": [
+            (float(xs.min()) + float(xs.max())) / 2 + _u(rng, [-2.0, 2.0]),
+            -_u(rng, lc["light_height"]),
+            Z_FRONT - _u(rng, lc["light_offset_z"]),
+        ],
+        "ambient": _u(rng, lc["ambient"]),
+        "intensity": _u(rng, lc["intensity"]),
+        "shadow_strength": _u(rng, lc["shadow_strength"]),
+    }
+    sensor = {"noise_sigma": _u(rng, sc["noise_sigma"]), "gain": _u(rng, sc["gain"])}
+    # The camera's rotation is drawn last and only from a range that is not one value (`_u`), so a
+    # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
+    camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
+    # The same for the motion blur: a sharp config draws nothing.
+    sensor["motion_blur"] = _u(rng, sc["motion_blur"])
+    row_record = {
+        "z_front": Z_FRONT,
+        "depth": row.depth,
+        "levels": row.levels,
+        "top_height": row.top,
+        "board_thickness": row.thickness,
+    }
+    return Scene(
+        row=row_record,
+        racks=row.racks,
+        camera=camera,
+        visible_levels=visible,
+        light=light,
+        sensor=sensor,
+        background="busy" if busy else "wall",
+        density=row.density,
+        parts=b.parts,
+        materials=b.materials,
+        clutter=clutter,
+        walls=walls,
+        instances=b.instances,
+    )
