@@ -14,8 +14,8 @@ wholly inside one block can be missed; ``exact=True`` casts every ray.
 Shading: Lambert from one point light plus ambient, a Blinn-Phong highlight scaled by the
 material's reflectance, shadows from shadow rays toward the light (cast from block corners and
 averaged over the corners on the same face, which softens shadow edges by a pixel), procedural
-textures computed from the hit point, exposure gain and Gaussian sensor noise. All vectorised
-numpy.
+textures computed from the hit point (`waresynth.textures`), exposure gain and Gaussian sensor
+noise. All vectorised numpy.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ import open3d as o3d
 
 from layouts.camera import Intrinsics
 from waresynth import semantics as sem
-from waresynth.scene import PATTERNS, Scene
+from waresynth.scene import Scene
+from waresynth.textures import SurfaceTables, albedo
 
 # Corner signs of a unit cube and its 12 triangles (two per face, consecutive).
 _CORNERS = np.array(
@@ -48,10 +49,6 @@ _TRIS = np.array(
 
 _MISS_COLOUR = (0.08, 0.08, 0.1)
 _INVALID = np.uint32(0xFFFFFFFF)
-#: Fixed value-noise lattice (64^3) for textures: a constant, so textures never depend on the run.
-_NOISE = np.random.default_rng(20240607).random(64**3, dtype=np.float32)
-_NOISE_SHIFT = 1 << 20  # keeps lattice coordinates positive before the integer cast
-_GRAIN = np.float32(0.94) + np.float32(0.06) * np.random.default_rng(20240608).random(256 * 256, dtype=np.float32)
 
 
 @dataclass
@@ -77,14 +74,6 @@ def cuboid_mesh(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     tris = _TRIS[None] + (np.arange(n, dtype=np.uint32) * 8)[:, None, None]
     tri_part = np.repeat(np.arange(n, dtype=np.int64), 12)
     return verts.reshape(-1, 3).astype(np.float32), tris.reshape(-1, 3), tri_part
-
-
-def _noise(x: np.ndarray, y: np.ndarray, z: np.ndarray, freq: float) -> np.ndarray:
-    """Blocky value noise in [0, 1) on a lattice of 1/freq metres."""
-    ix = (x * np.float32(freq) + _NOISE_SHIFT).astype(np.int32) & 63
-    iy = (y * np.float32(freq) + _NOISE_SHIFT).astype(np.int32) & 63
-    iz = (z * np.float32(freq) + _NOISE_SHIFT).astype(np.int32) & 63
-    return _NOISE[(ix << 12) | (iy << 6) | iz]
 
 
 #: Whether this process has built a renderer (and so may run Open3D/TBB threads): forking it is
@@ -123,13 +112,26 @@ class Renderer:
         self.block = not exact and w % 2 == 0 and h % 2 == 0
         verts, tris, tri_part = cuboid_mesh(scene)
         self.n_tris = len(tris)
+        self._init_casting(verts, tris, tri_part)
+        self._init_tables(verts, tris, tri_part)
+        self._init_rays()
+        self.light = np.array(scene.light["position"], np.float32)
+        # Sensor noise: each frame adds a random window of one Gaussian buffer per renderer.
+        # (a sub-pixel renderer, noise_seed None, adds none: its means get the pixel's noise)
+        if noise_seed is not None:
+            n_noise = 3 * w * h + 65536
+            sigma = np.float32(scene.sensor["noise_sigma"])
+            self._noise_buf = np.random.default_rng(noise_seed).standard_normal(n_noise, dtype=np.float32) * sigma
+
+    def _init_casting(self, verts: np.ndarray, tris: np.ndarray, tri_part: np.ndarray) -> None:
+        """The ray-casting scene of the casters, and the floor and wall planes cast analytically."""
         # The floor (Y = 0, below everything) and the back wall (behind everything) are planes
         # intersected analytically where a ray misses the rest; the ray-casting scene holds only
         # racks, boxes and clutter, which keeps its rays cheap. The same scene answers shadow
         # rays: they run toward a light above and in front of the row, never into floor or wall.
         self._planes: list[tuple[str, int, float, tuple[float, ...]]] = []
-        caster = np.ones(len(scene.parts), bool)
-        for i, p in enumerate(scene.parts):
+        caster = np.ones(len(self.scene.parts), bool)
+        for i, p in enumerate(self.scene.parts):
             if p.semantic in (sem.FLOOR, sem.WALL) and p.yaw == 0.0:
                 (cx, cy, cz), (sx, sy, sz) = p.center, p.size
                 if p.semantic == sem.FLOOR:  # its upper (-Y) face: triangles 4, 5
@@ -148,7 +150,10 @@ class Renderer:
         self.shadow_rs = self.rs
         self._tri_map = np.append(np.flatnonzero(keep), self.n_tris).astype(np.uint32)
 
+    def _init_tables(self, verts: np.ndarray, tris: np.ndarray, tri_part: np.ndarray) -> None:
+        """Per-triangle look-ups of the hits: ids, colours, reflectance, face normals and planes, textures."""
         # Per-triangle tables with one extra row (index n_tris) standing for "no hit".
+        scene = self.scene
         parts, mats = scene.parts, scene.materials
         tp = np.append(tri_part, 0)
 
@@ -162,15 +167,9 @@ class Renderer:
         m_idx = [p.material for p in parts]
         colour = np.array([mats[i].colour for i in m_idx], np.float32)
         ambient = max(float(scene.light["ambient"]), 1e-3)
-        self.t_col = [table(colour[:, k], np.float32, _MISS_COLOUR[k] / ambient) for k in range(3)]
-        self.t_pattern = table([mats[i].pattern for i in m_idx], np.int8)
+        t_col = [table(colour[:, k], np.float32, _MISS_COLOUR[k] / ambient) for k in range(3)]
+        t_pattern = table([mats[i].pattern for i in m_idx], np.int8)
         self.t_refl = table([mats[i].reflectance for i in m_idx], np.float32)
-        self.p_scale = np.array([mats[i].scale for i in m_idx], np.float32)
-        self.p_center = np.array([p.center for p in parts], np.float32)
-        self.p_size = np.array([p.size for p in parts], np.float32)
-        self.p_cos = np.cos([p.yaw for p in parts]).astype(np.float32)
-        self.p_sin = np.sin([p.yaw for p in parts]).astype(np.float32)
-        self.t_part = tp
         # Outward face normals and planes (n . x = d) per triangle.
         v = verts.astype(np.float64)[tris.astype(np.int64)]
         nrm = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
@@ -181,11 +180,27 @@ class Renderer:
         self.t_n = [np.append(nrm[:, k], 0.0).astype(np.float32) for k in range(3)]
         self.t_d = np.append((nrm * v[:, 0]).sum(1), 0.0)  # float64 for exact plane fills
 
+        self.surface = SurfaceTables(
+            pattern=t_pattern,
+            part=tp,
+            colour=t_col,
+            normal_z=self.t_n[2],
+            center=np.array([p.center for p in parts], np.float32),
+            size=np.array([p.size for p in parts], np.float32),
+            scale=np.array([mats[i].scale for i in m_idx], np.float32),
+            cos=np.cos([p.yaw for p in parts]).astype(np.float32),
+            sin=np.sin([p.yaw for p in parts]).astype(np.float32),
+        )
+
+    def _init_rays(self) -> None:
+        """The world ray direction of every pixel (and of the 2x2 block corners), and its depth per unit length."""
+        intrinsics = self.intr
+        w, h = intrinsics.width, intrinsics.height
         cx, cy, fx, fy = intrinsics.cx, intrinsics.cy, intrinsics.fx, intrinsics.fy
 
         # Rays are cast in the world: a camera ray d is the world ray R d (R = I for a level camera,
         # which leaves every ray exactly as it was).
-        rot = scene.camera.rotation
+        rot = self.scene.camera.rotation
 
         def directions(us: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             u, vv = np.meshgrid(us + 0.5, vs + 0.5)
@@ -199,13 +214,6 @@ class Renderer:
         self.depth_per_t = np.ascontiguousarray(forward).reshape(-1)
         if self.block:
             self.cdirs = directions(np.arange(0, w + 1, 2), np.arange(0, h + 1, 2))[0]  # (H/2+1, W/2+1, 3)
-        self.light = np.array(scene.light["position"], np.float32)
-        # Sensor noise: each frame adds a random window of one Gaussian buffer per renderer.
-        # (a sub-pixel renderer, noise_seed None, adds none: its means get the pixel's noise)
-        if noise_seed is not None:
-            n_noise = 3 * w * h + 65536
-            sigma = np.float32(scene.sensor["noise_sigma"])
-            self._noise_buf = np.random.default_rng(noise_seed).standard_normal(n_noise, dtype=np.float32) * sigma
 
     # ------------------------------------------------------------------ ray casting
     def _cast(self, origin: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -296,74 +304,6 @@ class Renderer:
         return t, prim, agree
 
     # ------------------------------------------------------------------ shading
-    def _albedo(self, prim, px, py, pz) -> list[np.ndarray]:
-        """Albedo channels (3 x (N,)) at the hit points, with the procedural textures."""
-        pat = np.take(self.t_pattern, prim)
-        present = np.bincount(pat, minlength=len(PATTERNS))
-        # Fine grain everywhere: 2 cm value noise on (x + z, y), pre-scaled to a factor 0.94..1.
-        gi = ((px + pz) * np.float32(50.0) + _NOISE_SHIFT).astype(np.int32) & 255
-        gj = (py * np.float32(50.0) + _NOISE_SHIFT).astype(np.int32) & 255
-        f = np.take(_GRAIN, (gi << 8) | gj)
-
-        def where(name):
-            return np.flatnonzero(pat == PATTERNS[name]) if present[PATTERNS[name]] else np.zeros(0, np.intp)
-
-        def local(m):
-            part = self.t_part[prim[m]]
-            qx, qz = px[m] - self.p_center[part, 0], pz[m] - self.p_center[part, 2]
-            c, s = self.p_cos[part], self.p_sin[part]
-            return part, c * qx + s * qz, py[m] - self.p_center[part, 1], -s * qx + c * qz
-
-        m = where("noise")
-        if len(m):
-            f[m] *= np.float32(0.82) + np.float32(0.18) * _noise(px[m], py[m], pz[m], 8.0)
-        m = where("tape")
-        if len(m):
-            part, lx, _, _ = local(m)
-            f[m] *= np.where(np.abs(lx) < 0.04 + 0.02 * self.p_size[part, 0], np.float32(1.18), np.float32(1.0))
-        m = where("perforated")
-        if len(m):
-            part, lx, ly, _ = local(m)
-            nz = np.abs(self.t_n[2][prim[m]])
-            holes = ((ly * 20.0) % 1.0 < 0.35) & (np.abs(lx) < self.p_size[part, 0] * 0.25) & (nz > 0.5)
-            f[m] *= np.where(holes, np.float32(0.35), np.float32(1.0))
-        m = where("wood")
-        if len(m):
-            part, _, _, lz = local(m)
-            grain = _noise(lz, np.zeros_like(lz), part.astype(np.float32), 6.0)
-            f[m] *= (0.85 + 0.15 * np.sin(lz * 45.0 + 3.0 * grain)).astype(np.float32)
-        m = where("tiles")
-        if len(m):
-            t = self.p_scale[self.t_part[prim[m]]]
-            gx, gz = px[m] / t, pz[m] / t
-            line = (np.abs(gx - np.round(gx)) * t < 0.012) | (np.abs(gz - np.round(gz)) * t < 0.012)
-            tile = _noise(np.floor(gx), np.floor(gz), np.zeros_like(gx), 1.0)
-            f[m] *= np.where(line, np.float32(0.55), np.float32(0.88) + np.float32(0.12) * tile)
-        m = where("bricks")
-        if len(m):
-            bl = 0.25 * self.p_scale[self.t_part[prim[m]]]
-            rowf = -py[m] / (bl * 0.4)
-            row = np.floor(rowf)
-            bx = px[m] / bl + 0.5 * (row % 2)
-            mortar = (rowf % 1.0 < 0.12) | (bx % 1.0 < 0.05)
-            brick = _noise(np.floor(bx), row, np.ones_like(bx), 1.0)
-            f[m] *= np.where(mortar, np.float32(1.12), np.float32(0.8) + np.float32(0.2) * brick)
-        m = where("panels")
-        if len(m):
-            q = px[m] / self.p_scale[self.t_part[prim[m]]]
-            f[m] *= (np.where(q % 1.0 < 0.02, 0.6, 1.0) * (0.92 + 0.08 * np.cos(q * 2 * np.pi * 8))).astype(np.float32)
-        cols = [np.take(tab, prim) * f for tab in self.t_col]
-        m = where("label")
-        if len(m):
-            part, lx, ly, _ = local(m)
-            w, hh = self.p_size[part, 0], self.p_size[part, 1]
-            front = self.t_n[2][prim[m]] < -0.5
-            lab = front & (np.abs(lx) < w * 0.2) & (np.abs(ly + hh * 0.1) < hh * 0.15)
-            bars = lab & ((lx * 150.0) % 1.0 < 0.5) & (ly > -hh * 0.05)
-            for ch in cols:
-                ch[m] = np.where(lab, np.where(bars, 0.1, 0.93), ch[m]).astype(np.float32)
-        return cols
-
     def render(self, position: np.ndarray, rng: np.random.Generator, motion: np.ndarray | None = None) -> Frame:
         """Render the view from world ``position`` (x, y, z); ``rng`` draws the sensor noise.
 
@@ -436,7 +376,7 @@ class Renderer:
         dx, dy, dz = self.dflat
         px, py, pz = origin[0] + t * dx, origin[1] + t * dy, origin[2] + t * dz
         nx, ny, nz = (np.take(n, prim) for n in self.t_n)
-        cols = self._albedo(prim, px, py, pz)
+        cols = albedo(self.surface, prim, px, py, pz)
 
         # Misses have t = 0 and a zero normal: no diffuse, no highlight, and the miss row of the
         # colour table is pre-divided by the ambient term, so they come out in the miss colour.
