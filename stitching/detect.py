@@ -228,6 +228,88 @@ def check_frame(top: np.ndarray, front: np.ndarray, spec: LayoutSpec, visible: n
     FrameLayouts(top, front, visible).validate(spec, name)
 
 
+def _slot_shelf(
+    spec: LayoutSpec,
+    cfg: DetectConfig,
+    r: int,
+    shelf_frac: np.ndarray,
+    nonbg_rows: np.ndarray,
+    clear: np.ndarray,
+    box_h: np.ndarray,
+    vis: tuple[int, int],
+    cut_cols: int,
+) -> SlotDetections:
+    """Slot ``r``'s shelf from its top-view column fractions and front-view clear heights (no boxes yet)."""
+    D = spec.size
+    lo, hi = vis
+    dx = spec.pixel_size("top")[0]
+    cols = np.zeros(D, bool)
+    cols[lo:hi] = shelf_frac >= cfg.shelf_fraction
+    present = bool(cols.any())
+    segs = [
+        (float(spec.col_to_x(a)), float(spec.col_to_x(b)), a <= lo + cut_cols, b >= hi - cut_cols)
+        for a, b in _runs(cols)
+        if (b - a) * dx >= 0.1
+    ]
+    z_range = (0.0, 0.0)
+    ch = 0.0
+    if present:
+        # Rows that are shelf/box in at least half of the shelf columns (gaps are background).
+        rows = nonbg_rows >= 0.5 * np.count_nonzero(cols)
+        idx = np.flatnonzero(rows)
+        if idx.size:
+            z_range = (float(spec.row_to_a("top", idx[-1] + 1)), float(spec.row_to_a("top", idx[0])))
+        c = clear[cols]
+        c = c[c > 0]
+        ch = float(np.median(c)) if c.size else 0.0
+    return SlotDetections(r, present, cols, segs, z_range, ch, box_h)
+
+
+def _add_top_boxes(
+    slots: list[SlotDetections],
+    spec: LayoutSpec,
+    cfg: DetectConfig,
+    labels: np.ndarray,
+    h_steps: np.ndarray,
+    r_lo: int,
+    vis: tuple[int, int],
+    min_px: float,
+) -> None:
+    """Top-view box components (``labels`` over rows from ``r_lo``, columns from the visible ``lo``) into their
+    slots' boxes, each split where the top or front outline steps."""
+    lo, hi = vis
+    dx, dz = spec.pixel_size("top")
+    objs = ndimage.find_objects(labels)
+    min_cols = max(1, int(round(cfg.min_box_width / dx)))
+    for k, sl in enumerate(objs, start=1):
+        if sl is None or (sl[1].stop - sl[1].start) * (sl[2].stop - sl[2].start) < min_px:
+            continue
+        r = sl[0].start
+        rs, cs = sl[1], sl[2]
+        sub = labels[r, rs, cs] == k
+        if np.count_nonzero(sub) < min_px:
+            continue
+        rs = slice(rs.start + r_lo, rs.stop + r_lo)
+        c_off = cs.start + lo
+        ncol = sub.shape[1]
+        pieces = [(0, ncol)]
+        if ncol >= 2 * min_cols:
+            has = sub.any(axis=0)
+            top_r = np.where(has, sub.argmax(axis=0), 0) * dz
+            bot_r = np.where(has, sub.shape[0] - sub[::-1].argmax(axis=0), 0) * dz
+            score = np.maximum(profile_steps(np.stack([top_r, bot_r])), h_steps[r, c_off : c_off + ncol + 1])
+            pieces = score_pieces(score, cfg.split_step, min_cols)
+        trim = max(2, int(np.ceil(0.04 / dx)))
+        for a, b in pieces:
+            piece = sub[:, a:b]
+            if piece.sum() < min_px:
+                continue
+            t = (trim if a > 0 else 0, trim if b < ncol else 0)
+            tb = _piece(spec, piece, rs.start, c_off + a, (lo, hi), cfg, t)
+            if tb is not None:
+                slots[r].boxes.append(tb)
+
+
 def detect_frame(
     top: np.ndarray,
     front: np.ndarray,
@@ -269,59 +351,13 @@ def detect_frame(
         box_mask = ndimage.binary_opening(box_mask, structure=_STRUCT, iterations=cfg.opening)
     labels, n = ndimage.label(box_mask, structure=_STRUCT)
     min_px = cfg.min_box_area / (dx * dz)
-    slots: list[SlotDetections] = []
     cut_cols = int(round(cfg.cut_margin / dx))
-    for r in range(R):
-        cols = np.zeros(D, bool)
-        cols[lo:hi] = shelf_frac[r] >= cfg.shelf_fraction
-        present = bool(cols.any())
-        segs = [
-            (float(spec.col_to_x(a)), float(spec.col_to_x(b)), a <= lo + cut_cols, b >= hi - cut_cols)
-            for a, b in _runs(cols)
-            if (b - a) * dx >= 0.1
-        ]
-        z_range = (0.0, 0.0)
-        ch = 0.0
-        if present:
-            # Rows that are shelf/box in at least half of the shelf columns (gaps are background).
-            rows = nonbg_rows[r] >= 0.5 * np.count_nonzero(cols)
-            idx = np.flatnonzero(rows)
-            if idx.size:
-                z_range = (float(spec.row_to_a("top", idx[-1] + 1)), float(spec.row_to_a("top", idx[0])))
-            c = clear[r][cols]
-            c = c[c > 0]
-            ch = float(np.median(c)) if c.size else 0.0
-        slots.append(SlotDetections(r, present, cols, segs, z_range, ch, box_h[r]))
+    slots = [
+        _slot_shelf(spec, cfg, r, shelf_frac[r], nonbg_rows[r], clear[r], box_h[r], (lo, hi), cut_cols)
+        for r in range(R)
+    ]
     if n:
-        objs = ndimage.find_objects(labels)
-        min_cols = max(1, int(round(cfg.min_box_width / dx)))
-        for k, sl in enumerate(objs, start=1):
-            if sl is None or (sl[1].stop - sl[1].start) * (sl[2].stop - sl[2].start) < min_px:
-                continue
-            r = sl[0].start
-            rs, cs = sl[1], sl[2]
-            sub = labels[r, rs, cs] == k
-            if np.count_nonzero(sub) < min_px:
-                continue
-            rs = slice(rs.start + r_lo, rs.stop + r_lo)
-            c_off = cs.start + lo
-            ncol = sub.shape[1]
-            pieces = [(0, ncol)]
-            if ncol >= 2 * min_cols:
-                has = sub.any(axis=0)
-                top_r = np.where(has, sub.argmax(axis=0), 0) * dz
-                bot_r = np.where(has, sub.shape[0] - sub[::-1].argmax(axis=0), 0) * dz
-                score = np.maximum(profile_steps(np.stack([top_r, bot_r])), h_steps[r, c_off : c_off + ncol + 1])
-                pieces = score_pieces(score, cfg.split_step, min_cols)
-            trim = max(2, int(np.ceil(0.04 / dx)))
-            for a, b in pieces:
-                piece = sub[:, a:b]
-                if piece.sum() < min_px:
-                    continue
-                t = (trim if a > 0 else 0, trim if b < ncol else 0)
-                tb = _piece(spec, piece, rs.start, c_off + a, (lo, hi), cfg, t)
-                if tb is not None:
-                    slots[r].boxes.append(tb)
+        _add_top_boxes(slots, spec, cfg, labels, h_steps, r_lo, (lo, hi), min_px)
     for s in slots:
         s.boxes.sort(key=lambda b: b.x0)
         s.front = _front_runs(spec, s.box_height, h_steps[s.slot], lo, hi, cfg)

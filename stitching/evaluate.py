@@ -110,6 +110,67 @@ def _union_length(intervals: list[tuple[float, float]], lo: float, hi: float) ->
     return total
 
 
+def _level_stacks(
+    scene: dict, level: int, origin: tuple[float, float, float], cov: tuple[float, float]
+) -> tuple[list[Cuboid], list[int], list[bool], list[tuple[str, float, float, int]]]:
+    """Ground-truth stacks of one shelf level in map coordinates: the cuboids, the index of each one's rack,
+    whether each counts (wholly inside the covered range ``cov``), and the racks ``(id, x0, x1, index)``."""
+    cov_lo, cov_hi = cov
+    gt, gt_rack, gt_counted = [], [], []
+    racks = []
+    for rack in scene.get("racks", []):
+        shelves = [s for s in rack.get("shelves", []) if int(s.get("level", -1)) == level]
+        if not shelves:
+            continue
+        rx0, rx1 = float(rack["x_min"]) - origin[0], float(rack["x_max"]) - origin[0]
+        racks.append((rack["id"], rx0, rx1, len(racks)))
+        for c in stacks_of(shelves[0]):
+            c = _shift(c, origin)
+            x0, x1 = c.x_range()
+            gt.append(c)
+            gt_rack.append(len(racks) - 1)
+            gt_counted.append(x0 >= cov_lo and x1 <= cov_hi)
+    return gt, gt_rack, gt_counted, racks
+
+
+def _match_level(
+    pred: list[Cuboid], gt: list[Cuboid], gt_counted: list[bool], iou_threshold: float, cov: tuple[float, float]
+) -> tuple[list[str], set[int], list[float]]:
+    """One level's reconstructed boxes matched to its stacks: each box's status (tp, fp or ignored), the matched
+    stacks and the IoUs of the true positives."""
+    cov_lo, cov_hi = cov
+    m = iou_matrix(pred, gt) if pred and gt else np.zeros((len(pred), len(gt)))
+    status = ["fp"] * len(pred)
+    matched_gt: set[int] = set()
+    ious: list[float] = []
+    if pred and gt:
+        ri, ci = linear_sum_assignment(-m)
+        for i, j in zip(ri, ci):
+            if m[i, j] >= iou_threshold:
+                matched_gt.add(int(j))
+                status[i] = "tp" if gt_counted[j] else "ignored"
+                if gt_counted[j]:
+                    ious.append(float(m[i, j]))
+    for i in range(len(pred)):
+        if status[i] != "fp":
+            continue
+        x0, x1 = pred[i].x_range()
+        near_ignored = any(not gt_counted[j] and footprint_intersection(pred[i], gt[j]) > 0 for j in range(len(gt)))
+        if near_ignored or x1 <= cov_lo or x0 >= cov_hi or (x0 < cov_lo or x1 > cov_hi):
+            status[i] = "ignored"
+    return status, matched_gt, ious
+
+
+def _drift(wmap: WarehouseMap, records: list[dict], origin: tuple[float, float, float]) -> list[float]:
+    """|estimated camera offset - true camera X displacement| per scored frame."""
+    true_dx = [float(r["camera_position"][0]) - origin[0] for r in records]
+    if len(wmap.steps) == len(records):
+        return [abs(s.offset - t) for s, t in zip(wmap.steps, true_dx)]
+    # a bounded step history (MergeConfig.keep_steps): score the frames it kept, by frame index
+    by_index = {int(r.get("index", i)): t for i, (r, t) in enumerate(zip(records, true_dx))}
+    return [abs(s.offset - by_index[s.frame]) for s in wmap.steps if s.frame in by_index]
+
+
 def evaluate_map(
     wmap: WarehouseMap,
     scene: dict,
@@ -131,38 +192,9 @@ def evaluate_map(
     for slot, level in slot_level.items():
         pred = [b.cuboid for s in map_shelves if s.slot == slot for b in s.boxes]
         pred_x = [c.x_range() for c in pred]
-        gt, gt_rack, gt_counted = [], [], []
-        racks = []
-        for rack in scene.get("racks", []):
-            shelves = [s for s in rack.get("shelves", []) if int(s.get("level", -1)) == level]
-            if not shelves:
-                continue
-            rx0, rx1 = float(rack["x_min"]) - origin[0], float(rack["x_max"]) - origin[0]
-            racks.append((rack["id"], rx0, rx1, len(racks)))
-            for c in stacks_of(shelves[0]):
-                c = _shift(c, origin)
-                x0, x1 = c.x_range()
-                gt.append(c)
-                gt_rack.append(len(racks) - 1)
-                gt_counted.append(x0 >= cov_lo and x1 <= cov_hi)
-        m = iou_matrix(pred, gt) if pred and gt else np.zeros((len(pred), len(gt)))
-        status = ["fp"] * len(pred)
-        matched_gt = set()
-        if pred and gt:
-            ri, ci = linear_sum_assignment(-m)
-            for i, j in zip(ri, ci):
-                if m[i, j] >= iou_threshold:
-                    matched_gt.add(int(j))
-                    status[i] = "tp" if gt_counted[j] else "ignored"
-                    if gt_counted[j]:
-                        ious.append(float(m[i, j]))
-        for i in range(len(pred)):
-            if status[i] != "fp":
-                continue
-            x0, x1 = pred_x[i]
-            near_ignored = any(not gt_counted[j] and footprint_intersection(pred[i], gt[j]) > 0 for j in range(len(gt)))
-            if near_ignored or x1 <= cov_lo or x0 >= cov_hi or (x0 < cov_lo or x1 > cov_hi):
-                status[i] = "ignored"
+        gt, gt_rack, gt_counted, racks = _level_stacks(scene, level, origin, (cov_lo, cov_hi))
+        status, matched_gt, level_ious = _match_level(pred, gt, gt_counted, iou_threshold, (cov_lo, cov_hi))
+        ious += level_ious
         tp += status.count("tp")
         fp += status.count("fp")
         fn += sum(1 for j in range(len(gt)) if gt_counted[j] and j not in matched_gt)
@@ -190,12 +222,7 @@ def evaluate_map(
                     "pred_free_length": round(pr_free, 4),
                 }
             )
-    true_dx = [float(r["camera_position"][0]) - origin[0] for r in records]
-    if len(wmap.steps) == len(records):
-        errs = [abs(s.offset - t) for s, t in zip(wmap.steps, true_dx)]
-    else:  # a bounded step history (MergeConfig.keep_steps): score the frames it kept, by frame index
-        by_index = {int(r.get("index", i)): t for i, (r, t) in enumerate(zip(records, true_dx))}
-        errs = [abs(s.offset - by_index[s.frame]) for s in wmap.steps if s.frame in by_index]
+    errs = _drift(wmap, records, origin)
     return EvalResult(
         precision=tp / (tp + fp) if tp + fp else 1.0,
         recall=tp / (tp + fn) if tp + fn else 1.0,
