@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from layouts.camera import Intrinsics
 from layouts.camera_record import CAMERA_ANGLE_KEYS
-from layouts.codecs import LayoutFolder
+from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.spec import LayoutSpec
@@ -33,6 +33,7 @@ from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
 from waresynth.render import Renderer
+from waresynth.scene import Scene
 from waresynth.scene_builder import build_scene
 
 SPLITS = ("train", "val", "test")
@@ -70,6 +71,48 @@ def assign_splits(seed: int, n: int, fractions: tuple[float, float, float]) -> l
 
 
 # ----------------------------------------------------------------------------- one sequence
+def _frame_record(
+    scene: Scene, i: int, pos: np.ndarray, slots: list[dict[str, Any]], lay: FrameLayouts
+) -> dict[str, Any]:
+    """Frame ``i``'s record in meta.json: camera position, distance, the slots' boards and origins, view share."""
+    return {
+        "index": i,
+        "camera_position": [float(v) for v in pos],
+        "distance": float(scene.camera.distance),
+        "rack_mid_z": float(scene.rack_mid_z),
+        "slots": [{**sl, "origin": [float(pos[0]), sl["board_top_y"], float(scene.rack_mid_z)]} for sl in slots],
+        "visible_fraction": float(lay.visible.mean()),
+    }
+
+
+def _sequence_meta(
+    entry: dict[str, Any], scene: Scene, intr: Intrinsics, hfov: float, records: list[dict[str, Any]]
+) -> dict[str, Any]:
+    """The sequence's meta.json: its entry, intrinsics, camera, scene facts and the frame records."""
+    name, seed, frames, distance = entry["name"], int(entry["seed"]), int(entry["frames"]), scene.camera.distance
+    return {
+        "name": name,
+        "split": entry["split"],
+        "seed": seed,
+        "num_frames": frames,
+        "image_size": [intr.width, intr.height],
+        "intrinsics": intr.to_dict(),
+        "step": float(scene.camera.step),
+        "camera": {
+            "height": scene.camera.height,
+            "distance": distance,
+            "hfov_deg": hfov,
+            **dict(zip(CAMERA_ANGLE_KEYS, scene.camera.angles)),
+            "motion_blur": float(scene.sensor["motion_blur"]),
+        },
+        "rack_mid_z": float(scene.rack_mid_z),
+        "visible_levels": scene.visible_levels,
+        "background": scene.background,
+        "density": scene.density,
+        "frames": records,
+    }
+
+
 def write_sequence(
     root: Path,
     entry: dict[str, Any],
@@ -104,7 +147,6 @@ def write_sequence(
         (tmp / sub).mkdir(parents=True)
     folder = LayoutFolder.create(tmp / "layouts", spec)
     slots = frame_slots(scene, spec)
-    distance = scene.camera.distance
     # the camera's travel while the shutter is open (centred on the frame's position)
     exposure = np.array([scene.sensor["motion_blur"] * scene.camera.step, 0.0, 0.0])
     records = []
@@ -117,42 +159,11 @@ def write_sequence(
         write_png(tmp / "instance" / fname, fr.instance)
         lay = frame_layouts(scene, spec, float(pos[0]))
         folder.write(i, lay)
-        records.append(
-            {
-                "index": i,
-                "camera_position": [float(v) for v in pos],
-                "distance": float(distance),
-                "rack_mid_z": float(scene.rack_mid_z),
-                "slots": [
-                    {**sl, "origin": [float(pos[0]), sl["board_top_y"], float(scene.rack_mid_z)]} for sl in slots
-                ],
-                "visible_fraction": float(lay.visible.mean()),
-            }
-        )
+        records.append(_frame_record(scene, i, pos, slots, lay))
         if on_frame:
             on_frame()
     atomic_write_json(tmp / "scene.json", scene.to_dict())
-    meta = {
-        "name": name,
-        "split": entry["split"],
-        "seed": seed,
-        "num_frames": frames,
-        "image_size": [intr.width, intr.height],
-        "intrinsics": intr.to_dict(),
-        "step": float(scene.camera.step),
-        "camera": {
-            "height": scene.camera.height,
-            "distance": distance,
-            "hfov_deg": hfov,
-            **dict(zip(CAMERA_ANGLE_KEYS, scene.camera.angles)),
-            "motion_blur": float(scene.sensor["motion_blur"]),
-        },
-        "rack_mid_z": float(scene.rack_mid_z),
-        "visible_levels": scene.visible_levels,
-        "background": scene.background,
-        "density": scene.density,
-        "frames": records,
-    }
+    meta = _sequence_meta(entry, scene, intr, hfov, records)
     atomic_write_json(tmp / "meta.json", meta)
     os.replace(tmp, final)
     return {
@@ -358,25 +369,39 @@ def generate_dataset(
     for stale in root.glob(".seq_*.tmp"):
         shutil.rmtree(stale)
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
-    if not todo:
-        return root
+    if todo:
+        _write_sequences(root, todo, spec, cfg, (w, h), workers, progress, stats)
+    return root
+
+
+def _write_sequences(
+    root: Path,
+    todo: list[dict[str, Any]],
+    spec: LayoutSpec,
+    cfg: dict[str, Any],
+    image_size: tuple[int, int],
+    workers: int,
+    progress: bool,
+    stats: list[dict[str, Any]] | None,
+) -> None:
+    """Write the sequences ``todo`` in this process (all cores to the renderer) or in a pool of ``workers``."""
     cores = os.cpu_count() or 1
     workers = min(workers, len(todo))
-    bar = tqdm(total=len(todo) * frames, unit="frame", desc="generate", disable=not progress, dynamic_ncols=True)
+    frames = sum(int(e["frames"]) for e in todo)
+    bar = tqdm(total=frames, unit="frame", desc="generate", disable=not progress, dynamic_ncols=True)
     try:
         if workers == 1:
             for e in todo:
-                st = write_sequence(root, e, spec, cfg, (w, h), nthreads=cores, on_frame=lambda: bar.update(1))
+                st = write_sequence(root, e, spec, cfg, image_size, nthreads=cores, on_frame=lambda: bar.update(1))
                 if stats is not None:
                     stats.append(st)
         else:
             nthreads = max(1, cores // workers)
-            jobs = [(str(root), e, spec.to_dict(), cfg, (w, h), nthreads) for e in todo]
+            jobs = [(str(root), e, spec.to_dict(), cfg, image_size, nthreads) for e in todo]
             with _pool_context().Pool(workers) as pool:
                 for st in pool.imap_unordered(_worker, jobs, chunksize=1):
-                    bar.update(frames)
+                    bar.update(int(st["frames"]))
                     if stats is not None:
                         stats.append(st)
     finally:
         bar.close()
-    return root

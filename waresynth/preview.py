@@ -177,47 +177,30 @@ def _fmt_m(v: Any) -> str:
         return "?"
 
 
-def render_sheet(seq: Any, index: int, dataset_name: str = "") -> Image.Image:
-    """Draw the preview sheet of frame ``index`` of sequence ``seq`` (a `waresynth.dataset.Sequence`)."""
-    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < seq.num_frames:
-        raise InputError(f"--frame must be in [0, {seq.num_frames}) for sequence {seq.name}, got {index!r}")
-    index = int(index)
-    spec = seq.spec
-    rgb = np.asarray(seq.rgb(index))
-    h, w = rgb.shape[:2]
-    geo = sheet_geometry((w, h), spec.num_slots)
-    sheet = Image.new("RGB", geo.size, _BG)
-    draw = ImageDraw.Draw(sheet)
-    f_title, f_small, f_head = _font(13), _font(11), _font(15)
-    record = seq.frame(index)
-
+def _draw_header(
+    draw: ImageDraw.ImageDraw, seq: Any, index: int, record: dict, size: tuple[int, int], name: str
+) -> None:
+    """The title line: dataset, sequence, frame, image size, camera position and distance, turned angles."""
+    w, h = size
     cam = record.get("camera_position") or []
     cam_txt = ", ".join(f"{float(c):.2f}" for c in cam) if len(cam) == 3 else "?"
     head = (
-        f"{dataset_name + ' / ' if dataset_name else ''}{seq.name} ({seq.split})   frame {index} of {seq.num_frames}"
+        f"{name + ' / ' if name else ''}{seq.name} ({seq.split})   frame {index} of {seq.num_frames}"
         f"   image {w}x{h}   camera ({cam_txt}) m   distance to rack front {_fmt_m(record.get('distance'))}"
     )
     angles = getattr(seq, "camera_angles", None)
     if angles and any(angles):
         head += "   turned (roll / pitch / yaw) " + " / ".join(f"{a:g}" for a in angles) + " deg"
-    draw.text((MARGIN, MARGIN), head, fill=_INK, font=f_head)
+    draw.text((MARGIN, MARGIN), head, fill=_INK, font=_font(15))
 
-    # Row of image panels.
-    depth_rgb, (dmin, dmax) = depth_colour(seq.depth(index))
-    panels = [
-        ("RGB", rgb),
-        (f"depth ({dmin:.1f} to {dmax:.1f} m, black = no hit)", depth_rgb),
-        ("semantic classes", colourise_semantic(seq.semantic(index))),
-        ("instances (one colour per id)", instance_colour(seq.instance(index))),
-    ]
-    y_title = MARGIN + HEADER
-    for k, (title, arr) in enumerate(panels):
-        x = MARGIN + k * (PANEL_W + GAP)
-        draw.text((x, y_title), title, fill=_INK, font=f_title)
-        _paste(sheet, arr, (x, y_title + TITLE), (PANEL_W, geo.panel_h))
-    _mark_slots(draw, seq, record, (MARGIN, y_title + TITLE), (PANEL_W, geo.panel_h), f_small)
 
-    # One row per shelf slot, highest slot first so the rows read like the image.
+def _draw_slot_rows(
+    sheet: Image.Image, draw: ImageDraw.ImageDraw, seq: Any, index: int, record: dict, geo: SheetGeometry
+) -> int:
+    """One row per shelf slot (top and front layouts, the slot's facts), highest slot first so the rows read
+    like the image; returns the X of the legend column."""
+    spec = seq.spec
+    f_title, f_small = _font(13), _font(11)
     lay = seq.layouts(index)
     slot_list = list(record.get("slots") or [])
     x_top = MARGIN + LABEL_W
@@ -248,10 +231,15 @@ def render_sheet(seq: Any, index: int, dataset_name: str = "") -> Image.Image:
                 fill=_INK if k == 0 else _MUTED,
                 font=f_title if k == 0 else f_small,
             )
+    return x_front + LAYOUT_PX + 2 * GAP
 
-    # Legend.
-    x_leg = x_front + LAYOUT_PX + 2 * GAP
-    y = geo.layouts_top
+
+def _draw_legend(
+    sheet: Image.Image, draw: ImageDraw.ImageDraw, spec: Any, x_leg: int, y: int, depth_range: tuple[float, float]
+) -> None:
+    """The legend column: semantic and layout class colours, what the layouts span, the depth colour bar."""
+    f_title, f_small = _font(13), _font(11)
+    dmin, dmax = depth_range
     draw.text((x_leg, y), "legend", fill=_INK, font=f_title)
     y += TITLE
 
@@ -287,6 +275,40 @@ def render_sheet(seq: Any, index: int, dataset_name: str = "") -> Image.Image:
         tw = draw.textlength(label, font=f_small)
         x = x_leg + frac * bar_w - frac * tw
         draw.text((x, y + 1), label, fill=_MUTED, font=f_small)
+
+
+def render_sheet(seq: Any, index: int, dataset_name: str = "") -> Image.Image:
+    """Draw the preview sheet of frame ``index`` of sequence ``seq`` (a `waresynth.dataset.Sequence`)."""
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < seq.num_frames:
+        raise InputError(f"--frame must be in [0, {seq.num_frames}) for sequence {seq.name}, got {index!r}")
+    index = int(index)
+    spec = seq.spec
+    rgb = np.asarray(seq.rgb(index))
+    h, w = rgb.shape[:2]
+    geo = sheet_geometry((w, h), spec.num_slots)
+    sheet = Image.new("RGB", geo.size, _BG)
+    draw = ImageDraw.Draw(sheet)
+    record = seq.frame(index)
+    _draw_header(draw, seq, index, record, (w, h), dataset_name)
+
+    # Row of image panels.
+    depth_rgb, (dmin, dmax) = depth_colour(seq.depth(index))
+    panels = [
+        ("RGB", rgb),
+        (f"depth ({dmin:.1f} to {dmax:.1f} m, black = no hit)", depth_rgb),
+        ("semantic classes", colourise_semantic(seq.semantic(index))),
+        ("instances (one colour per id)", instance_colour(seq.instance(index))),
+    ]
+    y_title = MARGIN + HEADER
+    f_title = _font(13)
+    for k, (title, arr) in enumerate(panels):
+        x = MARGIN + k * (PANEL_W + GAP)
+        draw.text((x, y_title), title, fill=_INK, font=f_title)
+        _paste(sheet, arr, (x, y_title + TITLE), (PANEL_W, geo.panel_h))
+    _mark_slots(draw, seq, record, (MARGIN, y_title + TITLE), (PANEL_W, geo.panel_h), _font(11))
+
+    x_leg = _draw_slot_rows(sheet, draw, seq, index, record, geo)
+    _draw_legend(sheet, draw, spec, x_leg, geo.layouts_top, (dmin, dmax))
     return sheet
 
 
