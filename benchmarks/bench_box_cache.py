@@ -1,12 +1,12 @@
 """Speed of the box-depth head's cache pass: frames/s streamed and slots kept per second.
 
 The `fit-box-depth` stage of a training recipe spends most of its minutes streaming the frozen network over the training
-scenes (`network.training.fit_boxdepth.cache_inputs`); the scenes a fixed number of minutes holds is what the
+scenes (`network.training.box_cache.cache_inputs`); the scenes a fixed number of minutes holds is what the
 head's quality follows (docs/training.md, *The budget (budget-256)*). This times that pass
 alone on the first ``--sequences`` scenes of ``--data``, streaming their first ``--frames`` frames and
 keeping the slots from ``--from-frame`` on, as the fit does; the best of ``--repeats`` passes is the
 figure least disturbed by other processes. ``--workers N`` splits the pass over N processes of one
-thread each (`network.training.fit_boxdepth.cache_part`, `fit-box-depth --cache-workers N`); ``--threads`` is then
+thread each (`network.training.box_cache.cache_part`, `fit-box-depth --cache-workers N`); ``--threads`` is then
 the parent's and unused by the pass.
 
     .venv/bin/python benchmarks/bench_box_cache.py runs/budget256b/mvracklay-disc-4/calibrated.pt \\
@@ -33,9 +33,10 @@ from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
 from mvracklay.options import add_precision_option  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
-from network.inference.frozen import trunk_precision, use_precision  # noqa: E402
-from network.training.fit_boxdepth import FrameChoice, cache_part, with_box_head  # noqa: E402
-from network.training.trainer import open_data  # noqa: E402
+from network.model.frozen import trunk_precision, use_precision  # noqa: E402
+from network.training.box_cache import FrameChoice, cache_part  # noqa: E402
+from network.training.fit_boxdepth import with_box_head  # noqa: E402
+from network.training.train_data import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
 

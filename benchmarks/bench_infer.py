@@ -30,8 +30,8 @@ from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
 from mvracklay.options import add_fuse_option, add_precision_option, add_roll_option  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.inference import frozen  # noqa: E402
 from network.inference.predictor import Predictor  # noqa: E402
+from network.model import frozen  # noqa: E402
 from network.model.config import VARIANTS, ModelConfig  # noqa: E402
 from network.model.net import MVRackLay  # noqa: E402
 
@@ -95,7 +95,7 @@ def main() -> int:
     ap.add_argument(
         "--no-graphs",
         action="store_true",
-        help="run the network's modules, not its frozen graphs (network/inference/frozen.py), to see what they buy",
+        help="run the network's modules, not its frozen graphs (network/model/frozen.py), to see what they buy",
     )
     add_precision_option(ap)
     ap.add_argument("--json", type=Path, help="also write the figures here")

@@ -4,8 +4,8 @@
     .venv/bin/python benchmarks/bench_levelling.py data/heldout128 --sizes 128x128 256x256 1280x720
 
 Frames of a generated dataset, resized to each size, are read for their roll alone
-(`network.inference.roll.estimate_roll`, what ``--roll auto`` does per frame) and for roll, pitch and yaw
-(`network.inference.roll.estimate_tilt`, ``--pitch auto --yaw auto``), each levelled by the sequence's angles so
+(`network.inference.angle_reading.estimate_roll`, what ``--roll auto`` does per frame) and for roll, pitch and yaw
+(`network.inference.angle_reading.estimate_tilt`, ``--pitch auto --yaw auto``), each levelled by the sequence's angles so
 far as the leveller does (a prior, so one reading per frame), and warped to the 128x128 canonical
 view level, rolled (an affine map) and rolled + pitched + yawed (a homography). Median milliseconds
 per frame over the frames; numpy / PIL on one thread, so run it on an idle machine.
@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import Intrinsics  # noqa: E402
 from layouts.canonical import CanonicalView  # noqa: E402
-from network.inference.roll import estimate_roll, estimate_tilt  # noqa: E402
-from network.training.trainer import open_data  # noqa: E402
+from network.inference.angle_reading import estimate_roll, estimate_tilt  # noqa: E402
+from network.training.train_data import open_data  # noqa: E402
 
 #: the angles so far (roll, pitch, yaw): each frame is read once, levelled by them, as the leveller does
 PRIOR = (1.0, 0.5, -0.5)

@@ -4,14 +4,11 @@
     .venv/bin/python benchmarks/bench_train_step.py --threads 2
     .venv/bin/python benchmarks/bench_train_step.py --threads 2 --widths 16 32 64 --sizes 128 256
     .venv/bin/python benchmarks/bench_train_step.py --threads 1 --precisions fp32 bf16
-    .venv/bin/python benchmarks/bench_train_step.py --threads 1 --variants mvracklay-disc-4 --prefixes 0 8
 
 One step = ``--frames`` frames (4 windows of 4 for the sequence variants, 16 single frames for
 racklay), supervised + row-head losses, without data loading or discriminators. Prints the
 median of ``--repeats`` steps after two warm-up steps, the parameter count and the fp16 size.
 ``bf16`` runs the forward passes under bf16 autocast, as ``mvracklay train --precision bf16`` does.
-``--prefixes P``: each window preceded by P warm-up frames without encoder gradients, as
-``mvracklay train --prefix-frames P`` does (the losses cover the last ``seq_len`` frames).
 """
 
 from __future__ import annotations
@@ -33,24 +30,23 @@ from network.precision import PRECISIONS, forward_autocast  # noqa: E402
 from network.training.losses import row_loss, supervised_loss  # noqa: E402
 
 
-def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "fp32", prefix: int = 0) -> float:
+def step_seconds(cfg: ModelConfig, frames: int, repeats: int, precision: str = "fp32") -> float:
     torch.manual_seed(0)
     model = MVRackLay(cfg).train()
     opt = torch.optim.Adam(model.parameters(), lr=1e-4)
     t = cfg.seq_len
     b = max(1, frames // t)
-    grad_frames = t if prefix else None
     d, r = cfg.spec.size, cfg.spec.num_slots
-    x = torch.rand(b, t + prefix, 3, cfg.input_height, cfg.input_width)
+    x = torch.rand(b, t, 3, cfg.input_height, cfg.input_width)
     rows = torch.linspace(0.8, 0.2, r) * cfg.input_height
-    anchors = rows.expand(b, t + prefix, r).clone()
+    anchors = rows.expand(b, t, r).clone()
     target = {v: torch.randint(0, 3, (b, t, r, d, d)) for v in VIEWS}
     row_t = torch.zeros(b, t, cfg.input_height)
     times = []
     for i in range(repeats + 2):
         t0 = time.perf_counter()
         with forward_autocast("cpu", precision):
-            out = model(x, anchors, grad_frames)
+            out = model(x, anchors)
         out = {k: v.float() for k, v in out.items()}
         loss = sum(supervised_loss(out[v], target[v]) for v in VIEWS) + row_loss(out["rows"], row_t)
         opt.zero_grad(set_to_none=True)
@@ -70,9 +66,6 @@ def main() -> int:
     ap.add_argument("--precisions", nargs="+", default=["fp32"], choices=list(PRECISIONS))
     ap.add_argument("--frames", type=int, default=16)
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument(
-        "--prefixes", type=int, nargs="+", default=[0], help="warm-up frames per window (sequence variants)"
-    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {args.threads} threads, {args.frames} frames per step")
@@ -83,15 +76,13 @@ def main() -> int:
                     variant=variant, input_width=size, input_height=size, encoder_width=width, spec=LayoutSpec(size=64)
                 )
                 params = sum(p.numel() for p in MVRackLay(cfg).parameters())
-                prefixes = args.prefixes if cfg.seq_len > 1 else [0]
                 for precision in args.precisions:
-                    for prefix in prefixes:
-                        s = step_seconds(cfg, args.frames, args.repeats, precision, prefix)
-                        print(
-                            f"{variant:<17} input {size}x{size}  width {width:>3}  {params / 1e6:5.2f} M params "
-                            f"({2 * params / 2**20:5.1f} MiB fp16)  {precision}  prefix {prefix:>2}  "
-                            f"{s:6.3f} s/step  {args.frames / s:6.1f} frames/s"
-                        )
+                    s = step_seconds(cfg, args.frames, args.repeats, precision)
+                    print(
+                        f"{variant:<17} input {size}x{size}  width {width:>3}  {params / 1e6:5.2f} M params "
+                        f"({2 * params / 2**20:5.1f} MiB fp16)  {precision}  "
+                        f"{s:6.3f} s/step  {args.frames / s:6.1f} frames/s"
+                    )
     return 0
 
 

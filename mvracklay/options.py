@@ -99,7 +99,7 @@ def add_help_all_option(p: argparse.ArgumentParser) -> None:
 
 
 def add_precision_option(p: argparse.ArgumentParser, more: str = "", hidden: bool = False) -> None:
-    """``--precision`` (`network.inference.frozen.set_precision`) for a command that runs a trained network
+    """``--precision`` (`network.model.frozen.set_precision`) for a command that runs a trained network
     (``more``: added to its help)."""
     add(p, "--precision", choices=PRECISIONS, default="fp32", help=PRECISION_HELP + more, hidden=hidden)
 

@@ -33,10 +33,10 @@ from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, re
 from mvracklay.outputs import OUTPUTS, publish, spawn_viewer, staging_dir, write_glb  # noqa: F401 (spawn_viewer, write_glb: re-exported)
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
-from network.inference.frozen import trunk_precision, use_precision
 from network.inference.fusion import check_tau
 from network.inference.predictor import MODES, Predictor, frame_layouts
 from network.inference.roll import angle_warnings, check_angle, resolve_angles
+from network.model.frozen import trunk_precision, use_precision
 from network.precision import check_precision
 from network.training.distributed import single_process_device
 from stitching import rerun_log
@@ -75,7 +75,7 @@ class RunConfig:
     opening: bool = True
     board_thickness: float = 0.06
     threads: int = 2
-    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.inference.frozen.set_precision`)
+    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.model.frozen.set_precision`)
     device: str = "auto"  #: auto (the GPU when CUDA is present), cpu or cuda
     progress: bool = True
 

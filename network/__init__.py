@@ -3,15 +3,17 @@
 Subpackages, each importing only those before it (tests/test_network_layers.py checks the arrows):
 
 * `network.model` – the network itself: `config` (`ModelConfig`, `VARIANTS`), `net` (`MVRackLay`), its
-  parts (`resnet` encoder, `decoders`, `memory` with `convlstm`, `discriminator`) and the camera motion read
-  from the images (`motion`).
+  parts (`resnet` encoder, `decoders`, `memory` with `convlstm`, `discriminator`), the camera motion read
+  from the images (`motion`) and the CPU graphs its parts run as at inference (`frozen`).
 * `network.heads` – the heads that read depth (`backedge`, `uprights`: the rack depth; `boxdepth` with the
   plane sweep of `parallax`: each box's depth) and the readers that carry their readings along the row.
 * `network.inference` – running a model: `predictor` (`Predictor`), `decision` (the record's calibrated
-  offsets), `frozen` (CPU graphs), `fusion` (frame fusion), `roll` (camera levelling), `evaluate` (Table I).
-* `network.training` – making one: `trainer` (`Trainer`), `losses`, `distributed`, `curves`, `toy`,
-  `calibrate`, and the fits of the heads on a frozen model (`fit_backedge`, `fit_uprights`, `fit_boxdepth`,
-  whose inputs come from `head_inputs`).
+  offsets), `fusion` (frame fusion), `roll` (camera levelling, the angles read by `angle_reading`),
+  `evaluate` (Table I).
+* `network.training` – making one: `trainer` (`Trainer`; its settings in `train_config`, its data opened by
+  `train_data`, its records in `run_records`), `losses`, `distributed`, `curves`, `toy`, `calibrate`, and the
+  fits of the heads on a frozen model (`fit_backedge`, `fit_uprights`, `fit_boxdepth`, whose inputs come
+  from `head_inputs` and are cached by `box_cache`, kept between fits by `kept_box_cache`).
 
 On top: `network.data` (datasets and the canonical warp), `network.checkpoint` (`load_model`,
 `save_checkpoint`, `export_weights`) and `network.precision`. See docs/network.md.

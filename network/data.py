@@ -201,10 +201,6 @@ def check_spec_compatible(model_spec: LayoutSpec, data_spec: LayoutSpec, source:
 class WindowDataset(torch.utils.data.Dataset):
     """Windows of ``seq_len`` frames over sequences, as tensors ready for the model and losses.
 
-    With ``prefix`` P > 0 each item holds ``P + seq_len`` frames (T below), the P first being the
-    memory's warm-up (`MVRackLay.forward`'s ``grad_frames``); the window is moved later in its
-    sequence, and its stride shortened, as far as needed to repeat no frame.
-
     Item: ``images (T, 3, H, W)`` float, ``top``/``front`` ``(T, R, D, D)`` int64, ``visible``
     ``(T, D)`` bool, ``cam_x (T,)`` float metres, ``flipped`` bool.
     """
@@ -219,8 +215,6 @@ class WindowDataset(torch.utils.data.Dataset):
         augment: bool = False,
         seed: int = 0,
         max_stride: int = 1,
-        seen_weight: float = 0.0,
-        prefix: int = 0,
         jpeg: float = 0.0,
         jpeg_quality: tuple[int, int] = (30, 95),
     ) -> None:
@@ -236,21 +230,12 @@ class WindowDataset(torch.utils.data.Dataset):
         if not isinstance(max_stride, int) or max_stride < 1:
             raise InputError(f"max_stride must be a positive integer, got {max_stride!r}")
         self.max_stride = max_stride  #: with augment, windows skip up to max_stride - 1 frames between theirs
-        if not np.isfinite(seen_weight) or seen_weight < 0:
-            raise InputError(f"seen_weight must be a finite number >= 0, got {seen_weight!r}")
-        #: extra top-view loss weight on the columns of stacks whose depth the window has shown so far
-        self.seen_weight = float(seen_weight)
-        if not isinstance(prefix, int) or prefix < 0:
-            raise InputError(f"prefix must be an integer >= 0, got {prefix!r}")
-        #: frames before each window's ``seq_len`` (same stride): the memory's warm-up in long-window training
-        self.prefix = prefix
         check_jpeg(jpeg, jpeg_quality)
         lo, hi = jpeg_quality
         #: with augment, the share of windows whose frames pass through JPEG (one quality per window, drawn
         #: from ``jpeg_quality``) before the canonical warp, as a compressing camera or a video file gives them
         self.jpeg = float(jpeg)
         self.jpeg_quality = (lo, hi)
-        self._stacks: dict[int, list[dict[str, Any]]] = {}
         self.epoch = 0
         self.index: list[tuple[int, int]] = []
         self._cam_x: list[np.ndarray] = []
@@ -270,19 +255,9 @@ class WindowDataset(torch.utils.data.Dataset):
         return len(self.index)
 
     def frame_ids(self, t: int, stride: int = 1) -> list[int]:
-        """The window ending at frame ``t``, frames ``stride`` apart (the first repeated at a sequence start).
-
-        ``prefix + seq_len`` frames: the prefix frames come first.
-        """
-        n = self.prefix + self.seq_len
+        """The window ending at frame ``t``, frames ``stride`` apart (the first repeated at a sequence start)."""
+        n = self.seq_len
         return [max(0, t - (n - 1 - k) * stride) for k in range(n)]
-
-    def _long_window(self, n_frames: int, t: int, stride: int) -> tuple[int, int]:
-        """With a prefix: the stride shortened and the end moved later so the window repeats no frame
-        where the sequence is long enough (a long window of repeated first frames teaches the memory nothing)."""
-        span = self.prefix + self.seq_len - 1
-        stride = max(1, min(stride, (n_frames - 1) // span))
-        return min(n_frames - 1, max(t, span * stride)), stride
 
     def _frame(self, seq: SequenceLike, i: int, quality: int | None = None) -> dict[str, np.ndarray]:
         intr, dist = frame_camera(seq, i)
@@ -307,8 +282,6 @@ class WindowDataset(torch.utils.data.Dataset):
         rng = np.random.default_rng([self.seed, self.epoch, idx]) if self.augment else None
         multi = rng is not None and self.max_stride > 1 and self.seq_len > 1
         stride = int(rng.integers(1, self.max_stride + 1)) if multi else 1
-        if self.prefix:
-            t, stride = self._long_window(seq.num_frames, t, stride)
         ids = self.frame_ids(t, stride)
         quality = self._jpeg_quality(idx)
         frames = [self._frame(seq, i, quality) for i in ids]
@@ -326,10 +299,6 @@ class WindowDataset(torch.utils.data.Dataset):
                 cam_x = -cam_x
             anchors = anchors + rng.uniform(-ANCHOR_JITTER, ANCHOR_JITTER, size=anchors.shape).astype(np.float32)
         images = torch.from_numpy(np.ascontiguousarray(imgs)).div_(255.0).permute(0, 3, 1, 2).contiguous()
-        extra = {}
-        if self.seen_weight > 0:
-            w = 1.0 + self.seen_weight * self._seen_columns(si, ids)
-            extra["top_weight"] = torch.from_numpy(np.ascontiguousarray(w[..., ::-1] if flipped else w))
         return {
             "images": images,
             "top": torch.from_numpy(np.ascontiguousarray(top).astype(np.int64)),
@@ -339,7 +308,6 @@ class WindowDataset(torch.utils.data.Dataset):
             "anchors": torch.from_numpy(np.ascontiguousarray(anchors, dtype=np.float32)),
             "rows": torch.from_numpy(np.ascontiguousarray(st["rows"])),
             "flipped": flipped,
-            **extra,
         }
 
     def _jpeg_quality(self, idx: int) -> int | None:
@@ -350,38 +318,6 @@ class WindowDataset(torch.utils.data.Dataset):
         if not self.augment or self.jpeg <= 0.0:
             return None
         return draw_jpeg_quality(np.random.default_rng([self.seed, self.epoch, idx, 1]), self.jpeg, self.jpeg_quality)
-
-    def _seen_columns(self, si: int, ids: list[int]) -> np.ndarray:
-        """float32 ``(T, R, D)``: 1 on the columns of each slot's stacks whose depth frames ``ids[:t+1]`` showed.
-
-        Needs the generator's depth and instance images and scene (`waresynth.visibility`).
-        """
-        from waresynth.visibility import scene_stacks, seen_stacks, stack_column_map
-
-        seq = self.sequences[si]
-        for name in ("level_depth", "instance", "scene"):
-            if not callable(getattr(seq, name, None)):
-                raise InputError(f"{seq.name}: --seen-weight needs the generator's depth, instance and scene files")
-        if si not in self._stacks:
-            self._stacks[si] = scene_stacks(seq.scene())
-        stacks = self._stacks[si]
-        spec = self.spec
-        out = np.zeros((len(ids), spec.num_slots, spec.size), np.float32)
-        seen: set[int] = set()
-        done: set[int] = set()
-        for t, i in enumerate(ids):
-            rec = seq.frame(i)
-            cam_x, cam_z = float(rec["camera_position"][0]), float(rec["camera_position"][2])
-            levels = [int(s["level"]) for s in rec.get("slots", [])[: spec.num_slots]]
-            if i not in done:
-                near = [
-                    k for k, st in enumerate(stacks)
-                    if st["level"] in levels and abs(st["x"] - cam_x) < spec.x_extent / 2 + st["hx"]
-                ]  # fmt: skip
-                seen |= seen_stacks(stacks, seq.level_depth(i), seq.instance(i), cam_z, near)
-                done.add(i)
-            out[t] = stack_column_map(stacks, dict.fromkeys(seen, 1.0), spec, levels, cam_x)
-        return out
 
 
 def jpeg_round_trip(rgb: np.ndarray, quality: int) -> np.ndarray:

@@ -1,5 +1,5 @@
 """The arithmetic precisions the network runs in, in one place: training's forward passes under bf16
-autocast (`forward_autocast`), the inference trunk's frozen graph in bf16 (`network.inference.frozen.set_precision`),
+autocast (`forward_autocast`), the inference trunk's frozen graph in bf16 (`network.model.frozen.set_precision`),
 and whether this CPU computes bf16 natively (`cpu_has_native_bf16`), which decides whether either is worth it."""
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ from network.checkpoint import load_model  # noqa: E402
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
 from network.inference.predictor import Predictor, frame_layouts, resize_logits, sequence_camera  # noqa: E402
 from network.model.motion import camera_shift, motion_signature  # noqa: E402
-from network.training.trainer import open_data  # noqa: E402
+from network.training.train_data import open_data  # noqa: E402
 
 
 def shift_columns(p: torch.Tensor, seen: np.ndarray, s: int) -> tuple[torch.Tensor, torch.Tensor]:

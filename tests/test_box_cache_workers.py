@@ -1,4 +1,4 @@
-"""The box-depth head's streamed pass split over processes (`network.training.fit_boxdepth.cache_part`) and
+"""The box-depth head's streamed pass split over processes (`network.training.box_cache.cache_part`) and
 the `fit-box-depth` stage's `--cache-workers N --cache-only`: the same inputs as one pass, kept and reused (by
 fits of other settings too: --lr, --weight-decay); a bf16 pass (--precision) keeps a cache of its own; a pass
 cut by the clock (--pass-minutes) fits on what it streamed."""
@@ -19,16 +19,9 @@ import torch
 from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
-from network.training.fit_boxdepth import (
-    CACHE_FIELDS,
-    FrameChoice,
-    cache_inputs,
-    cache_part,
-    part_name,
-    shard_name,
-    split_contiguous,
-    with_box_head,
-)
+from network.training.box_cache import CACHE_FIELDS, FrameChoice, cache_inputs, cache_part, shard_name, split_contiguous
+from network.training.fit_boxdepth import with_box_head
+from network.training.kept_box_cache import part_name
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
 

@@ -24,17 +24,9 @@ from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
 from network.inference.predictor import Predictor, frame_layouts
 from network.model.net import MVRackLay
-from network.training.fit_boxdepth import (
-    Cache,
-    Chain,
-    FitConfig,
-    FrameChoice,
-    cache_inputs,
-    column_targets,
-    part_name,
-    train_head,
-    with_box_head,
-)
+from network.training.box_cache import Cache, Chain, FrameChoice, cache_inputs, column_targets
+from network.training.fit_boxdepth import FitConfig, train_head, with_box_head
+from network.training.kept_box_cache import part_name
 from network.training.toy import ToySequence
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset

@@ -231,7 +231,7 @@ def test_a_racklay_export_carries_the_rotation(turned_dataset, tmp_path):
 def test_the_roll_of_a_point_sampled_render_is_read():
     """The renderer samples each pixel at its centre: a rolled edge is a staircase whose gradients are
     level between its steps, which the orientation histogram alone reads as level (~0.4 of 5 degrees)."""
-    from network.inference.roll import _orientation_peak, estimate_roll, estimate_tilt
+    from network.inference.angle_reading import _orientation_peak, estimate_roll, estimate_tilt
 
     intr = Intrinsics.from_fov(128, 128, 60.0)
     rolls, tilt_rolls, histogram = [], [], []

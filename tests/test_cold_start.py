@@ -13,7 +13,8 @@ from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import PARALLAX_CHANNELS
 from network.inference.predictor import Predictor, sequence_camera
-from network.training.fit_boxdepth import FrameChoice, cache_inputs, with_box_head
+from network.training.box_cache import FrameChoice, cache_inputs
+from network.training.fit_boxdepth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker

@@ -10,7 +10,7 @@ import pytest
 from layouts import InputError
 from mvracklay.training.stages import run_stage
 from network.data import CompressedSequence, compress_share, jpeg_round_trip
-from network.training.fit_boxdepth import cache_key, part_name
+from network.training.kept_box_cache import cache_key, part_name
 from waresynth.dataset import open_dataset
 
 

@@ -1,4 +1,4 @@
-"""The frozen graphs (`network.inference.frozen`): the modules' function, never stale, only where they apply."""
+"""The frozen graphs (`network.model.frozen`): the modules' function, never stale, only where they apply."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from tiny_net import tiny_config
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from network.heads.boxdepth import head_inputs
-from network.inference import frozen
+from network.model import frozen
 from network.model.net import MVRackLay
 
 

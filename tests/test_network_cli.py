@@ -10,7 +10,7 @@ from tiny_net import TINY_NET
 
 from layouts.codecs import LayoutFolder
 from mvracklay.cli import main
-from network.inference import frozen
+from network.model import frozen
 
 TINY = TINY_NET
 

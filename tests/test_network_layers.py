@@ -15,7 +15,7 @@ import pytest
 NETWORK = Path(__file__).resolve().parents[1] / "network"
 #: subpackage -> the subpackages it must not import
 FORBIDDEN = {
-    "model": ("network.training",),
+    "model": ("network.training", "network.inference"),
     "heads": ("network.training", "network.inference"),
     "inference": ("network.training",),
 }

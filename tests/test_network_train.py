@@ -17,7 +17,8 @@ from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.model.net import MVRackLay
 from network.training.toy import ToySequence
-from network.training.trainer import TrainConfig, Trainer
+from network.training.train_config import TrainConfig
+from network.training.trainer import Trainer
 
 SPEC = LayoutSpec(num_slots=2, size=16)
 

@@ -195,7 +195,7 @@ def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
 
 
 def test_training_records_the_range_of_its_cameras(tmp_path: Path):
-    from network.training.trainer import _hfov_range
+    from network.training.train_data import hfov_range
     from waresynth.generate import generate_dataset
 
     root = generate_dataset(
@@ -209,7 +209,7 @@ def test_training_records_the_range_of_its_cameras(tmp_path: Path):
         config={"camera": {"hfov_deg": [45, 65]}},
     )
     seqs = open_dataset(root).sequences()
-    lo, hi = _hfov_range(seqs)
+    lo, hi = hfov_range(seqs)
     fovs = sorted(json.loads(p.read_text())["camera"]["hfov_deg"] for p in root.glob("seq_*/meta.json"))
     assert lo == pytest.approx(fovs[0]) and hi == pytest.approx(fovs[-1]) and 45 <= lo < hi <= 65
 

@@ -14,13 +14,13 @@ from layouts import Intrinsics, LayoutError
 from layouts.canonical import FILL_RGB, CanonicalView
 from layouts.errors import InputError
 from mvracklay.cli import main
+from network.inference import angle_reading
 from network.inference import roll as roll_mod
+from network.inference.angle_reading import estimate_roll, estimate_tilt
 from network.inference.roll import (
     CameraLeveller,
     angle_warnings,
     check_angle,
-    estimate_roll,
-    estimate_tilt,
     resolve_angles,
     roll_warning,
     tilt_frame,
@@ -162,13 +162,13 @@ def test_no_edges_reads_level_with_no_strength():
 def test_leveller_follows_the_frames_and_reads_each_once(tiny_dataset, monkeypatch):
     frames, intr = _frames(tiny_dataset)
     calls = []
-    real = roll_mod.estimate_roll
+    real = angle_reading.estimate_roll
 
     def counted(rgb, max_deg, prior_deg=0.0):
         calls.append(prior_deg)
         return real(rgb, max_deg, prior_deg)
 
-    monkeypatch.setattr(roll_mod, "estimate_roll", counted)
+    monkeypatch.setattr(angle_reading, "estimate_roll", counted)
     lev = CameraLeveller("auto")
     turned = [_turn(f, 3.0, intr) for f in frames]
     got = [lev.angles(i, f)[0] for i, f in enumerate(turned)]
@@ -208,13 +208,13 @@ def test_the_pitch_and_yaw_of_rendered_rack_frames_are_read_over_a_sequence(tiny
 def test_the_leveller_reads_only_what_is_not_given(tiny_dataset, monkeypatch):
     frames, intr = _frames(tiny_dataset)
     priors = []
-    real = roll_mod.estimate_tilt
+    real = angle_reading.estimate_tilt
 
     def counted(rgb, intr, prior, read, max_deg):
         priors.append((prior, read))
         return real(rgb, intr, prior, read, max_deg)
 
-    monkeypatch.setattr(roll_mod, "estimate_tilt", counted)
+    monkeypatch.setattr(angle_reading, "estimate_tilt", counted)
     lev = CameraLeveller(1.5, -2.0, "auto")
     got = [lev.angles(i, tilt_frame(f, intr, yaw_deg=4.0), intr) for i, f in enumerate(frames)]
     assert all(g[:2] == (1.5, -2.0) for g in got) and abs(got[-1][2] - 4.0) < 1.5
@@ -237,13 +237,13 @@ def test_the_predictor_reads_the_start_ahead_when_it_reads_a_yaw(tiny_dataset, t
     intr = seq.intrinsics
     frames = [tilt_frame(seq.rgb(i), intr, yaw_deg=4.0) for i in range(seq.num_frames)]
     calls = []
-    real = roll_mod.estimate_tilt
+    real = angle_reading.estimate_tilt
 
     def counted(rgb, intr, prior, read, max_deg):
         calls.append(prior[2])
         return real(rgb, intr, prior, read, max_deg)
 
-    monkeypatch.setattr(roll_mod, "estimate_tilt", counted)
+    monkeypatch.setattr(angle_reading, "estimate_tilt", counted)
     model, _ = load_model(tiny_checkpoint)
     pred = Predictor(model, lambda i: (intr, 2.7), roll=0.0, pitch=0.0, yaw="auto")
     outs = list(pred.stream(frames))
@@ -253,9 +253,9 @@ def test_the_predictor_reads_the_start_ahead_when_it_reads_a_yaw(tiny_dataset, t
     assert abs(calls[n] - 4.0) < 1.0  # the first frame is levelled by what the start showed
     assert len(pred.leveller.yaws) == n and abs(pred.leveller.yaws[0] - 4.0) < 1.0
     rolls = []
-    real_roll = roll_mod.estimate_roll
+    real_roll = angle_reading.estimate_roll
     monkeypatch.setattr(
-        roll_mod, "estimate_roll", lambda rgb, m, prior_deg: rolls.append(1) or real_roll(rgb, m, prior_deg)
+        angle_reading, "estimate_roll", lambda rgb, m, prior_deg: rolls.append(1) or real_roll(rgb, m, prior_deg)
     )
     list(Predictor(model, lambda i: (intr, 2.7), roll="auto", pitch=0.0, yaw=0.0).stream(frames))
     assert len(rolls) == n  # a roll alone is read frame by frame, nothing ahead

@@ -93,7 +93,7 @@ def test_a_supersampled_dataset_keeps_the_default_labels_and_an_old_manifest_res
 def test_a_yaw_reads_closer_on_supersampled_frames():
     """A point-sampled 3-degree yaw is a one-pixel step every ~20 columns, which the reading takes for
     level edges; area-sampled edges carry the slope."""
-    from network.inference.roll import estimate_tilt
+    from network.inference.angle_reading import estimate_tilt
 
     intr = Intrinsics.from_fov(128, 128, 60.0)
     cfg = load_config({"camera": {"yaw_deg": [3.0, 3.0]}})

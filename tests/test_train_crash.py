@@ -17,7 +17,9 @@ from layouts import InputError
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
 from network.model.config import ModelConfig
-from network.training.trainer import TrainConfig, Trainer, open_data
+from network.training.train_config import TrainConfig
+from network.training.train_data import open_data
+from network.training.trainer import Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["best.json", "best.pt", "last.json", "last.pt", "metrics.jsonl"]

@@ -18,7 +18,7 @@ from network.checkpoint import load_checkpoint, load_model
 from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.training.distributed import DistEnv, device_for, rank_indices, single_process_device
-from network.training.trainer import weights_fingerprint
+from network.training.run_records import weights_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 TORCHRUN = Path(sys.executable).with_name("torchrun")

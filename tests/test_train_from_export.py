@@ -14,7 +14,7 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from network.data import WindowDataset
-from network.training.trainer import open_data
+from network.training.train_data import open_data
 from waresynth.dataset import open_dataset
 from waresynth.exporters import export_dataset
 from waresynth.exporters.racklay import RACKLAY_CAMERAS, RACKLAY_MANIFEST

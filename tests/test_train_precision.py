@@ -11,7 +11,8 @@ from test_network_train import seqs, tiny
 from layouts import InputError
 from network.checkpoint import load_checkpoint
 from network.model.config import ModelConfig
-from network.training.trainer import TrainConfig, Trainer
+from network.training.train_config import TrainConfig
+from network.training.trainer import Trainer
 
 
 def test_bf16_runs_the_forward_in_bf16_learns_and_keeps_fp32_weights(tmp_path):

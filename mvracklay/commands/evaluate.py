@@ -65,11 +65,11 @@ def run(args: argparse.Namespace) -> int:
     from layouts.metrics import format_table
     from network.checkpoint import load_model
     from network.inference.evaluate import evaluate_sequences
-    from network.inference.frozen import trunk_precision, use_precision
     from network.inference.fusion import check_tau
     from network.inference.roll import ANGLES, check_angle, describe_angles
+    from network.model.frozen import trunk_precision, use_precision
     from network.training.distributed import single_process_device
-    from network.training.trainer import open_data
+    from network.training.train_data import open_data
 
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")

@@ -105,9 +105,9 @@ def run(args: argparse.Namespace) -> int:
 
     from layouts.rackdepth import check_rack_depth
     from network.checkpoint import load_model
-    from network.inference.frozen import use_precision
     from network.inference.fusion import check_tau
     from network.inference.roll import resolve_angles
+    from network.model.frozen import use_precision
     from network.training.distributed import single_process_device
 
     if args.threads < 1:

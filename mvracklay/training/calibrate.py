@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.training.trainer import open_data
+    from network.training.train_data import open_data
 
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")

@@ -13,7 +13,7 @@ import torch
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
 from mvracklay.options import add_precision_option
-from network.inference.frozen import trunk_precision, use_precision
+from network.model.frozen import trunk_precision, use_precision
 
 
 def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:
@@ -52,7 +52,7 @@ def add_jpeg_arguments(p: argparse.ArgumentParser) -> None:
 def training_sequences(args: argparse.Namespace) -> list[Any]:
     """The first ``--sequences`` of ``--data``, a ``--jpeg`` share of them compressed; one line if none."""
     from network.data import check_jpeg, compress_share
-    from network.training.trainer import open_data
+    from network.training.train_data import open_data
 
     quality = tuple(args.jpeg_quality)
     check_jpeg(args.jpeg, quality, ("--jpeg", "--jpeg-quality"))
@@ -72,7 +72,7 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     its weights under ``name.``, the model config's ``flag`` set, the fit's summary in the record under
     ``flag``; prints the depth errors ``source`` gives."""
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.training.trainer import open_data
+    from network.training.train_data import open_data
 
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")

@@ -12,7 +12,7 @@ from layouts.fileio import atomic_write_json, nan_to_null
 from mvracklay.options import add_precision_option
 from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
-from network.inference.frozen import use_precision
+from network.model.frozen import use_precision
 from network.training.fit_boxdepth import FitConfig
 
 NAME = "fit-box-depth"
@@ -115,13 +115,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.training.fit_boxdepth import (
-        FrameChoice,
-        box_head_config,
-        check_pass_minutes,
-        fit_box_depth,
-        keep_box_inputs,
-    )
+    from network.training.box_cache import FrameChoice
+    from network.training.fit_boxdepth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:

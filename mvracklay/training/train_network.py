@@ -12,7 +12,9 @@ from layouts.errors import InputError
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
 from network.training.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
-from network.training.trainer import TrainConfig, Trainer, default_model_config, open_data
+from network.training.train_config import TrainConfig, default_model_config
+from network.training.train_data import open_data
+from network.training.trainer import Trainer
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
@@ -101,14 +103,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "learns from viewpoints further apart (default %(default)s; 1 = consecutive frames)",
     )
     g.add_argument(
-        "--seen-weight",
-        type=float,
-        default=t.seen_weight,
-        help="extra top-view loss weight on the columns of box stacks whose depth (a top face, a side face, "
-        "the back edge) the window has shown so far, read from the generator's depth and instance images; "
-        "0 = off (default %(default)s)",
-    )
-    g.add_argument(
         "--jpeg",
         type=float,
         default=t.jpeg,
@@ -125,16 +119,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=list(t.jpeg_quality),
         metavar=("LOW", "HIGH"),
         help="the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
-    )
-    g.add_argument(
-        "--prefix-frames",
-        type=int,
-        default=t.prefix_frames,
-        metavar="P",
-        help="sequence variants: each training window is preceded by P more frames that only warm the slot memory "
-        "up (encoder without gradients, no outputs or losses); the memory's gradients reach back over all of "
-        "them, so what an early frame showed pays at a later one (a warm-up frame costs ~1/3 of a trained one; "
-        "the stride shrinks to fit the sequence; 0 = off, default %(default)s)",
     )
     g.add_argument(
         "--precision",
@@ -240,10 +224,8 @@ def run(args: argparse.Namespace) -> int:
         long_weight=args.long_weight,
         augment=not args.no_augment,
         max_stride=args.max_stride,
-        seen_weight=args.seen_weight,
         jpeg=args.jpeg,
         jpeg_quality=tuple(args.jpeg_quality),
-        prefix_frames=args.prefix_frames,
         precision=args.precision,
         seed=args.seed,
         threads=args.threads,
@@ -292,7 +274,6 @@ def run(args: argparse.Namespace) -> int:
                 f"training {variant} on {len(trainer.train_ds)} frames of {len(train_seqs)} sequences, "
                 f"input {mcfg.input_width}x{mcfg.input_height}, layouts {mcfg.spec.shape}, "
                 f"batch {trainer.batch} x {mcfg.seq_len} frames"
-                + (f" (+ {tcfg.prefix_frames} warm-up frames each)" if tcfg.prefix_frames else "")
                 + f" per process on {device}{procs}"
                 + (f", resuming at step {trainer.step}" if resume else ""),
                 flush=True,

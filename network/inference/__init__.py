@@ -1,2 +1,1 @@
-"""Inference: the streaming/windowed predictor, frozen CPU graphs, frame fusion, camera levelling and
-Table I evaluation."""
+"""Inference: the streaming/windowed predictor, frame fusion, camera levelling and Table I evaluation."""

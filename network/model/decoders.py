@@ -91,15 +91,6 @@ class SlotFeatures:
 
         return SlotFeatures(**{k: pick(getattr(self, k)) for k in SLOT_FEATURES})
 
-    def cat(self, other: SlotFeatures) -> SlotFeatures:
-        """These frames' features followed by ``other``'s (both flattened as (frame, batch))."""
-
-        def both(k: str) -> torch.Tensor | None:
-            a, b = getattr(self, k), getattr(other, k)
-            return None if a is None or b is None else torch.cat([a, b])
-
-        return SlotFeatures(**{k: both(k) for k in SLOT_FEATURES})
-
 
 #: `SlotFeatures`' fields, in order
 SLOT_FEATURES = ("top", "front", "fine", "valid", "motion", "back", "window", "uprights")

@@ -45,7 +45,7 @@ from network.heads.backedge import BackEdgeHead, pool_rows
 from network.heads.boxdepth import PARALLAX_CHANNELS as BOX_PARALLAX_CHANNELS
 from network.heads.boxdepth import BoxDepthHead
 from network.heads.uprights import UprightHead, pool_columns
-from network.inference import frozen
+from network.model import frozen
 from network.model.config import ModelConfig
 from network.model.decoders import Pyramid, RowHead, SlotFeatures, SlotHeads, anchors_from_rows, conv_bn_relu
 from network.model.memory import MemoryState, SlotMemory
@@ -104,9 +104,9 @@ class MVRackLay(nn.Module):
         #: a checkpoint's record carries it)
         self.rack_depth_offset = 0.0
         #: at inference on the CPU the trunk, the slot maps and the box-depth head run as frozen graphs
-        #: (`network.inference.frozen`); False: always the modules
+        #: (`network.model.frozen`); False: always the modules
         self.frozen_graphs = True
-        #: the trunk graph's precision, fp32 or bf16 (`network.inference.frozen.set_precision`)
+        #: the trunk graph's precision, fp32 or bf16 (`network.model.frozen.set_precision`)
         self.graph_precision = "fp32"
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
@@ -118,7 +118,7 @@ class MVRackLay(nn.Module):
 
     def maps(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The pyramid maps ``(p1, p2)`` (1/2 and 1/4 scale) of frames ``(N, 3, H, W)``; at inference on the CPU
-        through the trunk's frozen graph (`network.inference.frozen`; ``self.frozen_graphs = False`` turns them off)."""
+        through the trunk's frozen graph (`network.model.frozen`; ``self.frozen_graphs = False`` turns them off)."""
         self._check(images)
         return frozen.maps(self, images)
 
@@ -152,59 +152,33 @@ class MVRackLay(nn.Module):
 
     def box_logits(self, win: torch.Tensor, extra: torch.Tensor) -> torch.Tensor:
         """The box-depth head's logits on `network.heads.boxdepth.head_inputs` (at inference on the CPU through
-        its frozen graph, `network.inference.frozen`)."""
+        its frozen graph, `network.model.frozen`)."""
         if self.box_depth is None:
             raise InputError("this model has no box-depth head (the fit-box-depth stage of a training recipe adds one)")
         return frozen.run(self, "box_depth", _box_head, win, extra)
 
-    def decode_window(self, window: list[SlotFeatures], skip: int = 0) -> list[dict[str, torch.Tensor]]:
-        """Logits of each frame of a window (slot features in frame order) but the ``skip`` first,
-        fused by the slot memory (which runs over all of them)."""
+    def decode_window(self, window: list[SlotFeatures]) -> list[dict[str, torch.Tensor]]:
+        """Logits of each frame of a window (slot features in frame order), fused by the slot memory."""
         if self.memory is not None:
             window = self.memory.window(window)
-        return [self.slots.finish(f) for f in window[skip:]]
+        return [self.slots.finish(f) for f in window]
 
-    def forward(
-        self,
-        images: torch.Tensor,
-        anchors: torch.Tensor | None = None,
-        grad_frames: int | None = None,
-    ) -> dict[str, torch.Tensor]:
-        """Logits of a window ``(B, T, 3, H, W)``, every frame's (slot memory over the window in order).
-
-        ``grad_frames`` k < T: the T - k first frames only warm the slot memory up: their per-frame
-        work (encoder to slot features) runs without gradients and the outputs (logits, rows,
-        anchors) are the k last frames'. The memory's gradients still reach back over all T frames,
-        so what an early frame shows can pay at a late one, at a fraction of a long window's cost.
-        """
+    def forward(self, images: torch.Tensor, anchors: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Logits of a window ``(B, T, 3, H, W)``, every frame's (slot memory over the window in order)."""
         if images.ndim != 5:
             raise InputError(f"expected a window (B, T, 3, H, W), got shape {tuple(images.shape)}")
         b, t = images.shape[:2]
         if anchors is not None and tuple(anchors.shape) != (b, t, self.cfg.spec.num_slots):
             raise InputError(f"anchors must have shape {(b, t, self.cfg.spec.num_slots)}, got {tuple(anchors.shape)}")
-        if grad_frames is not None and not 1 <= grad_frames <= t:
-            raise InputError(f"grad_frames must be in 1..{t} (the window's frames), got {grad_frames}")
         # frames ordered (time, batch) so each time step is one contiguous block
         x = images.transpose(0, 1).flatten(0, 1)
         a = None if anchors is None else anchors.transpose(0, 1).flatten(0, 1)
-        skip = t - grad_frames if grad_frames is not None else 0  # warm-up frames: no gradients, no outputs
-        warm = b * skip
-
-        def part(sl: slice) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
-            return self.frame_features(x[sl], None if a is None else a[sl])
-
-        if warm:
-            with torch.no_grad():
-                f0, r0, a0 = part(slice(0, warm))
-            f1, r1, a1 = part(slice(warm, None))
-            feats, rows, a = f0.cat(f1), torch.cat([r0, r1]), torch.cat([a0, a1])
-        else:
-            feats, rows, a = part(slice(None))
-        outs = self.decode_window([feats.select(t, i) for i in range(t)], skip)
+        feats, rows, a = self.frame_features(x, a)
+        outs = self.decode_window([feats.select(t, i) for i in range(t)])
         res = {v: torch.stack([o[v] for o in outs], 1) for v in VIEWS}
         extra = {"rows": rows, "anchors": a, "back": feats.back, "uprights": feats.uprights, "box_window": feats.window}
-        # frame-major (T*B, ...) -> (B, T - skip, ...), as the views are stacked
-        res.update({k: x.unflatten(0, (t, b)).transpose(0, 1)[:, skip:] for k, x in extra.items() if x is not None})
+        # frame-major (T*B, ...) -> (B, T, ...), as the views are stacked
+        res.update({k: x.unflatten(0, (t, b)).transpose(0, 1) for k, x in extra.items() if x is not None})
         return res
 
     def step(
@@ -236,7 +210,7 @@ class MVRackLay(nn.Module):
 
 def slot_maps(m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """`SlotHeads.coarse` of ``m.slots`` as tensors ``(top, front, fine)``: the slot heads' part of a frame
-    that `network.inference.frozen` runs as a graph."""
+    that `network.model.frozen` runs as a graph."""
     f = m.slots.coarse(p1, p2, anchors)
     return f.top, f.front, f.fine
 

@@ -13,6 +13,9 @@ Under torchrun (`network.training.distributed`) the model and discriminators are
 `DistributedDataParallel`: every rank draws its own share of windows, gradients are averaged, and
 only rank 0 validates and writes checkpoints, metrics and progress bars. Elapsed time is the
 slowest rank's, so the learning rate and the minute budget agree on every rank.
+
+The settings: `network.training.train_config`; the data: `network.training.train_data`; what the run folder's
+records hold: `network.training.run_records`.
 """
 
 from __future__ import annotations
@@ -20,28 +23,26 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
-from layouts import NUM_CLASSES, VIEWS, LayoutSpec
-from layouts.camera import Intrinsics
+from layouts import NUM_CLASSES, VIEWS
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
-from network.data import WindowDataset, check_jpeg
+from network.data import WindowDataset
 from network.inference.evaluate import evaluate_sequences, score
 from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.model.net import MVRackLay
 from network.model.resnet import load_imagenet_weights
-from network.precision import check_precision, forward_autocast
+from network.precision import forward_autocast
 from network.training.distributed import (
     DistEnv,
     ListSampler,
@@ -49,7 +50,6 @@ from network.training.distributed import (
     device_for,
     gather_fingerprints,
     rank_indices,
-    state_fingerprint,
 )
 from network.training.losses import (
     consistency_loss,
@@ -59,123 +59,9 @@ from network.training.losses import (
     row_loss,
     supervised_loss,
 )
-
-
-@dataclass
-class TrainConfig:
-    """Optimisation settings (the model's own settings live in `ModelConfig`)."""
-
-    frames_per_step: int = 16  #: batch = frames_per_step // seq_len windows (same frames for every variant)
-    steps_per_epoch: int = 200
-    epochs: int = 40
-    minutes: float = (
-        0.0  #: budget in wall-clock minutes of optimiser steps (0 = none; loading and validation not counted)
-    )
-    stop_minutes: float = (
-        0.0  #: pause once this many step-minutes are done (0 = none); the schedule still spans `minutes`
-    )
-    lr: float = 1e-3
-    lr_floor: float = 0.05
-    weight_decay: float = 1e-5
-    disc_lr: float = 1e-4
-    class_weights: tuple[float, float, float] = (1.0, 1.0, 2.0)
-    dice_weight: float = 0.5
-    row_weight: float = 1.0  #: the row head's board-finding loss
-    adv_weight: float = 0.01
-    short_weight: float = 0.1
-    long_weight: float = 0.05
-    augment: bool = True
-    max_stride: int = 3  #: training windows skip up to this - 1 frames between theirs (the memory sees wider motion)
-    seen_weight: float = 0.0  #: extra top-view loss weight on stacks whose depth the window has shown (0 = off)
-    jpeg: float = 0.0  #: share of training windows whose frames pass through JPEG (0 = none)
-    jpeg_quality: tuple[int, int] = (30, 95)  #: the JPEG quality range those windows draw from
-    prefix_frames: int = 0  #: sequence variants: frames before each window that warm the memory (no encoder gradients)
-    precision: str = "fp32"  #: fp32, or bf16: forward passes under bf16 autocast (weights and optimiser stay fp32)
-    seed: int = 0
-    threads: int = 2
-    workers: int = 0
-    val_frames: int = 0  #: frames per validation sequence (0 = all)
-    val_sequences: int = 0  #: validation sequences used (0 = all)
-    val_mode: str = "window"
-    imagenet_weights: str | None = None
-    init_from: str | None = None  #: warm start: a checkpoint whose weights seed the model (see init_weights_from)
-    checkpoint_every: int = 0  #: also write last.pt every this many steps (0 = at epoch ends only)
-    device: str = "cpu"  #: cpu, cuda or auto (cuda:LOCAL_RANK when CUDA is present)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    def validate(self) -> None:
-        for name in ("frames_per_step", "steps_per_epoch", "epochs", "threads", "max_stride"):
-            if getattr(self, name) < 1:
-                raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
-        if self.prefix_frames < 0:
-            raise InputError(f"--prefix-frames must be >= 0, got {self.prefix_frames}")
-        if self.checkpoint_every < 0:
-            raise InputError(f"--checkpoint-every must be >= 0, got {self.checkpoint_every}")
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
-        for name in (
-            "minutes",
-            "stop_minutes",
-            "lr",
-            "dice_weight",
-            "row_weight",
-            "adv_weight",
-            "short_weight",
-            "long_weight",
-            "seen_weight",
-            "workers",
-        ):
-            v = getattr(self, name)
-            if not math.isfinite(v) or v < 0:
-                flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
-                raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
-        check_jpeg(self.jpeg, tuple(self.jpeg_quality), ("--jpeg", "--jpeg-quality"))
-        if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
-            raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
-        check_precision(self.precision)
-        if self.val_mode not in ("window", "stream"):
-            raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
-
-
-def open_data(root: str | Path):
-    """Open a training/evaluation data folder: a WareSynth dataset, or a RackLay/MVRackLay export
-    written by `mvracklay export --format racklay` (recognised by its manifest). Both give
-    ``spec``, ``image_size`` and ``sequences(split)``; one-line error if it is neither."""
-    # the dataset readers are the one allowed waresynth import
-    from waresynth.dataset import open_dataset
-    from waresynth.exporters.racklay import RACKLAY_MANIFEST, load_racklay_export
-
-    root = Path(root)
-    if not root.is_dir():
-        raise InputError(f"{root}: dataset folder not found")
-    if (root / RACKLAY_MANIFEST).is_file():
-        return load_racklay_export(root)
-    if (root / "topLayouts").is_dir() and not (root / "manifest.json").is_file():
-        raise InputError(
-            f"{root}: a RackLay folder without {RACKLAY_MANIFEST}: training needs each frame's intrinsics, "
-            "camera distance and board heights, which only 'mvracklay export --format racklay' writes"
-        )
-    return open_dataset(root)
-
-
-def _hfov_range(seqs: list[Any]) -> list[float] | None:
-    """The narrowest and widest horizontal field of view (degrees) of the training sequences' cameras
-    (None when a sequence has no intrinsics), so `run` can tell a camera the model has seen."""
-    fovs = [getattr(s, "intrinsics", None) for s in seqs]
-    if not fovs or any(f is None for f in fovs):
-        return None
-    vals = [f.hfov_deg for f in fovs]
-    return [float(min(vals)), float(max(vals))]
-
-
-def _nominal_distance(seqs: list[Any]) -> float | None:
-    vals = []
-    for s in seqs[:50]:
-        try:
-            vals.extend(float(s.frame(i)["distance"]) for i in range(s.num_frames))
-        except (AttributeError, KeyError, TypeError, ValueError):
-            return None
-    return float(np.mean(vals)) if vals else None
+from network.training.run_records import best_on_disk, compact_metrics, epoch_summary, is_tmp_of, weights_fingerprint
+from network.training.train_config import TrainConfig, retired_options_off
+from network.training.train_data import data_record
 
 
 class _DiscriminatorLoss(nn.Module):
@@ -190,11 +76,6 @@ class _DiscriminatorLoss(nn.Module):
         for v in VIEWS:
             loss = loss + lsgan_discriminator_loss(self.discs[v](real[v]), self.discs[v](fake[v]))
         return loss
-
-
-def _is_tmp_of(path: Path, names: tuple[str, ...]) -> bool:
-    """A temporary file `layouts.fileio.atomic_write_bytes` left behind for one of ``names``."""
-    return path.name.endswith(".tmp") and any(path.name.startswith(f".{n}.") for n in names)
 
 
 class Trainer:
@@ -218,8 +99,6 @@ class Trainer:
         dist_env: DistEnv | None = None,
     ) -> None:
         train_cfg.validate()
-        if train_cfg.prefix_frames and model_cfg.seq_len == 1:
-            raise InputError(f"--prefix-frames needs a sequence variant (slot memory); {model_cfg.variant} has none")
         self.mcfg, self.tcfg = model_cfg, train_cfg
         self.env = dist_env or DistEnv()
         if self.env.enabled and not (torch.distributed.is_available() and torch.distributed.is_initialized()):
@@ -253,8 +132,6 @@ class Trainer:
             augment=train_cfg.augment,
             seed=train_cfg.seed,
             max_stride=train_cfg.max_stride,
-            seen_weight=train_cfg.seen_weight,
-            prefix=train_cfg.prefix_frames,
             jpeg=train_cfg.jpeg,
             jpeg_quality=tuple(train_cfg.jpeg_quality),
         )
@@ -268,20 +145,7 @@ class Trainer:
         self.cpu_s = 0.0
         self.best = -math.inf
         self.history: list[dict[str, Any]] = []
-        first = train_seqs[0]
-        intr = getattr(first, "intrinsics", None)
-        fov_range = _hfov_range(train_seqs)
-        if intr is not None and fov_range is not None and fov_range[1] - fov_range[0] > 0.01:
-            # cameras drawn from a range: the record's camera is the range's middle one
-            intr = Intrinsics.from_fov(intr.width, intr.height, (fov_range[0] + fov_range[1]) / 2)
-        self.info = {
-            "data": data_info or {},
-            "intrinsics": intr.to_dict() if intr is not None else None,
-            "hfov_range_deg": fov_range,
-            "nominal_distance": _nominal_distance(train_seqs),
-            "train_frames": len(self.train_ds),
-            "train_sequences": len(train_seqs),
-        }
+        self.info = data_record(train_seqs, data_info, len(self.train_ds))
         if init_info is not None:
             self.info["init_from"] = init_info
         self.fingerprints: list[str] = []
@@ -297,13 +161,18 @@ class Trainer:
             self._resume()
         elif (self.out / "last.pt").exists():
             raise InputError(f"{self.out}: already holds a run (last.pt); pass --resume or choose another --out")
-        self.net: nn.Module = self.model
-        self.disc_loss: nn.Module | None = _DiscriminatorLoss(self.discs) if self.discs is not None else None
+        self.net, self.disc_loss = self._wrapped()
+
+    def _wrapped(self) -> tuple[nn.Module, nn.Module | None]:
+        """The model and the discriminators' loss as a step runs them: under DDP in a torchrun job."""
+        net: nn.Module = self.model
+        disc_loss: nn.Module | None = _DiscriminatorLoss(self.discs) if self.discs is not None else None
         if self.env.enabled:
             ids = [self.device] if self.device.type == "cuda" else None
-            self.net = DistributedDataParallel(self.model, device_ids=ids)
-            if self.disc_loss is not None:
-                self.disc_loss = DistributedDataParallel(self.disc_loss, device_ids=ids)
+            net = DistributedDataParallel(self.model, device_ids=ids)
+            if disc_loss is not None:
+                disc_loss = DistributedDataParallel(disc_loss, device_ids=ids)
+        return net, disc_loss
 
     # ------------------------------------------------------------------ state
     def _record(self, metrics: dict[str, Any] | None) -> dict[str, Any]:
@@ -346,6 +215,7 @@ class Trainer:
         path = self.out / "last.pt"
         payload, record = load_checkpoint(path)
         saved = ModelConfig.from_dict(record.get("model_config"), str(path))
+        retired_options_off(record.get("train_config") or {}, str(path))
         if isinstance(record.get("init_from"), dict):
             self.info["init_from"] = record["init_from"]
         if saved != self.mcfg:
@@ -365,7 +235,7 @@ class Trainer:
         self.wall_s = float(payload["wall_s"])
         self.cpu_s = float(payload["cpu_s"])
         self.best = float(payload["best"]) if float(payload["best"]) >= 0 else -math.inf
-        self.best = max(self.best, _best_on_disk(self.out / "best.json"))
+        self.best = max(self.best, best_on_disk(self.out / "best.json"))
         if self.env.enabled:
             lo, hi = all_reduce([float(self.step), -float(self.step)], "min", self.device)
             if lo != -hi:
@@ -378,7 +248,7 @@ class Trainer:
         if self.is_main:
             names = ("last.pt", "last.json", "best.pt", "best.json", "metrics.jsonl")
             for p in self.out.iterdir():
-                if _is_tmp_of(p, names):
+                if is_tmp_of(p, names):
                     p.unlink(missing_ok=True)  # a write cut short by a crash; the final name was never touched
 
     # ------------------------------------------------------------------ schedule
@@ -413,18 +283,12 @@ class Trainer:
         t = self.tcfg
         batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
         self.net.train()
-        images, anchors, grad_frames = batch["images"], batch["anchors"], None
-        if t.prefix_frames:  # the warm-up frames have no outputs: the losses are the window's last seq_len frames'
-            grad_frames = self.mcfg.seq_len
-            batch = {k: (v[:, -grad_frames:] if torch.is_tensor(v) and v.ndim > 1 else v) for k, v in batch.items()}
         with self._autocast():
-            out = self.net(images, anchors, grad_frames)
+            out = self.net(batch["images"], batch["anchors"])
         out = {k: v.float() for k, v in out.items()}  # losses in fp32 whatever the forward ran in
         valid = torch.isfinite(batch["anchors"])
         losses: dict[str, torch.Tensor] = {}
-        losses["sup"] = sum(
-            supervised_loss(out[v], batch[v], self.cw, t.dice_weight, valid, batch.get(f"{v}_weight")) for v in VIEWS
-        )
+        losses["sup"] = sum(supervised_loss(out[v], batch[v], self.cw, t.dice_weight, valid) for v in VIEWS)
         losses["rows"] = row_loss(out["rows"], batch["rows"])
         if self.mcfg.seq_len > 1 and (t.short_weight > 0 or t.long_weight > 0):
             spec = self.mcfg.spec
@@ -573,8 +437,8 @@ class Trainer:
             if val:
                 s = score(val)
                 entry["val_score"] = s
-                entry["val_visible"] = _compact(val["visible"])
-                entry["val_all"] = _compact(val["all"])
+                entry["val_visible"] = compact_metrics(val["visible"])
+                entry["val_all"] = compact_metrics(val["all"])
                 metrics = {"visible": val["visible"], "all": val["all"]}
                 if s > self.best:
                     self.best = s
@@ -587,52 +451,5 @@ class Trainer:
             if not val:
                 self._save("best", None)
             if self.is_main:
-                tqdm.write(_summary(entry)) if self.progress else print(_summary(entry), flush=True)
+                tqdm.write(epoch_summary(entry)) if self.progress else print(epoch_summary(entry), flush=True)
         return record
-
-
-def weights_fingerprint(model: nn.Module, discs: nn.Module | None = None) -> str:
-    """SHA-256 of the trainable weights (model, then discriminators): what DDP keeps identical on every rank.
-
-    BatchNorm running statistics are left out: each rank updates them from its own batch and DDP
-    re-broadcasts rank 0's at every forward, so the checkpoint (rank 0) holds rank 0's.
-    """
-    params = {f"model.{k}": p for k, p in model.named_parameters()}
-    if discs is not None:
-        params.update({f"discs.{k}": p for k, p in discs.named_parameters()})
-    return state_fingerprint(params)
-
-
-def _best_on_disk(path: Path) -> float:
-    """The score recorded beside best.pt (it may be newer than last.pt after a crash); -inf if none."""
-    try:
-        v = json.loads(path.read_text()).get("best_score")
-        return float(v) if v is not None and math.isfinite(float(v)) else -math.inf
-    except (OSError, ValueError, TypeError, AttributeError):
-        return -math.inf
-
-
-def _compact(table: dict[str, Any]) -> dict[str, Any]:
-    return {
-        v: {c: {k: (None if isinstance(x, float) and math.isnan(x) else x) for k, x in m.items()} for c, m in d.items()}
-        for v, d in table.items()
-    }
-
-
-def _summary(e: dict[str, Any]) -> str:
-    s = f"epoch {e['epoch']} step {e['step']} {e['train_wall_minutes']:.1f} min loss {e['loss'].get('total', float('nan')):.3f}"
-    if "val_visible" in e:
-        t = e["val_visible"]
-        f = lambda x: "nan" if x is None else f"{100 * x:.1f}"  # noqa: E731
-        s += (
-            f" | val mIoU top rack {f(t['top']['rack']['miou'])} box {f(t['top']['box']['miou'])}"
-            f" front rack {f(t['front']['rack']['miou'])} box {f(t['front']['box']['miou'])}"
-        )
-    return s
-
-
-def default_model_config(variant: str, spec: LayoutSpec, layout_size: int, **kw: Any) -> ModelConfig:
-    """The model for a dataset: its slots and extents at the model's own resolution."""
-    from dataclasses import replace
-
-    return ModelConfig(variant=variant, spec=replace(spec, size=layout_size), **kw)

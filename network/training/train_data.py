@@ -1,0 +1,71 @@
+"""The training data: a dataset folder opened (`open_data`), and what a run's record says of its cameras."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from layouts.camera import Intrinsics
+from layouts.errors import InputError
+
+
+def open_data(root: str | Path):
+    """Open a training/evaluation data folder: a WareSynth dataset, or a RackLay/MVRackLay export
+    written by `mvracklay export --format racklay` (recognised by its manifest). Both give
+    ``spec``, ``image_size`` and ``sequences(split)``; one-line error if it is neither."""
+    # the dataset readers are the one allowed waresynth import
+    from waresynth.dataset import open_dataset
+    from waresynth.exporters.racklay import RACKLAY_MANIFEST, load_racklay_export
+
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: dataset folder not found")
+    if (root / RACKLAY_MANIFEST).is_file():
+        return load_racklay_export(root)
+    if (root / "topLayouts").is_dir() and not (root / "manifest.json").is_file():
+        raise InputError(
+            f"{root}: a RackLay folder without {RACKLAY_MANIFEST}: training needs each frame's intrinsics, "
+            "camera distance and board heights, which only 'mvracklay export --format racklay' writes"
+        )
+    return open_dataset(root)
+
+
+def hfov_range(seqs: list[Any]) -> list[float] | None:
+    """The narrowest and widest horizontal field of view (degrees) of the training sequences' cameras
+    (None when a sequence has no intrinsics), so `run` can tell a camera the model has seen."""
+    fovs = [getattr(s, "intrinsics", None) for s in seqs]
+    if not fovs or any(f is None for f in fovs):
+        return None
+    vals = [f.hfov_deg for f in fovs]
+    return [float(min(vals)), float(max(vals))]
+
+
+def nominal_distance(seqs: list[Any]) -> float | None:
+    """The mean camera-to-rack distance over the first 50 training sequences' frames (None when a frame has none)."""
+    vals = []
+    for s in seqs[:50]:
+        try:
+            vals.extend(float(s.frame(i)["distance"]) for i in range(s.num_frames))
+        except (AttributeError, KeyError, TypeError, ValueError):
+            return None
+    return float(np.mean(vals)) if vals else None
+
+
+def data_record(train_seqs: list[Any], data_info: dict[str, Any] | None, train_frames: int) -> dict[str, Any]:
+    """What a run's record says of its training data: where it came from (``data_info``), the camera (the middle
+    one of a range the cameras were drawn from), the range of fields of view, the nominal distance, the counts."""
+    intr = getattr(train_seqs[0], "intrinsics", None)
+    fov_range = hfov_range(train_seqs)
+    if intr is not None and fov_range is not None and fov_range[1] - fov_range[0] > 0.01:
+        # cameras drawn from a range: the record's camera is the range's middle one
+        intr = Intrinsics.from_fov(intr.width, intr.height, (fov_range[0] + fov_range[1]) / 2)
+    return {
+        "data": data_info or {},
+        "intrinsics": intr.to_dict() if intr is not None else None,
+        "hfov_range_deg": fov_range,
+        "nominal_distance": nominal_distance(train_seqs),
+        "train_frames": train_frames,
+        "train_sequences": len(train_seqs),
+    }
