@@ -2,11 +2,11 @@
 
 Subpackages, each importing only those before it (tests/test_network_layers.py checks the arrows):
 
-* `network.model` – the network itself: `config` (`ModelConfig`, `VARIANTS`), `net` (`MVRackLay`), its
-  parts (`resnet` encoder, `decoders`, `memory` with `convlstm`, `discriminator`), the camera motion read
-  from the images (`motion`) and the CPU graphs its parts run as at inference (`frozen`).
 * `network.heads` – the heads that read depth (`backedge`, `uprights`: the rack depth; `boxdepth` with the
   plane sweep of `parallax`: each box's depth) and the readers that carry their readings along the row.
+* `network.model` – the network itself, its heads among its parts: `config` (`ModelConfig`, `VARIANTS`), `net` (`MVRackLay`), its
+  parts (`resnet` encoder, `decoders`, `memory` with `convlstm`, `discriminator`), the camera motion read
+  from the images (`motion`) and the CPU graphs its parts run as at inference (`frozen`).
 * `network.inference` – running a model: `predictor` (`Predictor`), `decision` (the record's calibrated
   offsets), `fusion` (frame fusion), `roll` (camera levelling, the angles read by `angle_reading`),
   `evaluate` (Table I).
@@ -15,7 +15,7 @@ Subpackages, each importing only those before it (tests/test_network_layers.py c
   fits of the heads on a frozen model (`fit_backedge`, `fit_uprights`, `fit_boxdepth`, whose inputs come
   from `head_inputs` and are cached by `box_cache`, kept between fits by `kept_box_cache`).
 
-On top: `network.data` (datasets and the canonical warp), `network.checkpoint` (`load_model`,
+On top: `network.fastops` (exact, faster CPU resampling ops), `network.data` (datasets and the canonical warp), `network.checkpoint` (`load_model`,
 `save_checkpoint`, `export_weights`) and `network.precision`. See docs/network.md.
 """
 

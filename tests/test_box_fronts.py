@@ -46,7 +46,7 @@ def test_the_logits_split_into_backs_shown_and_fronts():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError, match="channels"):
         split_logits(torch.randn(1, k + 3, 5))
-    head = BoxDepthHead(4, 3, width=8, rows=4, front=True)
+    head = BoxDepthHead(4, 3, width=8, front=True)
     assert head(torch.randn(2, 4, 4, 5), torch.randn(2, 3, 5)).shape == (2, k + 1 + f, 5)
 
 
@@ -93,7 +93,7 @@ def test_a_cache_without_fronts_reads_them_as_unknown_and_a_front_head_refuses_i
     old = Cache(rng.random((4, 2, 3, 5)).astype(np.float16), rng.random((4, 3, 5)).astype(np.float16),
                 np.full((4, 5), 0.4, np.float32), np.ones((4, 5), bool))  # fmt: skip
     assert old.front.shape == (4, 5) and np.isnan(old.front).all()
-    head = BoxDepthHead(2, 3, width=4, rows=3, front=True)
+    head = BoxDepthHead(2, 3, width=4, front=True)
     with pytest.raises(InputError, match="no box fronts"):
         train_head(head, old, FitConfig(epochs=1, batch=2), progress=False)
 

@@ -1,4 +1,4 @@
-"""`network.model.fastops`: the torch ops' values bit for bit, and their gradients."""
+"""`network.fastops`: the torch ops' values bit for bit, and their gradients."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from network.model.fastops import avg_pool2, mean_row_pairs, up2
+from network.fastops import avg_pool2, mean_row_pairs, up2
 
 
 @pytest.mark.parametrize("shape", [(3, 32, 32, 32), (2, 5, 33, 17), (1, 1, 2, 2), (1, 13, 64, 64)])

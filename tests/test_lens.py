@@ -132,11 +132,11 @@ def test_predict_takes_the_lens_beside_its_intrinsics(tiny_dataset: Path, tiny_c
     assert _parse_intrinsics(str(cam), 128, 128) == (intr, Lens(k1=-0.1))
     assert _parse_intrinsics("100,100,64,64", 128, 128)[1] is None
     out = tmp_path / "lay"
-    argv = ["predict", str(seq), "--checkpoint", str(tiny_checkpoint), "--out", str(out), "--intrinsics", str(cam)]
+    argv = ["predict", str(seq), "--checkpoint", str(tiny_checkpoint), "--out", str(out), "--camera", str(cam)]
     assert main([*argv, "--threads", "1", "--quiet"]) == 0
     assert len(list(out.glob("*.npz"))) == 8
     cam.write_text(json.dumps({**intr.to_dict(), "k3": float("inf")}))
-    with pytest.raises(InputError, match="--intrinsics .*cam.json: lens k3 must be a finite number"):
+    with pytest.raises(InputError, match="--camera .*cam.json: lens k3 must be a finite number"):
         _parse_intrinsics(str(cam), 128, 128)
 
 

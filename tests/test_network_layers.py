@@ -1,4 +1,5 @@
-"""The network package's layers point one way: model <- heads <- inference <- training.
+"""The network package's layers point one way: heads <- model <- inference <- training (the shared basics,
+`network.fastops`, `precision`, `data`, `checkpoint`, sit beside them).
 
 What a user runs (`network.inference`) and what a model is made of (`network.model`, `network.heads`) never
 import the code that trains or fits them (`network.training`), so inference works without it and no import
@@ -16,7 +17,7 @@ NETWORK = Path(__file__).resolve().parents[1] / "network"
 #: subpackage -> the subpackages it must not import
 FORBIDDEN = {
     "model": ("network.training", "network.inference"),
-    "heads": ("network.training", "network.inference"),
+    "heads": ("network.training", "network.inference", "network.model"),
     "inference": ("network.training",),
 }
 

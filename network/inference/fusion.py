@@ -32,6 +32,8 @@ from network.model.memory import shift_columns
 #: frames; each neighbour's weight is exp(-frames apart / tau); chosen on the tuning sets (what a bare
 #: ``--fuse-frames`` gives; off by default: the stitched maps lose by it, docs/network.md)
 FUSE_TAU = 1.0
+
+
 def check_tau(tau: float, name: str = "fuse_tau") -> float:
     """``tau`` as a float, or an InputError naming ``name`` (the argument or option)."""
     if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau) or tau < 0:

@@ -16,7 +16,7 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.model.convlstm import StackedConvLSTM, State
 from network.model.decoders import SlotFeatures, up
-from network.model.fastops import avg_pool2
+from network.fastops import avg_pool2
 from network.model.motion import camera_shift
 
 
