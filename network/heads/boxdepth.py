@@ -40,8 +40,8 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.heads.parallax import RATIOS, plane_sweep, relative_costs
 from network.fastops import avg_pool2, mean_row_pairs
+from network.heads.parallax import RATIOS, plane_sweep, relative_costs
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres

@@ -17,10 +17,10 @@ from torch import nn
 
 from layouts import NUM_CLASSES
 from layouts.canonical import CanonicalView
+from network.fastops import up2
 from network.heads.backedge import pool_rows, row_net, rows_from_net
 from network.heads.boxdepth import window_rows
 from network.model.config import ModelConfig
-from network.fastops import up2
 
 #: the top view's band of image rows around a board: this far above the front window, and below the board (metres)
 BAND_ABOVE = 0.15

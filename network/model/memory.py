@@ -14,9 +14,9 @@ from torch import nn
 
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
+from network.fastops import avg_pool2
 from network.model.convlstm import StackedConvLSTM, State
 from network.model.decoders import SlotFeatures, up
-from network.fastops import avg_pool2
 from network.model.motion import camera_shift
 
 
