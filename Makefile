@@ -9,8 +9,9 @@ setup:
 demo: setup
 	.venv/bin/python -m mvracklay.demo_job
 
+# the tests on every core (at most 4 workers), the 10 slowest listed at the end
 test: setup
-	.venv/bin/python -m pytest -q -p no:cacheprovider
+	.venv/bin/python -m pytest -q -p no:cacheprovider -n auto --maxprocesses 4 --durations=10
 
 lint: setup
 	.venv/bin/ruff check .

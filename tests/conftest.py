@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
+
+# The suite runs on both cores at once (pytest-xdist): OpenMP threads that sleep when idle instead of spinning
+# keep two workers' torch threads from starving each other (set before torch loads; subprocesses inherit it).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import pytest
 

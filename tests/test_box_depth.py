@@ -3,11 +3,6 @@ the model and inference, the fit, and the `fit-box-depth` stage."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -497,18 +492,3 @@ def test_a_chain_of_caches_reads_as_their_concatenation():
         for k in ("win", "extra", "back", "shown"):
             np.testing.assert_array_equal(getattr(got, k), np.concatenate([getattr(p, k) for p in parts])[idx])
     np.testing.assert_array_equal(chain.field("back"), np.concatenate([p.back for p in parts]))
-
-
-def test_bench_box_cache_times_the_cache_pass_of_the_frames_chosen(tiny_checkpoint, tiny_dataset, tmp_path):
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_box_cache.py"
-    out = tmp_path / "bench.json"
-    args = [sys.executable, str(script), str(tiny_checkpoint), str(tiny_dataset), "--sequences", "1"]
-    done = subprocess.run([*args, "--frames", "3", "--from-frame", "1", "--parallax", "--repeats", "1",
-                           "--json", str(out)], capture_output=True, text=True)  # fmt: skip
-    assert done.returncode == 0, done.stderr
-    got = json.loads(out.read_text())
-    assert (got["sequences"], got["frames"]) == (1, 3) and got["slots"] > 0 and got["best_frames_per_s"] > 0
-    assert got["precision"] == "fp32" and "the trunk in fp32" in done.stdout
-    assert "3 frames streamed" in done.stdout
-    bad = subprocess.run([*args, "--frames", "2", "--from-frame", "2"], capture_output=True, text=True)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "--from-frame" in bad.stderr
