@@ -19,18 +19,19 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from layouts import Intrinsics
+from layouts import Intrinsics, LayoutSpec
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
-from mvracklay.outputs import OUTPUTS, publish, spawn_viewer, staging_dir, write_glb  # noqa: F401 (spawn_viewer, write_glb: re-exported)
+from mvracklay.outputs import OUTPUTS, publish, staging_dir, write_glb
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.inference.fusion import check_tau
@@ -44,6 +45,10 @@ from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.warehouse_map import WarehouseMap
+
+if TYPE_CHECKING:
+    from layouts.lens import Lens
+    from network.model.net import MVRackLay
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
 RRD_MAX_WIDTH = 640
@@ -185,30 +190,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     seconds: dict[str, float] = {}
     warnings: list[str] = []
     t0 = time.perf_counter()
-    ckpt = resolve_checkpoint(cfg.checkpoint)
-    torch.set_num_threads(cfg.threads)
-    model, record = load_model(ckpt)
-    model.to(single_process_device("run", cfg.device))
-    use_precision(model, cfg.precision)
-    intr, intr_source = resolve_intrinsics(source, cfg.camera)
-    lens = resolve_lens(source, cfg.camera)
-    if lens is not None:
-        intr_source += (
-            ", frames undistorted through its lens ("
-            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
-            + ")"
-        )
-    differs = camera_warning(intr, record, str(ckpt))
-    if differs:
-        warnings.append(f"camera ({intr_source}) {differs}")
-        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
-    spec = model.cfg.spec
-    if cfg.layout_size and cfg.layout_size != spec.size:
-        from dataclasses import replace
-
-        spec = replace(spec, size=cfg.layout_size)
-    if cfg.rack_depth is not None:
-        check_rack_depth(cfg.rack_depth, spec)
+    ckpt, model, record = _load_model(cfg)
+    intr, intr_source, lens = _resolve_camera(source, cfg, record, ckpt, warnings)
+    spec = _layout_spec(model, cfg)
     nominal = record.get("nominal_distance")
     default_distance = cfg.distance or (float(nominal) if isinstance(nominal, (int, float)) else DEFAULT_DISTANCE)
     origin, cam_y, cam_z = _map_origin(source)
@@ -235,90 +219,15 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             pitch=pitch,
             yaw=yaw,
         )
-        depth = float("nan")
-        # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
-        pending: deque[np.ndarray | None] = deque()
-
-        def feed():
-            for rgb in source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None):
-                pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
-                yield rgb
-                if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads
-                    bar.update(1)
-
-        path: list[tuple[float, float, float]] = []
-        t_pred = t_stitch = t_log = 0.0
-        n = 0
-        bar = tqdm(
-            total=source.frame_count(cfg.max_frames or None),
-            desc=f"predict+stitch ({cfg.mode})",
-            unit="frame",
-            disable=not cfg.progress,
-            file=sys.stderr,
+        n, depth, timings = _predict_and_stitch(
+            source, cfg, pred, spec, intr, lens, default_distance, folder, stitcher, rec, (cam_y, cam_z)
         )
-        outputs = pred.run(feed(), cfg.mode)
-        while True:
-            ta = time.perf_counter()
-            logits = next(outputs, None)
-            if logits is None:
-                break
-            lay = frame_layouts(logits, spec)
-            depth = float(logits["rack_depth"])
-            dist = cfg.distance or source.distance(n) or default_distance
-            fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
-            folder.write(n, fl)
-            tb = time.perf_counter()
-            frame_rec, step = stitcher.push(fl, n)
-            tc = time.perf_counter()
-            if rec is not None:
-                path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
-                rgb = pending.popleft()
-                rerun_log.log_frame(rec, n, fl, frame_rec, step.offset, rgb, _decimate(path))
-                if n % cfg.map_every == 0:
-                    rerun_log.log_map(rec, stitcher.map(), n, spec.num_slots)
-            td = time.perf_counter()
-            t_pred, t_stitch, t_log = t_pred + tb - ta, t_stitch + tc - tb, t_log + td - tc
-            n += 1
-            if rec is None:
-                pending.popleft()
-            if not cfg.whole_sequence:
-                bar.update(1)
-        bar.close()
-        if n == 0:
-            raise InputError(f"{source.path}: no frames to process")
-        seconds.update(predict=t_pred, stitch=t_stitch)
-        if rec is not None:
-            seconds["rerun"] = t_log
+        seconds.update(timings)
 
         t1 = time.perf_counter()
         lev = pred.leveller
         read = lev.read_angles() if lev is not None else {}
-        meta = {
-            "input": str(source.path),
-            "input_kind": source.kind,
-            "frames": n,
-            "checkpoint": str(ckpt),
-            "mode": cfg.mode,
-            "flip_average": cfg.flip,
-            "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
-            "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
-            "fuse_frames": cfg.fuse_tau,
-            # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
-            "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-            "camera_roll_source": _angle_source(pred.roll, cfg.roll),
-            "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
-            "camera_pitch_source": _angle_source(pred.pitch, cfg.pitch),
-            "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
-            "camera_yaw_source": _angle_source(pred.yaw, cfg.yaw),
-            # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
-            "rack_depth": depth if np.isfinite(depth) else None,
-            "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
-            # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
-            "box_depth_source": "read" if pred.reads_box_depth else "decoder",
-            "intrinsics": intr.to_dict(),
-            "spec": spec.to_dict(),
-        }
-        wmap = stitcher.map(origin, meta)
+        wmap = stitcher.map(origin, _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec))
         steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])
         with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
             wmap.save(stage / "warehouse.json")
@@ -343,6 +252,163 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read)
+
+
+def _load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
+    """The checkpoint to run, its model (on ``cfg.device``, in ``cfg.precision``) and its record."""
+    ckpt = resolve_checkpoint(cfg.checkpoint)
+    torch.set_num_threads(cfg.threads)
+    model, record = load_model(ckpt)
+    model.to(single_process_device("run", cfg.device))
+    use_precision(model, cfg.precision)
+    return ckpt, model, record
+
+
+def _resolve_camera(
+    source: FrameSource, cfg: RunConfig, record: dict[str, Any], ckpt: Path, warnings: list[str]
+) -> tuple[Intrinsics, str, Lens | None]:
+    """``(intrinsics, where they came from, lens)`` of the frames; a camera unlike the model's training camera
+    is warned about (printed and added to ``warnings``)."""
+    intr, intr_source = resolve_intrinsics(source, cfg.camera)
+    lens = resolve_lens(source, cfg.camera)
+    if lens is not None:
+        intr_source += (
+            ", frames undistorted through its lens ("
+            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
+            + ")"
+        )
+    differs = camera_warning(intr, record, str(ckpt))
+    if differs:
+        warnings.append(f"camera ({intr_source}) {differs}")
+        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
+    return intr, intr_source, lens
+
+
+def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
+    """The written layouts' spec: the model's, at ``--layout-size`` when given (a known rack depth checked
+    against it)."""
+    spec = model.cfg.spec
+    if cfg.layout_size and cfg.layout_size != spec.size:
+        from dataclasses import replace
+
+        spec = replace(spec, size=cfg.layout_size)
+    if cfg.rack_depth is not None:
+        check_rack_depth(cfg.rack_depth, spec)
+    return spec
+
+
+def _predict_and_stitch(
+    source: FrameSource,
+    cfg: RunConfig,
+    pred: Predictor,
+    spec: LayoutSpec,
+    intr: Intrinsics,
+    lens: Lens | None,
+    default_distance: float,
+    folder: LayoutFolder,
+    stitcher: Stitcher,
+    rec: Any,
+    camera_yz: tuple[float | None, float | None],
+) -> tuple[int, float, dict[str, float]]:
+    """Stream the frames through ``pred``: each frame's layouts written to ``folder``, pushed into ``stitcher``
+    and (with a recording ``rec``) logged to Rerun. Returns the frame count, the last rack depth read and the
+    seconds spent predicting, stitching and logging."""
+    cam_y, cam_z = camera_yz
+    depth = float("nan")
+    # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
+    pending: deque[np.ndarray | None] = deque()
+
+    def feed():
+        for rgb in source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None):
+            pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
+            yield rgb
+            if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads
+                bar.update(1)
+
+    path: list[tuple[float, float, float]] = []
+    t_pred = t_stitch = t_log = 0.0
+    n = 0
+    bar = tqdm(
+        total=source.frame_count(cfg.max_frames or None),
+        desc=f"predict+stitch ({cfg.mode})",
+        unit="frame",
+        disable=not cfg.progress,
+        file=sys.stderr,
+    )
+    outputs = pred.run(feed(), cfg.mode)
+    while True:
+        ta = time.perf_counter()
+        logits = next(outputs, None)
+        if logits is None:
+            break
+        lay = frame_layouts(logits, spec)
+        depth = float(logits["rack_depth"])
+        dist = cfg.distance or source.distance(n) or default_distance
+        fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
+        folder.write(n, fl)
+        tb = time.perf_counter()
+        frame_rec, step = stitcher.push(fl, n)
+        tc = time.perf_counter()
+        if rec is not None:
+            path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
+            rgb = pending.popleft()
+            rerun_log.log_frame(rec, n, fl, frame_rec, step.offset, rgb, _decimate(path))
+            if n % cfg.map_every == 0:
+                rerun_log.log_map(rec, stitcher.map(), n, spec.num_slots)
+        td = time.perf_counter()
+        t_pred, t_stitch, t_log = t_pred + tb - ta, t_stitch + tc - tb, t_log + td - tc
+        n += 1
+        if rec is None:
+            pending.popleft()
+        if not cfg.whole_sequence:
+            bar.update(1)
+    bar.close()
+    if n == 0:
+        raise InputError(f"{source.path}: no frames to process")
+    timings = {"predict": t_pred, "stitch": t_stitch}
+    if rec is not None:
+        timings["rerun"] = t_log
+    return n, depth, timings
+
+
+def _map_meta(
+    source: FrameSource,
+    cfg: RunConfig,
+    n: int,
+    ckpt: Path,
+    model: MVRackLay,
+    pred: Predictor,
+    depth: float,
+    intr: Intrinsics,
+    spec: LayoutSpec,
+) -> dict[str, Any]:
+    """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
+    lev = pred.leveller
+    return {
+        "input": str(source.path),
+        "input_kind": source.kind,
+        "frames": n,
+        "checkpoint": str(ckpt),
+        "mode": cfg.mode,
+        "flip_average": cfg.flip,
+        "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
+        "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
+        "fuse_frames": cfg.fuse_tau,
+        # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
+        "camera_roll_deg": _median(lev.rolls if lev is not None else []),
+        "camera_roll_source": _angle_source(pred.roll, cfg.roll),
+        "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
+        "camera_pitch_source": _angle_source(pred.pitch, cfg.pitch),
+        "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
+        "camera_yaw_source": _angle_source(pred.yaw, cfg.yaw),
+        # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
+        "rack_depth": depth if np.isfinite(depth) else None,
+        "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
+        # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
+        "box_depth_source": "read" if pred.reads_box_depth else "decoder",
+        "intrinsics": intr.to_dict(),
+        "spec": spec.to_dict(),
+    }
 
 
 def _median(angles: list[float]) -> float:

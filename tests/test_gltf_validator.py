@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from mvracklay.cli import main
-from mvracklay.pipeline import write_glb
+from mvracklay.outputs import write_glb
 from stitching.warehouse_map import WarehouseMap
 
 ROOT = Path(__file__).resolve().parents[1]

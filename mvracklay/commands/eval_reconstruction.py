@@ -8,7 +8,7 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,9 +18,11 @@ from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from mvracklay.options import NO_DEPTH_READ_HELP, add_device_option, add_fuse_option, add_quiet_option, add_roll_option
 
 if TYPE_CHECKING:
+    from network.model.net import MVRackLay
     from stitching.evaluate import EvalResult
     from stitching.pipeline import StitchConfig
     from stitching.warehouse_map import WarehouseMap
+    from waresynth.dataset import Sequence
 
 NAME = "eval-reconstruction"
 HELP = "reconstruct sequences and score them against the generator's ground-truth cuboids"
@@ -182,7 +184,6 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from mvracklay.commands.reconstruct import resolve_layouts, stitch_config
-    from network.inference.fusion import check_tau
     from network.inference.roll import resolve_angles
     from stitching.warehouse_map import WarehouseMap
 
@@ -203,43 +204,13 @@ def run(args: argparse.Namespace) -> int:
     rack_depth = _rack_depth_option(args.rack_depth)
     config = stitch_config(args)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
-    model = record = None
     resolve_angles(args.roll, args.pitch, args.yaw, None)  # checked before anything runs
-    if args.checkpoint:
-        import torch
-
-        from network.checkpoint import load_model
-        from network.training.distributed import single_process_device
-
-        if args.threads < 1:
-            raise InputError(f"--threads must be >= 1, got {args.threads}")
-        check_tau(args.fuse_frames, "--fuse-frames")
-        torch.set_num_threads(args.threads)
-        model, record = load_model(args.checkpoint)
-        model.to(single_process_device(NAME, args.device))
+    model, record = _load_checkpoint(args) if args.checkpoint else (None, None)
     results = []
     with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
         for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):
             if model is not None:
-                from mvracklay.commands.predict import predict_folder
-
-                out = Path(tmp) / seq.name
-                predict_folder(
-                    model,
-                    record,
-                    seq.root,
-                    out,
-                    mode=args.mode,
-                    rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
-                    read_depth=not args.no_depth_read,
-                    fuse_tau=args.fuse_frames,
-                    roll=args.roll,
-                    pitch=args.pitch,
-                    yaw=args.yaw,
-                    progress=False,
-                    source=str(args.checkpoint),
-                )
-                folder = LayoutFolder(out)
+                folder = _predicted_layouts(model, record, seq, Path(tmp) / seq.name, args, rack_depth)
             elif args.layouts == "gt":
                 folder = seq.layout_folder
             else:
@@ -252,6 +223,59 @@ def run(args: argparse.Namespace) -> int:
         out = {"summary": summary, "sequences": {n: r.to_dict() for n, r in results}}
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
+    _print_table(results, summary, deg)
+    return 0
+
+
+def _load_checkpoint(args: argparse.Namespace) -> tuple[MVRackLay, dict[str, Any]]:
+    """``--checkpoint``'s model (on ``--device``, ``--threads`` for torch) and its record."""
+    import torch
+
+    from network.checkpoint import load_model
+    from network.inference.fusion import check_tau
+    from network.training.distributed import single_process_device
+
+    if args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
+    check_tau(args.fuse_frames, "--fuse-frames")
+    torch.set_num_threads(args.threads)
+    model, record = load_model(args.checkpoint)
+    model.to(single_process_device(NAME, args.device))
+    return model, record
+
+
+def _predicted_layouts(
+    model: MVRackLay,
+    record: dict[str, Any],
+    seq: Sequence,
+    out: Path,
+    args: argparse.Namespace,
+    rack_depth: float | str | None,
+) -> LayoutFolder:
+    """The layouts ``model`` predicts for ``seq``, written to the layout folder ``out`` (``rack_depth``
+    "scene": the sequence's own from its scene.json)."""
+    from mvracklay.commands.predict import predict_folder
+
+    predict_folder(
+        model,
+        record,
+        seq.root,
+        out,
+        mode=args.mode,
+        rack_depth=float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth,
+        read_depth=not args.no_depth_read,
+        fuse_tau=args.fuse_frames,
+        roll=args.roll,
+        pitch=args.pitch,
+        yaw=args.yaw,
+        progress=False,
+        source=str(args.checkpoint),
+    )
+    return LayoutFolder(out)
+
+
+def _print_table(results: list[tuple[str, EvalResult]], summary: dict[str, Any], deg: Degrade) -> None:
+    """One row per sequence, the pooled row, and the degradation applied (if any)."""
     head = f"{'sequence':<14} {'prec':>6} {'recall':>6} {'mIoU':>6} {'TP':>4} {'FP':>4} {'FN':>4} {'count':>7} {'free_err':>8} {'drift':>7}"
     print(head)
     print("-" * len(head))
@@ -270,4 +294,3 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"degraded: morph {deg.morph:+d} px, flip {deg.flip:.0%}, dropped frame {deg.drop_frame}, seed {deg.seed}"
         )
-    return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from layouts.errors import InputError
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
@@ -17,6 +18,9 @@ from mvracklay.options import (
     add_quiet_option,
     add_roll_option,
 )
+
+if TYPE_CHECKING:
+    from network.model.net import MVRackLay
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -58,7 +62,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
     import torch
 
     from layouts.fileio import atomic_write_json, nan_to_null
@@ -99,7 +102,46 @@ def run(args: argparse.Namespace) -> int:
         pitch=pitch,
         yaw=yaw,
     )
-    title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences, {args.mode} mode"
+    title = _title(args, record, model, res, len(seqs), fuse_tau, (roll, pitch, yaw))
+    print(format_table(res["visible"], title + " -- columns in view"))
+    print()
+    print(format_table(res["all"], title + " -- all cells"))
+    print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
+    lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
+    for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
+        print(line)
+    if args.json:
+        out = {
+            "checkpoint": str(args.checkpoint),
+            "data": str(args.data),
+            "split": args.split,
+            "sequences": len(seqs),
+            "variant": record.get("variant"),
+            "precision": trunk_precision(model),
+            **res,
+        }
+        atomic_write_json(args.json, nan_to_null(out))
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _title(
+    args: argparse.Namespace,
+    record: dict[str, Any],
+    model: MVRackLay,
+    res: dict[str, Any],
+    sequences: int,
+    fuse_tau: float,
+    angles: tuple[float | str | None, float | str | None, float | str | None],
+) -> str:
+    """The tables' title: model, data, frames and every setting that changes what was scored."""
+    import numpy as np
+
+    from network.inference.roll import ANGLES
+    from network.model.frozen import trunk_precision
+
+    roll, pitch, yaw = angles
+    title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {sequences} sequences, {args.mode} mode"
     if args.flip_average:
         title += ", flip-averaged"
     if trunk_precision(model) != "fp32":
@@ -124,23 +166,4 @@ def run(args: argparse.Namespace) -> int:
             title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
     if args.true_anchors:
         title += ", ground-truth shelf boards"
-    print(format_table(res["visible"], title + " -- columns in view"))
-    print()
-    print(format_table(res["all"], title + " -- all cells"))
-    print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
-    lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
-    for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
-        print(line)
-    if args.json:
-        out = {
-            "checkpoint": str(args.checkpoint),
-            "data": str(args.data),
-            "split": args.split,
-            "sequences": len(seqs),
-            "variant": record.get("variant"),
-            "precision": trunk_precision(model),
-            **res,
-        }
-        atomic_write_json(args.json, nan_to_null(out))
-        print(f"wrote {args.json}")
-    return 0
+    return title

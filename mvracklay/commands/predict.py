@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
+from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
 from mvracklay.options import (
     FLIP_HELP,
     NO_DEPTH_READ_HELP,
@@ -28,8 +28,11 @@ from mvracklay.options import (
 if TYPE_CHECKING:
     import numpy as np
 
-    from layouts import Intrinsics
+    from layouts import Intrinsics, LayoutSpec
+    from layouts.codecs import LayoutFolder
     from layouts.lens import Lens
+    from network.data import ImageFolderSequence
+    from network.inference.predictor import Predictor
     from network.model.net import MVRackLay
 
 NAME = "predict"
@@ -43,7 +46,8 @@ DESCRIPTION = (
     "camera-to-rack distance, which also give the visible columns: from meta.json when present, else "
     "--camera / --distance, else the camera and mean distance the model was trained with. One image "
     "cannot tell how far the racks are, so a wrong distance scales the layouts (and the map) by "
-    "true / assumed distance: pass --distance when you know it."
+    "true / assumed distance: pass --distance when you know it. Without --checkpoint it runs the shipped "
+    f"{DEFAULT_MODEL}, as 'mvracklay run' does."
 )
 GROUP = "use"
 ORDER = 13
@@ -51,7 +55,7 @@ ORDER = 13
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("seq_dir", type=Path, metavar="SEQ_DIR", help="generated sequence folder or image folder")
-    p.add_argument("--checkpoint", type=checkpoint_arg, required=True, help=CHECKPOINT_HELP)
+    p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
     p.add_argument("--out", type=Path, required=True, help="layout folder to write")
     p.add_argument(
         "--mode", choices=["stream", "window"], default="stream",
@@ -104,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from layouts.rackdepth import check_rack_depth
+    from mvracklay.models import resolve_checkpoint
     from network.checkpoint import load_model
     from network.inference.fusion import check_tau
     from network.inference.roll import resolve_angles
@@ -120,8 +125,10 @@ def run(args: argparse.Namespace) -> int:
         check_rack_depth(args.rack_depth)
     if args.layout_size and not 8 <= args.layout_size <= 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
+    # the shipped default model without --checkpoint (as `run`); a given path keeps the loader's own messages
+    ckpt = args.checkpoint if args.checkpoint is not None else resolve_checkpoint(None)
     torch.set_num_threads(args.threads)
-    model, record = load_model(args.checkpoint)
+    model, record = load_model(ckpt)
     model.to(single_process_device(NAME, args.device))
     use_precision(model, args.precision)
     n = predict_folder(
@@ -142,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
         pitch=args.pitch,
         yaw=args.yaw,
         progress=not args.quiet,
-        source=str(args.checkpoint),
+        source=str(ckpt),
     )
     print(f"wrote {n} frames of layouts to {args.out}")
     return 0
@@ -181,61 +188,22 @@ def predict_folder(
     recorded roll (0 for a level camera), else read from the frames; ``pitch`` / ``yaw``: the camera's
     tilt (up > 0) / turn (right > 0), the same.
     """
-    import numpy as np
-    from tqdm import tqdm
-
-    from layouts import Intrinsics
-    from layouts.camera_record import camera_angles, lens_from_record
-    from layouts.canonical import FILL_RGB
-    from layouts.codecs import FrameLayouts, LayoutFolder
-    from layouts.fileio import load_json
-    from layouts.lens import undistort_frame
+    from layouts.codecs import LayoutFolder
     from layouts.rackdepth import check_rack_depth
     from mvracklay.frames import camera_warning
-    from network.data import DEFAULT_DISTANCE, ImageFolderSequence
-    from network.inference.predictor import Predictor, frame_layouts
-    from network.inference.roll import angle_warnings, describe_angles, resolve_angles
+    from network.inference.predictor import Predictor
+    from network.inference.roll import resolve_angles
 
-    meta = None
-    if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
-        meta = load_json(seq_dir / "meta.json")
-        seq = ImageFolderSequence(seq_dir / "rgb")
-    else:
-        seq = ImageFolderSequence(seq_dir)
-    width, height = seq.image_size()
-    lens = None  # a lens's distortion, when the intrinsics give one: each frame is undistorted first
-    if intrinsics:
-        intr, lens = _parse_intrinsics(intrinsics, width, height)
-    elif isinstance(meta, dict) and "intrinsics" in meta:
-        intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
-        if isinstance(meta["intrinsics"], dict):
-            lens = lens_from_record(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
-    elif record.get("intrinsics"):
-        intr = Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height)
-    else:
-        intr = Intrinsics.from_fov(width, height, 60.0)
+    seq, meta = _open_sequence(seq_dir)
+    intr, lens = _sequence_camera(intrinsics, meta, record, seq_dir, seq.image_size(), source)
     differs = camera_warning(intr, record, source)
     if differs:
         print(f"mvracklay predict: warning: camera {differs}", file=sys.stderr)
-    frames_meta = meta.get("frames") if isinstance(meta, dict) else None
-    nominal = record.get("nominal_distance")
-    nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
-    default_distance = distance or nominal or DEFAULT_DISTANCE
-
-    def dist_of(i: int) -> float:
-        if distance is None and frames_meta and i < len(frames_meta):
-            d = frames_meta[i].get("distance") if isinstance(frames_meta[i], dict) else None
-            if isinstance(d, (int, float)) and math.isfinite(d) and d > 0:
-                return float(d)
-        return default_distance
-
+    dist_of = _frame_distances(distance, meta, record)
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
-    recorded = None  # footage: read from the frames; a generated sequence: as it records (0 for a level camera)
-    if meta is not None:
-        recorded = camera_angles(meta.get("camera") if isinstance(meta, dict) else None, str(seq_dir / "meta.json"))
-    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, recorded)
+    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, _recorded_angles(meta, seq_dir))
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(
         model,
@@ -249,6 +217,32 @@ def predict_folder(
         pitch=pitch,
         yaw=yaw,
     )
+    depth = _write_layouts(pred, seq, folder, spec, intr, lens, dist_of, mode, progress)
+    _report_readings(pred, depth, intr, progress)
+    return seq.num_frames
+
+
+def _write_layouts(
+    pred: Predictor,
+    seq: ImageFolderSequence,
+    folder: LayoutFolder,
+    spec: LayoutSpec,
+    intr: Intrinsics,
+    lens: Lens | None,
+    dist_of: Callable[[int], float],
+    mode: str,
+    progress: bool,
+) -> float:
+    """Predict every frame of ``seq`` (undistorted through ``lens`` first, if any) and write its layouts with
+    its visible columns to ``folder`` (at ``spec``); returns the last rack depth read (NaN when none)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from layouts.canonical import FILL_RGB
+    from layouts.codecs import FrameLayouts
+    from layouts.lens import undistort_frame
+    from network.inference.predictor import frame_layouts
+
     bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
@@ -263,6 +257,76 @@ def predict_folder(
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
     bar.close()
+    return depth
+
+
+def _open_sequence(seq_dir: Path) -> tuple[ImageFolderSequence, Any]:
+    """The frames of ``seq_dir`` and its ``meta.json`` (None for a plain image folder)."""
+    from layouts.fileio import load_json
+    from network.data import ImageFolderSequence
+
+    if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
+        return ImageFolderSequence(seq_dir / "rgb"), load_json(seq_dir / "meta.json")
+    return ImageFolderSequence(seq_dir), None
+
+
+def _sequence_camera(
+    intrinsics: str | None, meta: Any, record: dict[str, Any], seq_dir: Path, size: tuple[int, int], source: str
+) -> tuple[Intrinsics, Lens | None]:
+    """The camera of the frames and its lens's distortion, if any (each frame is then undistorted first):
+    ``--camera``, else the sequence's meta.json, else the checkpoint's record, else a 60 degree view."""
+    from layouts import Intrinsics
+    from layouts.camera_record import lens_from_record
+
+    width, height = size
+    if intrinsics:
+        return _parse_intrinsics(intrinsics, width, height)
+    if isinstance(meta, dict) and "intrinsics" in meta:
+        intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
+        lens = None
+        if isinstance(meta["intrinsics"], dict):
+            lens = lens_from_record(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
+        return intr, lens
+    if record.get("intrinsics"):
+        return Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height), None
+    return Intrinsics.from_fov(width, height, 60.0), None
+
+
+def _frame_distances(distance: float | None, meta: Any, record: dict[str, Any]) -> Callable[[int], float]:
+    """Frame index -> camera-to-rack distance: ``distance`` when given, else the frame's in meta.json, else the
+    checkpoint's nominal distance, else `network.data.DEFAULT_DISTANCE`."""
+    from network.data import DEFAULT_DISTANCE
+
+    frames_meta = meta.get("frames") if isinstance(meta, dict) else None
+    nominal = record.get("nominal_distance")
+    nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
+    default_distance = distance or nominal or DEFAULT_DISTANCE
+
+    def dist_of(i: int) -> float:
+        if distance is None and frames_meta and i < len(frames_meta):
+            d = frames_meta[i].get("distance") if isinstance(frames_meta[i], dict) else None
+            if isinstance(d, (int, float)) and math.isfinite(d) and d > 0:
+                return float(d)
+        return default_distance
+
+    return dist_of
+
+
+def _recorded_angles(meta: Any, seq_dir: Path) -> tuple[float, float, float] | None:
+    """A generated sequence's recorded camera angles (0 for a level camera); None for footage (read from the
+    frames)."""
+    from layouts.camera_record import camera_angles
+
+    if meta is None:
+        return None
+    return camera_angles(meta.get("camera") if isinstance(meta, dict) else None, str(seq_dir / "meta.json"))
+
+
+def _report_readings(pred: Predictor, depth: float, intr: Intrinsics, progress: bool) -> None:
+    """Say what the run read from the frames: the rack depth (with the back-edge head) and the camera's angles,
+    and warn about angles that look wrong."""
+    from network.inference.roll import angle_warnings, describe_angles
+
     if pred.reads_depth and progress:
         said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
         print(f"rack depth read from the boards' back edges: {said}")
@@ -271,4 +335,3 @@ def predict_folder(
         print(line)
     for said in angle_warnings(read, width=intr.width):
         print(f"mvracklay predict: warning: {said}", file=sys.stderr)
-    return seq.num_frames

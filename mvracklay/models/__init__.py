@@ -1,7 +1,7 @@
 """The shipped inference models (package data beside this file) and the one place that finds them.
 
 ``--checkpoint`` takes a shipped model's name (``mvracklay-disc-4``, ``mvracklay-disc-4-256``) or a path
-to a ``.pt`` file; with none, `run` and the demo use `DEFAULT_MODEL`. The files are found through
+to a ``.pt`` file; with none, `run`, `predict` and the demo use `DEFAULT_MODEL`. The files are found through
 `importlib.resources`, so an installed copy needs no checkout. How each was trained: README.md here.
 This module imports no torch (``--help`` stays fast).
 """
@@ -16,7 +16,7 @@ from layouts.errors import InputError
 
 #: the models shipped in this package, by name (each ``NAME.pt`` with its record ``NAME.json``)
 SHIPPED = ("mvracklay-disc-4", "mvracklay-disc-4-256")
-#: what `mvracklay run` and `make demo` use without ``--checkpoint``
+#: what `mvracklay run`, `mvracklay predict` and `make demo` use without ``--checkpoint``
 DEFAULT_MODEL = "mvracklay-disc-4"
 CHECKPOINT_HELP = f"a .pt checkpoint (its .json beside) or a shipped model's name: {', '.join(SHIPPED)}"
 

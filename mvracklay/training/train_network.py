@@ -29,6 +29,7 @@ DESCRIPTION = (
 )
 
 
+# long on purpose: a flat list of every training option reads best in one place
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--data",
@@ -170,32 +171,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     env = DistEnv.from_env()
     if args.export:
-        from network.checkpoint import export_weights
-
-        if not env.is_main:
-            return 0
-        export_weights(args.export, args.out, note=args.note, discriminators=args.with_discriminators)
-        size = args.out.stat().st_size / 2**20
-        print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
-        return 0
-    if args.data is None:
-        raise InputError("--data is required for training")
-    if args.layout_size < 8 or args.layout_size > 1024:
-        raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
-    for name in ("lr", "minutes", "stop_at"):
-        if not math.isfinite(getattr(args, name)):
-            raise InputError(f"--{name} must be finite")
-    if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
-        raise InputError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
-    datasets = [open_data(d) for d in args.data]
+        return _export(args, env)
+    _check_arguments(args)
+    datasets, train_seqs, val_seqs = _open_datasets(args.data)
     ds = datasets[0]
-    for d, other in zip(args.data[1:], datasets[1:]):
-        if other.spec != ds.spec:
-            raise InputError(f"{d}: layout spec {other.spec.to_dict()} differs from {args.data[0]}'s")
-    train_seqs = [s for d in datasets for s in d.sequences("train")]
-    val_seqs = [s for d in datasets for s in d.sequences("val")]
-    if not train_seqs:
-        raise InputError(f"{', '.join(map(str, args.data))}: no 'train' sequences")
     variant = args.variant
     adv = args.adv_weight if VARIANTS[variant][2] else 0.0
     mcfg = default_model_config(
@@ -209,35 +188,7 @@ def run(args: argparse.Namespace) -> int:
         decoder_width=args.decoder_width,
         memory_hidden=args.memory_hidden,
     )
-    tcfg = TrainConfig(
-        frames_per_step=args.frames_per_step,
-        steps_per_epoch=args.steps_per_epoch,
-        epochs=args.epochs,
-        minutes=args.minutes,
-        stop_minutes=args.stop_at,
-        lr=args.lr,
-        class_weights=tuple(args.class_weights),
-        dice_weight=args.dice_weight,
-        row_weight=args.row_weight,
-        adv_weight=adv,
-        short_weight=args.short_weight,
-        long_weight=args.long_weight,
-        augment=not args.no_augment,
-        max_stride=args.max_stride,
-        jpeg=args.jpeg,
-        jpeg_quality=tuple(args.jpeg_quality),
-        precision=args.precision,
-        seed=args.seed,
-        threads=args.threads,
-        workers=args.workers,
-        val_frames=args.val_frames,
-        val_sequences=args.val_sequences,
-        val_mode=args.val_mode,
-        imagenet_weights=str(args.imagenet_weights) if args.imagenet_weights else None,
-        init_from=str(args.init_from) if args.init_from else None,
-        checkpoint_every=args.checkpoint_every,
-        device=args.device,
-    )
+    tcfg = _train_config(args, adv)
     tcfg.validate()
     info = {
         "root": str(args.data[0]) if len(args.data) == 1 else [str(d) for d in args.data],
@@ -288,3 +239,75 @@ def run(args: argparse.Namespace) -> int:
             f"checkpoints in {args.out} (best score {record['best_score']})"
         )
     return 0
+
+
+def _export(args: argparse.Namespace, env: DistEnv) -> int:
+    """``--export CKPT``: write its fp16 weights-only copy to ``--out`` (the main process only)."""
+    from network.checkpoint import export_weights
+
+    if not env.is_main:
+        return 0
+    export_weights(args.export, args.out, note=args.note, discriminators=args.with_discriminators)
+    size = args.out.stat().st_size / 2**20
+    print(f"wrote {args.out} ({size:.1f} MiB, fp16) and {args.out.with_suffix('.json')}")
+    return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """The options training needs, checked before any data is opened (one-line errors)."""
+    if args.data is None:
+        raise InputError("--data is required for training")
+    if args.layout_size < 8 or args.layout_size > 1024:
+        raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
+    for name in ("lr", "minutes", "stop_at"):
+        if not math.isfinite(getattr(args, name)):
+            raise InputError(f"--{name} must be finite")
+    if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
+        raise InputError(f"--dist-timeout must be a positive number of minutes, got {args.dist_timeout}")
+
+
+def _open_datasets(paths: list[Path]) -> tuple[list, list, list]:
+    """The datasets at ``paths`` (one layout spec among them) and their train and val sequences."""
+    datasets = [open_data(d) for d in paths]
+    ds = datasets[0]
+    for d, other in zip(paths[1:], datasets[1:]):
+        if other.spec != ds.spec:
+            raise InputError(f"{d}: layout spec {other.spec.to_dict()} differs from {paths[0]}'s")
+    train_seqs = [s for d in datasets for s in d.sequences("train")]
+    val_seqs = [s for d in datasets for s in d.sequences("val")]
+    if not train_seqs:
+        raise InputError(f"{', '.join(map(str, paths))}: no 'train' sequences")
+    return datasets, train_seqs, val_seqs
+
+
+def _train_config(args: argparse.Namespace, adv: float) -> TrainConfig:
+    """The options as a `TrainConfig` (``adv``: the adversarial weight, 0 for a variant without discriminators)."""
+    return TrainConfig(
+        frames_per_step=args.frames_per_step,
+        steps_per_epoch=args.steps_per_epoch,
+        epochs=args.epochs,
+        minutes=args.minutes,
+        stop_minutes=args.stop_at,
+        lr=args.lr,
+        class_weights=tuple(args.class_weights),
+        dice_weight=args.dice_weight,
+        row_weight=args.row_weight,
+        adv_weight=adv,
+        short_weight=args.short_weight,
+        long_weight=args.long_weight,
+        augment=not args.no_augment,
+        max_stride=args.max_stride,
+        jpeg=args.jpeg,
+        jpeg_quality=tuple(args.jpeg_quality),
+        precision=args.precision,
+        seed=args.seed,
+        threads=args.threads,
+        workers=args.workers,
+        val_frames=args.val_frames,
+        val_sequences=args.val_sequences,
+        val_mode=args.val_mode,
+        imagenet_weights=str(args.imagenet_weights) if args.imagenet_weights else None,
+        init_from=str(args.init_from) if args.init_from else None,
+        checkpoint_every=args.checkpoint_every,
+        device=args.device,
+    )

@@ -57,35 +57,25 @@ def evaluate_sequences(
     rolls: list[float] = []
     pitches: list[float] = []
     yaws: list[float] = []
+    options = dict(
+        flip=flip,
+        read_depth=read_depth,
+        whole_sequence=whole_sequence,
+        fuse_tau=fuse_tau,
+        roll=roll,
+        pitch=pitch,
+        yaw=yaw,
+    )
     for seq in sequences:
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
-        anchors = (
-            (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
-        )
-        pred = Predictor(  # angles None: the sequence's recorded ones (`network.inference.predictor.SequenceCamera`)
-            model,
-            sequence_camera(seq),
-            anchors,
-            flip=flip,
-            read_depth=read_depth,
-            whole_sequence=whole_sequence,
-            fuse_tau=fuse_tau,
-            roll=roll,
-            pitch=pitch,
-            yaw=yaw,
-        )
-        for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
-            gt = seq.layouts(i)
-            scorer.update(frame_layouts(out, seq.spec), gt)
-            found = int(torch.isfinite(out["anchors"]).sum())
-            slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
-            frames += 1
-            bar.update(1)
-        if pred.leveller is not None:
-            rolls.extend(pred.leveller.rolls)
-            pitches.extend(pred.leveller.pitches)
-            yaws.extend(pred.leveller.yaws)
+        scored, right, leveller = _score_sequence(model, seq, n, mode, scorer, bar, true_anchors, options)
+        frames += scored
+        slots_right += right
+        if leveller is not None:
+            rolls.extend(leveller.rolls)
+            pitches.extend(leveller.pitches)
+            yaws.extend(leveller.yaws)
     bar.close()
     return {
         **scorer.result(),
@@ -109,6 +99,35 @@ def evaluate_sequences(
         "anchors": "truth" if true_anchors else "row head",
         "slot_count_accuracy": slots_right / max(frames, 1),
     }
+
+
+def _score_sequence(
+    model: MVRackLay,
+    seq: SequenceLike,
+    n: int,
+    mode: str,
+    scorer: FrameScorer,
+    bar: tqdm,
+    true_anchors: bool,
+    options: dict[str, Any],
+) -> tuple[int, int, Any]:
+    """Score the first ``n`` frames of ``seq`` into ``scorer`` (``options``: `Predictor`'s keywords).
+
+    Returns the frames scored, how many of them the row head found the ground truth's number of shelf
+    slots in, and the predictor's leveller (None when every camera was taken as level).
+    """
+    anchors = (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
+    # angles None: the sequence's recorded ones (`network.inference.predictor.SequenceCamera`)
+    pred = Predictor(model, sequence_camera(seq), anchors, **options)
+    frames = slots_right = 0
+    for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
+        gt = seq.layouts(i)
+        scorer.update(frame_layouts(out, seq.spec), gt)
+        found = int(torch.isfinite(out["anchors"]).sum())
+        slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
+        frames += 1
+        bar.update(1)
+    return frames, slots_right, pred.leveller
 
 
 def box_depth_source(model: MVRackLay) -> str:
