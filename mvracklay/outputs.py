@@ -1,21 +1,15 @@
 """What the commands write, and how: staged beside OUT and moved in only when complete (`staging_dir`,
-`publish`), the map as ``.glb`` (`write_glb`) and the Rerun viewer opened on a written recording
-(`spawn_viewer`). Imports no torch: `mvracklay reconstruct` uses it too."""
+`publish`) and the Rerun viewer opened on a written recording (`spawn_viewer`). Imports no torch: `mvracklay reconstruct` uses it too."""
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import struct
 import subprocess
 import sys
 from pathlib import Path
 
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_bytes
-from stitching.export_gltf import export_glb, map_cuboids
-from stitching.warehouse_map import WarehouseMap
 
 #: what `mvracklay run` writes into OUT
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
@@ -54,26 +48,6 @@ def publish(stage: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
             dst.unlink()
         os.replace(item, dst)
     stage.rmdir()
-
-
-def empty_glb_bytes() -> bytes:
-    """A valid binary glTF holding one empty scene (trimesh refuses to export a scene without meshes)."""
-    doc = {
-        "asset": {"version": "2.0", "generator": "mvracklay (empty map)"},
-        "scene": 0,
-        "scenes": [{"name": "warehouse"}],
-    }
-    body = json.dumps(doc, separators=(",", ":"), sort_keys=True).encode()
-    body += b" " * (-len(body) % 4)
-    return b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", len(body)) + b"JSON" + body
-
-
-def write_glb(wmap: WarehouseMap, path: Path) -> None:
-    """`stitching.export_gltf.export_glb`, or an empty scene when the map holds no shelf or box."""
-    if map_cuboids(wmap):
-        export_glb(wmap, path)
-    else:
-        atomic_write_bytes(path, empty_glb_bytes())
 
 
 def spawn_viewer(rrd: Path) -> None:

@@ -31,7 +31,7 @@ from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
-from mvracklay.outputs import OUTPUTS, publish, staging_dir, write_glb
+from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
 from network.inference.fusion import check_tau
@@ -41,6 +41,7 @@ from network.model.frozen import trunk_precision, use_precision
 from network.precision import check_precision
 from network.training.distributed import single_process_device
 from stitching import rerun_log
+from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
 from stitching.pipeline import StitchConfig, Stitcher
@@ -232,7 +233,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
             wmap.save(stage / "warehouse.json")
             eb.update(1)
-            write_glb(wmap, stage / "warehouse.glb")
+            export_glb(wmap, stage / "warehouse.glb")
             eb.update(1)
             if rec is not None:
                 if (n - 1) % cfg.map_every:

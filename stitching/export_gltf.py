@@ -13,7 +13,9 @@
 
 from __future__ import annotations
 
+import json
 import os
+import struct
 
 import numpy as np
 
@@ -73,14 +75,30 @@ def map_cuboids(wmap: WarehouseMap) -> list[tuple[str, str, Cuboid]]:
     return out
 
 
+def _empty_glb_bytes() -> bytes:
+    """A valid binary glTF holding one empty scene (trimesh refuses to export a scene without meshes)."""
+    doc = {
+        "asset": {"version": "2.0", "generator": "mvracklay (empty map)"},
+        "scene": 0,
+        "scenes": [{"name": "warehouse"}],
+    }
+    body = json.dumps(doc, separators=(",", ":"), sort_keys=True).encode()
+    body += b" " * (-len(body) % 4)
+    return b"glTF" + struct.pack("<II", 2, 12 + 8 + len(body)) + struct.pack("<I", len(body)) + b"JSON" + body
+
+
 def export_glb(wmap: WarehouseMap, path: str | os.PathLike) -> int:
-    """Write ``wmap`` as a ``.glb`` (atomic); returns the number of meshes written."""
+    """Write ``wmap`` as a ``.glb`` (atomic; a map with no shelf or box gives a valid empty scene); returns the
+    number of meshes written."""
+    items = map_cuboids(wmap)
+    if not items:
+        atomic_write_bytes(path, _empty_glb_bytes())
+        return 0
     import trimesh
     from trimesh.visual.material import PBRMaterial
 
     scene = trimesh.Scene()
     colours = {"shelf": CLASS_COLOURS[SHELF], "box": CLASS_COLOURS[BOX]}
-    items = map_cuboids(wmap)
     for name, kind, c in items:
         v, f = cuboid_mesh_arrays(c)
         mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)

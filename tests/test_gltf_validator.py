@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from mvracklay.cli import main
-from mvracklay.outputs import write_glb
+from stitching.export_gltf import export_glb
 from stitching.warehouse_map import WarehouseMap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,7 +63,7 @@ def test_pipeline_glb_is_valid(tiny_dataset: Path, tiny_checkpoint: Path, tmp_pa
 
 def test_empty_map_glb_is_valid(tmp_path: Path):
     path = tmp_path / "empty.glb"
-    write_glb(WarehouseMap(racks=[], steps=[], board_thickness=0.06), path)
+    export_glb(WarehouseMap(racks=[], steps=[], board_thickness=0.06), path)
     report = validate(path)
     assert report["issues"]["numErrors"] == 0, _errors(report)
 

@@ -157,8 +157,8 @@ def run(args: argparse.Namespace) -> int:
 def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: list[int], out: Path) -> None:
     from tqdm import tqdm
 
-    from mvracklay.outputs import write_glb
     from stitching import rerun_log
+    from stitching.export_gltf import export_glb
     from stitching.pipeline import Stitcher
 
     origin = origin_of(seq, indices[0])
@@ -188,7 +188,7 @@ def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: l
     meta = {"layouts": str(folder.root), "frames": len(indices), "spec": folder.spec.to_dict()}
     wmap = stitcher.map(origin, meta)
     wmap.save(out / "warehouse.json")
-    write_glb(wmap, out / "warehouse.glb")
+    export_glb(wmap, out / "warehouse.glb")
     if rec is not None:
         rec.flush()
         rec.disconnect()
