@@ -220,3 +220,22 @@ def test_predict_warns_about_a_camera_outside_the_trained_ones(seq_dir: Path, ch
     err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert len(err) == 1 and err[0].startswith("mvracklay predict: warning: camera differs from the ones")
     assert "horizontal FOV 49.1 deg vs 60.0" in err[0] and "further back" in err[0]
+
+
+def test_predict_without_a_checkpoint_runs_the_shipped_default(seq_dir: Path, tmp_path: Path):
+    from mvracklay import models
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, p in enumerate(sorted((seq_dir / "rgb").glob("*.png"))[:2]):
+        (frames / f"{i}.png").write_bytes(p.read_bytes())
+    out = tmp_path / "lay"
+    assert main(["predict", str(frames), "--out", str(out), "--threads", "1", "--quiet"]) == 0
+    named = tmp_path / "named"
+    argv = ["predict", str(frames), "--out", str(named), "--checkpoint", models.DEFAULT_MODEL]
+    assert main([*argv, "--threads", "1", "--quiet"]) == 0
+    a, b = LayoutFolder(out), LayoutFolder(named)
+    assert len(a) == len(b) == 2
+    for i in a.indices():  # the very layouts of the default model named
+        x, y = a.read(i), b.read(i)
+        assert np.array_equal(x.top, y.top) and np.array_equal(x.front, y.front)
