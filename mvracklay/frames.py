@@ -13,16 +13,17 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
+from PIL import Image, ImageOps
 
 from layouts import Intrinsics
-from layouts.camera_record import camera_angles, lens_from_record
+from layouts.camera_record import camera_angles, camera_file_record, check_camera_fits, lens_from_record
 from layouts.canonical import FILL_RGB
 from layouts.errors import InputError
 from layouts.fileio import load_json
@@ -32,6 +33,13 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
 DEFAULT_HFOV_DEG = 60.0
 """Horizontal field of view of the default camera (the generator's default, waresynth/default_config.json)."""
+SINGLE_FRAME_HINT = (
+    "one frame gives one view without the motion the map needs: the map holds one rack span, its scale "
+    "from the assumed camera-to-rack distance (--distance)"
+)
+_EXIF_ORIENTATION = 0x0112
+_SWAPS_SIDES = (5, 6, 7, 8)
+"""EXIF orientations whose upright image is the stored one turned by 90 degrees (width and height swap)."""
 
 
 def natural_key(path: Path) -> list[Any]:
@@ -39,21 +47,38 @@ def natural_key(path: Path) -> list[Any]:
     return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", path.name)]
 
 
+def _orientation(im: Image.Image) -> int:
+    """The EXIF orientation (1..8) a photo is stored with; 1 (upright) when it has none."""
+    v = im.getexif().get(_EXIF_ORIENTATION, 1)
+    return v if isinstance(v, int) and 1 <= v <= 8 else 1
+
+
 def _image_size(path: Path) -> tuple[int, int]:
+    """The upright image's size (a photo's EXIF orientation applied)."""
+    return _upright_size(path)[:2]
+
+
+def _upright_size(path: Path) -> tuple[int, int, int]:
+    """``(width, height, EXIF orientation)`` of the upright image."""
     try:
         with Image.open(path) as im:
-            return im.size
-    except (OSError, ValueError, Image.DecompressionBombError) as e:
+            w, h = im.size
+            o = _orientation(im)
+            return (h, w, o) if o in _SWAPS_SIDES else (w, h, o)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         raise InputError(f"{path}: not a readable image ({type(e).__name__})") from None
 
 
 def _read_rgb(path: Path, size: tuple[int, int]) -> np.ndarray:
+    """The image upright (`PIL.ImageOps.exif_transpose` where its EXIF orientation says so) as RGB."""
     try:
         with Image.open(path) as im:
-            if im.size != size:
-                raise InputError(f"{path}: {im.size[0]}x{im.size[1]}, but the first image is {size[0]}x{size[1]}")
-            return np.asarray(im.convert("RGB"))
-    except (OSError, ValueError, Image.DecompressionBombError) as e:
+            upright = ImageOps.exif_transpose(im) if _orientation(im) != 1 else im
+            if upright.size != size:
+                w, h = upright.size
+                raise InputError(f"{path}: {w}x{h} upright, but the first image is {size[0]}x{size[1]}")
+            return np.asarray(upright.convert("RGB"))
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         if isinstance(e, InputError):
             raise
         raise InputError(f"{path}: not a readable image ({type(e).__name__})") from None
@@ -63,9 +88,11 @@ def _read_rgb(path: Path, size: tuple[int, int]) -> np.ndarray:
 class FrameSource:
     """An ordered, validated source of RGB frames.
 
-    ``kind`` is ``sequence`` (WareSynth folder), ``images`` or ``video``; ``num_frames`` is None
-    when a video container does not say. ``intrinsics``, ``records`` (per-frame camera records) and
-    ``camera_angles`` are known only for a WareSynth sequence.
+    ``kind`` is ``sequence`` (WareSynth folder), ``images`` (a folder of images, or one image file) or
+    ``video``; ``num_frames`` is None when a video container does not say. ``intrinsics``, ``records``
+    (per-frame camera records) and ``camera_angles`` are known only for a WareSynth sequence.
+    What streaming finds worth saying (one frame only; a video that decodes fewer frames than it
+    announces) is printed to stderr as ``PROG: warning: ...`` and kept in ``warnings``.
     """
 
     kind: str
@@ -80,6 +107,18 @@ class FrameSource:
     #: the lens distortion meta.json's intrinsics give (a WareSynth sequence's; None: a pinhole camera)
     lens: Lens | None = None
     image_paths: list[Path] = field(default_factory=list, repr=False)
+    #: frames a video's container announces (its frame count, else duration x rate; None: it does not say)
+    announced: int | None = None
+    #: whether ``announced`` is the container's own frame count (not estimated from the duration)
+    announced_exact: bool = False
+    #: the command the warnings are printed as coming from
+    prog: str = "mvracklay"
+    warnings: list[str] = field(default_factory=list)
+
+    def warn(self, said: str) -> None:
+        """Print ``said`` as one warning line on stderr and keep it in ``warnings``."""
+        self.warnings.append(said)
+        print(f"{self.prog}: warning: {said}", file=sys.stderr)
 
     def frames(
         self, max_frames: int | None = None, undistort: tuple[Intrinsics, Lens] | None = None
@@ -87,17 +126,60 @@ class FrameSource:
         """Stream the frames in order (at most ``max_frames``); ``undistort=(intrinsics, lens)`` resamples
         each to the pinhole camera's image (`layouts.lens.undistort_frame`: frames wider than 640 px come
         shrunk to 640; unseen corners take the canonical fill colour)."""
+        if self.num_frames == 1:
+            self.warn(f"{self.path}: {SINGLE_FRAME_HINT}")
         for rgb in self._raw_frames(max_frames):
             yield rgb if undistort is None else undistort_frame(rgb, undistort[0], undistort[1], FILL_RGB)
 
     def _raw_frames(self, max_frames: int | None) -> Iterator[np.ndarray]:
         limit = max_frames if max_frames else None
         if self.kind == "video":
-            yield from _video_frames(self.path, (self.width, self.height), limit)
+            yield from self._video_frames(limit)
             return
         paths = self.image_paths[:limit] if limit else self.image_paths
         for p in paths:
             yield _read_rgb(p, (self.width, self.height))
+
+    def _video_frames(self, limit: int | None) -> Iterator[np.ndarray]:
+        """Decode the video one frame at a time; fewer frames than announced, or a decoding error after some,
+        is warned about (the file looks cut), none at all refused."""
+        import av
+
+        container = _open_video(self.path)
+        n, failed = 0, None
+        try:
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            try:
+                for frame in container.decode(stream):
+                    rgb = frame.to_ndarray(format="rgb24")
+                    if (rgb.shape[1], rgb.shape[0]) != (self.width, self.height):
+                        raise InputError(
+                            f"{self.path}: frame {n} is {rgb.shape[1]}x{rgb.shape[0]}, "
+                            f"the first frame {self.width}x{self.height}"
+                        )
+                    yield rgb
+                    n += 1
+                    if limit and n >= limit:
+                        return
+            except av.FFmpegError as e:
+                if n == 0:
+                    raise InputError(
+                        f"{self.path}: video decoding failed at its first frame ({type(e).__name__})"
+                    ) from None
+                failed = type(e).__name__
+        finally:
+            container.close()
+        self._check_decoded(n, failed)
+
+    def _check_decoded(self, n: int, failed: str | None) -> None:
+        """Warn when a video decoded to its end gave fewer frames than it announces (or stopped on an error)."""
+        m = self.announced
+        short = m is not None and n < m - (0 if self.announced_exact else max(1, round(0.02 * m)))
+        if not short and failed is None:
+            return
+        said = f"decoded {n} of {m} frames announced by {self.path}" if m else f"decoded {n} frames of {self.path}"
+        self.warn(said + ": the file looks cut" + (f" (decoding stopped: {failed})" if failed else ""))
 
     def frame_count(self, max_frames: int | None = None) -> int | None:
         """Frames that `frames` will yield (None when unknown before decoding)."""
@@ -118,11 +200,13 @@ def _image_folder(folder: Path, kind: str = "images") -> FrameSource:
     paths = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES), key=natural_key)
     if not paths:
         raise InputError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)}) found")
-    size = _image_size(paths[0])
+    w0, h0, o0 = _upright_size(paths[0])
     for p in paths[1:]:
-        s = _image_size(p)
-        if s != size:
-            raise InputError(f"{p}: {s[0]}x{s[1]}, but the first image ({paths[0].name}) is {size[0]}x{size[1]}")
+        w, h, o = _upright_size(p)
+        if (w, h) != (w0, h0):
+            turned = " upright (after the photos' EXIF orientation)" if o != 1 or o0 != 1 else ""
+            raise InputError(f"{p}: {w}x{h}{turned}, but the first image ({paths[0].name}) is {w0}x{h0}")
+    size = (w0, h0)
     return FrameSource(kind, folder, size[0], size[1], len(paths), image_paths=paths)
 
 
@@ -166,31 +250,6 @@ def _open_video(path: Path):
     return container
 
 
-def _video_frames(path: Path, size: tuple[int, int], limit: int | None) -> Iterator[np.ndarray]:
-    import av
-
-    container = _open_video(path)
-    try:
-        stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
-        n = 0
-        try:
-            for frame in container.decode(stream):
-                rgb = frame.to_ndarray(format="rgb24")
-                if (rgb.shape[1], rgb.shape[0]) != size:
-                    raise InputError(
-                        f"{path}: frame {n} is {rgb.shape[1]}x{rgb.shape[0]}, the first frame {size[0]}x{size[1]}"
-                    )
-                yield rgb
-                n += 1
-                if limit and n >= limit:
-                    return
-        except av.FFmpegError as e:
-            raise InputError(f"{path}: video decoding failed after {n} frames ({type(e).__name__})") from None
-    finally:
-        container.close()
-
-
 def _video(path: Path) -> FrameSource:
     import av
 
@@ -204,23 +263,43 @@ def _video(path: Path) -> FrameSource:
         if first is None:
             raise InputError(f"{path}: the video holds no frames")
         n = int(stream.frames or 0) or None
-        return FrameSource("video", path, int(first.width), int(first.height), n)
+        src = FrameSource("video", path, int(first.width), int(first.height), n)
+        src.announced, src.announced_exact = (n, True) if n else (_frames_from_duration(container, stream), False)
+        return src
     finally:
         container.close()
 
 
-def open_source(path: str | os.PathLike) -> FrameSource:
-    """Open INPUT: a WareSynth sequence folder (meta.json + rgb/), a folder of images, or a video file."""
+def _frames_from_duration(container: Any, stream: Any) -> int | None:
+    """Frames a container announces through its duration x the stream's frame rate (None: it says neither)."""
+    rate = stream.average_rate or stream.guessed_rate
+    if stream.duration and stream.time_base:
+        seconds = float(stream.duration * stream.time_base)
+    elif container.duration:
+        seconds = container.duration / 1_000_000  # AV_TIME_BASE
+    else:
+        return None
+    if not rate:
+        return None
+    return round(seconds * float(rate)) or None
+
+
+def open_source(path: str | os.PathLike, prog: str = "mvracklay") -> FrameSource:
+    """Open INPUT: a WareSynth sequence folder (meta.json + rgb/), a folder of images, one image file, or a
+    video file; ``prog`` names the command in the source's warnings."""
     p = Path(path)
     if p.is_dir():
-        if (p / "meta.json").is_file() and (p / "rgb").is_dir():
-            return _sequence(p)
-        return _image_folder(p)
-    if p.is_file():
+        src = _sequence(p) if (p / "meta.json").is_file() and (p / "rgb").is_dir() else _image_folder(p)
+    elif p.is_file():
         if p.suffix.lower() in IMAGE_SUFFIXES:
-            raise InputError(f"{p}: a single image; give the folder holding the ordered frames")
-        return _video(p)
-    raise InputError(f"{p}: input not found (want a sequence folder, an image folder or a video file)")
+            w, h = _image_size(p)
+            src = FrameSource("images", p, w, h, 1, image_paths=[p])
+        else:
+            src = _video(p)
+    else:
+        raise InputError(f"{p}: input not found (want a sequence folder, an image folder, an image or a video file)")
+    src.prog = prog
+    return src
 
 
 def default_intrinsics(width: int, height: int) -> Intrinsics:
@@ -229,15 +308,11 @@ def default_intrinsics(width: int, height: int) -> Intrinsics:
 
 
 def _camera_record(path: str | os.PathLike) -> dict[str, Any]:
+    """A ``--camera`` file's keys, flat and checked (`layouts.camera_record.camera_file_record`)."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"--camera {p}: file not found")
-    d = load_json(p)
-    if isinstance(d, dict) and isinstance(d.get("intrinsics"), dict):
-        d = d["intrinsics"]
-    if not isinstance(d, dict):
-        raise InputError(f"--camera {p}: want a JSON object with fx, fy, cx, cy (and width, height)")
-    return d
+    return camera_file_record(load_json(p), f"--camera {p}")
 
 
 def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
@@ -245,10 +320,13 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
 
     The file holds ``layouts.Intrinsics`` fields (fx, fy, cx, cy in pixels; width, height of the
     image they refer to, default the frame size), at the top level or under ``"intrinsics"``, and
-    optionally the lens's distortion beside them (k1, k2, p1, p2, k3, OpenCV's; `load_lens`).
+    optionally the lens's distortion beside them (k1, k2, p1, p2, k3, OpenCV's; `load_lens`), and
+    nothing else. A principal point outside the image, or an image of another aspect ratio than the
+    frames: `InputError` (scaling it would stretch the camera).
     """
     d = {"width": width, "height": height, **_camera_record(path)}
     intr = Intrinsics.from_dict(d, f"--camera {path}")
+    check_camera_fits(intr, width, height, f"--camera {path}")
     return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
 
 

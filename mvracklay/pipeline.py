@@ -249,6 +249,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
+    warnings.extend(source.warnings)  # the frame source's own (printed as they came)
     for said in angle_warnings(read, width=intr.width):
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)

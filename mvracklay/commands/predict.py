@@ -23,7 +23,9 @@ from mvracklay.options import (
     add_precision_option,
     add_quiet_option,
     add_roll_option,
+    add_threads_option,
 )
+from mvracklay.threads import resolve_threads
 
 if TYPE_CHECKING:
     import numpy as np
@@ -31,15 +33,15 @@ if TYPE_CHECKING:
     from layouts import Intrinsics, LayoutSpec
     from layouts.codecs import LayoutFolder
     from layouts.lens import Lens
-    from network.data import ImageFolderSequence
+    from mvracklay.frames import FrameSource
     from network.inference.predictor import Predictor
     from network.model.net import MVRackLay
 
 NAME = "predict"
-HELP = "predict top/front layouts for every frame of a sequence or image folder"
+HELP = "predict top/front layouts for every frame of a sequence, image folder, image or video"
 DESCRIPTION = (
-    "Run a checkpoint over SEQ_DIR (a generated sequence folder with rgb/ and meta.json, or any folder of "
-    "images in name order) and write a layout folder (spec.json + NNNNNN.npz with top, front, visible) that "
+    "Run a checkpoint over INPUT (the inputs of 'mvracklay run': a generated sequence folder with rgb/ and "
+    "meta.json, any folder of images in name order, one image, or a video file) and write a layout folder (spec.json + NNNNNN.npz with top, front, visible) that "
     "'mvracklay reconstruct' reads. Streaming mode carries the ConvLSTM state frame to frame (one encoder "
     "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
     "Every frame is warped into the model's canonical view with the camera intrinsics and the "
@@ -54,7 +56,7 @@ ORDER = 13
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("seq_dir", type=Path, metavar="SEQ_DIR", help="generated sequence folder or image folder")
+    p.add_argument("seq_dir", type=Path, metavar="INPUT", help="sequence folder, image folder, image or video file")
     p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
     p.add_argument("--out", type=Path, required=True, help="layout folder to write")
     p.add_argument(
@@ -79,24 +81,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
     add_fuse_option(p)
     add_roll_option(p)
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    add_threads_option(p)
     add_precision_option(p)
     add_device_option(p)
     add_quiet_option(p, "hide the progress bar")
 
 
 def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
-    """``--camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any)."""
+    """``--camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any), read and
+    checked as `run` reads it (`mvracklay.frames.load_camera`: scaled to the frames' ``width x height``)."""
     from layouts import Intrinsics
-    from layouts.camera_record import lens_from_record
-    from layouts.fileio import load_json
+    from mvracklay.frames import load_camera, load_lens
 
     path = Path(text)
     if path.suffix == ".json" or path.is_file():
-        d = load_json(path)
-        d = d.get("intrinsics", d) if isinstance(d, dict) else d
-        intr = Intrinsics.from_dict(d, str(path))
-        return intr, lens_from_record(d, f"--camera {path}")
+        return load_camera(path, width, height), load_lens(path)
     try:
         fx, fy, cx, cy = (float(v) for v in text.split(","))
     except ValueError:
@@ -115,8 +114,6 @@ def run(args: argparse.Namespace) -> int:
     from network.model.frozen import use_precision
     from network.training.distributed import single_process_device
 
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     resolve_angles(args.roll, args.pitch, args.yaw, None)  # checked before the model loads
     if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
@@ -127,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
     # the shipped default model without --checkpoint (as `run`); a given path keeps the loader's own messages
     ckpt = args.checkpoint if args.checkpoint is not None else resolve_checkpoint(None)
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(resolve_threads(args.threads))
     model, record = load_model(ckpt)
     model.to(single_process_device(NAME, args.device))
     use_precision(model, args.precision)
@@ -178,7 +175,8 @@ def predict_folder(
 ) -> int:
     """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
 
-    The canonical warp and the visible columns use ``intrinsics`` / ``distance`` when given, else the
+    ``seq_dir`` is any input of `mvracklay.frames.open_source` (a sequence, an image folder, an image, a
+    video). The canonical warp and the visible columns use ``intrinsics`` / ``distance`` when given, else the
     sequence's intrinsics and per-frame distance from ``meta.json``, else the camera and mean
     distance in ``record``. ``rack_depth`` (metres) redraws every top view that deep
     (`layouts.rackdepth.impose_rack_depth`); without it a model with a back-edge head reads the depth
@@ -190,20 +188,21 @@ def predict_folder(
     """
     from layouts.codecs import LayoutFolder
     from layouts.rackdepth import check_rack_depth
-    from mvracklay.frames import camera_warning
+    from mvracklay.frames import camera_warning, open_source
     from network.inference.predictor import Predictor
     from network.inference.roll import resolve_angles
 
-    seq, meta = _open_sequence(seq_dir)
-    intr, lens = _sequence_camera(intrinsics, meta, record, seq_dir, seq.image_size(), source)
+    frames = open_source(seq_dir, prog=f"mvracklay {NAME}")
+    intr, lens = _sequence_camera(intrinsics, frames, record, source)
     differs = camera_warning(intr, record, source)
     if differs:
         print(f"mvracklay predict: warning: camera {differs}", file=sys.stderr)
-    dist_of = _frame_distances(distance, meta, record)
+    dist_of = _frame_distances(distance, frames, record)
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
-    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, _recorded_angles(meta, seq_dir))
+    # a generated sequence's camera rotation is recorded; footage's is read from the frames
+    roll, pitch, yaw = resolve_angles(roll, pitch, yaw, frames.camera_angles)
     folder = LayoutFolder.create(out, spec)
     pred = Predictor(
         model,
@@ -217,14 +216,16 @@ def predict_folder(
         pitch=pitch,
         yaw=yaw,
     )
-    depth = _write_layouts(pred, seq, folder, spec, intr, lens, dist_of, mode, progress)
+    n, depth = _write_layouts(pred, frames, folder, spec, intr, lens, dist_of, mode, progress)
+    if n == 0:
+        raise InputError(f"{frames.path}: no frames to process")
     _report_readings(pred, depth, intr, progress)
-    return seq.num_frames
+    return n
 
 
 def _write_layouts(
     pred: Predictor,
-    seq: ImageFolderSequence,
+    seq: FrameSource,
     folder: LayoutFolder,
     spec: LayoutSpec,
     intr: Intrinsics,
@@ -232,94 +233,65 @@ def _write_layouts(
     dist_of: Callable[[int], float],
     mode: str,
     progress: bool,
-) -> float:
+) -> tuple[int, float]:
     """Predict every frame of ``seq`` (undistorted through ``lens`` first, if any) and write its layouts with
-    its visible columns to ``folder`` (at ``spec``); returns the last rack depth read (NaN when none)."""
+    its visible columns to ``folder`` (at ``spec``); returns the frames written and the last rack depth read
+    (NaN when none)."""
     import numpy as np
     from tqdm import tqdm
 
-    from layouts.canonical import FILL_RGB
     from layouts.codecs import FrameLayouts
-    from layouts.lens import undistort_frame
     from network.inference.predictor import frame_layouts
 
-    bar = tqdm(total=seq.num_frames, desc=f"predict ({mode})", unit="frame", disable=not progress)
+    bar = tqdm(total=seq.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
-        for i in range(seq.num_frames):
-            yield seq.rgb(i) if lens is None else undistort_frame(seq.rgb(i), intr, lens, FILL_RGB)
+        for rgb in seq.frames(undistort=(intr, lens) if lens is not None else None):
+            yield rgb
             bar.update(1)
 
-    depth = float("nan")
+    depth, n = float("nan"), 0
     for i, logits in enumerate(pred.run(frames(), mode)):
         lay = frame_layouts(logits, spec)
         depth = float(logits["rack_depth"])
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
+        n = i + 1
     bar.close()
-    return depth
-
-
-def _open_sequence(seq_dir: Path) -> tuple[ImageFolderSequence, Any]:
-    """The frames of ``seq_dir`` and its ``meta.json`` (None for a plain image folder)."""
-    from layouts.fileio import load_json
-    from network.data import ImageFolderSequence
-
-    if (seq_dir / "meta.json").is_file() and (seq_dir / "rgb").is_dir():
-        return ImageFolderSequence(seq_dir / "rgb"), load_json(seq_dir / "meta.json")
-    return ImageFolderSequence(seq_dir), None
+    return n, depth
 
 
 def _sequence_camera(
-    intrinsics: str | None, meta: Any, record: dict[str, Any], seq_dir: Path, size: tuple[int, int], source: str
+    intrinsics: str | None, frames: FrameSource, record: dict[str, Any], source: str
 ) -> tuple[Intrinsics, Lens | None]:
     """The camera of the frames and its lens's distortion, if any (each frame is then undistorted first):
     ``--camera``, else the sequence's meta.json, else the checkpoint's record, else a 60 degree view."""
     from layouts import Intrinsics
-    from layouts.camera_record import lens_from_record
 
-    width, height = size
+    width, height = frames.width, frames.height
     if intrinsics:
         return _parse_intrinsics(intrinsics, width, height)
-    if isinstance(meta, dict) and "intrinsics" in meta:
-        intr = Intrinsics.from_dict(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
-        lens = None
-        if isinstance(meta["intrinsics"], dict):
-            lens = lens_from_record(meta["intrinsics"], f"{seq_dir / 'meta.json'}")
-        return intr, lens
+    if frames.intrinsics is not None:
+        return frames.intrinsics, frames.lens
     if record.get("intrinsics"):
         return Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height), None
     return Intrinsics.from_fov(width, height, 60.0), None
 
 
-def _frame_distances(distance: float | None, meta: Any, record: dict[str, Any]) -> Callable[[int], float]:
+def _frame_distances(distance: float | None, frames: FrameSource, record: dict[str, Any]) -> Callable[[int], float]:
     """Frame index -> camera-to-rack distance: ``distance`` when given, else the frame's in meta.json, else the
     checkpoint's nominal distance, else `network.data.DEFAULT_DISTANCE`."""
     from network.data import DEFAULT_DISTANCE
 
-    frames_meta = meta.get("frames") if isinstance(meta, dict) else None
     nominal = record.get("nominal_distance")
     nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
     default_distance = distance or nominal or DEFAULT_DISTANCE
 
     def dist_of(i: int) -> float:
-        if distance is None and frames_meta and i < len(frames_meta):
-            d = frames_meta[i].get("distance") if isinstance(frames_meta[i], dict) else None
-            if isinstance(d, (int, float)) and math.isfinite(d) and d > 0:
-                return float(d)
-        return default_distance
+        recorded = frames.distance(i) if distance is None else None
+        return recorded if recorded is not None else default_distance
 
     return dist_of
-
-
-def _recorded_angles(meta: Any, seq_dir: Path) -> tuple[float, float, float] | None:
-    """A generated sequence's recorded camera angles (0 for a level camera); None for footage (read from the
-    frames)."""
-    from layouts.camera_record import camera_angles
-
-    if meta is None:
-        return None
-    return camera_angles(meta.get("camera") if isinstance(meta, dict) else None, str(seq_dir / "meta.json"))
 
 
 def _report_readings(pred: Predictor, depth: float, intr: Intrinsics, progress: bool) -> None:

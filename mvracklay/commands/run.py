@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
     from mvracklay.pipeline import resolve_checkpoint
 
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
-    source = open_source(args.input)
+    source = open_source(args.input, prog="mvracklay run")
     res = run_pipeline(source, args.out, cfg)
     wmap = res.map
     print(
