@@ -1,4 +1,6 @@
-"""Ordered frame sources for `mvracklay run`: a WareSynth sequence, a folder of images, or a video.
+"""Ordered frame sources for `mvracklay run` and `predict`: a WareSynth sequence, a folder of images (each
+turned upright by its EXIF orientation), one image, or a video (its decoded frames counted against the
+frames it announces: a cut file is warned about).
 
 Every source is validated when opened (one-line `InputError` naming the file and the problem) and
 streams its frames as uint8 RGB arrays ``(H, W, 3)``: nothing holds a whole video in memory.
