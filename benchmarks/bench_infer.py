@@ -7,8 +7,14 @@ Stream-flip (asked for with --modes): streaming with the test-time flip average 
 Speed does not depend on the weights, so the model is built from its config (random weights)
 unless --checkpoint is given. Images are fed at the model's input size (no resize). On a shared machine the best of several
 passes is the figure least disturbed by other processes; the median is printed beside it.
+--compete N measures each case again beside N busy processes (one core each, started for that
+measurement and stopped after it) and prints the idle and competing frames/s and their ratio; the
+process sets OpenMP's wait policy as the command line does (`mvracklay.threads.quiet_openmp`) unless
+--openmp inherit leaves the environment as it is (libgomp's default: idle threads spin a while).
 
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 128 256 --frames 40
+    .venv/bin/python benchmarks/bench_infer.py --checkpoint mvracklay-disc-4 --sizes 128 --modes stream \
+        --threads 2 --frames 30 --repeats 3 --compete 2
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --precision bf16
     python benchmarks/bench_infer.py --device cuda --checkpoint mvracklay-disc-4   # on a GPU
 """
@@ -16,15 +22,32 @@ passes is the figure least disturbed by other processes; the median is printed b
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
+import os
+import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-import torch
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+_GIVEN = dict(os.environ)  # before `mvracklay` sets OpenMP's wait policy on import
+
+from mvracklay.threads import OPENMP_ENV, quiet_openmp, resolve_threads  # noqa: E402
+
+_pre = argparse.ArgumentParser(add_help=False)
+_pre.add_argument("--openmp", default="passive")
+if _pre.parse_known_args()[0].openmp == "inherit":  # the environment as given, torch not loaded yet
+    for _key in OPENMP_ENV:
+        if _key not in _GIVEN:
+            os.environ.pop(_key, None)
+else:
+    quiet_openmp()  # before torch loads libgomp, as `mvracklay` does
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
 from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
@@ -64,10 +87,68 @@ def bench(pred: Predictor, frames: list[np.ndarray], mode: str, repeats: int, wa
     return out
 
 
+#: what a competing process runs: one core kept busy
+BUSY = "while True: pass"
+
+
+@contextlib.contextmanager
+def competing(n: int) -> Iterator[list[subprocess.Popen]]:
+    """``n`` busy processes for the duration of the block, killed at its end (and at exit, whatever happens)."""
+    procs: list[subprocess.Popen] = []
+
+    def stop() -> None:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+        for p in procs:
+            with contextlib.suppress(Exception):
+                p.wait(timeout=5)
+
+    atexit.register(stop)
+    try:
+        for _ in range(n):
+            procs.append(subprocess.Popen([sys.executable, "-c", BUSY], stdin=subprocess.DEVNULL))
+        time.sleep(0.2 if n else 0.0)  # let them start spinning
+        yield procs
+    finally:
+        stop()
+        atexit.unregister(stop)
+
+
 def _where(device: torch.device, threads: int) -> str:
     if device.type == "cuda":
         return f"{torch.cuda.get_device_name(device)} ({device})"
     return f"{threads} CPU threads"
+
+
+def _compete(
+    pred: Predictor, frames: list, mode: str, repeats: int, n: int, best: float, med: float, auto: bool
+) -> dict:
+    """The case measured again beside ``n`` busy processes; its figures and their ratios to the idle ones.
+    ``auto``: ``--threads auto`` resolved again once they run, as a command started then would."""
+    idle_threads = torch.get_num_threads()
+    with competing(n) as procs:
+        if auto:
+            torch.set_num_threads(resolve_threads("auto"))
+        used = torch.get_num_threads()
+        try:
+            fps = bench(pred, frames, mode, repeats)
+        finally:
+            torch.set_num_threads(idle_threads)
+    cbest, cmed = max(fps), float(np.median(fps))
+    print(
+        f"{'':9}beside {n} busy{f' ({used} threads)' if auto else ''}   best {cbest:7.1f}  median {cmed:7.1f} frames/s  "
+        f"(competing / idle: best {cbest / best:.2f}, median {cmed / med:.2f})"
+    )
+    return {
+        "compete": n,
+        "compete_pids": [p.pid for p in procs],  # stopped by now
+        "compete_threads": used,
+        "fps_compete_best": cbest,
+        "fps_compete_median": cmed,
+        "ratio_best": cbest / best,
+        "ratio_median": cmed / med,
+    }
 
 
 def main() -> int:
@@ -79,7 +160,21 @@ def main() -> int:
     )
     ap.add_argument("--variant", choices=sorted(VARIANTS), default="mvracklay-disc-4")
     ap.add_argument("--sizes", type=int, nargs="+", default=[128, 256], help="square input sizes")
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", default="2", help="CPU threads for torch: a count or auto (the free cores)")
+    ap.add_argument(
+        "--compete",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also measure beside N busy processes and print idle vs competing frames/s and their ratio",
+    )
+    ap.add_argument(
+        "--openmp",
+        choices=["passive", "inherit"],
+        default="passive",
+        help="passive (default): OMP_WAIT_POLICY=PASSIVE unless set, as mvracklay does; inherit: the environment "
+        "as it is (libgomp's default spin-wait)",
+    )
     ap.add_argument("--frames", type=int, default=40)
     ap.add_argument("--repeats", type=int, default=3, help="passes per case; the best and median are shown")
     ap.add_argument(
@@ -106,6 +201,13 @@ def main() -> int:
         ap.error(f"--device: {e}")
     if device.type == "cuda" and not torch.cuda.is_available():
         ap.error("--device: CUDA was asked for but torch sees no GPU")
+    if args.compete < 0:
+        ap.error(f"--compete must be >= 0, got {args.compete}")
+    auto = str(args.threads).strip().lower() == "auto"
+    try:
+        args.threads = resolve_threads(args.threads)
+    except ValueError as e:
+        ap.error(str(e))
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     if args.checkpoint:
@@ -123,6 +225,7 @@ def main() -> int:
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
         f"{camera}{', modules (no frozen graphs)' if args.no_graphs else ''}"
         f"{', the trunk in bf16' if args.precision == 'bf16' and not args.no_graphs and device.type == 'cpu' else ''}"
+        f", OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}"
     )
     line = frozen.precision_warning(args.precision)
     if line:
@@ -137,20 +240,22 @@ def main() -> int:
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)
             best, med = max(fps), float(np.median(fps))
-            rows.append(
-                {
-                    "size": size,
-                    "mode": mode,
-                    "fps_best": best,
-                    "fps_median": med,
-                    "threads": args.threads,
-                    "device": str(device),
-                    "graphs": not args.no_graphs,
-                    "precision": frozen.trunk_precision(model),  # what ran: bf16 on the CPU's graphs only
-                    "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
-                }
-            )
             print(f"{size}x{size}  {mode:<17} best {best:7.1f}  median {med:7.1f} frames/s")
+            row = {
+                "size": size,
+                "mode": mode,
+                "fps_best": best,
+                "fps_median": med,
+                "threads": args.threads,
+                "device": str(device),
+                "graphs": not args.no_graphs,
+                "precision": frozen.trunk_precision(model),  # what ran: bf16 on the CPU's graphs only
+                "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
+                "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+            }
+            if args.compete:
+                row.update(_compete(pred, frames, mode, args.repeats, args.compete, best, med, auto))
+            rows.append(row)
     if args.json:
         atomic_write_json(args.json, rows)
     return 0

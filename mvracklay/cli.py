@@ -143,6 +143,9 @@ def _command_of(argv: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from mvracklay.threads import quiet_openmp
+
+    quiet_openmp()  # before any command imports torch: idle OpenMP threads sleep (mvracklay/threads.py)
     argv = list(sys.argv[1:] if argv is None else argv)
     name = _command_of(argv)
     parser, subparsers = _build(only=name)

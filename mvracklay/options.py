@@ -122,6 +122,29 @@ def add_device_option(p: argparse.ArgumentParser, help_text: str = "auto = the G
     p.add_argument("--device", choices=DEVICES, default="auto", help=help_text)
 
 
+THREADS_HELP = (
+    "CPU threads for the network: a count, or auto (default): the cores free of other work when the command "
+    "starts, all of them when none is (beside 1 busy process on 2 cores, 1 thread kept its idle speed where 2 "
+    "fell below half of theirs); idle OpenMP threads sleep rather than spin (OMP_WAIT_POLICY=PASSIVE unless set)"
+)
+
+
+def threads_value(text: str) -> int | str:
+    """``--threads``'s argparse type: a count >= 1 or ``auto`` (`mvracklay.threads.parse_threads`)."""
+    from mvracklay.threads import parse_threads
+
+    try:
+        return parse_threads(text)
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--threads ")) from None
+
+
+def add_threads_option(p: argparse.ArgumentParser, default: int | str = "auto") -> None:
+    """``--threads N|auto`` for a command that runs the network on the CPU (`mvracklay.threads.resolve_threads`
+    turns ``auto`` into a count)."""
+    p.add_argument("--threads", type=threads_value, default=default, metavar="N|auto", help=THREADS_HELP)
+
+
 def add_quiet_option(p: argparse.ArgumentParser, help_text: str = "no progress bars") -> None:
     """``--quiet`` (no progress bars; ``--no-progress`` kept as a hidden alias)."""
     p.add_argument("--quiet", action="store_true", help=help_text)

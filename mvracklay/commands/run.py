@@ -22,8 +22,10 @@ from mvracklay.options import (
     add_quiet_option,
     add_roll_option,
     add_spawn_option,
+    add_threads_option,
     read_config,
 )
+from mvracklay.threads import resolve_threads
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
@@ -79,7 +81,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "options given here win over the file's, the file's over the --quality preset's",
     )
     add_device_option(p)
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for the network")
+    add_threads_option(p)
     add_spawn_option(p)
     add_quiet_option(p)
     add_help_all_option(p)
@@ -146,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         map_every=args.map_every,
         opening=not args.no_opening,
         board_thickness=args.board_thickness,
-        threads=args.threads,
+        threads=resolve_threads(args.threads),
         precision=args.precision,
         device=args.device,
         progress=not args.quiet,
