@@ -4,7 +4,10 @@ Each command module declares ``NAME``, ``HELP``, ``GROUP`` ("use", "data" or "mo
 literals; they are read from the module's source (`ast`), so ``mvracklay --help`` imports no command
 and ``mvracklay COMMAND ...`` imports that command's module only. A module may also define
 ``config_defaults(args, parser) -> dict`` (defaults from ``--quality`` / ``--config``, re-parsed under
-the command line) and ``RESUME`` (what to say when the command is interrupted: how to resume it).
+the command line) and ``RESUME`` (what to say when the command is interrupted: how to resume it) or
+``INTERRUPTED`` (what to say then of a command with nothing to resume). SIGTERM is handled like Ctrl-C:
+raised as `Terminated` (a `KeyboardInterrupt`) in the main thread, so the command's clean-up runs; exit
+status 130 after Ctrl-C, 143 after SIGTERM.
 """
 
 from __future__ import annotations
@@ -12,9 +15,12 @@ from __future__ import annotations
 import argparse
 import ast
 import importlib
+import os
 import pkgutil
+import signal
 import sys
 import textwrap
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,10 +148,42 @@ def _command_of(argv: Sequence[str]) -> str:
     return next((a for a in argv if not a.startswith("-")), "")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the main thread runs so that clean-up (``finally``, staging folders) happens."""
+
+
+def _on_sigterm(pid: int):
+    def handler(signum: int, frame: object) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second SIGTERM ends the process at once
+        if os.getpid() != pid:  # a forked worker: die as it would have
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated
+
+    return handler
+
+
+def _close_progress_bars() -> None:
+    """End the progress bars an interrupted command left open, so the message after them starts a line."""
+    tqdm = sys.modules.get("tqdm")
+    for bar in list(getattr(getattr(tqdm, "tqdm", None), "_instances", ())):
+        bar.close()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from mvracklay.threads import quiet_openmp
 
     quiet_openmp()  # before any command imports torch: idle OpenMP threads sleep (mvracklay/threads.py)
+    if threading.current_thread() is not threading.main_thread():
+        return _main(argv)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
+    try:
+        return _main(argv)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     name = _command_of(argv)
     parser, subparsers = _build(only=name)
@@ -167,10 +205,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as e:
         print(f"mvracklay {name}: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        resume = getattr(mod, "RESUME", None)
-        print(f"mvracklay {name}: interrupted" + (f" ({resume})" if resume else ""), file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        note = getattr(mod, "RESUME", None) or getattr(mod, "INTERRUPTED", None)
+        _close_progress_bars()
+        what = "terminated" if isinstance(e, Terminated) else "interrupted"
+        print(f"mvracklay {name}: {what}" + (f" ({note})" if note else ""), file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -15,9 +16,57 @@ from layouts.errors import InputError
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
 
 
+def _is_map(path: Path) -> bool:
+    """Whether ``path`` is a warehouse.json written by `mvracklay run` or `reconstruct`."""
+    from stitching.warehouse_map import MAP_FORMAT
+
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and data.get("format") == MAP_FORMAT
+
+
+def check_out(out: Path, overwrite: bool = False, untouched: tuple[str, ...] = ()) -> None:
+    """Refuse an OUT that is neither missing, empty nor an earlier run's output folder (only `OUTPUTS` in it,
+    its warehouse.json a map), unless ``overwrite``: then only the command's own outputs are replaced.
+    ``untouched``: outputs the command leaves alone (reconstruct's layouts/), alone in OUT they count as empty."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    if overwrite or not out.is_dir():
+        return
+    names = {p.name for p in out.iterdir()}
+    if names <= set(untouched):
+        return
+    if names <= set(OUTPUTS) and _is_map(out / "warehouse.json"):
+        return  # an earlier run's (or reconstruct's) output folder
+    other = sorted(names - set(OUTPUTS))
+    what = f"holds other files ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''})" if other else "has no map"
+    raise InputError(
+        f"--out {out}: {what}, not an earlier run's output folder; give --overwrite to replace the outputs there "
+        "(nothing else is touched) or another --out"
+    )
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # e.g. another user's process
+    return True
+
+
 def staging_dir(out: Path) -> Path:
+    """A fresh staging folder ``.OUT.partial-PID`` beside OUT; stale ones of processes no longer alive are removed."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
+    prefix = f".{out.name}.partial-"
+    for old in out.parent.glob(f"{prefix}*"):
+        pid = old.name[len(prefix) :]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and old.is_dir():
+            shutil.rmtree(old, ignore_errors=True)
+    stage = out.parent / f"{prefix}{os.getpid()}"
     if stage.exists():
         shutil.rmtree(stage)
     stage.mkdir()

@@ -30,6 +30,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
+from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from network.checkpoint import load_model
@@ -64,6 +65,7 @@ class RunConfig:
     mode: str = "stream"
     flip: bool = False  #: average each frame with its mirror image (`network.inference.predictor.Predictor`)
     max_frames: int = 0
+    every: int = 1  #: process every N-th frame of the input (`mvracklay.every`)
     layout_size: int = 0
     distance: float | None = None
     rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
@@ -90,6 +92,8 @@ class RunConfig:
             raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.max_frames < 0:
             raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
+        if not isinstance(self.every, int) or self.every < 1:
+            raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
         if self.layout_size and not 8 <= self.layout_size <= 1024:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
@@ -185,6 +189,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}."""
     cfg = cfg or RunConfig()
     cfg.validate()
+    source = every_nth(source, cfg.every)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
@@ -390,6 +395,7 @@ def _map_meta(
         "input": str(source.path),
         "input_kind": source.kind,
         "frames": n,
+        **({"every": cfg.every} if cfg.every > 1 else {}),  # every N-th input frame processed
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
         "flip_average": cfg.flip,

@@ -149,13 +149,18 @@ def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) 
     return out
 
 
-def format_table(rows: list[ShelfFreeSpace]) -> str:
-    """A plain-text table of free space per shelf."""
+def format_table(rows: list[ShelfFreeSpace], racks: int = 0) -> str:
+    """A plain-text table of free space per shelf; without rows, a line saying so (``racks``: the map's rack
+    count, which tells "no racks found" from racks without shelves)."""
     head = f"{'shelf':<22} {'boxes':>5} {'length':>7} {'free_len':>8} {'free_m2':>8} {'free_m3':>8} {'occup':>6} {'clear_h':>7} {'conf':>5}"
     lines = [head, "-" * len(head)]
     for r in rows:
         lines.append(
             f"{r.shelf:<22} {r.boxes:>5d} {r.length:>7.2f} {r.free_length:>8.2f} {r.free_area:>8.2f} "
             f"{r.free_volume:>8.2f} {r.occupancy:>6.0%} {r.clear_height:>7.2f} {r.confidence:>5.2f}"
+        )
+    if not rows:
+        lines.append(
+            "no racks found: no shelf to measure" if not racks else f"{racks} racks found, but no shelves on them"
         )
     return "\n".join(lines)

@@ -130,10 +130,13 @@ def test_corrupt_frame_mid_run_leaves_out_untouched(tmp_path: Path, checkpoint: 
     (src / "f002.png").write_bytes(data[: len(data) // 2])  # header intact, pixels cut off
     out = tmp_path / "out"
     out.mkdir()
-    (out / "warehouse.json").write_text("earlier run")
+    from stitching.warehouse_map import WarehouseMap
+
+    WarehouseMap(racks=[], steps=[], board_thickness=0.06, meta={"earlier": "run"}).save(out / "warehouse.json")
+    earlier = (out / "warehouse.json").read_bytes()  # an earlier run's map
     _fails(["run", str(src), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet"], capsys, "f002.png")
     assert sorted(p.name for p in out.iterdir()) == ["warehouse.json"]
-    assert (out / "warehouse.json").read_text() == "earlier run"
+    assert (out / "warehouse.json").read_bytes() == earlier
     assert not [p for p in tmp_path.iterdir() if ".partial-" in p.name]
 
 

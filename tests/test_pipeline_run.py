@@ -160,6 +160,7 @@ def test_rerun_replaces_earlier_outputs_and_keeps_other_files(seq_dir: Path, che
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     base = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--quiet", "--no-rrd"]
+    base.append("--overwrite")  # OUT holds another file (tests/test_run_outputs.py: refused without it)
     assert main([*base, "--max-frames", "4"]) == 0
     assert main([*base, "--max-frames", "2"]) == 0
     assert LayoutFolder(out / "layouts").indices() == [0, 1]

@@ -11,7 +11,8 @@ from layouts.errors import InputError
 NAME = "free-space"
 HELP = "free space per shelf of a warehouse.json, and where a box of a given size fits"
 DESCRIPTION = (
-    "Reads a map written by `mvracklay reconstruct` and prints, per shelf, the number of boxes, the "
+    "Reads a map written by `mvracklay run` or `reconstruct` (MAP: the warehouse.json or their output folder) "
+    "and prints, per shelf, the number of boxes, the "
     "free length along the shelf (gaps between boxes), free area, free volume (up to the clear height), "
     "occupancy and a confidence. With --box WxDxH (metres) it also lists the shelves and the X ranges "
     "(map frame, metres from the first camera position) where the box's centre can go."
@@ -21,45 +22,84 @@ ORDER = 12
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("map", metavar="MAP", help="warehouse.json written by `mvracklay reconstruct`")
+    p.add_argument(
+        "map", metavar="MAP", help="warehouse.json written by `mvracklay run` / `reconstruct`, or their OUT folder"
+    )
     p.add_argument("--box", help="box size WxDxH in metres, e.g. 0.4x0.3x0.3")
     p.add_argument("--margin", type=float, default=0.02, help="clearance in metres on each side and above the box")
     p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument("--csv", action="store_true", help="print CSV (one row per shelf) instead of a table")
+    p.add_argument(
+        "--csv",
+        action="store_true",
+        help="print CSV (one row per shelf) instead of a table; with --box also whether it fits and where",
+    )
+
+
+#: the CSV columns of a shelf's free space (`ShelfFreeSpace.to_dict`)
+CSV_COLUMNS = ("shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume")
+CSV_COLUMNS += ("occupancy", "confidence")
+#: the CSV columns --box adds: fits (yes/no), the box centre's X ranges (A..B, space-separated) as given and turned
+CSV_FIT_COLUMNS = ("fits", "fit_centre_x", "fit_centre_x_turned")
+
+
+def map_path(arg: str) -> Path:
+    """The warehouse.json MAP names: the file, or OUT/warehouse.json for an output folder."""
+    path = Path(arg)
+    if path.is_dir():
+        if not (path / "warehouse.json").is_file():
+            raise InputError(f"{path}: no warehouse.json in this folder (want a run's --out folder or a map file)")
+        return path / "warehouse.json"
+    if not path.is_file():
+        raise InputError(f"{path}: map file not found")
+    return path
+
+
+def _ranges(fits: list) -> str:
+    return " ".join(f"{a:.4f}..{b:.4f}" for f in fits for a, b in f.centres)
+
+
+def write_csv(rows: list, placements: list | None) -> None:
+    """One CSV row per shelf; with ``placements`` (a --box query's fits) the `CSV_FIT_COLUMNS` too."""
+    import csv
+    import sys
+
+    writer = csv.writer(sys.stdout, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS + (CSV_FIT_COLUMNS if placements is not None else ()))
+    for r in rows:
+        d = r.to_dict()
+        row = [d[c] for c in CSV_COLUMNS]
+        if placements is not None:
+            mine = [f for f in placements if f.shelf == r.shelf]
+            row += ["yes" if mine else "no"]
+            row += [_ranges([f for f in mine if not f.rotated]), _ranges([f for f in mine if f.rotated])]
+        writer.writerow(row)
 
 
 def run(args: argparse.Namespace) -> int:
     from stitching.free_space import fits, format_table, free_space, parse_box
     from stitching.warehouse_map import WarehouseMap
 
-    path = Path(args.map)
-    if not path.is_file():
-        raise InputError(f"{path}: map file not found")
+    path = map_path(args.map)
     if not (args.margin >= 0):
         raise InputError(f"--margin must be >= 0 metres, got {args.margin}")
+    if args.json and args.csv:
+        raise InputError("choose one of --json and --csv")
     wmap = WarehouseMap.load(path)
     rows = free_space(wmap)
     if args.shelf:
         wmap.shelf(args.shelf)  # one-line error when unknown
         rows = [r for r in rows if r.shelf == args.shelf]
-    placements = []
+    placements = None
     if args.box:
         w, d, h = parse_box(args.box)
         placements = [f for f in fits(wmap, w, d, h, args.margin) if not args.shelf or f.shelf == args.shelf]
-    if args.json and args.csv:
-        raise InputError("choose one of --json and --csv")
     if args.csv:
-        cols = ["shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume"]
-        cols += ["occupancy", "confidence"]
-        print(",".join(cols))
-        for r in rows:
-            d = r.to_dict()
-            print(",".join(str(d[c]) for c in cols))
+        write_csv(rows, placements)
         return 0
     if args.json:
-        out = {"map": str(path), "shelves": [r.to_dict() for r in rows]}
-        if args.box:
+        out = {"map": str(path), "racks": len(wmap.racks), "shelves": [r.to_dict() for r in rows]}
+        if placements is not None:
             out["box"] = {
                 "size": list(parse_box(args.box)),
                 "margin": args.margin,
@@ -67,8 +107,8 @@ def run(args: argparse.Namespace) -> int:
             }
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
-    print(format_table(rows))
-    if args.box:
+    print(format_table(rows, racks=len(wmap.racks)))
+    if placements is not None:
         print()
         if not placements:
             print(f"a {args.box} box (margin {args.margin} m) fits on no shelf")

@@ -27,6 +27,8 @@ DESCRIPTION = (
 )
 GROUP = "use"
 ORDER = 11
+#: what the CLI says when interrupted (Ctrl-C, SIGTERM): nothing to resume
+INTERRUPTED = "OUT left as it was"
 #: what reconstruct writes (an OUT/layouts folder, e.g. from `run`, is never touched)
 MAP_OUTPUTS = ("warehouse.json", "warehouse.glb", "warehouse.rrd")
 
@@ -39,6 +41,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="'gt' for SEQ_DIR/layouts (or SEQ_DIR itself when it is a layout folder), or a layout folder",
     )
     p.add_argument("--out", required=True, help="output folder")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an OUT holding other files (only the map files there are replaced); without it OUT "
+        "must be missing, empty or an earlier run's output folder",
+    )
     p.add_argument(
         "--board-thickness", type=float, default=0.06, help="metres between a clear height and the next board top"
     )
@@ -113,7 +121,7 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvracklay.outputs import publish, spawn_viewer, staging_dir
+    from mvracklay.outputs import check_out, publish, spawn_viewer, staging_dir
 
     seq_dir = Path(args.seq_dir)
     if not seq_dir.is_dir():
@@ -136,8 +144,7 @@ def run(args: argparse.Namespace) -> int:
             f"({seq.num_frames - len(indices)} layout files missing)"
         )
     final_out = Path(args.out)
-    if final_out.exists() and not final_out.is_dir():
-        raise InputError(f"--out {final_out}: exists and is not a folder")
+    check_out(final_out, args.overwrite, untouched=("layouts",))
     out = staging_dir(final_out)  # outputs appear in OUT only when the whole run succeeded
     try:
         _reconstruct(args, seq, folder, indices, out)

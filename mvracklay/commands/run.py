@@ -44,6 +44,8 @@ DESCRIPTION = (
 )
 GROUP = "use"
 ORDER = 10
+#: what the CLI says when a run is interrupted (Ctrl-C, SIGTERM): nothing to resume
+INTERRUPTED = "OUT left as it was; run it again to start over"
 
 
 #: ``--quality``: the inference settings each preset sets (under a --config file and the command line).
@@ -61,6 +63,12 @@ PRESETS: dict[str, dict[str, object]] = {
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="INPUT", help="sequence folder, image folder or video file")
     p.add_argument("--out", type=Path, help="output folder (required)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into an OUT holding other files (only run's outputs there are replaced); without it OUT "
+        "must be missing, empty or an earlier run's output folder",
+    )
     p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
     p.add_argument("--camera", type=Path, help=CAMERA_JSON_HELP)
     p.add_argument(
@@ -88,6 +96,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     more = {"hidden": True}  # the rest: config-file keys, still parseable (--help-all shows them)
     add(p, "--mode", choices=["stream", "window"], default="stream", help="network inference mode", **more)
     add(p, "--max-frames", type=int, default=0, help="process at most N frames (0 = all)", **more)
+    add(p, "--every", type=int, default=1, metavar="N", **more,
+        help="process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept")  # fmt: skip
     add(p, "--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP, **more)
     add(p, "--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP, **more)
     add(p, "--whole-sequence", action=argparse.BooleanOptionalAction, default=False, help=WHOLE_SEQUENCE_HELP, **more)
@@ -119,7 +129,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
-    from mvracklay.outputs import spawn_viewer
+    from mvracklay.outputs import check_out, spawn_viewer
     from mvracklay.pipeline import RunConfig, run_pipeline
     from network.inference.roll import describe_angles
     from stitching.free_space import format_table
@@ -134,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
         mode=args.mode,
         flip=args.flip_average,
         max_frames=args.max_frames,
+        every=args.every,
         layout_size=args.layout_size,
         distance=args.distance,
         rack_depth=args.rack_depth,
@@ -154,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     cfg.validate()
+    check_out(args.out, args.overwrite)
     from mvracklay.pipeline import resolve_checkpoint
 
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
@@ -169,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"speed: {rate} (wall, this machine)")
     for line in describe_angles(res.angles_read):
         print(line)
-    print(format_table(res.free_space))
+    print(format_table(res.free_space, racks=len(wmap.racks)))
     print("wrote " + ", ".join(str(p) for p in res.paths.values()))
     if args.spawn:
         spawn_viewer(res.out / "warehouse.rrd")
