@@ -159,6 +159,14 @@ def test_run_every_nth_frame(base, tmp_path):
     assert main([*base, "--out", str(out), "--every", "0"]) == 2
 
 
+def test_predict_every_nth_frame(tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+    argv = ["predict", str(tiny_dataset / "seq_00000"), "--checkpoint", str(tiny_checkpoint), "--threads", "1"]
+    assert main([*argv, "--out", str(tmp_path / "p"), "--every", "3", "--quiet"]) == 0  # frames 0, 3, 6 of 8
+    assert LayoutFolder(tmp_path / "p").indices() == [0, 1, 2]
+    assert main([*argv, "--out", str(tmp_path / "q"), "--every", "0"]) == 2
+    assert "--every" in capsys.readouterr().err
+
+
 def test_every_nth_of_a_video_keeps_frames_0_n_2n(tmp_path):
     import av
     import numpy as np

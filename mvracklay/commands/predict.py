@@ -82,6 +82,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_fuse_option(p)
     add_roll_option(p)
     add_threads_option(p)
+    p.add_argument(
+        "--every", type=int, default=1, metavar="N", help="predict every N-th input frame (written as 0, 1, 2, ...)"
+    )
     add_precision_option(p)
     add_device_option(p)
     add_quiet_option(p, "hide the progress bar")
@@ -122,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
         check_rack_depth(args.rack_depth)
     if args.layout_size and not 8 <= args.layout_size <= 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
+    if args.every < 1:
+        raise InputError(f"--every must be an integer >= 1, got {args.every}")
     # the shipped default model without --checkpoint (as `run`); a given path keeps the loader's own messages
     ckpt = args.checkpoint if args.checkpoint is not None else resolve_checkpoint(None)
     torch.set_num_threads(resolve_threads(args.threads))
@@ -146,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
         pitch=args.pitch,
         yaw=args.yaw,
         progress=not args.quiet,
+        every=args.every,
         source=str(ckpt),
     )
     print(f"wrote {n} frames of layouts to {args.out}")
@@ -172,6 +178,7 @@ def predict_folder(
     yaw: float | str | None = None,
     progress: bool = True,
     source: str = "checkpoint",
+    every: int = 1,
 ) -> int:
     """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
 
@@ -188,11 +195,12 @@ def predict_folder(
     """
     from layouts.codecs import LayoutFolder
     from layouts.rackdepth import check_rack_depth
+    from mvracklay.every import every_nth
     from mvracklay.frames import camera_warning, open_source
     from network.inference.predictor import Predictor
     from network.inference.roll import resolve_angles
 
-    frames = open_source(seq_dir, prog=f"mvracklay {NAME}")
+    frames = every_nth(open_source(seq_dir, prog=f"mvracklay {NAME}"), every)  # ``every``: every N-th frame
     intr, lens = _sequence_camera(intrinsics, frames, record, source)
     differs = camera_warning(intr, record, source)
     if differs:
