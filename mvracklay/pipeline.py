@@ -136,14 +136,7 @@ class RunResult:
 def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
     """The checkpoint to run: ``path`` (or a shipped model's name), else the shipped default model
     (one-line error when there is none)."""
-    if path is None:
-        if not DEFAULT_CHECKPOINT.is_file():
-            raise InputError(
-                f"no trained model shipped ({DEFAULT_CHECKPOINT.name} is absent from {DEFAULT_CHECKPOINT.parent}): "
-                "train one with 'mvracklay train' (see docs/network.md) and pass --checkpoint PATH"
-            )
-        return DEFAULT_CHECKPOINT
-    return models.resolve_checkpoint(path)
+    return models.resolve_checkpoint(path, default=DEFAULT_CHECKPOINT)
 
 
 def stitch_config(cfg: RunConfig) -> StitchConfig:

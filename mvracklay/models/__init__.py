@@ -44,16 +44,19 @@ def checkpoint_arg(value: str) -> Path:
     return Path(value)
 
 
-def resolve_checkpoint(name_or_path: str | os.PathLike | None, option: str = "--checkpoint") -> Path:
-    """The checkpoint file to load: a shipped model's name, a path, or None for the default model.
+def resolve_checkpoint(
+    name_or_path: str | os.PathLike | None, option: str = "--checkpoint", default: Path | None = None
+) -> Path:
+    """The checkpoint file to load: a shipped model's name, a path, or None for the default model (``default``,
+    else `default_checkpoint`).
 
     Fails with one line naming ``option`` when the file is not there.
     """
     if name_or_path is None:
-        path = default_checkpoint()
+        path = default or default_checkpoint()
         if not path.is_file():
             raise InputError(
-                f"no trained model shipped ({DEFAULT_MODEL}.pt is absent from {path.parent}): train one with "
+                f"no trained model shipped ({path.name} is absent from {path.parent}): train one with "
                 f"'mvracklay train' (see docs/network.md) and pass {option} PATH"
             )
         return path

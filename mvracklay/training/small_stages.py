@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 from layouts.errors import InputError
+from layouts.fileio import atomic_write_bytes
 
 
 class _Stage:
@@ -45,9 +44,7 @@ class copy(_Stage):  # noqa: N801 - named as the stage
         args.dst.parent.mkdir(parents=True, exist_ok=True)
         for src, dst in ((args.src.with_suffix(".json"), args.dst.with_suffix(".json")), (args.src, args.dst)):
             if src.is_file():
-                tmp = dst.with_name(dst.name + ".part")
-                shutil.copyfile(src, tmp)
-                os.replace(tmp, dst)
+                atomic_write_bytes(dst, src.read_bytes())
         print(f"wrote {args.dst}")
         return 0
 
