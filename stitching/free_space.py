@@ -9,6 +9,13 @@ Per shelf (its X range x depth range x clear height in the map):
 * ``occupancy``: occupied footprint area / shelf area;
 * ``confidence``: the shelf's confidence times the mean confidence of its boxes (1 if none).
 
+A partial shelf (``MapShelf.partial``: its rack runs on past the X range the camera saw) has
+``length`` = the seen length, and the gap running to each cut end is ``unknown``, not free: a box
+there may have been seen only in part, and what lies past the cut was never seen. ``free_length``,
+``free_area``, ``free_volume`` and ``occupancy`` cover the rest of the seen part (``unknown_length``
+is left out), the confidence is scaled by `PARTIAL_CONFIDENCE` per cut end, and `fits` never places
+a box in unknown length.
+
 `fits(w, d, h)` lists, per shelf, the gaps where a ``w x d x h`` box stands: ``h`` must be at most
 the clear height minus ``margin``, the box may turn 90 degrees (``w`` along X or ``d`` along X),
 its depth must fit the shelf depth, and the gap must be at least its X size plus ``2 * margin``.
@@ -18,11 +25,18 @@ Each returned interval is the range of X positions for the box's *centre*.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 from layouts.errors import InputError
 from stitching.geometry import clip_convex, polygon_area
-from stitching.warehouse_map import MapShelf, WarehouseMap
+from stitching.warehouse_map import MapShelf, WarehouseMap, cut_sides
+
+PARTIAL_CONFIDENCE = 0.7  #: free-space confidence factor per cut end of a partial shelf
+#: the legend line `format_table` prints under a table with partial shelves
+PARTIAL_LEGEND = (
+    "partial: rack cut at its start (low X) / end (high X) by the first or last view; length is the seen part "
+    "and the gap running to a cut end is unknown, not free"
+)
 
 
 @dataclass
@@ -37,7 +51,10 @@ class ShelfFreeSpace:
     occupancy: float
     boxes: int
     confidence: float
-    gaps: list[tuple[float, float]]
+    gaps: list[tuple[float, float]]  #: free X intervals (never the unknown ones)
+    partial: str | None = None  #: the shelf's `MapShelf.partial`: None (seen whole), "start", "end", "both"
+    unknown_length: float = 0.0  #: seen length whose free space is unknown (the gaps running to cut ends)
+    unknown: list[tuple[float, float]] = field(default_factory=list)  #: those X intervals
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -45,6 +62,7 @@ class ShelfFreeSpace:
             if isinstance(v, float):
                 d[k] = round(v, 4)
         d["gaps"] = [[round(a, 4), round(b, 4)] for a, b in self.gaps]
+        d["unknown"] = [[round(a, 4), round(b, 4)] for a, b in self.unknown]
         return d
 
 
@@ -79,21 +97,33 @@ def _gaps(shelf: MapShelf) -> list[tuple[float, float]]:
     return [(a, b) for a, b in gaps if b - a > 1e-9]
 
 
+def _split_gaps(shelf: MapShelf) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """``(free gaps, unknown gaps)``: a partial shelf's gaps running to a cut end are unknown."""
+    lo, hi = shelf.x_range
+    cut_lo, cut_hi = cut_sides(shelf.partial)
+    free, unknown = [], []
+    for a, b in _gaps(shelf):
+        (unknown if (cut_lo and a <= lo + 1e-9) or (cut_hi and b >= hi - 1e-9) else free).append((a, b))
+    return free, unknown
+
+
 def shelf_free_space(shelf: MapShelf) -> ShelfFreeSpace:
-    """Free length, area, volume and occupancy of one shelf."""
+    """Free length, area, volume and occupancy of one shelf (of its known part when partial)."""
     x0, x1 = shelf.x_range
     z0, z1 = shelf.z_range
     length, depth = max(x1 - x0, 0.0), max(z1 - z0, 0.0)
-    area = length * depth
+    gaps, unknown = _split_gaps(shelf)
+    unknown_length = sum((b - a for a, b in unknown), 0.0)
+    area = (length - unknown_length) * depth  # the known part: boxes never reach into unknown gaps
     rect = [(x0, z0), (x1, z0), (x1, z1), (x0, z1)]
     occ_area = occ_vol = 0.0
     for b in shelf.boxes:
         a = polygon_area(clip_convex(b.cuboid.footprint(), rect)) if area > 0 else 0.0
         occ_area += a
         occ_vol += a * min(b.size[1], shelf.clear_height)
-    gaps = _gaps(shelf)
     confs = [b.confidence for b in shelf.boxes]
     conf = shelf.confidence * (sum(confs) / len(confs) if confs else 1.0)
+    conf *= PARTIAL_CONFIDENCE ** sum(cut_sides(shelf.partial))
     return ShelfFreeSpace(
         shelf=shelf.id,
         length=length,
@@ -106,6 +136,9 @@ def shelf_free_space(shelf: MapShelf) -> ShelfFreeSpace:
         boxes=len(shelf.boxes),
         confidence=conf,
         gaps=gaps,
+        partial=shelf.partial,
+        unknown_length=unknown_length,
+        unknown=unknown,
     )
 
 
@@ -136,7 +169,7 @@ def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) 
         if h > shelf.clear_height - margin:
             continue
         depth = shelf.z_range[1] - shelf.z_range[0]
-        gaps = _gaps(shelf)
+        gaps = _split_gaps(shelf)[0]  # never in unknown length
         for along, across, rotated in ((w, d, False), (d, w, True)):
             if rotated and w == d:
                 continue
@@ -151,16 +184,23 @@ def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) 
 
 def format_table(rows: list[ShelfFreeSpace], racks: int = 0) -> str:
     """A plain-text table of free space per shelf; without rows, a line saying so (``racks``: the map's rack
-    count, which tells "no racks found" from racks without shelves)."""
-    head = f"{'shelf':<22} {'boxes':>5} {'length':>7} {'free_len':>8} {'free_m2':>8} {'free_m3':>8} {'occup':>6} {'clear_h':>7} {'conf':>5}"
+    count, which tells "no racks found" from racks without shelves). Partial shelves show their cut end(s) in
+    the ``partial`` column and their unknown length in ``unknown``, and a legend line follows the table."""
+    head = (
+        f"{'shelf':<22} {'boxes':>5} {'length':>7} {'free_len':>8} {'unknown':>7} {'free_m2':>8} {'free_m3':>8} "
+        f"{'occup':>6} {'clear_h':>7} {'conf':>5} {'partial':<7}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         lines.append(
-            f"{r.shelf:<22} {r.boxes:>5d} {r.length:>7.2f} {r.free_length:>8.2f} {r.free_area:>8.2f} "
-            f"{r.free_volume:>8.2f} {r.occupancy:>6.0%} {r.clear_height:>7.2f} {r.confidence:>5.2f}"
+            f"{r.shelf:<22} {r.boxes:>5d} {r.length:>7.2f} {r.free_length:>8.2f} {r.unknown_length:>7.2f} "
+            f"{r.free_area:>8.2f} {r.free_volume:>8.2f} {r.occupancy:>6.0%} {r.clear_height:>7.2f} "
+            f"{r.confidence:>5.2f} {r.partial or '-':<7}".rstrip()
         )
     if not rows:
         lines.append(
             "no racks found: no shelf to measure" if not racks else f"{racks} racks found, but no shelves on them"
         )
+    if any(r.partial for r in rows):
+        lines.append(PARTIAL_LEGEND)
     return "\n".join(lines)

@@ -27,7 +27,7 @@ from layouts.spec import LayoutSpec
 from stitching.fused_box import FusedBox, dedup_boxes
 from stitching.lift import FrameBox, FrameReconstruction
 from stitching.shift import Edges, ShiftConfig, correlate_shift, vote_offset
-from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
+from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap, partial_side
 from stitching.xindex import XIndex
 
 RACK_SLOT = 1000  # slot code offset for rack-end edges, so they only pair with rack ends
@@ -39,10 +39,11 @@ class MergeConfig:
     min_support: float = 0.3  #: observed / seen below this drops a box at the end
     min_rack_length: float = 0.3  #: metres; shorter shelf runs are not racks
     rack_gap_fill: float = 0.08  #: metres; shelf runs closer than this are one rack
+    partial_margin: float = 0.05  #: metres; a rack end this close to the seen range's end is partial there
     keep_steps: int | None = None  #: StepRecords kept: None = every frame, N = the last N (plus `StepStats`)
 
     def __post_init__(self) -> None:
-        for name in ("match_score", "min_support", "min_rack_length", "rack_gap_fill"):
+        for name in ("match_score", "min_support", "min_rack_length", "rack_gap_fill", "partial_margin"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise LayoutError(f"MergeConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -369,12 +370,15 @@ class MapBuilder:
         shelf_bins = (frac >= 0.5) & present[:, None]
         any_bins = shelf_bins.any(axis=0)
         runs = _bin_runs(any_bins, int(round(cfg.rack_gap_fill / self.dx)))
+        seen_bins = (self.seen > 0).any(axis=0)
+        margin = int(round(cfg.partial_margin / self.dx))
         racks: list[MapRack] = []
-        rack_ranges = []
+        rack_ranges, rack_partial = [], []
         for a, b in runs:
             x0, x1 = (self.g0 + a) * self.dx, (self.g0 + b) * self.dx
             if x1 - x0 >= cfg.min_rack_length:
                 rack_ranges.append((x0, x1))
+                rack_partial.append(_partial_run(seen_bins, a, b, margin))
         # Board heights from the fused clear heights: H_0 = 0, H_{r+1} = H_r + clear_r + thickness.
         boards = np.concatenate([[0.0], np.cumsum(self.clear + self.board_thickness)])[:R]
         boxes_out: list[list[tuple[float, FusedBox]]] = [[] for _ in range(len(rack_ranges))]
@@ -416,11 +420,22 @@ class MapBuilder:
                         )
                     )
                 s_conf = float(self.slot_present[r] / frames)
-                shelves.append(MapShelf(sid, r, board, clear, (x0, x1), tuple(self.zr[r]), s_conf, boxes))
-            racks.append(MapRack(rid, (x0, x1), shelves))
+                shelves.append(
+                    MapShelf(sid, r, board, clear, (x0, x1), tuple(self.zr[r]), s_conf, boxes, rack_partial[k])
+                )
+            racks.append(MapRack(rid, (x0, x1), shelves, rack_partial[k]))
         meta = dict(meta or {})
         meta.setdefault("step_summary", self.step_stats.to_dict())
-        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta)
+        seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
+        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
+
+
+def _partial_run(seen: np.ndarray, a: int, b: int, margin: int) -> str | None:
+    """Which ends of the shelf run ``[a, b)`` (strip bins) may go on unseen: an unseen bin (or the
+    strip's end) among the ``margin + 1`` bins beyond that end means the camera's coverage stops there."""
+    cut_start = a - margin - 1 < 0 or not seen[a - margin - 1 : a].all()
+    cut_end = b + margin + 1 > seen.size or not seen[b : b + margin + 1].all()
+    return partial_side(bool(cut_start), bool(cut_end))
 
 
 def _nearest_range(ranges: list[tuple[float, float]], starts: list[float], x: float) -> int:

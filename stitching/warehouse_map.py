@@ -6,6 +6,12 @@ height ``h`` above that board is ``Y = -h``), Z about the rack mid-depth. Boxes 
 generator's cuboid convention: ``center``, ``size = (w, h, d)``, ``yaw`` turning the width axis
 to ``(cos yaw, sin yaw)`` in ``(x, z)``. ``origin_world`` (optional) places the map in a world
 frame: ``world = map + origin_world``.
+
+Partly seen racks: ``WarehouseMap.seen_x`` holds the X intervals the camera saw (the union of the
+frames' visible ranges). A rack whose end lies at (or within ``MergeConfig.partial_margin`` of) an
+end of that coverage may go on past it unseen: ``MapRack.partial`` (and each of its shelves'
+``MapShelf.partial``) is ``"start"`` (cut at its low-X end), ``"end"`` (high-X end), ``"both"``, or
+``None`` for a rack seen whole. A partial rack's ``x_range`` is the part the camera saw.
 """
 
 from __future__ import annotations
@@ -20,7 +26,19 @@ from layouts.fileio import atomic_write_json, load_json
 from stitching.geometry import Cuboid
 
 MAP_FORMAT = "mvracklay-warehouse-map"
-MAP_VERSION = 1
+MAP_VERSION = 2  #: 2 added ``seen_x`` and the racks' and shelves' ``partial``
+READ_VERSIONS = (1, 2)  #: versions `WarehouseMap.from_dict` reads (a version 1 map reads as all racks whole)
+PARTIAL_SIDES = (None, "start", "end", "both")  #: values of ``MapRack.partial`` / ``MapShelf.partial``
+
+
+def partial_side(cut_start: bool, cut_end: bool) -> str | None:
+    """``partial`` for a rack cut at its low-X end (``cut_start``) and/or its high-X end (``cut_end``)."""
+    return ("both" if cut_end else "start") if cut_start else ("end" if cut_end else None)
+
+
+def cut_sides(partial: str | None) -> tuple[bool, bool]:
+    """``(cut at the low-X end, cut at the high-X end)`` of a ``partial`` value (inverse of `partial_side`)."""
+    return partial in ("start", "both"), partial in ("end", "both")
 
 
 @dataclass
@@ -31,6 +49,7 @@ class MapBox:
     yaw: float
     confidence: float
     observations: int
+    colour: tuple[int, int, int] | None = None  #: sRGB 0-255 of its front face in the frames, None = not seen
 
     @property
     def cuboid(self) -> Cuboid:
@@ -47,6 +66,7 @@ class MapShelf:
     z_range: tuple[float, float]
     confidence: float
     boxes: list[MapBox] = field(default_factory=list)
+    partial: str | None = None  #: the rack's `MapRack.partial` (see the module docstring)
 
     @property
     def cuboid(self) -> Cuboid:
@@ -62,8 +82,9 @@ class MapShelf:
 @dataclass
 class MapRack:
     id: str
-    x_range: tuple[float, float]
+    x_range: tuple[float, float]  #: the seen part when ``partial``
     shelves: list[MapShelf] = field(default_factory=list)
+    partial: str | None = None  #: None (seen whole), "start" / "end" (cut at low / high X), "both"
 
 
 @dataclass
@@ -86,6 +107,7 @@ class WarehouseMap:
     board_thickness: float
     origin_world: tuple[float, float, float] | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    seen_x: list[tuple[float, float]] = field(default_factory=list)  #: X intervals seen; [] = not recorded
 
     # ----------------------------------------------------------- queries
     def shelves(self) -> list[MapShelf]:
@@ -119,6 +141,7 @@ class WarehouseMap:
             "origin_world": None if self.origin_world is None else r6(self.origin_world),
             "board_thickness": round(self.board_thickness, 6),
             "meta": self.meta,
+            "seen_x": [r6(iv) for iv in self.seen_x],
             "steps": [
                 {
                     "frame": s.frame,
@@ -135,6 +158,7 @@ class WarehouseMap:
                 {
                     "id": r.id,
                     "x_range": r6(r.x_range),
+                    "partial": r.partial,
                     "shelves": [
                         {
                             "id": s.id,
@@ -144,6 +168,7 @@ class WarehouseMap:
                             "x_range": r6(s.x_range),
                             "z_range": r6(s.z_range),
                             "confidence": round(s.confidence, 4),
+                            "partial": s.partial,
                             "boxes": [
                                 {
                                     "id": b.id,
@@ -152,6 +177,7 @@ class WarehouseMap:
                                     "yaw": round(b.yaw, 6),
                                     "confidence": round(b.confidence, 4),
                                     "observations": b.observations,
+                                    **({} if b.colour is None else {"colour": [int(c) for c in b.colour]}),
                                 }
                                 for b in s.boxes
                             ],
@@ -167,8 +193,10 @@ class WarehouseMap:
     def from_dict(cls, d: Any, source: str = "warehouse map") -> WarehouseMap:
         if not isinstance(d, dict) or d.get("format") != MAP_FORMAT:
             raise InputError(f"{source}: not a warehouse map (format must be {MAP_FORMAT!r})")
-        if d.get("version") != MAP_VERSION:
-            raise InputError(f"{source}: warehouse map version {d.get('version')!r} is not supported")
+        if d.get("version") not in READ_VERSIONS:
+            raise InputError(
+                f"{source}: warehouse map version {d.get('version')!r} is not supported (reads {list(READ_VERSIONS)})"
+            )
         try:
             racks = []
             for r in d["racks"]:
@@ -182,6 +210,7 @@ class WarehouseMap:
                             float(b["yaw"]),
                             float(b["confidence"]),
                             int(b["observations"]),
+                            _colour(b.get("colour")),
                         )
                         for b in s["boxes"]
                     ]
@@ -195,9 +224,10 @@ class WarehouseMap:
                             _vec(s["z_range"], 2),
                             float(s["confidence"]),
                             boxes,
+                            _partial(s.get("partial", r.get("partial"))),
                         )
                     )
-                racks.append(MapRack(str(r["id"]), _vec(r["x_range"], 2), shelves))
+                racks.append(MapRack(str(r["id"]), _vec(r["x_range"], 2), shelves, _partial(r.get("partial"))))
             steps = [
                 StepRecord(
                     int(s["frame"]),
@@ -217,6 +247,7 @@ class WarehouseMap:
                 float(d["board_thickness"]),
                 None if origin is None else _vec(origin, 3),
                 dict(d.get("meta") or {}),
+                [_vec(iv, 2) for iv in d.get("seen_x") or []],
             )
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{source}: malformed warehouse map ({type(e).__name__}: {e})") from None
@@ -227,6 +258,21 @@ class WarehouseMap:
     @classmethod
     def load(cls, path: str | os.PathLike) -> WarehouseMap:
         return cls.from_dict(load_json(path), str(path))
+
+
+def _partial(v: Any) -> str | None:
+    if v not in PARTIAL_SIDES:
+        raise ValueError(f"partial must be one of {list(PARTIAL_SIDES)}, got {v!r}")
+    return v
+
+
+def _colour(v: Any) -> tuple[int, int, int] | None:
+    """A box's ``colour``: None (absent) or three integers 0-255."""
+    if v is None:
+        return None
+    if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(type(c) is int and 0 <= c <= 255 for c in v):
+        raise ValueError(f"colour must be three integers 0-255, got {v!r}")
+    return (int(v[0]), int(v[1]), int(v[2]))
 
 
 def _vec(v: Any, n: int) -> tuple[float, ...]:

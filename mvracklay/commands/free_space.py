@@ -14,7 +14,9 @@ DESCRIPTION = (
     "Reads a map written by `mvracklay run` or `reconstruct` (MAP: the warehouse.json or their output folder) "
     "and prints, per shelf, the number of boxes, the "
     "free length along the shelf (gaps between boxes), free area, free volume (up to the clear height), "
-    "occupancy and a confidence. With --box WxDxH (metres) it also lists the shelves and the X ranges "
+    "occupancy and a confidence. A shelf of a rack cut by the first or last view is marked partial (start: its "
+    "low-X end, end: its high-X end): its length is the seen part and the gap running to the cut end counts as "
+    "unknown, not free (nor as a place for a box). With --box WxDxH (metres) it also lists the shelves and the X ranges "
     "(map frame, metres from the first camera position) where the box's centre can go."
 )
 GROUP = "use"
@@ -38,7 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 #: the CSV columns of a shelf's free space (`ShelfFreeSpace.to_dict`)
 CSV_COLUMNS = ("shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume")
-CSV_COLUMNS += ("occupancy", "confidence")
+CSV_COLUMNS += ("occupancy", "confidence", "partial", "unknown_length")
 #: the CSV columns --box adds: fits (yes/no), the box centre's X ranges (A..B, space-separated) as given and turned
 CSV_FIT_COLUMNS = ("fits", "fit_centre_x", "fit_centre_x_turned")
 
@@ -68,7 +70,7 @@ def write_csv(rows: list, placements: list | None) -> None:
     writer.writerow(CSV_COLUMNS + (CSV_FIT_COLUMNS if placements is not None else ()))
     for r in rows:
         d = r.to_dict()
-        row = [d[c] for c in CSV_COLUMNS]
+        row = ["" if d[c] is None else d[c] for c in CSV_COLUMNS]
         if placements is not None:
             mine = [f for f in placements if f.shelf == r.shelf]
             row += ["yes" if mine else "no"]
