@@ -205,7 +205,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         folder = LayoutFolder.create(stage / "layouts", spec)
         stitcher = Stitcher(spec, stitch_config(cfg))
         if cfg.rrd:
-            rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd")
+            rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd", num_slots=spec.num_slots)
         pred = Predictor(
             model,
             lambda i: (intr, cfg.distance or source.distance(i) or default_distance),

@@ -172,7 +172,7 @@ def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: l
     stitcher = Stitcher(folder.spec, stitch_config(args))
     rec = None
     if not args.no_rrd:
-        rec = rerun_log.start("mvracklay-reconstruct", save=out / "warehouse.rrd")
+        rec = rerun_log.start("mvracklay-reconstruct", save=out / "warehouse.rrd", num_slots=folder.spec.num_slots)
     cam_y = cam_z = None
     if seq is not None and origin is not None:
         p0 = seq.frame(indices[0])["camera_position"]
