@@ -42,6 +42,7 @@ from network.model.frozen import trunk_precision, use_precision
 from network.precision import check_precision
 from network.training.distributed import single_process_device
 from stitching import rerun_log
+from stitching.box_colours import BoxColours
 from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
@@ -218,8 +219,9 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             pitch=pitch,
             yaw=yaw,
         )
+        colours = BoxColours(pred.cfg.view)  # each box's colour from the frames' pixels
         n, depth, timings = _predict_and_stitch(
-            source, cfg, pred, spec, intr, lens, default_distance, folder, stitcher, rec, (cam_y, cam_z)
+            source, cfg, pred, spec, intr, lens, default_distance, folder, stitcher, rec, (cam_y, cam_z), colours
         )
         seconds.update(timings)
 
@@ -227,6 +229,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         lev = pred.leveller
         read = lev.read_angles() if lev is not None else {}
         wmap = stitcher.map(origin, _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec))
+        colours.paint(wmap)
         steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])
         with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
             wmap.save(stage / "warehouse.json")
@@ -309,6 +312,7 @@ def _predict_and_stitch(
     stitcher: Stitcher,
     rec: Any,
     camera_yz: tuple[float | None, float | None],
+    colours: BoxColours | None = None,
 ) -> tuple[int, float, dict[str, float]]:
     """Stream the frames through ``pred``: each frame's layouts written to ``folder``, pushed into ``stitcher``
     and (with a recording ``rec``) logged to Rerun. Returns the frame count, the last rack depth read and the
@@ -321,6 +325,8 @@ def _predict_and_stitch(
     def feed():
         for rgb in source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None):
             pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
+            if colours is not None:
+                colours.keep(rgb)
             yield rgb
             if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads
                 bar.update(1)
@@ -348,6 +354,9 @@ def _predict_and_stitch(
         folder.write(n, fl)
         tb = time.perf_counter()
         frame_rec, step = stitcher.push(fl, n)
+        if colours is not None:
+            anchors = logits["anchors"].float().cpu().numpy().reshape(-1)
+            colours.add(frame_rec, step.offset, anchors, intr, dist, _frame_angles(pred, n))
         tc = time.perf_counter()
         if rec is not None:
             path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
@@ -410,6 +419,14 @@ def _map_meta(
         "intrinsics": intr.to_dict(),
         "spec": spec.to_dict(),
     }
+
+
+def _frame_angles(pred: Predictor, i: int) -> tuple[float, float, float]:
+    """Frame ``i``'s (roll, pitch, yaw) as levelled (degrees; 0 for a level camera)."""
+    lev = pred.leveller
+    if lev is None or i >= len(lev.rolls):
+        return 0.0, 0.0, 0.0
+    return lev.rolls[i], lev.pitches[i], lev.yaws[i]
 
 
 def _median(angles: list[float]) -> float:

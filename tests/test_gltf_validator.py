@@ -1,4 +1,4 @@
-"""warehouse.glb passes the Khronos glTF validator (npm gltf-validator) with zero errors.
+"""warehouse.glb passes the Khronos glTF validator (npm gltf-validator) with zero errors and zero warnings.
 
 Runs scripts/validate_gltf.mjs with node; skipped when node or node_modules/gltf-validator is
 missing (install with `npm ci` in the repository root).
@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from mvracklay.cli import main
-from stitching.export_gltf import export_glb
+from stitching.export_gltf import export_glb, glb_json, map_cuboids
 from stitching.warehouse_map import WarehouseMap
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,7 +50,11 @@ def test_ground_truth_reconstruction_glb_is_valid(tiny_dataset: Path, tmp_path: 
     assert wmap.boxes()
     report = validate(out / "warehouse.glb")
     assert report["issues"]["numErrors"] == 0, _errors(report)
-    assert report["info"]["drawCallCount"] == len(wmap.boxes()) + len(wmap.shelves())
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:5]
+    # per rack 4 uprights, per shelf a board and 2 beams, and every box
+    racks = [r for r in wmap.racks if r.shelves]
+    assert report["info"]["drawCallCount"] == 4 * len(racks) + 3 * len(wmap.shelves()) + len(wmap.boxes())
+    assert report["info"]["drawCallCount"] == len(map_cuboids(wmap))
 
 
 def test_pipeline_glb_is_valid(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):
@@ -59,6 +63,13 @@ def test_pipeline_glb_is_valid(tiny_dataset: Path, tiny_checkpoint: Path, tmp_pa
     assert main([*argv, "--no-rrd", "--quiet", "--max-frames", "4"]) == 0
     report = validate(out / "warehouse.glb")
     assert report["issues"]["numErrors"] == 0, _errors(report)
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:5]
+    # the run coloured the boxes the frames saw, and the .glb says so
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    extras = {n["name"]: n.get("extras", {}) for n in glb_json(out / "warehouse.glb").get("nodes", [])}
+    for b in wmap.boxes():
+        assert extras[b.id]["colour_source"] == ("frames" if b.colour is not None else "default")
+    assert not wmap.boxes() or any(b.colour is not None for b in wmap.boxes())
 
 
 def test_empty_map_glb_is_valid(tmp_path: Path):
@@ -66,6 +77,7 @@ def test_empty_map_glb_is_valid(tmp_path: Path):
     export_glb(WarehouseMap(racks=[], steps=[], board_thickness=0.06), path)
     report = validate(path)
     assert report["issues"]["numErrors"] == 0, _errors(report)
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:5]
 
 
 def test_validator_reports_errors_on_a_broken_file(tmp_path: Path):
