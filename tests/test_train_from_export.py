@@ -77,6 +77,10 @@ def test_export_without_camera_records_cannot_train(racklay_export: Path, tmp_pa
 
     old = shutil.copytree(racklay_export, tmp_path / "v1")
     (old / RACKLAY_CAMERAS).unlink()
+    (old / "img").rename(old / "images")  # version 1's folders
+    (old / "frontLayouts").mkdir()
+    for f in (old / "topLayouts").glob("front*.npy"):
+        f.rename(old / "frontLayouts" / f.name)
     m = json.loads((old / RACKLAY_MANIFEST).read_text())
     m["version"] = 1
     del m["cameras"]
@@ -102,10 +106,13 @@ def test_export_with_a_broken_camera_record_is_one_line(racklay_export: Path, tm
         open_data(bad).sequences()
 
 
-def test_foreign_racklay_folder_is_refused_in_one_line(racklay_export: Path, tmp_path: Path) -> None:
+def test_racklay_folder_without_our_manifest_reads_as_the_authors_layout(racklay_export: Path, tmp_path: Path) -> None:
+    """Without racklay_export.json the folder is the authors' layout: its lists, a default camera."""
     import shutil
 
     foreign = shutil.copytree(racklay_export, tmp_path / "foreign")
     (foreign / RACKLAY_MANIFEST).unlink()
-    with pytest.raises(InputError, match="a RackLay folder without racklay_export.json"):
-        open_data(foreign)
+    data = open_data(foreign)
+    assert data.spec.num_slots == 4 and "no camera records" in data.note
+    val = [s.frames for s in open_data(racklay_export).records if s.split == "val"]
+    assert [s.num_frames for s in data.sequences("val")] == val

@@ -27,7 +27,9 @@ HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of
 DESCRIPTION = (
     "Run CKPT over every sequence of a split and print the paper's Table I: per view and class, the "
     "per-(frame, slot) averaged mIoU and 'mAP' (mean pixel precision, as RackLay defines it) and the "
-    "pooled figures, over the columns in view and over all cells."
+    "pooled figures, over the columns in view and over all cells. --metric reference scores with the "
+    "authors' own evaluation instead (MVRackLay eval_vracklay.py: all cells, an empty pair scores 1, "
+    "sums over frames x slots, the targets of their windows)."
 )
 GROUP = "models"
 ORDER = 31
@@ -57,6 +59,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
     )
+    p.add_argument(
+        "--metric",
+        choices=["ours", "reference", "both"],
+        default="ours",
+        help="ours (default: empty pairs skipped, in view and all cells, pooled), reference (the authors' "
+        "eval_vracklay.py: all cells, an empty (frame, slot) pair scores 1, precision over the classes in the "
+        "ground truth, / frames x slots, targets f0, f0, f1 .. f[N-2] of each sequence), or both",
+    )
     p.add_argument("--json", type=Path, help="also write the full result as JSON here")
     add_quiet_option(p, "hide the progress bar")
 
@@ -65,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from layouts.fileio import atomic_write_json, nan_to_null
-    from layouts.metrics import format_table
+    from layouts.metrics import format_reference_table, format_table
     from network.checkpoint import load_model
     from network.inference.evaluate import evaluate_sequences
     from network.inference.fusion import check_tau
@@ -101,11 +111,18 @@ def run(args: argparse.Namespace) -> int:
         roll=roll,
         pitch=pitch,
         yaw=yaw,
+        reference=args.metric != "ours",
     )
     title = _title(args, record, model, res, len(seqs), fuse_tau, (roll, pitch, yaw))
-    print(format_table(res["visible"], title + " -- columns in view"))
-    print()
-    print(format_table(res["all"], title + " -- all cells"))
+    if args.metric != "reference":
+        print(format_table(res["visible"], title + " -- columns in view"))
+        print()
+        print(format_table(res["all"], title + " -- all cells"))
+    if args.metric != "ours":
+        if args.metric == "both":
+            print()
+        windows = f"{res['reference_windows']} windows of {len(seqs)} sequences"
+        print(format_reference_table(res["reference"], f"{title} -- reference metric, {windows}"))
     print(f"\nframes whose shelf-slot count the row head got right: {100 * res['slot_count_accuracy']:.1f} %")
     lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
     for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
@@ -115,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
             "checkpoint": str(args.checkpoint),
             "data": str(args.data),
             "split": args.split,
+            "metric": args.metric,
             "sequences": len(seqs),
             "variant": record.get("variant"),
             "precision": trunk_precision(model),

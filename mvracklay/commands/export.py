@@ -12,9 +12,11 @@ HELP = "export a WareSynth dataset as COCO instance segmentation, YOLO detection
 DESCRIPTION = (
     "Write a WareSynth dataset in another format. coco: images/<split>/ and "
     "annotations/instances_<split>.json (RLE masks; categories box, shelf, rack). yolo: images/, labels/, "
-    "<split>.txt lists and data.yaml. racklay: images/, topLayouts/, frontLayouts/ (0/115/255 .npy stacks) "
-    "and splits/ with RackLay index lists and MVRackLay temporal lists. The export is built beside OUT and "
-    "moved into place when complete; the same dataset always gives the same bytes."
+    "<split>.txt lists and data.yaml. racklay: the authors' RackLay/MVRackLay layout, img/ and topLayouts/ "
+    "(top and front 0/115/255 .npy stacks of --slots slots) and splits/warehouse/ with RackLay and MVRackLay "
+    "lists of absolute image paths (copy them under their code's splits/warehouse/). The export is built "
+    "beside OUT and moved into place when complete; the same dataset always gives the same bytes (the "
+    "racklay lists name OUT's absolute path)."
 )
 GROUP = "data"
 ORDER = 22
@@ -32,6 +34,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="detect",
         help="yolo labels: boxes (detect) or polygons (segment)",
     )
+    p.add_argument(
+        "--slots",
+        type=int,
+        metavar="N",
+        help="racklay: shelf slots per layout stack, the empty ones all 0 (default 4, the reference code's "
+        "--num_racks; at least the dataset's slots)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists and is not empty")
     add_quiet_option(p, "no progress bar")
 
@@ -46,11 +55,14 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=not args.quiet,
         yolo_segments=args.yolo_task == "segment",
+        slots=args.slots,
     )
     summary = out / ("racklay_export.json" if args.format == "racklay" else "export.json")
     info = json.loads(summary.read_text(encoding="utf-8"))
     if args.format == "racklay":
-        print(f"wrote {out}: {info['num_frames']} frames, splits {', '.join(info['splits'])}")
+        lists = info["lists"]
+        print(f"wrote {out}: {info['num_frames']} frames, splits {', '.join(info['splits'])}, {info['slots']} slots")
+        print(f"reference lists in {out / lists['folder']}: val from {lists['val']['from']}")
     else:
         for split in info["splits"]:
             c = info["counts"][split]

@@ -2,7 +2,9 @@
 
 Predictions are scored at the ground truth's resolution (logits resized bilinearly when the
 model's D differs), over all cells and over the columns in view (per-frame ``visible``), with
-`layouts.metrics.LayoutMetrics` (reference-style averaged mIoU / "mAP" and pooled figures).
+`layouts.metrics.LayoutMetrics` (reference-style averaged mIoU / "mAP" and pooled figures). With
+``reference`` the authors' own metric and loop is computed beside it (`layouts.metrics.ReferenceMetrics`:
+all cells, each sequence's frames weighted as MVRackLay's windows target them, f0 twice and the last never).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import torch
 from tqdm import tqdm
 
 from layouts import VIEWS
-from layouts.metrics import METRIC_CLASSES, FrameScorer
+from layouts.metrics import METRIC_CLASSES, FrameScorer, ReferenceMetrics, reference_weights
 from network.data import SequenceLike, board_rows, check_spec_compatible, sequence_angles
 from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera
 from network.model.net import MVRackLay
@@ -36,6 +38,7 @@ def evaluate_sequences(
     roll: float | str | None = None,
     pitch: float | str | None = None,
     yaw: float | str | None = None,
+    reference: bool = False,
 ) -> dict[str, Any]:
     """``{"all": table, "visible": table, "frames": n, "mode": mode, ...}`` over the given sequences.
 
@@ -47,9 +50,11 @@ def evaluate_sequences(
     ``fuse_tau`` fuses each frame's layouts with its neighbours' (`network.inference.fusion`; 0 = off);
     ``roll`` levels a rolled camera (degrees or ``"auto"``, `network.inference.roll`; None: each sequence's
     recorded roll, 0 for a level camera), ``pitch`` / ``yaw`` a tilt (degrees, up > 0) / turn (degrees,
-    right > 0), the same.
+    right > 0), the same. ``reference`` adds ``"reference"``: the authors' metric and loop
+    (`layouts.metrics.ReferenceMetrics`, over the first ``max_frames`` frames as their sequence).
     """
     scorer = FrameScorer()
+    ref = ReferenceMetrics() if reference else None
     slots_right = 0
     total = sum(s.num_frames if max_frames is None else min(s.num_frames, max_frames) for s in sequences)
     bar = tqdm(total=total, desc=f"evaluate ({mode})", unit="frame", disable=not progress, leave=False)
@@ -69,7 +74,7 @@ def evaluate_sequences(
     for seq in sequences:
         check_spec_compatible(model.cfg.spec, seq.spec, str(getattr(seq, "root", seq.name)))
         n = seq.num_frames if max_frames is None else min(seq.num_frames, max_frames)
-        scored, right, leveller = _score_sequence(model, seq, n, mode, scorer, bar, true_anchors, options)
+        scored, right, leveller = _score_sequence(model, seq, n, mode, (scorer, ref), bar, true_anchors, options)
         frames += scored
         slots_right += right
         if leveller is not None:
@@ -77,8 +82,10 @@ def evaluate_sequences(
             pitches.extend(leveller.pitches)
             yaws.extend(leveller.yaws)
     bar.close()
+    extra = {} if ref is None else {"reference": ref.result(), "reference_windows": ref.frames["top"]}
     return {
         **scorer.result(),
+        **extra,
         "frames": frames,
         "mode": mode,
         "flip_average": flip,
@@ -106,12 +113,13 @@ def _score_sequence(
     seq: SequenceLike,
     n: int,
     mode: str,
-    scorer: FrameScorer,
+    scorers: tuple[FrameScorer, ReferenceMetrics | None],
     bar: tqdm,
     true_anchors: bool,
     options: dict[str, Any],
 ) -> tuple[int, int, Any]:
-    """Score the first ``n`` frames of ``seq`` into ``scorer`` (``options``: `Predictor`'s keywords).
+    """Score the first ``n`` frames of ``seq`` into ``scorers`` (ours, and the reference metric or None;
+    ``options``: `Predictor`'s keywords).
 
     Returns the frames scored, how many of them the row head found the ground truth's number of shelf
     slots in, and the predictor's leveller (None when every camera was taken as level).
@@ -119,10 +127,16 @@ def _score_sequence(
     anchors = (lambda i, s=seq: board_rows(s, i, model.cfg.view, model.cfg.spec.num_slots)[0]) if true_anchors else None
     # angles None: the sequence's recorded ones (`network.inference.predictor.SequenceCamera`)
     pred = Predictor(model, sequence_camera(seq), anchors, **options)
+    scorer, ref = scorers
+    weights = reference_weights(n)
     frames = slots_right = 0
     for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
         gt = seq.layouts(i)
-        scorer.update(frame_layouts(out, seq.spec), gt)
+        lay = frame_layouts(out, seq.spec)
+        scorer.update(lay, gt)
+        if ref is not None:
+            for view in VIEWS:
+                ref.update(lay[view], getattr(gt, view), view, weights[i])
         found = int(torch.isfinite(out["anchors"]).sum())
         slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
         frames += 1

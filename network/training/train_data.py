@@ -12,23 +12,27 @@ from layouts.errors import InputError
 
 
 def open_data(root: str | Path):
-    """Open a training/evaluation data folder: a WareSynth dataset, or a RackLay/MVRackLay export
-    written by `mvracklay export --format racklay` (recognised by its manifest). Both give
-    ``spec``, ``image_size`` and ``sequences(split)``; one-line error if it is neither."""
+    """Open a training/evaluation data folder: a WareSynth dataset, a RackLay/MVRackLay export
+    written by `mvracklay export --format racklay` (recognised by its manifest), or a folder in the
+    authors' published layout (`waresynth.racklay_published`; it prints one line on stderr saying
+    which camera it assumes). All give ``spec``, ``image_size`` and ``sequences(split)``; one-line
+    error if it is none of them."""
+    import sys
+
     # the dataset readers are the one allowed waresynth import
     from waresynth.dataset import open_dataset
     from waresynth.exporters.racklay import RACKLAY_MANIFEST, load_racklay_export
+    from waresynth.racklay_published import is_published_layout, open_published
 
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"{root}: dataset folder not found")
     if (root / RACKLAY_MANIFEST).is_file():
         return load_racklay_export(root)
-    if (root / "topLayouts").is_dir() and not (root / "manifest.json").is_file():
-        raise InputError(
-            f"{root}: a RackLay folder without {RACKLAY_MANIFEST}: training needs each frame's intrinsics, "
-            "camera distance and board heights, which only 'mvracklay export --format racklay' writes"
-        )
+    if is_published_layout(root):
+        data = open_published(root)
+        print(f"note: {data.note}", file=sys.stderr)
+        return data
     return open_dataset(root)
 
 

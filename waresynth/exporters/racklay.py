@@ -1,16 +1,19 @@
 """RackLay / MVRackLay export and its reader.
 
-``images/NNNNNN.png``, ``topLayouts/topNNNNNN.npy`` and ``frontLayouts/frontNNNNNN.npy`` (``(R, D, D)``
-uint8 with RackLay's codes 0 / 115 / 255), numbered by one running index over all sequences;
-``splits/<split>_files.txt`` (RackLay: one index a line) and ``splits/<split>_temporal_files.txt``
-(MVRackLay: image paths in frame order, each sequence closed by a ``,``); ``visible.npy`` ``(N, D)`` bool,
-the layout columns in view per frame; ``cameras.json``, what RackLay's format lacks and training needs
-(intrinsics, board heights, per-frame camera records). `load_racklay_export` reads it back, as frames or
-as sequences (`ExportSequence`, read like `waresynth.dataset.Sequence`).
+A drop-in for the authors' code (see `waresynth.exporters.racklay_lists` for the rules it follows):
+``img/NNNNNN.png``, ``topLayouts/topNNNNNN.npy`` and ``topLayouts/frontNNNNNN.npy`` (``(S, D, D)`` uint8
+with RackLay's codes 0 / 115 / 255, S = ``slots`` >= R, slots past the dataset's R all 0), numbered by one
+running index over all sequences; ``splits/warehouse/{train,val[,test]}_files.txt`` (RackLay: absolute image
+paths) and ``..._temporal_files.txt`` (MVRackLay: the same in frame order, each sequence closed by ``,``);
+``visible.npy`` ``(N, D)`` bool, the layout columns in view per frame; ``cameras.json``, what RackLay's
+format lacks and training needs (intrinsics, board heights, per-frame camera records).
+`load_racklay_export` reads it back (and the version 1 / 2 layout, ``images/`` and ``frontLayouts/``), as
+frames or as sequences (`ExportSequence`, read like `waresynth.dataset.Sequence`).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -26,6 +29,15 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_save_npy, atomic_write_json, atomic_write_text, load_json, load_npy
 from layouts.spec import LayoutSpec
 from waresynth.dataset import check_frame_index
+from waresynth.exporters.racklay_lists import (
+    DEFAULT_SLOTS,
+    IMAGE_DIR,
+    LAYOUT_DIR,
+    LIST_DIR,
+    check_out_path,
+    list_frame,
+    list_texts,
+)
 from waresynth.exporters.staging import (
     SPLIT_ORDER,
     check_split_name,
@@ -40,19 +52,30 @@ RACKLAY_MANIFEST = "racklay_export.json"
 #: what RackLay's format lacks and training needs: per sequence its intrinsics, the board heights it
 #: sees and every frame's camera record (position, distance to the rack, slot boards)
 RACKLAY_CAMERAS = "cameras.json"
-#: the RackLay export's own version: 2 added `RACKLAY_CAMERAS`; version 1 exports still read (layouts only)
-RACKLAY_VERSION = 2
+#: the RackLay export's own version: 2 added `RACKLAY_CAMERAS`; 3 is the reference code's layout (``img/``,
+#: both views in ``topLayouts/``, absolute-path lists in ``splits/warehouse/``, ``slots`` per stack).
+#: Versions 1 and 2 still read (1: layouts only)
+RACKLAY_VERSION = 3
 
 
-def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
-    """RackLay / MVRackLay folder: images, 0/115/255 layout stacks, split and temporal split files."""
+def _padded(stack: np.ndarray, slots: int) -> np.ndarray:
+    """RackLay codes of a ``(R, D, D)`` class stack, zero slots appended up to ``slots``."""
+    out = np.zeros((slots, *stack.shape[1:]), np.uint8)
+    out[: stack.shape[0]] = to_racklay(stack)
+    return out
+
+
+def _export_racklay(dataset: Any, tmp: Path, progress: bool, root: str, slots: int) -> dict:
+    """RackLay / MVRackLay folder: images, 0/115/255 layout stacks, the reference split lists."""
     spec: LayoutSpec = dataset.spec
+    if slots < spec.num_slots:
+        raise InputError(
+            f"--slots {slots}: the dataset's layouts have {spec.num_slots} shelf slots, pass at least that"
+        )
     seqs = dataset.sequences()
     total = sum(s.num_frames for s in seqs)
     splits = split_names(dataset)
     records: list[dict[str, Any]] = []
-    split_indices: dict[str, list[int]] = {s: [] for s in splits}
-    temporal: dict[str, list[str]] = {s: [] for s in splits}
     visible = np.zeros((total, spec.size), bool)
     have_visible = True
     cameras: dict[str, Any] = {}
@@ -75,22 +98,18 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
             }
         lay: FrameLayouts = seq.layouts(i)
         lay.validate(spec, str(seq.root / "layouts" / f"{i:06d}.npz"))
-        copy_file(seq.rgb_path(i), tmp / "images" / f"{index:06d}.png")
-        atomic_save_npy(tmp / "topLayouts" / f"top{index:06d}.npy", to_racklay(lay.top))
-        atomic_save_npy(tmp / "frontLayouts" / f"front{index:06d}.npy", to_racklay(lay.front))
+        copy_file(seq.rgb_path(i), tmp / IMAGE_DIR / f"{index:06d}.png")
+        atomic_save_npy(tmp / LAYOUT_DIR / f"top{index:06d}.npy", _padded(lay.top, slots))
+        atomic_save_npy(tmp / LAYOUT_DIR / f"front{index:06d}.npy", _padded(lay.front, slots))
         if lay.visible is None:
             have_visible = False
         else:
             visible[index] = lay.visible
-        split_indices[seq.split].append(index)
-        temporal[seq.split].append(f"images/{index:06d}.png\n")
-        if i == seq.num_frames - 1:
-            temporal[seq.split].append(",")
         index += 1
 
-    for s in splits:
-        atomic_write_text(tmp / "splits" / f"{s}_files.txt", "".join(f"{k}\n" for k in split_indices[s]))
-        atomic_write_text(tmp / "splits" / f"{s}_temporal_files.txt", "".join(temporal[s]))
+    texts, plan = list_texts(records, root)
+    for name, text in texts.items():
+        atomic_write_text(tmp / LIST_DIR / name, text)
     if have_visible:
         atomic_save_npy(tmp / "visible.npy", visible)
     atomic_write_json(tmp / RACKLAY_CAMERAS, {"sequences": cameras})
@@ -103,6 +122,8 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
         "num_frames": total,
         "codes": {name: RACKLAY_CODES[cid] for cid, name in enumerate(("background", "shelf", "box"))},
         "splits": splits,
+        "slots": slots,
+        "lists": {"folder": LIST_DIR, "root": root, **plan},
         "visible": have_visible,
         "sequences": records,
     }
@@ -111,10 +132,21 @@ def _export_racklay(dataset: Any, tmp: Path, progress: bool) -> dict:
 
 
 def export_racklay(
-    dataset_dir: str | os.PathLike, out_dir: str | os.PathLike, *, overwrite: bool = False, progress: bool = True
+    dataset_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    progress: bool = True,
+    slots: int = DEFAULT_SLOTS,
 ) -> Path:
-    """Write the RackLay/MVRackLay layout of a dataset to ``out_dir`` (read it back with `load_racklay_export`)."""
-    return run_staged(_export_racklay, dataset_dir, out_dir, overwrite, progress)
+    """Write the RackLay/MVRackLay layout of a dataset to ``out_dir``, ``slots`` shelf slots a stack (the
+    reference code's ``--num_racks``); the split lists name ``out_dir``'s absolute path. Read it back with
+    `load_racklay_export`."""
+    if isinstance(slots, bool) or not isinstance(slots, int) or not 1 <= slots <= 16:
+        raise InputError(f"--slots must be an integer from 1 to 16, got {slots!r}")
+    root = check_out_path(Path(out_dir))
+    build = functools.partial(_export_racklay, root=root, slots=slots)
+    return run_staged(build, dataset_dir, out_dir, overwrite, progress)
 
 
 @dataclass(frozen=True)
@@ -151,6 +183,11 @@ class RackLayExport:
         covered = sorted(k for s in self.records for k in s.indices)
         if covered != list(range(self.num_frames)):
             raise InputError(f"{src}: sequences do not cover frames 0..{self.num_frames - 1} exactly once")
+        self.version = int(manifest.get("version", 1))
+        lists = manifest.get("lists") if self.version >= 3 else None
+        #: the reference lists' names (train, val and test when present), version 3
+        self.lists: list[str] = [k for k in ("train", "val", "test") if isinstance(lists, dict) and k in lists]
+        self.slots = int(manifest.get("slots", self.spec.num_slots))
         self._visible: np.ndarray | None = None
         self._cameras: dict[str, Any] | None = None
         src_size = manifest.get("source", {}).get("image_size") if isinstance(manifest.get("source"), dict) else None
@@ -199,7 +236,7 @@ class RackLayExport:
         return check_frame_index(index, self.num_frames, self.root)
 
     def image_path(self, index: int) -> Path:
-        return self.root / "images" / f"{self._check(index):06d}.png"
+        return self.root / (IMAGE_DIR if self.version >= 3 else "images") / f"{self._check(index):06d}.png"
 
     def rgb(self, index: int) -> np.ndarray:
         """uint8 ``(H, W, 3)`` image of frame ``index``."""
@@ -217,13 +254,17 @@ class RackLayExport:
     def layouts(self, index: int) -> FrameLayouts:
         """Class-id layouts (0/1/2) of frame ``index``, with its visible columns when exported."""
         i = self._check(index)
-        top = self._stack(self.root / "topLayouts" / f"top{i:06d}.npy")
-        front = self._stack(self.root / "frontLayouts" / f"front{i:06d}.npy")
+        top = self._stack(self.root / LAYOUT_DIR / f"top{i:06d}.npy")
+        front = self._stack(self.root / (LAYOUT_DIR if self.version >= 3 else "frontLayouts") / f"front{i:06d}.npy")
         vis = self.visible[i].copy() if self.visible is not None else None
         return FrameLayouts(top, front, vis)
 
     def _stack(self, path: Path) -> np.ndarray:
-        return validate_stack(from_racklay(load_npy(path), str(path)), self.spec, str(path))
+        """The ``(R, D, D)`` class stack of a file (the zero slots past R that version 3 appends dropped)."""
+        arr = from_racklay(load_npy(path), str(path))
+        if self.slots > self.spec.num_slots and arr.ndim == 3 and arr.shape[0] == self.slots:
+            arr = arr[: self.spec.num_slots]
+        return validate_stack(arr, self.spec, str(path))
 
     @property
     def visible(self) -> np.ndarray | None:
@@ -237,20 +278,23 @@ class RackLayExport:
         return self._visible
 
     def _split_file(self, split: str, kind: str) -> Path:
-        if split not in self.splits:
-            raise InputError(f"{self.root}: no split {split!r} (have {self.splits})")
-        return self.root / "splits" / f"{split}_{kind}.txt"
+        have = self.lists if self.version >= 3 else self.splits
+        if split not in have:
+            raise InputError(f"{self.root}: no split {split!r} (have {have})")
+        folder = self.root / (LIST_DIR if self.version >= 3 else "splits")
+        return folder / f"{split}_{kind}.txt"
+
+    def _list_index(self, line: str, source: str) -> int:
+        try:
+            return self._check(list_frame(line, source))
+        except InputError:
+            raise InputError(f"{source}: not an image of this export: {line!r}") from None
 
     def split_indices(self, split: str) -> list[int]:
-        """Frame indices of ``split`` from ``splits/<split>_files.txt`` (RackLay's list)."""
+        """Frame indices of ``split`` from its RackLay list (``splits/warehouse/<split>_files.txt``;
+        version 1 / 2: ``splits/<split>_files.txt``, one index a line)."""
         p = self._split_file(split, "files")
-        out = []
-        for n, line in enumerate(_read_text(p).splitlines(), 1):
-            try:
-                out.append(self._check(int(line)))
-            except (ValueError, InputError):
-                raise InputError(f"{p}:{n}: not a frame index of this export: {line!r}") from None
-        return out
+        return [self._list_index(line, f"{p}:{n}") for n, line in enumerate(_read_text(p).splitlines(), 1)]
 
     def temporal_sequences(self, split: str) -> list[list[int]]:
         """Ordered frame indices per sequence of ``split``, parsed like MVRackLay's
@@ -259,14 +303,7 @@ class RackLayExport:
         chunks = _read_text(p).split(",")[:-1]
         out = []
         for chunk in chunks:
-            idx = []
-            for line in chunk.split("\n")[:-1]:
-                name = Path(line).name
-                try:
-                    idx.append(self._check(int(Path(name).stem)))
-                except (ValueError, InputError):
-                    raise InputError(f"{p}: not an image of this export: {line!r}") from None
-            out.append(idx)
+            out.append([self._list_index(line, str(p)) for line in chunk.split("\n")[:-1]])
         return out
 
     def windows(self, split: str, seq_len: int) -> list[list[int]]:
@@ -341,9 +378,9 @@ def load_racklay_export(root: str | os.PathLike) -> RackLayExport:
     manifest = load_json(root / RACKLAY_MANIFEST)
     if not isinstance(manifest, dict) or manifest.get("format") != "racklay":
         raise InputError(f"{root / RACKLAY_MANIFEST}: not a RackLay export manifest")
-    if manifest.get("version") not in (1, RACKLAY_VERSION):
+    if manifest.get("version") not in (1, 2, RACKLAY_VERSION):
         raise InputError(
             f"{root / RACKLAY_MANIFEST}: export version {manifest.get('version')!r} not supported "
-            f"(this version reads 1 and {RACKLAY_VERSION})"
+            f"(this version reads 1 to {RACKLAY_VERSION})"
         )
     return RackLayExport(root, manifest)
