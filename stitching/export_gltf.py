@@ -7,7 +7,8 @@ shelf boards, and boxes in the colours the frames saw.
   ``.../beam_back``, and its boxes ``rack_00/shelf_01/box_003``. Names are unique by construction.
 * A rack's frame is drawn from the map (nothing in it is measured): four uprights
   (`UPRIGHT_WIDTH` x `UPRIGHT_DEPTH` section) inside the corners of the rack's X range and its
-  shelves' depth range, from `BEAM_HEIGHT` under the lowest board to the top of the highest
+  shelves' depth range (none at an end where a partial rack is cut: ``upright_00`` / ``_01`` stand
+  at its low-X end, ``_02`` / ``_03`` at its high-X end), from `BEAM_HEIGHT` under the lowest board to the top of the highest
   shelf's clear height; two beams per shelf (`BEAM_HEIGHT` x `BEAM_DEPTH`, the rack's length)
   under the board's front and back edges. Boards are slabs ``board_thickness`` thick under each
   shelf's board top.
@@ -124,8 +125,12 @@ def rack_frame(rack: MapRack, board_thickness: float) -> tuple[list[Part], dict[
     bottom = -min(s.board_height for s in rack.shelves) + t + BEAM_HEIGHT  # map Y is down
     top = -max(s.board_height + s.clear_height for s in rack.shelves)
     uw, ud = min(UPRIGHT_WIDTH, (x1 - x0) / 2), min(UPRIGHT_DEPTH, (z1 - z0) / 2)
+    partial = getattr(rack, "partial", None)
+    cut = (partial in ("start", "both"),) * 2 + (partial in ("end", "both"),) * 2
     uprights = []
     for i, (xa, za) in enumerate(((x0, z0), (x0, z1 - ud), (x1 - uw, z0), (x1 - uw, z1 - ud))):
+        if cut[i]:  # the rack goes on unseen past a cut end: no upright drawn there
+            continue
         c = _box_xyz((xa, xa + uw), (top, bottom), (za, za + ud))
         uprights.append(Part(f"{rack.id}/upright_{i:02d}", "upright", rack.id, c, RACK_COLOURS["upright"]))
     beams: dict[str, list[Part]] = {}
@@ -180,7 +185,7 @@ def scene_parts(wmap: WarehouseMap) -> list[Part]:
             parts.append(Part(s.id, "shelf", rack.id, board, RACK_COLOURS["shelf"], _shelf_extras(s)))
             parts.extend(beams.get(s.id, []))
             for b in s.boxes:
-                colour = b.colour if getattr(b, "colour", None) is not None else None
+                colour = getattr(b, "colour", None)
                 extras = {
                     "id": b.id,
                     "kind": "box",

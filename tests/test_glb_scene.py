@@ -113,7 +113,12 @@ def test_uprights_and_beams_per_rack(glb):
     for rack in wmap.racks:
         ups = sorted(k for k in got if k.startswith(rack.id + "/upright_"))
         beams = sorted(k for k in got if k.startswith(rack.id + "/") and "/beam_" in k)
-        assert len(ups) == 4 and len(beams) == 2 * len(rack.shelves)
+        assert len(beams) == 2 * len(rack.shelves)
+        # 2 uprights at each end, none at an end where a partial rack is cut
+        want = {None: ["00", "01", "02", "03"], "end": ["00", "01"], "start": ["02", "03"]}[
+            getattr(rack, "partial", None)
+        ]
+        assert ups == [f"{rack.id}/upright_{i}" for i in want]
         lo_x, hi_x = rack.x_range
         for k in ups:  # inside the rack's footprint, from under the lowest board to the top shelf's top
             v = got[k]
@@ -156,6 +161,15 @@ def test_cuboid_bounds_round_trip_and_same_bytes(glb, tmp_path):
         assert np.allclose(got[b.id].mean(0), b.center, atol=1e-5)
     export_glb(wmap, tmp_path / "again.glb")
     assert (tmp_path / "again.glb").read_bytes() == path.read_bytes()
+
+
+def test_a_rack_cut_at_both_ends_has_no_uprights(tmp_path):
+    wmap = _two_racks()
+    wmap.racks[0].partial = "both"
+    export_glb(wmap, tmp_path / "b.glb")
+    names = set(load_glb_cuboid_bounds(tmp_path / "b.glb"))
+    assert not {k for k in names if k.startswith("rack_00/upright_")}
+    assert {"rack_00/shelf_00/beam_front", "rack_01/upright_00"} <= names
 
 
 def test_a_map_without_shelves_is_an_empty_scene(tmp_path):

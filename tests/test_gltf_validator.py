@@ -51,9 +51,10 @@ def test_ground_truth_reconstruction_glb_is_valid(tiny_dataset: Path, tmp_path: 
     report = validate(out / "warehouse.glb")
     assert report["issues"]["numErrors"] == 0, _errors(report)
     assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:5]
-    # per rack 4 uprights, per shelf a board and 2 beams, and every box
-    racks = [r for r in wmap.racks if r.shelves]
-    assert report["info"]["drawCallCount"] == 4 * len(racks) + 3 * len(wmap.shelves()) + len(wmap.boxes())
+    # per rack 2 uprights at each end it is not cut at, per shelf a board and 2 beams, and every box
+    cuts = {None: 0, "start": 1, "end": 1, "both": 2}
+    uprights = sum(4 - 2 * cuts[getattr(r, "partial", None)] for r in wmap.racks if r.shelves)
+    assert report["info"]["drawCallCount"] == uprights + 3 * len(wmap.shelves()) + len(wmap.boxes())
     assert report["info"]["drawCallCount"] == len(map_cuboids(wmap))
 
 
@@ -86,3 +87,12 @@ def test_validator_reports_errors_on_a_broken_file(tmp_path: Path):
     proc = subprocess.run([NODE, str(SCRIPT), str(path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode in (1, 2)
     assert proc.returncode == 2 or not proc.stdout.startswith("errors 0 ")
+
+
+def test_validator_prints_warnings(tmp_path: Path):
+    path = tmp_path / "warn.gltf"
+    path.write_text(json.dumps({"asset": {"version": "2.0", "foo": 1}}))
+    proc = subprocess.run([NODE, str(SCRIPT), str(path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0  # warnings are not errors
+    assert proc.stdout.startswith("errors 0 warnings 1 ")
+    assert "warning UNEXPECTED_PROPERTY at /asset/foo" in proc.stdout
