@@ -48,11 +48,17 @@ def load_glb(path: Path) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
         mesh = scene.geometry[name]
         v = trimesh.transform_points(np.asarray(mesh.vertices, np.float64), transform)
         factor = getattr(mesh.visual.material, "baseColorFactor", None)
-        colour = np.asarray((180, 180, 180, 255) if factor is None else factor)
-        meshes.append((str(node), v, np.asarray(mesh.faces, np.int64), colour[:3].astype(np.float32)))
+        colour = np.full(3, 180.0) if factor is None else _linear_to_srgb(np.asarray(factor)[:3] / 255.0)
+        meshes.append((str(node), v, np.asarray(mesh.faces, np.int64), colour.astype(np.float32)))
     if not meshes:
         raise InputError(f"{path}: no meshes to render")
     return meshes
+
+
+def _linear_to_srgb(c: np.ndarray) -> np.ndarray:
+    """glTF's linear base colour factors (0-1) -> sRGB 0-255, as a viewer shows them."""
+    c = np.clip(c, 0.0, 1.0)
+    return 255.0 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
 def _shade_colour(name: str, base: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 // Validate a .glb/.gltf file with the Khronos glTF validator (npm package gltf-validator).
 // Usage: node scripts/validate_gltf.mjs FILE [--json]
-// Prints "errors N warnings N infos N hints N" and one line per error; with --json the full
+// Prints "errors N warnings N infos N hints N" and one line per error and warning; with --json the full
 // report. Exit status: 0 when the file has no errors, 1 when it has errors, 2 on bad usage or an
 // unreadable file.
 import { readFile } from "node:fs/promises";
@@ -42,7 +42,9 @@ if (json) {
 } else {
   console.log(`errors ${s.numErrors} warnings ${s.numWarnings} infos ${s.numInfos} hints ${s.numHints}`);
   for (const m of s.messages) {
-    if (m.severity === 0) console.log(`error ${m.code} at ${m.pointer ?? "-"}: ${m.message}`);
+    if (m.severity <= 1) {
+      console.log(`${m.severity === 0 ? "error" : "warning"} ${m.code} at ${m.pointer ?? "-"}: ${m.message}`);
+    }
   }
 }
 process.exit(s.numErrors > 0 ? 1 : 0);
