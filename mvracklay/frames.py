@@ -16,7 +16,7 @@ import math
 import os
 import re
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -91,7 +91,7 @@ class FrameSource:
     """An ordered, validated source of RGB frames.
 
     ``kind`` is ``sequence`` (WareSynth folder), ``images`` (a folder of images, or one image file) or
-    ``video``; ``num_frames`` is None when a video container does not say. ``intrinsics``, ``records``
+    ``video`` (``arrays``: frames in memory, `array_source`); ``num_frames`` is None when a video container does not say. ``intrinsics``, ``records``
     (per-frame camera records) and ``camera_angles`` are known only for a WareSynth sequence.
     What streaming finds worth saying (one frame only; a video that decodes fewer frames than it
     announces) is printed to stderr as ``PROG: warning: ...`` and kept in ``warnings``.
@@ -116,6 +116,8 @@ class FrameSource:
     #: the command the warnings are printed as coming from
     prog: str = "mvracklay"
     warnings: list[str] = field(default_factory=list)
+    #: an ``arrays`` source's frames (any iterable; consumed once)
+    arrays: Iterable[Any] | None = field(default=None, repr=False)
 
     def warn(self, said: str) -> None:
         """Print ``said`` as one warning line on stderr and keep it in ``warnings``."""
@@ -137,6 +139,12 @@ class FrameSource:
         limit = max_frames if max_frames else None
         if self.kind == "video":
             yield from self._video_frames(limit)
+            return
+        if self.kind == "arrays":
+            for n, a in enumerate(self.arrays or ()):
+                if limit and n >= limit:
+                    return
+                yield _rgb_array(a, n, (self.width, self.height))
             return
         paths = self.image_paths[:limit] if limit else self.image_paths
         for p in paths:
@@ -304,6 +312,47 @@ def open_source(path: str | os.PathLike, prog: str = "mvracklay") -> FrameSource
     return src
 
 
+def _rgb_array(a: Any, n: int, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Frame ``n`` of an in-memory source as uint8 ``(H, W, 3)`` (grey and RGBA taken; anything else refused)."""
+    a = np.asarray(a)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.dtype != np.uint8 or 0 in a.shape:
+        raise InputError(f"frames[{n}]: want a uint8 array (H, W, 3), got {a.dtype} {a.shape}")
+    if size is not None and (a.shape[1], a.shape[0]) != size:
+        raise InputError(f"frames[{n}]: {a.shape[1]}x{a.shape[0]}, the first frame {size[0]}x{size[1]}")
+    return np.ascontiguousarray(a[..., :3])
+
+
+def array_source(
+    frames: Iterable[Any], intrinsics: Intrinsics | None = None, prog: str = "mvracklay.reconstruct"
+) -> FrameSource:
+    """Frames in memory (uint8 ``(H, W, 3)`` arrays, any iterable, streamed once) as a `FrameSource`."""
+    if isinstance(frames, np.ndarray) and frames.ndim == 3 and frames.shape[-1] in (3, 4) and frames.dtype == np.uint8:
+        frames = [frames]  # one image, not a stack of grey frames
+    try:
+        it = iter(frames)
+    except TypeError:
+        raise InputError(f"frames: want an iterable of uint8 (H, W, 3) arrays, got {type(frames).__name__}") from None
+    first = next(it, None)
+    if first is None:
+        raise InputError("frames: no frames given")
+    first = _rgb_array(first, 0)
+    h, w = first.shape[:2]
+    if intrinsics is not None:
+        check_camera_fits(intrinsics, w, h, "camera")
+        intrinsics = intrinsics if (intrinsics.width, intrinsics.height) == (w, h) else intrinsics.scaled(w, h)
+    count = len(frames) if hasattr(frames, "__len__") else None
+    return FrameSource(
+        "arrays", Path("<frames>"), w, h, count, intrinsics=intrinsics, prog=prog, arrays=_chain(first, it)
+    )
+
+
+def _chain(first: np.ndarray, rest: Iterator[Any]) -> Iterator[Any]:
+    yield first
+    yield from rest
+
+
 def default_intrinsics(width: int, height: int) -> Intrinsics:
     """The documented default camera at this frame size: 60 deg horizontal FOV, centred principal point."""
     return Intrinsics.from_fov(width, height, DEFAULT_HFOV_DEG)
@@ -342,7 +391,7 @@ def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = N
     if camera is not None:
         return load_camera(camera, source.width, source.height), f"--camera {camera}"
     if source.intrinsics is not None:
-        return source.intrinsics, f"{source.path / 'meta.json'}"
+        return source.intrinsics, "given" if source.kind == "arrays" else f"{source.path / 'meta.json'}"
     return default_intrinsics(source.width, source.height), f"default ({DEFAULT_HFOV_DEG:g} deg horizontal FOV)"
 
 
@@ -392,27 +441,49 @@ def camera_mismatch(
     return "; ".join(problems) or None
 
 
-def camera_advice(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None) -> str:
-    """What to do about a camera `camera_mismatch` flagged (measured in docs/network.md, *Lens distortion*
-    and *Training on a range of cameras*)."""
+def camera_advice(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None, guessed: bool = False) -> str:
+    """What to do about a camera `camera_mismatch` flagged, for what actually differs (measured in
+    docs/network.md, *Lens distortion* and *Training on a range of cameras*); ``guessed``: the intrinsics
+    are the default guess, not the user's camera, so the first advice is to give them (``--camera``)."""
     trained = nearest_trained_camera(intr, trained, hfov_range)
-    narrow = math.tan(math.radians(trained.hfov_deg) / 2) / math.tan(math.radians(intr.hfov_deg) / 2)
-    if narrow > 1.0 + 1e-6:
-        return (
-            f"a narrower camera sees less of each rack from the same distance: stand it about {narrow:.2f}x "
-            f"further back, or train on data generated with camera.hfov_deg {intr.hfov_deg:.1f} (or a range "
-            "that holds it)"
+    said = []
+    if guessed:
+        said.append(
+            "these intrinsics are a guess (a centred pinhole with a 60 deg horizontal field of view): give your "
+            "camera's with --camera FILE (README, Filming)"
         )
-    return (
-        f"the model saw only its training cameras: train on data generated with camera.hfov_deg "
-        f"{intr.hfov_deg:.1f} (or a range that holds it)"
-    )
+    narrow = math.tan(math.radians(trained.hfov_deg) / 2) / math.tan(math.radians(intr.hfov_deg) / 2)
+    if abs(intr.hfov_deg - trained.hfov_deg) > 2.0:
+        if narrow > 1.0:
+            said.append(
+                f"a narrower camera sees less of each rack from the same distance: stand it about {narrow:.2f}x "
+                f"further back, or train on data generated with camera.hfov_deg {intr.hfov_deg:.1f} (or a range "
+                "that holds it)"
+            )
+        else:
+            said.append(
+                f"the model reads the middle {100 * narrow:.0f} % of each frame's width at its own scale; to use "
+                f"all of it, train on data generated with camera.hfov_deg {intr.hfov_deg:.1f} (or a range that "
+                "holds it)"
+            )
+    vfov = math.degrees(2 * math.atan(intr.height / (2 * intr.fy)))
+    vfov_t = math.degrees(2 * math.atan(trained.height / (2 * trained.fy)))
+    if vfov < vfov_t - 2.0:
+        said.append(
+            f"the frames show {vfov:.0f} of the {vfov_t:.0f} deg the model was trained to see vertically: shelves "
+            "above and below that are not seen (film from further back, or hold the camera upright, to see more)"
+        )
+    pp = (intr.cx / intr.width, intr.cy / intr.height)
+    pp_t = (trained.cx / trained.width, trained.cy / trained.height)
+    if max(abs(pp[0] - pp_t[0]), abs(pp[1] - pp_t[1])) > 0.02 and not guessed:
+        said.append("an off-centre principal point is handled by the resampling: check cx / cy in --camera")
+    return "; ".join(said) or "nothing to change: the frames are resampled to the model's view"
 
 
-def camera_warning(intr: Intrinsics, record: dict[str, Any], source: str) -> str | None:
+def camera_warning(intr: Intrinsics, record: dict[str, Any], source: str, guessed: bool = False) -> str | None:
     """How ``intr`` differs from the cameras a checkpoint (its ``record``, read from ``source``) was trained
     with and what to do about it, as one clause ("differs from ...: why; advice"); None when it matches or
-    the record names no camera."""
+    the record names no camera. ``guessed``: ``intr`` is the default guess (no ``--camera`` given)."""
     if not record.get("intrinsics"):
         return None
     trained = Intrinsics.from_dict(record["intrinsics"], f"{source} (intrinsics)")
@@ -420,4 +491,5 @@ def camera_warning(intr: Intrinsics, record: dict[str, Any], source: str) -> str
     why = camera_mismatch(intr, trained, hfov_range=fov_range)
     if why is None:
         return None
-    return f"differs from the ones the model was trained with: {why}; {camera_advice(intr, trained, fov_range)}"
+    advice = camera_advice(intr, trained, fov_range, guessed)
+    return f"differs from the ones the model was trained with: {why}; {advice}"

@@ -67,6 +67,15 @@ YAW_HELP = (
     "a number gives it in degrees (turned right > 0, away from square to the racks; e.g. from the mount), 0 "
     "takes it as level. Default as --roll"
 )
+DISTANCE_HELP = (
+    "camera to rack front in metres, if you know it; default: a generated sequence's recorded distances, "
+    "else read from the first frames (the distance reader) and printed; a wrong distance scales every length "
+    "of the map"
+)
+CAMERA_HEIGHT_HELP = (
+    "the camera's height above the floor in metres (a robot's mount): the distance then follows from where "
+    "the floor meets the racks in the first frames, when that line is in view (else it is read as without)"
+)
 CAMERA_JSON_HELP = (
     "JSON with the camera intrinsics: fx, fy, cx, cy in pixels and the width, height they refer to; "
     "with a lens's distortion beside them (OpenCV's k1, k2, p1, p2, k3, as a calibration gives), every "

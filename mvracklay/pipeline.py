@@ -30,11 +30,13 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
+from mvracklay.distance import FrameDistances
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from network.checkpoint import load_model
 from network.data import DEFAULT_DISTANCE
+from network.inference.distance import DistanceReading, check_camera_height
 from network.inference.fusion import check_tau
 from network.inference.predictor import MODES, Predictor, frame_layouts
 from network.inference.roll import angle_warnings, check_angle, resolve_angles
@@ -68,7 +70,9 @@ class RunConfig:
     max_frames: int = 0
     every: int = 1  #: process every N-th frame of the input (`mvracklay.every`)
     layout_size: int = 0
-    distance: float | None = None
+    distance: float | None = None  #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
+    camera_height: float | None = None  #: the camera's height above the floor, metres: the distance from the floor line
+    distance_reader: Path | None = None  #: a distance reader file; None = the shipped one
     rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
     read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
     whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
@@ -99,6 +103,7 @@ class RunConfig:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
             raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
+        check_camera_height(self.camera_height)
         if self.rack_depth is not None:
             check_rack_depth(self.rack_depth)
         check_tau(self.fuse_tau, "--fuse-frames")
@@ -128,6 +133,7 @@ class RunResult:
     warnings: list[str] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
     angles_read: dict[str, list[float]] = field(default_factory=dict)  #: roll / pitch / yaw read, frame by frame
+    distance: DistanceReading | None = None  #: the camera distance used and where it came from
 
     @property
     def paths(self) -> dict[str, Path]:
@@ -194,7 +200,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     intr, intr_source, lens = _resolve_camera(source, cfg, record, ckpt, warnings)
     spec = _layout_spec(model, cfg)
     nominal = record.get("nominal_distance")
-    default_distance = cfg.distance or (float(nominal) if isinstance(nominal, (int, float)) else DEFAULT_DISTANCE)
+    default_distance = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else DEFAULT_DISTANCE
+    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance, cfg.distance_reader)
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
@@ -209,7 +216,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd", num_slots=spec.num_slots)
         pred = Predictor(
             model,
-            lambda i: (intr, cfg.distance or source.distance(i) or default_distance),
+            lambda i: (intr, dists(i)),
             flip=cfg.flip,
             rack_depth=cfg.rack_depth,
             read_depth=cfg.read_depth,
@@ -221,14 +228,15 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         )
         colours = BoxColours(pred.cfg.view)  # each box's colour from the frames' pixels
         n, depth, timings = _predict_and_stitch(
-            source, cfg, pred, spec, intr, lens, default_distance, folder, stitcher, rec, (cam_y, cam_z), colours
+            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, rec, (cam_y, cam_z), colours
         )
         seconds.update(timings)
 
         t1 = time.perf_counter()
         lev = pred.leveller
         read = lev.read_angles() if lev is not None else {}
-        wmap = stitcher.map(origin, _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec))
+        meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
+        wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
         colours.paint(wmap)
         steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])
         with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
@@ -250,11 +258,11 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
             rec.disconnect()
         shutil.rmtree(stage, ignore_errors=True)
         raise
-    warnings.extend(source.warnings)  # the frame source's own (printed as they came)
+    warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
     for said in angle_warnings(read, width=intr.width):
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
-    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read)
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read, dists.reading)
 
 
 def _load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
@@ -280,7 +288,7 @@ def _resolve_camera(
             + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
             + ")"
         )
-    differs = camera_warning(intr, record, str(ckpt))
+    differs = camera_warning(intr, record, str(ckpt), guessed=cfg.camera is None and source.intrinsics is None)
     if differs:
         warnings.append(f"camera ({intr_source}) {differs}")
         print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
@@ -307,7 +315,7 @@ def _predict_and_stitch(
     spec: LayoutSpec,
     intr: Intrinsics,
     lens: Lens | None,
-    default_distance: float,
+    dists: FrameDistances,
     folder: LayoutFolder,
     stitcher: Stitcher,
     rec: Any,
@@ -323,7 +331,8 @@ def _predict_and_stitch(
     pending: deque[np.ndarray | None] = deque()
 
     def feed():
-        for rgb in source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None):
+        frames = source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None)
+        for rgb in dists.lead(frames):  # footage's distance read from its first frames before the first is predicted
             pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
             if colours is not None:
                 colours.keep(rgb)
@@ -349,7 +358,7 @@ def _predict_and_stitch(
             break
         lay = frame_layouts(logits, spec)
         depth = float(logits["rack_depth"])
-        dist = cfg.distance or source.distance(n) or default_distance
+        dist = dists(n)
         fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
         folder.write(n, fl)
         tb = time.perf_counter()

@@ -129,6 +129,45 @@ class WarehouseMap:
     def camera_offsets(self) -> list[float]:
         return [s.offset for s in self.steps]
 
+    def scaled(self, factor: float) -> WarehouseMap:
+        """The map with every length times ``factor`` about its origin: a map made at a wrong camera distance
+        ``d`` corrected to the true ``D`` by ``factor = D / d`` (all lengths scale with the distance)."""
+        from dataclasses import replace
+
+        if not (math.isfinite(factor) and factor > 0):
+            raise InputError(f"scale factor must be a positive number, got {factor!r}")
+
+        def v(t):
+            return tuple(float(x) * factor for x in t)
+
+        racks = [
+            replace(
+                r,
+                x_range=v(r.x_range),
+                shelves=[
+                    replace(
+                        sh,
+                        board_height=sh.board_height * factor,
+                        clear_height=sh.clear_height * factor,
+                        x_range=v(sh.x_range),
+                        z_range=v(sh.z_range),
+                        boxes=[replace(b, center=v(b.center), size=v(b.size)) for b in sh.boxes],
+                    )
+                    for sh in r.shelves
+                ],
+            )
+            for r in self.racks
+        ]
+        steps = [replace(st, offset=st.offset * factor, shift=st.shift * factor) for st in self.steps]
+        return replace(
+            self,
+            racks=racks,
+            steps=steps,
+            board_thickness=self.board_thickness * factor,
+            seen_x=[v(iv) for iv in self.seen_x],
+            meta={**self.meta, "scaled_by": factor},
+        )
+
     # ----------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:
         def r6(v):

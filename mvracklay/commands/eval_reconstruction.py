@@ -60,6 +60,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_fuse_option(p, "with --checkpoint: ")
     add_roll_option(p, "with --checkpoint: ")
     p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
+    p.add_argument(
+        "--scale-corrected",
+        action="store_true",
+        help="with --map: also score the map with its scale corrected (every length times the sequence's recorded "
+        "distance over the distance the map was made at, from its meta): what a wrong distance costs beyond scale",
+    )
     p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
     p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
     p.add_argument("--iou", type=float, default=0.5, help="3D IoU threshold for a true positive")
@@ -125,6 +131,15 @@ def evaluate_sequence(
         raise InputError(f"--map holds {len(wmap.steps)} frames but the sequence has {len(indices)}")
     result = evaluate_map(wmap, seq.scene(), records, covered_range(records, vis_x), iou)
     return result, wmap
+
+
+def scale_factor(seq, wmap: WarehouseMap, source: str) -> float:
+    """The sequence's recorded distance (median over its frames) over the distance ``wmap`` was made at."""
+    used = wmap.meta.get("distance")
+    if not isinstance(used, (int, float)) or not used > 0:
+        raise InputError(f"--map {source}: its meta records no distance (a map written before distances were kept)")
+    recorded = [seq.frame(i).get("distance") for i in range(seq.num_frames)]
+    return float(np.median([d for d in recorded if d])) / float(used)
 
 
 def summarise(results: list[tuple[str, EvalResult]]) -> dict:
@@ -199,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--layouts DIR and --map need a single sequence folder as PATH")
     if args.checkpoint and (args.layouts != "gt" or args.map):
         raise InputError("--checkpoint predicts the layouts itself: drop --layouts / --map")
+    if args.scale_corrected and not args.map:
+        raise InputError("--scale-corrected rescales a given map: it needs --map")
     if args.rack_depth is not None and not args.checkpoint:
         raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
     rack_depth = _rack_depth_option(args.rack_depth)
@@ -206,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     resolve_angles(args.roll, args.pitch, args.yaw, None)  # checked before anything runs
     model, record = _load_checkpoint(args) if args.checkpoint else (None, None)
-    results = []
+    results, corrected = [], []
     with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
         for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):
             if model is not None:
@@ -218,12 +235,18 @@ def run(args: argparse.Namespace) -> int:
             wmap = WarehouseMap.load(args.map) if args.map else None
             res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap)
             results.append((seq.name, res))
+            if args.scale_corrected:
+                factor = scale_factor(seq, wmap, args.map)
+                res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap.scaled(factor))
+                corrected.append((f"{seq.name} x{factor:.3f}", res))
     summary = summarise(results)
     if args.json:
         out = {"summary": summary, "sequences": {n: r.to_dict() for n, r in results}}
+        if corrected:
+            out["scale_corrected"] = {n: r.to_dict() for n, r in corrected}
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
-    _print_table(results, summary, deg)
+    _print_table(results + corrected, summary, deg)
     return 0
 
 

@@ -202,7 +202,7 @@ def predict_folder(
 
     frames = every_nth(open_source(seq_dir, prog=f"mvracklay {NAME}"), every)  # ``every``: every N-th frame
     intr, lens = _sequence_camera(intrinsics, frames, record, source)
-    differs = camera_warning(intr, record, source)
+    differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
     if differs:
         print(f"mvracklay predict: warning: camera {differs}", file=sys.stderr)
     dist_of = _frame_distances(distance, frames, record)

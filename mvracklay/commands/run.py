@@ -8,7 +8,9 @@ from pathlib import Path
 from layouts.errors import InputError
 from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
 from mvracklay.options import (
+    CAMERA_HEIGHT_HELP,
     CAMERA_JSON_HELP,
+    DISTANCE_HELP,
     FLIP_HELP,
     FUSE_TAU,
     NO_DEPTH_READ_HELP,
@@ -71,9 +73,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
     p.add_argument("--camera", type=Path, help=CAMERA_JSON_HELP)
-    p.add_argument(
-        "--distance", type=float, help="camera to rack front in metres (default: input records, else the model's)"
-    )
+    p.add_argument("--distance", type=float, metavar="M", help=DISTANCE_HELP)
+    p.add_argument("--camera-height", type=float, metavar="M", help=CAMERA_HEIGHT_HELP)
     p.add_argument(
         "--quality",
         choices=tuple(PRESETS),
@@ -98,6 +99,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add(p, "--max-frames", type=int, default=0, help="process at most N frames (0 = all)", **more)
     add(p, "--every", type=int, default=1, metavar="N", **more,
         help="process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept")  # fmt: skip
+    add(p, "--distance-reader", type=Path, metavar="FILE", **more,
+        help="the distance reader to read footage's distance with (default: the shipped one)")  # fmt: skip
     add(p, "--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP, **more)
     add(p, "--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP, **more)
     add(p, "--whole-sequence", action=argparse.BooleanOptionalAction, default=False, help=WHOLE_SEQUENCE_HELP, **more)
@@ -147,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
         every=args.every,
         layout_size=args.layout_size,
         distance=args.distance,
+        camera_height=args.camera_height,
+        distance_reader=args.distance_reader,
         rack_depth=args.rack_depth,
         read_depth=not args.no_depth_read,
         whole_sequence=args.whole_sequence,
@@ -179,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     t = res.seconds
     rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
     print(f"speed: {rate} (wall, this machine)")
+    if res.distance is not None:
+        print(f"distance to the racks: {res.distance.describe()}")
     for line in describe_angles(res.angles_read):
         print(line)
     print(format_table(res.free_space, racks=len(wmap.racks)))

@@ -18,6 +18,8 @@ from layouts.errors import InputError
 SHIPPED = ("mvracklay-disc-4", "mvracklay-disc-4-256")
 #: what `mvracklay run`, `mvracklay predict` and `make demo` use without ``--checkpoint``
 DEFAULT_MODEL = "mvracklay-disc-4"
+#: the distance reader (`network.inference.distance`): reads the camera-to-rack distance from footage
+DISTANCE_READER = "distance-reader"
 CHECKPOINT_HELP = f"a .pt checkpoint (its .json beside) or a shipped model's name: {', '.join(SHIPPED)}"
 
 
@@ -26,6 +28,11 @@ def shipped_path(name: str) -> Path:
     if name not in SHIPPED:
         raise InputError(f"no shipped model named {name!r}: the shipped ones are {', '.join(SHIPPED)}")
     return Path(os.fspath(resources.files(__name__).joinpath(f"{name}.pt")))
+
+
+def distance_reader_path() -> Path:
+    """Where the shipped distance reader lies (whether or not the file is there)."""
+    return Path(os.fspath(resources.files(__name__).joinpath(f"{DISTANCE_READER}.pt")))
 
 
 def default_checkpoint() -> Path:

@@ -1,0 +1,82 @@
+"""The camera-to-rack distance a run uses, and where it came from (printed, and kept in warehouse.json).
+
+In order: ``--distance`` (given); the camera height ``--camera-height`` with the floor line read from the
+first frames; a generated sequence's recorded distances; else read from the first frames' sizes by the
+shipped distance reader (`network.inference.distance`). Without a reader file (a copy made without the
+weights) the default distance is used, and said.
+
+A wrong distance scales the whole map: every length (box sizes, positions along the row, shelf heights)
+is off by the same factor. Counts, the order of boxes and free *fractions* are unchanged by the scale.
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from layouts import Intrinsics
+from mvracklay.frames import FrameSource
+from mvracklay.models import distance_reader_path
+from network.inference.distance import LEAD_FRAMES, DistanceReading, load_reader, read_distance
+
+
+class FrameDistances:
+    """Frame index -> distance, known before the first frame is predicted (`lead` reads it when it must)."""
+
+    def __init__(
+        self,
+        source: FrameSource,
+        intr: Intrinsics,
+        given: float | None = None,
+        camera_height: float | None = None,
+        default: float = 2.6,
+        reader: str | Path | None = None,
+        prog: str = "mvracklay run",
+    ) -> None:
+        self.source, self.intr, self.given, self.camera_height = source, intr, given, camera_height
+        self.default, self.reader_path, self.prog = default, Path(reader) if reader else None, prog
+        self.reading: DistanceReading | None = None
+        self.warnings: list[str] = []
+        if given is not None:
+            self.reading = DistanceReading(float(given), "given")
+        elif camera_height is None and source.distance(0) is not None:
+            recorded = [source.distance(i) for i in range(len(source.records or []))]
+            self.reading = DistanceReading(float(np.median([d for d in recorded if d])), "recorded")
+
+    @property
+    def recorded(self) -> bool:
+        return self.reading is not None and self.reading.source == "recorded"
+
+    def __call__(self, index: int) -> float:
+        if self.recorded:
+            return self.source.distance(index) or self.reading.distance
+        return self.reading.distance if self.reading is not None else self.default
+
+    def lead(self, frames: Iterator[np.ndarray]) -> Iterator[np.ndarray]:
+        """``frames`` unchanged; when the distance must be read, the first `LEAD_FRAMES` are read first."""
+        if self.reading is not None:
+            yield from frames
+            return
+        first = list(itertools.islice(frames, LEAD_FRAMES))
+        if first:
+            self.reading = self._read(first)
+        yield from first
+        yield from frames
+
+    def _read(self, frames: list[np.ndarray]) -> DistanceReading:
+        path = self.reader_path or distance_reader_path()
+        if not path.is_file():
+            said = f"no distance reader ({path} is absent): the default {self.default:.2f} m is used; pass --distance"
+            self.warnings.append(said)
+            print(f"{self.prog}: warning: {said}", file=sys.stderr)
+            return DistanceReading(self.default, "default")
+        reader, _ = load_reader(path)
+        reading = read_distance(reader, frames, self.intr, self.camera_height, start=self.default)
+        if reading.note:
+            self.warnings.append(reading.note)
+            print(f"{self.prog}: warning: {reading.note}", file=sys.stderr)
+        return reading

@@ -1,0 +1,186 @@
+"""The camera-to-rack distance of footage that does not say it: read from its frames, or from the camera height.
+
+`read_distance` runs the `DistanceReader` (`network.model.distance`) on a few frames: each frame is
+resampled at an assumed distance, the reader says how far off that is, and the frame is resampled again
+at the corrected distance (`ROUNDS` times, so the last reading is made near the truth, where the reader
+is most precise). The frames' readings are combined by their median.
+
+With ``camera_height`` (metres above the floor, as a robot's mount knows it) the distance comes from
+geometry where the floor line is in view: the floor meets the rack front ``camera_height`` below the
+optical axis, so ``d = camera_height * d0 / floor_y``. Where it is not in view (a high camera), the
+reading falls back to the sizes, and says so.
+
+The shipped reader is package data of `mvracklay.models` (``distance-reader.pt``); any checkpoint written by
+`save_reader` loads with `load_reader`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from layouts import Intrinsics
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_bytes
+from network.data import DEFAULT_DISTANCE, canonical_image, to_tensor
+from network.model.distance import DistanceReader, DistanceReaderConfig
+
+FORMAT = "mvracklay-distance-reader"
+#: resample-and-read rounds per frame
+ROUNDS = 3
+#: frames read at the start of a stream (spread over the first `LEAD_FRAMES` for a file of known length)
+LEAD_FRAMES = 12
+#: the floor line counts as seen when the reader's floor probability passes this
+FLOOR_SEEN = 0.5
+#: distances the reading may return (metres): the reader's trained range, widened
+DISTANCE_RANGE = (0.8, 8.0)
+
+
+@dataclass(frozen=True)
+class DistanceReading:
+    """The distance used and how it was known, as warehouse.json records it."""
+
+    distance: float
+    source: str  #: "given", "recorded", "camera height", "read", "default"
+    frames: int = 0  #: frames read (0 when not read)
+    spread: tuple[float, float] | None = None  #: the frames' readings, 10th and 90th percentile
+    note: str = ""  #: one line on how the reading went, e.g. why the camera height could not be used
+
+    def describe(self) -> str:
+        what = {
+            "given": "given (--distance)",
+            "recorded": "recorded with the sequence",
+            "camera height": f"from the camera height and the floor line in {self.frames} frames",
+            "read": f"read from {self.frames} frames",
+            "default": "the default (not read)",
+        }[self.source]
+        if self.spread is not None and self.source in ("read", "camera height"):
+            what += f", {self.spread[0]:.2f}-{self.spread[1]:.2f} m across them"
+        return f"{self.distance:.2f} m, {what}"
+
+    def to_record(self) -> dict[str, Any]:
+        rec: dict[str, Any] = {"distance": round(self.distance, 4), "distance_source": self.source}
+        if self.frames:
+            rec["distance_frames"] = self.frames
+        if self.spread is not None:
+            rec["distance_spread"] = [round(v, 4) for v in self.spread]
+        if self.note:
+            rec["distance_note"] = self.note
+        return rec
+
+
+def save_reader(path: str | os.PathLike, reader: DistanceReader, record: dict[str, Any]) -> None:
+    """Write the reader's weights with its config and ``record`` (atomic)."""
+    import io
+    import json
+
+    buf = io.BytesIO()
+    rec = {"format": FORMAT, "config": reader.cfg.to_dict(), **record}
+    torch.save({"state": reader.state_dict(), "record": json.dumps(rec, sort_keys=True)}, buf)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_reader(path: str | os.PathLike) -> tuple[DistanceReader, dict[str, Any]]:
+    """A reader saved by `save_reader` (``weights_only``: no pickled code runs), in eval mode."""
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: distance reader not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+        record = json.loads(payload["record"])
+        if record.get("format") != FORMAT:
+            raise ValueError(f"format {record.get('format')!r}")
+        reader = DistanceReader(DistanceReaderConfig.from_dict(record["config"]))
+        reader.load_state_dict(payload["state"])
+    except InputError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any unreadable file is one line
+        raise InputError(f"{path}: not a distance reader ({type(e).__name__}: {e})") from None
+    return reader.eval(), record
+
+
+@torch.no_grad()
+def reader_outputs(
+    reader: DistanceReader, frames: Sequence[np.ndarray], intr: Intrinsics | None, assumed: Sequence[float]
+) -> np.ndarray:
+    """``(N, 3)``: the reader's raw outputs for each frame resampled at its assumed distance."""
+    view = reader.cfg.view
+    imgs = np.stack([canonical_image(f, view, intr, d) for f, d in zip(frames, assumed)])
+    p = next(reader.parameters())
+    return reader(to_tensor(imgs).to(p.device, p.dtype)).float().cpu().numpy()
+
+
+def _clip(d: np.ndarray) -> np.ndarray:
+    return np.clip(d, *DISTANCE_RANGE)
+
+
+def read_distances(
+    reader: DistanceReader,
+    frames: Sequence[np.ndarray],
+    intr: Intrinsics | None,
+    start: float = DEFAULT_DISTANCE,
+    rounds: int = ROUNDS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: the distance read from sizes, the floor line's drop below the optical axis per metre of
+    distance (``camera height / distance``, free of scale) and the floor's probability of being in view."""
+    d = np.full(len(frames), float(start))
+    out = np.zeros((len(frames), 3))
+    d_assumed = d
+    for _ in range(max(1, rounds)):
+        d_assumed = d
+        out = reader_outputs(reader, frames, intr, d_assumed)
+        d = _clip(d_assumed * np.exp(out[:, 0]))
+    # floor_y of the last resampling is camera height * d_assumed / d_true metres: divided by d_assumed, a ratio
+    return d, out[:, 1] / d_assumed, 1.0 / (1.0 + np.exp(-out[:, 2]))
+
+
+def read_distance(
+    reader: DistanceReader,
+    frames: Sequence[np.ndarray],
+    intr: Intrinsics | None,
+    camera_height: float | None = None,
+    start: float = DEFAULT_DISTANCE,
+) -> DistanceReading:
+    """The distance of ``frames`` (one camera, one distance): their readings' median (`DistanceReading`)."""
+    if not frames:
+        raise InputError("no frames to read the camera distance from")
+    d, floor_ratio, p_floor = read_distances(reader, frames, intr, start)
+    spread = (float(np.percentile(d, 10)), float(np.percentile(d, 90)))
+    if camera_height is not None:
+        seen = (p_floor >= FLOOR_SEEN) & (floor_ratio > 0.02)
+        if seen.sum() * 2 >= len(frames):
+            dh = _clip(camera_height / floor_ratio[seen])
+            return DistanceReading(
+                float(np.median(dh)),
+                "camera height",
+                int(seen.sum()),
+                (float(np.percentile(dh, 10)), float(np.percentile(dh, 90))),
+            )
+        note = (
+            f"the floor line below the racks is out of view in {len(frames) - int(seen.sum())} of {len(frames)} "
+            f"frames, so --camera-height {camera_height:g} was not used"
+        )
+        return DistanceReading(float(np.median(d)), "read", len(frames), spread, note)
+    return DistanceReading(float(np.median(d)), "read", len(frames), spread)
+
+
+def check_camera_height(value: Any, option: str = "--camera-height") -> float | None:
+    """None, or a camera height above the floor in metres (one-line error otherwise)."""
+    if value is None:
+        return None
+    try:
+        h = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{option} must be a number of metres, got {value!r}") from None
+    if not (math.isfinite(h) and 0.05 <= h <= 20):
+        raise InputError(f"{option} must be the camera's height above the floor in metres (0.05-20), got {value!r}")
+    return h
