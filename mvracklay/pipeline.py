@@ -236,6 +236,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         lev = pred.leveller
         read = lev.read_angles() if lev is not None else {}
         meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
+        # the camera used: where its intrinsics came from and the lens the frames were undistorted through
+        meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
         wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
         colours.paint(wmap)
         steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])

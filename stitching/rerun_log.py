@@ -160,9 +160,10 @@ def log_map(rec, wmap: WarehouseMap, index: int | None = None, num_slots: int | 
             static=static,
         )
     shelves = wmap.shelves()
+    labels = [f"{s.id} (partial: {s.partial})" if getattr(s, "partial", None) else s.id for s in shelves]
     rec.log(
         "world/map/shelves",
-        _boxes([s.cuboid for s in shelves], CLASS_COLOURS[SHELF]),
+        _boxes([s.cuboid for s in shelves], CLASS_COLOURS[SHELF], labels),
         static=static,
     )
 

@@ -33,7 +33,7 @@ class ConstantReader(DistanceReader):
         super().__init__(DistanceReaderConfig(size=64))
         self.out = torch.tensor([t, floor_y, floor_logit])
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def read(self, x: torch.Tensor) -> torch.Tensor:
         return self.out.expand(x.shape[0], 3)
 
 
@@ -185,3 +185,16 @@ def test_camera_advice_fits_what_differs():
     assert "vertical FOV" in said and "--camera" not in said
     wide = camera_advice(Intrinsics.from_fov(640, 480, 75.0), trained)
     assert "camera.hfov_deg 75.0" in wide and "middle" in wide
+
+
+def test_warehouse_json_records_the_camera_and_lens_used(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):
+    folder = _folder(tiny_dataset, tmp_path)
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps({**Intrinsics.from_fov(128, 128, 60.0).to_dict(), "k1": -0.05}))
+    out = tmp_path / "o"
+    args = ["run", str(folder), "--checkpoint", str(tiny_checkpoint), "--camera", str(cam), "--distance", "2.5"]
+    assert main([*args, "--threads", "1", "--quiet", "--out", str(out)]) == 0
+    meta = _meta(out)
+    assert meta["lens"]["k1"] == pytest.approx(-0.05) and meta["intrinsics_source"].startswith(f"--camera {cam}")
+    assert main([*args[:4], "--distance", "2.5", "--threads", "1", "--quiet", "--out", str(tmp_path / "p")]) == 0
+    assert _meta(tmp_path / "p")["lens"] is None

@@ -146,3 +146,17 @@ def test_map_box_labels_are_unique_across_racks(tmp_path: Path):
     (labels,) = _columns(tmp_path / "m.rrd", "/world/map/slot_0")["Boxes3D:labels"]
     assert len(set(labels)) == len(labels) == 4
     assert sorted(labels) == sorted(b.id for b in wmap.boxes())
+
+
+def test_partial_shelves_say_so_in_their_labels(tmp_path: Path):
+    cut = MapShelf("rack_00/shelf_00", 0, 0.0, 0.8, (0.0, 1.0), (-0.5, 0.5), 1.0, partial="start")
+    whole = MapShelf("rack_01/shelf_00", 0, 0.0, 0.8, (2.0, 4.0), (-0.5, 0.5), 1.0)
+    wmap = WarehouseMap(
+        [MapRack("rack_00", (0.0, 1.0), [cut], "start"), MapRack("rack_01", (2.0, 4.0), [whole])], [], 0.05
+    )
+    rec = rerun_log.start("partial", save=tmp_path / "p.rrd", num_slots=1)
+    rerun_log.log_map(rec, wmap, 0, 1)
+    rec.flush()
+    rec.disconnect()
+    (labels,) = _columns(tmp_path / "p.rrd", "/world/map/shelves")["Boxes3D:labels"]
+    assert sorted(labels) == ["rack_00/shelf_00 (partial: start)", "rack_01/shelf_00"]

@@ -30,7 +30,7 @@ def test_smoke_recipe_resumes_after_a_kill_and_its_model_runs(tmp_path: Path, ca
         [sys.executable, "-m", "mvracklay", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
     )
     assert killed.returncode == -signal.SIGKILL, killed.stderr[-2000:]
-    assert "[5/11] fit-uprights (uprights) ..." in killed.stdout and "[6/11]" not in killed.stdout
+    assert "[5/12] fit-uprights (uprights) ..." in killed.stdout and "[6/12]" not in killed.stdout
     state = json.loads((runs / "recipe-state.json").read_text())
     assert set(state["finished"]) == {"generate", "train", "calibrate", "back-edges", "uprights"}
     assert "--resume" in state["finished"]["train"]["argv"]  # a training stage always goes on from its last.pt
@@ -40,8 +40,8 @@ def test_smoke_recipe_resumes_after_a_kill_and_its_model_runs(tmp_path: Path, ca
     assert main(args) == 0
     said = capsys.readouterr().out
     for n, name, sid in [(1, "generate", "generate"), (2, "train", "train"), (5, "fit-uprights", "uprights")]:
-        assert f"[{n}/11] {name} ({sid}): finished before, skipped" in said
-    assert "[6/11] fit-box-depth (box-depth) ..." in said and "[11/11] evaluate (evaluate) ..." in said
+        assert f"[{n}/12] {name} ({sid}): finished before, skipped" in said
+    assert "[6/12] fit-box-depth (box-depth) ..." in said and "[12/12] evaluate (evaluate) ..." in said
     assert "summary" in said and str(runs / "model.pt") in said
     budget = json.loads((runs / "net" / "budget.json").read_text())
     assert budget["budget"] == 30 and set(budget) >= {"train", "rack-heads", "box-depth", "total"}
@@ -49,6 +49,7 @@ def test_smoke_recipe_resumes_after_a_kill_and_its_model_runs(tmp_path: Path, ca
     assert all(record["model_config"][h] for h in ("back_edges", "uprights", "box_depth"))
     assert "rack_depth_offset" in record and record["box_logit_offset"]
     assert json.loads((runs / "net" / "table1.json").read_text())
+    assert (runs / "distance-reader.pt").is_file()  # the fit-distance stage's reader
 
     seq = runs / "data" / "heldout" / "seq_00000"
     run = ["run", str(seq), "--checkpoint", str(runs / "model.pt"), "--out", str(tmp_path / "out")]

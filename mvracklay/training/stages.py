@@ -25,6 +25,7 @@ STAGE_MODULES: dict[str, str] = {
     "fit-back-edges": "mvracklay.training.fit_back_edges",
     "fit-uprights": "mvracklay.training.fit_uprights",
     "fit-box-depth": "mvracklay.training.fit_box_depth",
+    "fit-distance": "mvracklay.training.fit_distance",
     "graft": "mvracklay.training.graft",
     "copy": "mvracklay.training.small_stages:copy",
     "export": "mvracklay.training.small_stages:export",

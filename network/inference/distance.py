@@ -116,7 +116,7 @@ def reader_outputs(
     view = reader.cfg.view
     imgs = np.stack([canonical_image(f, view, intr, d) for f, d in zip(frames, assumed)])
     p = next(reader.parameters())
-    return reader(to_tensor(imgs).to(p.device, p.dtype)).float().cpu().numpy()
+    return reader.read(to_tensor(imgs).to(p.device, p.dtype)).float().cpu().numpy()
 
 
 def _clip(d: np.ndarray) -> np.ndarray:

@@ -69,32 +69,70 @@ def _block(c_in: int, c_out: int) -> nn.Sequential:
 
 
 class DistanceReader(nn.Module):
-    """Images ``(B, 3, S, S)`` in [0, 1] -> ``(B, 3)``: log ratio, floor_y, floor logit.
+    """Images ``(B, 3, S, S)`` in [0, 1] -> raw outputs ``(B, 2 + S // 4)`` (`forward`), read by `read`.
 
-    The last feature map is flattened rather than pooled: where things are (the floor line's row) matters.
+    Two heads on one trunk: the log ratio from the last feature map, flattened (where things are matters);
+    the floor line as a distribution over rows of 4 canonical pixels, from the stride-4 features averaged
+    along each row (the line is horizontal in a levelled view), read to a fraction of a row by its mean
+    around the most likely row, beside one logit for "in view".
     """
 
     def __init__(self, cfg: DistanceReaderConfig | None = None) -> None:
         super().__init__()
         self.cfg = cfg or DistanceReaderConfig()
-        stem = nn.Sequential(
+        self.stem = nn.Sequential(
             nn.Conv2d(3, STEM, 5, stride=2, padding=2, bias=False), nn.BatchNorm2d(STEM), nn.ReLU(True)
         )
-        blocks, c = [stem], STEM
+        blocks, c = [], STEM
         for c_out in CHANNELS:
             blocks.append(_block(c, c_out))
             c = c_out
-        self.features = nn.Sequential(*blocks)
+        self.blocks = nn.ModuleList(blocks)
         cells = (self.cfg.size // 2 ** (len(CHANNELS) + 1)) ** 2
-        self.head = nn.Sequential(
+        self.scale_head = nn.Sequential(
             nn.Conv2d(c, 16, 1),
             nn.ReLU(inplace=True),
             nn.Flatten(),
             nn.Linear(16 * cells, 128),
             nn.ReLU(inplace=True),
-            nn.Linear(128, 3),
+            nn.Linear(128, 2),  # log ratio, floor in view
+        )
+        fine = CHANNELS[0]
+        self.row_head = nn.Sequential(
+            nn.Conv1d(fine, 48, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv1d(48, 48, 3, padding=2, dilation=2),
+            nn.ReLU(inplace=True),
+            nn.Conv1d(48, 48, 3, padding=4, dilation=4),
+            nn.ReLU(inplace=True),
+            nn.Conv1d(48, 1, 3, padding=1),
         )
 
+    @property
+    def row_metres(self) -> float:
+        """Canonical metres per floor-row bin (4 canonical pixels)."""
+        return 4 * self.cfg.x_extent / self.cfg.size
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``x`` in [0, 1] (`network.data.to_tensor`)."""
-        return self.head(self.features((x - 0.45) / 0.25))
+        """``x`` in [0, 1] (`network.data.to_tensor`) -> ``(B, 2 + R)``: log ratio, floor logit, R row logits."""
+        f = self.stem((x - 0.45) / 0.25)
+        f = self.blocks[0](f)
+        rows = self.row_head(f.mean(dim=3)).squeeze(1)
+        for b in self.blocks[1:]:
+            f = b(f)
+        return torch.cat([self.scale_head(f), rows], dim=1)
+
+    def floor_y(self, row_logits: torch.Tensor, window: int = 2) -> torch.Tensor:
+        """Canonical metres below the optical axis of the floor line: the probability-weighted row around the
+        most likely one (``window`` rows either side)."""
+        p = row_logits.softmax(dim=1)
+        r = torch.arange(p.shape[1], device=p.device, dtype=p.dtype)
+        top = p.argmax(dim=1, keepdim=True)
+        near = ((r[None] - top).abs() <= window).to(p.dtype) * p
+        row = (near * (r[None] + 0.5)).sum(1) / near.sum(1).clamp(min=1e-9)
+        return (row - p.shape[1] / 2) * self.row_metres
+
+    def read(self, x: torch.Tensor) -> torch.Tensor:
+        """``(B, 3)``: log ratio ``log(d / d0)``, floor_y (canonical metres), floor-in-view logit."""
+        out = self.forward(x)
+        return torch.stack([out[:, 0], self.floor_y(out[:, 2:]), out[:, 1]], dim=1)

@@ -1,4 +1,4 @@
-"""Train the `DistanceReader` on generated frames: ``python -m network.training.fit_distance DATA --out FILE``.
+"""Train the `DistanceReader` on generated frames (stage ``fit-distance`` of ``mvracklay train``).
 
 Every sample is a frame resampled at a *wrong* assumed distance ``d0 = d * exp(-t)`` with ``t`` drawn per
 sample (half from a narrow normal around 0, where the last reading round works, half uniform over
@@ -13,7 +13,6 @@ median and 90th-percentile absolute error (%) are printed and recorded with the 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
@@ -32,14 +31,13 @@ T_WIDE = 0.35
 T_NARROW = 0.05
 
 
-def load_frames(data: Path, splits: tuple[str, ...]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, list]:
+def load_frames(datasets: list[Path], splits: tuple[str, ...]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, list]:
     """Every frame of ``splits``: RGB, distance, camera height above the floor, and the intrinsics."""
     from waresynth.dataset import open_dataset
 
-    ds = open_dataset(data)
     rgb, dist, height, intr = [], [], [], []
-    for split in splits:
-        for seq in ds.sequences(split):
+    for data, split in ((d, sp) for d in datasets for sp in splits):
+        for seq in open_dataset(data).sequences(split):
             for i in range(len(seq)):
                 rec = seq.frame(i)
                 rgb.append(seq.rgb(i))
@@ -47,7 +45,7 @@ def load_frames(data: Path, splits: tuple[str, ...]) -> tuple[list[np.ndarray], 
                 height.append(-float(rec["camera_position"][1]))
                 intr.append(seq.intrinsics)
     if not rgb:
-        raise InputError(f"{data}: no frames in splits {', '.join(splits)}")
+        raise InputError(f"{', '.join(map(str, datasets))}: no frames in splits {', '.join(splits)}")
     return rgb, np.array(dist), np.array(height), intr
 
 
@@ -73,11 +71,19 @@ def make_batch(frames, dist, height, intrs, idx, reader_cfg: DistanceReaderConfi
     return to_tensor(x.round().clip(0, 255).astype(np.uint8)), torch.tensor(targets, dtype=torch.float32)
 
 
-def loss_of(out: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+def loss_of(reader: DistanceReader, out: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Smooth L1 on the log ratio; where the floor is in view, cross entropy of its row against a soft
+    target (a Gaussian of one row around the true continuous row); BCE on "in view"."""
     seen = y[:, 2]
     scale = F.smooth_l1_loss(out[:, 0] * 10, y[:, 0] * 10)
-    floor = (F.smooth_l1_loss(out[:, 1] * 5, y[:, 1] * 5, reduction="none") * seen).sum() / seen.sum().clamp(min=1)
-    return scale + 0.5 * floor + 0.2 * F.binary_cross_entropy_with_logits(out[:, 2], seen)
+    rows = out[:, 2:]
+    true_row = y[:, 1] / reader.row_metres + rows.shape[1] / 2  # continuous, bins from the top
+    centres = torch.arange(rows.shape[1], dtype=rows.dtype) + 0.5
+    target = torch.exp(-0.5 * ((centres[None] - true_row[:, None]) / 0.7) ** 2)
+    target = target / target.sum(1, keepdim=True).clamp(min=1e-9)
+    ce = -(target * rows.log_softmax(dim=1)).sum(1)
+    floor = (ce * seen).sum() / seen.sum().clamp(min=1)
+    return scale + 0.5 * floor + 0.2 * F.binary_cross_entropy_with_logits(out[:, 1], seen)
 
 
 def validate(reader: DistanceReader, frames, dist, intrs) -> dict[str, float]:
@@ -91,7 +97,12 @@ def validate(reader: DistanceReader, frames, dist, intrs) -> dict[str, float]:
     return {"median_error_pct": float(np.median(err)), "p90_error_pct": float(np.percentile(err, 90))}
 
 
-def fit(data: Path, out: Path, steps: int, batch: int, seed: int, threads: int) -> dict[str, float]:
+def fit(
+    data: list[Path], out: Path, steps: int = 2400, batch: int = 32, seed: int = 0, threads: int = 2
+) -> dict[str, float]:
+    """Train a reader on ``data``'s train splits, validate on their val and test splits, write it to ``out``."""
+    if steps < 1 or batch < 2:
+        raise InputError(f"steps must be >= 1 and batch >= 2, got {steps} and {batch}")
     torch.manual_seed(seed)
     torch.set_num_threads(threads)
     rng = np.random.default_rng(seed)
@@ -104,7 +115,7 @@ def fit(data: Path, out: Path, steps: int, batch: int, seed: int, threads: int) 
     t0 = time.perf_counter()
     for step in range(1, steps + 1):
         x, y = make_batch(frames, dist, height, intrs, rng.integers(0, len(frames), batch), cfg, rng)
-        loss = loss_of(reader(x), y)
+        loss = loss_of(reader, reader(x), y)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -115,32 +126,13 @@ def fit(data: Path, out: Path, steps: int, batch: int, seed: int, threads: int) 
     save_reader(
         out,
         reader,
-        {"data": str(data), "frames": len(frames), "steps": steps, "batch": batch, "seed": seed, "validation": figures},
+        {
+            "data": [str(d) for d in data],
+            "frames": len(frames),
+            "steps": steps,
+            "batch": batch,
+            "seed": seed,
+            "validation": figures,
+        },
     )
     return figures
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m network.training.fit_distance", description=__doc__.split("\n")[0])
-    ap.add_argument("data", type=Path, help="a generated dataset (train split trained on, val + test validated)")
-    ap.add_argument("--out", type=Path, required=True, help="the reader file to write (.pt)")
-    ap.add_argument("--steps", type=int, default=3000)
-    ap.add_argument("--batch", type=int, default=48)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=2)
-    a = ap.parse_args(argv)
-    try:
-        if a.steps < 1 or a.batch < 2:
-            raise InputError("--steps must be >= 1 and --batch >= 2")
-        figures = fit(a.data, a.out, a.steps, a.batch, a.seed, a.threads)
-    except InputError as e:
-        print(f"fit_distance: error: {e}", file=sys.stderr)
-        return 2
-    print(
-        f"validation: median error {figures['median_error_pct']:.2f} %, 90th percentile {figures['p90_error_pct']:.2f} %"
-    )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
