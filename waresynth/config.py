@@ -20,15 +20,24 @@ import numpy as np
 from layouts.canonical import MAX_ROLL_DEG
 from layouts.errors import InputError
 from layouts.fileio import load_json
+from waresynth.look import COMPRESSIONS, SUBSAMPLING
 
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.json")
+#: the shipped configs (`load_config` takes their names: "wide_look", "shifted_look")
+CONFIGS_DIR = Path(__file__).with_name("configs")
 
 #: Texture names each section may use (renderer patterns).
 TEXTURES: dict[str, tuple[str, ...]] = {
-    "rack": ("plain", "perforated", "noise"),
-    "boxes": ("plain", "tape", "label", "noise"),
-    "floor": ("plain", "tiles", "noise"),
-    "wall": ("plain", "bricks", "panels", "noise"),
+    "rack": ("plain", "perforated", "noise", "stained"),
+    "boxes": ("plain", "tape", "label", "noise", "wrap", "printed", "stained"),
+    "floor": ("plain", "tiles", "noise", "stained", "lines"),
+    "wall": ("plain", "bricks", "panels", "noise", "stained"),
+}
+#: Other keys that take a non-empty list of names, one drawn per sequence, and the names each allows.
+_NAME_LISTS: dict[str, tuple[str, ...]] = {
+    "rack.board_textures": ("wood", "plain", "noise", "stained"),
+    "sensor.compression": COMPRESSIONS,
+    "sensor.jpeg_subsampling": tuple(SUBSAMPLING),
 }
 
 _INF = math.inf
@@ -81,10 +90,28 @@ _BOUNDS: dict[str, tuple[float, float, bool]] = {
     "lighting.light_height": (0.5, 100.0, False),
     "lighting.light_offset_z": (-50.0, 50.0, False),
     "lighting.shadow_strength": (0.0, 1.0, False),
+    "lighting.level": (0.01, 4.0, False),
+    "lighting.falloff": (0.0, 1.0, False),
+    "lighting.extra_lights": (0, 8, True),
+    "lighting.extra_intensity": (0.0, 5.0, False),
+    "lighting.colour_temperature": (1500.0, 15000.0, False),
     "sensor.noise_sigma": (0.0, 100.0, False),
     "sensor.gain": (0.1, 10.0, False),
     "sensor.supersample": (1, 4, True),
     "sensor.motion_blur": (0.0, 1.0, False),
+    "sensor.motion_blur_probability": (0.0, 1.0, False),
+    "sensor.exposure_ev": (-4.0, 4.0, False),
+    "sensor.auto_exposure": (0.0, 1.0, False),
+    "sensor.white_balance_jitter": (0.0, 0.5, False),
+    "sensor.shot_noise": (0.0, 20.0, False),
+    "sensor.read_noise": (0.0, 50.0, False),
+    "sensor.gamma": (0.5, 3.0, False),
+    "sensor.vignetting": (0.0, 0.9, False),
+    "sensor.lens_k1": (-0.5, 0.5, False),
+    "sensor.lens_k2": (-0.3, 0.3, False),
+    "sensor.jpeg_quality": (1, 100, True),
+    "sensor.h264_quality": (1, 100, True),
+    "sensor.h264_blur": (0.0, 3.0, False),
 }
 #: keys that take one number or a [low, high] range drawn per sequence (the default's type is the number)
 _NUMBER_OR_RANGE = frozenset({"camera.hfov_deg"})
@@ -118,10 +145,11 @@ def _bounds_for(key: str) -> tuple[float, float, bool] | None:
 def _check_leaf(src: str, key: str, value: Any, default: Any) -> None:
     """Check one user value against the type of the default and the key's bounds."""
     section = key.split(".")[0]
-    if key.endswith("textures"):
-        allowed = TEXTURES[section]
+    if key in _NAME_LISTS or key.endswith(".textures"):
+        allowed = _NAME_LISTS.get(key) or TEXTURES[section]
+        what = "textures" if key.endswith("textures") else "names"
         if not isinstance(value, list) or not value or not all(isinstance(t, str) and t in allowed for t in value):
-            raise InputError(f"{src}: {key} must be a non-empty list of textures from {list(allowed)}, got {value!r}")
+            raise InputError(f"{src}: {key} must be a non-empty list of {what} from {list(allowed)}, got {value!r}")
         return
     if key.endswith("colours"):
         ok = (
@@ -198,15 +226,32 @@ def _check_whole(src: str, cfg: dict[str, Any]) -> None:
         raise InputError(f"{src}: boxes.depth[0] + boxes.setback[0] must not exceed rack.depth[0]")
 
 
+def shipped_configs() -> list[str]:
+    """The names of the shipped configs (``waresynth/configs/NAME.json``)."""
+    return sorted(p.stem for p in CONFIGS_DIR.glob("*.json"))
+
+
+def _shipped(config: str | os.PathLike) -> str | os.PathLike:
+    """``config`` itself when it is a file, else the shipped config of that bare name (``wide_look``)."""
+    name = str(config)
+    if Path(config).is_file() or os.sep in name or "/" in name:
+        return config
+    shipped = CONFIGS_DIR / f"{name.removesuffix('.json')}.json"
+    return shipped if shipped.is_file() else config
+
+
 def load_config(config: dict[str, Any] | str | os.PathLike | None = None) -> dict[str, Any]:
-    """Effective config: the defaults overridden by ``config`` (a dict, a JSON file path or None)."""
+    """Effective config: the defaults overridden by ``config`` (a dict, a JSON file path, a shipped config's
+    name such as ``"wide_look"``, or None)."""
     cfg = default_config()
     if config is None:
         return cfg
     if isinstance(config, (str, os.PathLike)):
         src = str(config)
+        config = _shipped(config)
         if not Path(config).is_file():
-            raise InputError(f"{src}: config file not found")
+            names = ", ".join(shipped_configs())
+            raise InputError(f"{src}: config file not found (nor a shipped config: {names})")
         user = load_json(config)
     elif isinstance(config, dict):
         src, user = "config", config

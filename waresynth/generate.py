@@ -32,6 +32,7 @@ from waresynth.config import draw_hfov, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
+from waresynth.look import NEUTRAL, lens_of
 from waresynth.render import Renderer
 from waresynth.scene import Scene
 from waresynth.scene_builder import build_scene
@@ -96,7 +97,8 @@ def _sequence_meta(
         "seed": seed,
         "num_frames": frames,
         "image_size": [intr.width, intr.height],
-        "intrinsics": intr.to_dict(),
+        # a lens's coefficients beside fx..cy, as `layouts.camera_record.lens_from_record` reads them
+        "intrinsics": {**intr.to_dict(), **(lens.to_dict() if (lens := lens_of(scene.look)) else {})},
         "step": float(scene.camera.step),
         "camera": {
             "height": scene.camera.height,
@@ -277,6 +279,12 @@ def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
     if isinstance(cfg.get("sensor"), dict):  # written before pixels could be supersampled or blurred
         cfg["sensor"].setdefault("supersample", 1)
         cfg["sensor"].setdefault("motion_blur", [0.0, 0.0])
+    for section, keys in NEUTRAL.items():  # written before the look (`waresynth.look`): it was neutral
+        if isinstance(cfg.get(section), dict):
+            for k, v in keys.items():
+                cfg[section].setdefault(k, v)
+    if isinstance(cfg.get("rack"), dict):
+        cfg["rack"].setdefault("board_textures", ["wood"])
     if old != manifest:
         diff = sorted(k for k in set(old) | set(manifest) if old.get(k) != manifest.get(k))
         return f"{root}: holds a different WareSynth dataset ({', '.join(diff)} differ)"

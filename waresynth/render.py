@@ -15,7 +15,8 @@ Shading: Lambert from one point light plus ambient, a Blinn-Phong highlight scal
 material's reflectance, shadows from shadow rays toward the light (cast from block corners and
 averaged over the corners on the same face, which softens shadow edges by a pixel), procedural
 textures computed from the hit point (`waresynth.textures`), exposure gain and Gaussian sensor
-noise. All vectorised numpy.
+noise; a config's look (`waresynth.look`: light level, extra lights, white balance, vignetting, shot and
+read noise, tone curve, a lens's rays, compression) when it has one. All vectorised numpy.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import open3d as o3d
 
 from layouts.camera import Intrinsics
 from waresynth import semantics as sem
+from waresynth.look import SensorLook, amplification, lens_of
 from waresynth.scene import Scene
 from waresynth.textures import SurfaceTables, albedo
 
@@ -122,6 +124,10 @@ class Renderer:
             n_noise = 3 * w * h + 65536
             sigma = np.float32(scene.sensor["noise_sigma"])
             self._noise_buf = np.random.default_rng(noise_seed).standard_normal(n_noise, dtype=np.float32) * sigma
+        #: the sequence's look on the pixel colours (None: neutral, or a sub-pixel renderer)
+        self.look: SensorLook | None = None
+        if noise_seed is not None and scene.look:
+            self.look = SensorLook(scene.look, intrinsics, scene.sensor["gain"], noise_seed)
 
     def _init_casting(self, verts: np.ndarray, tris: np.ndarray, tri_part: np.ndarray) -> None:
         """The ray-casting scene of the casters, and the floor and wall planes cast analytically."""
@@ -201,10 +207,15 @@ class Renderer:
         # Rays are cast in the world: a camera ray d is the world ray R d (R = I for a level camera,
         # which leaves every ray exactly as it was).
         rot = self.scene.camera.rotation
+        # A lens (`waresynth.look`): pixel (u, v) of its image sees the pinhole ray of the undistorted point.
+        lens = lens_of(self.scene.look)
 
         def directions(us: np.ndarray, vs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             u, vv = np.meshgrid(us + 0.5, vs + 0.5)
-            d = np.stack([(u - cx) / fx, (vv - cy) / fy, np.ones_like(u)], -1)
+            x, y = (u - cx) / fx, (vv - cy) / fy
+            if lens is not None:
+                x, y = lens.undistort(x, y)
+            d = np.stack([x, y, np.ones_like(u)], -1)
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
             return (d @ rot.T).astype(np.float32), d[..., 2].astype(np.float32)
 
@@ -336,6 +347,8 @@ class Renderer:
                     c += more
             for c in cols:
                 c *= np.float32(1.0 / k)
+        if self.look is not None:
+            self.look.linear(cols, rng)
         noise = self._noise(rng)
         rgb = np.empty((h * w, 3), np.uint8)
         n_px = h * w
@@ -344,7 +357,10 @@ class Renderer:
             c += noise[k * n_px : (k + 1) * n_px]
             np.clip(c, 0, 255, out=c)
             rgb[:, k] = c
-        return Frame(rgb.reshape(h, w, 3), depth_mm.reshape(h, w), semantic.reshape(h, w), instance.reshape(h, w))
+        rgb = rgb.reshape(h, w, 3)
+        if self.look is not None:
+            rgb = self.look.compress(rgb, rng)
+        return Frame(rgb, depth_mm.reshape(h, w), semantic.reshape(h, w), instance.reshape(h, w))
 
     def motion_samples(self, motion: np.ndarray | None) -> int:
         """Views averaged for a camera travel ``motion`` during the exposure: enough that the rack front moves
@@ -389,8 +405,13 @@ class Renderer:
         lz *= inv
         ndl = np.maximum(nx * lx + ny * ly + nz * lz, np.float32(0.0))
         vis = self._visibility(px, py, pz, ndl, agree, miss)
-        gain = np.float32(255.0 * self.scene.sensor["gain"])
-        diffuse = (np.float32(light["intensity"]) * gain) * ndl * vis / (np.float32(1.0) + np.float32(0.015) * dist2)
+        look = self.scene.look
+        gain = 255.0 * self.scene.sensor["gain"]
+        if look:
+            gain *= math.prod(amplification(look))
+        gain = np.float32(gain)
+        falloff = np.float32(look.get("falloff", 0.015))
+        diffuse = (np.float32(light["intensity"]) * gain) * ndl * vis / (np.float32(1.0) + falloff * dist2)
         hx, hy, hz = lx - dx, ly - dy, lz - dz
         ndh = np.maximum(nx * hx + ny * hy + nz * hz, np.float32(0.0))
         ndh /= np.sqrt(hx * hx + hy * hy + hz * hz + np.float32(1e-12))
@@ -401,12 +422,23 @@ class Renderer:
         spec[ndl <= 0] = 0.0
         spec += np.float32(0.5)  # rounds on the cast to uint8
         shade = np.float32(light["ambient"]) * gain + diffuse
+        for extra in look.get("extra_lights", ()):
+            shade += self._extra_light(extra, px, py, pz, nx, ny, nz, gain, falloff)
         out = []
         for k in range(3):
             c = cols[k] * shade
             c += spec
             out.append(c)
         return out
+
+    @staticmethod
+    def _extra_light(extra: dict, px, py, pz, nx, ny, nz, gain: np.float32, falloff: np.float32) -> np.ndarray:
+        """Lambert shading (8-bit levels) from one of the look's extra lights along the aisle: distance falloff,
+        no shadow ray and no highlight (they cost a cast each)."""
+        lx, ly, lz = (np.float32(q) - p for q, p in zip(extra["position"], (px, py, pz)))
+        dist2 = lx * lx + ly * ly + lz * lz
+        ndl = np.maximum(nx * lx + ny * ly + nz * lz, np.float32(0.0)) / np.sqrt(dist2)
+        return (np.float32(extra["intensity"]) * gain) * ndl / (np.float32(1.0) + falloff * dist2)
 
     def _visibility(self, px, py, pz, ndl, agree, miss) -> np.ndarray:
         """Light visibility per pixel: 1 lit, 1 - shadow_strength in shadow.

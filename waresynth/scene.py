@@ -27,6 +27,10 @@ PATTERNS: dict[str, int] = {
     "bricks": 6,
     "panels": 7,
     "wood": 8,
+    "wrap": 9,
+    "printed": 10,
+    "stained": 11,
+    "lines": 12,
 }
 
 Z_FRONT = 0.0
@@ -162,6 +166,8 @@ class Scene:
     clutter: list[dict[str, Any]] = field(default_factory=list)
     walls: list[dict[str, Any]] = field(default_factory=list)
     instances: list[dict[str, Any]] = field(default_factory=list)
+    #: what the sequence's look changes from the neutral one (`waresynth.look.draw_look`; {}: none)
+    look: dict[str, Any] = field(default_factory=dict)
 
     @property
     def rack_mid_z(self) -> float:
@@ -178,4 +184,5 @@ class Scene:
             "light": self.light,
             "background": self.background,
             "density": self.density,
+            **({"look": self.look} if self.look else {}),
         }

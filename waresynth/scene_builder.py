@@ -2,7 +2,8 @@
 
 Everything is built from one ``numpy.random.Generator`` and the effective config, so a sequence seed
 fully determines its scene. The stages of `build_scene` draw from the generator in a fixed order
-(row and camera, racks, background, floor and wall, light and sensor, camera rotation, motion blur):
+(row and camera, racks, background, floor and wall, light and sensor, camera rotation, motion blur,
+the look of `waresynth.look`):
 changing that order changes every generated dataset.
 """
 
@@ -18,6 +19,7 @@ from layouts.camera import Intrinsics
 from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.errors import InputError
 from waresynth import semantics as sem
+from waresynth.look import draw_look
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
 
 
@@ -251,7 +253,12 @@ def _build_row(rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: 
     rack_colour = _colour(rng, rc["colours"], rc["colour_jitter"])
     rack_mat = b.material(Material(rack_colour, PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05))
     row.board_mat = b.material(
-        Material(_colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS["wood"], 0.05, 1.0)
+        Material(
+            _colour(rng, rc["board_colours"], rc["colour_jitter"]),
+            PATTERNS[_choice(rng, rc["board_textures"])],
+            0.05,
+            1.0,
+        )
     )
     row.upright_width = _u(rng, rc["upright_width"])
     x = x_start
@@ -395,8 +402,11 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
     # The camera's rotation is drawn last and only from a range that is not one value (`_u`), so a
     # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
     camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
-    # The same for the motion blur: a sharp config draws nothing.
-    sensor["motion_blur"] = _u(rng, sc["motion_blur"])
+    # The same for the motion blur: a sharp config draws nothing (nor does a probability of 1).
+    blurred = sc["motion_blur_probability"] >= 1.0 or rng.random() < sc["motion_blur_probability"]
+    sensor["motion_blur"] = _u(rng, sc["motion_blur"]) if blurred else 0.0
+    # And the look (light level, white balance, noise, lens, codec): a neutral config draws nothing.
+    look = draw_look(rng, cfg, intrinsics, xs)
     row_record = {
         "z_front": Z_FRONT,
         "depth": row.depth,
@@ -418,4 +428,5 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
         clutter=clutter,
         walls=walls,
         instances=b.instances,
+        look=look,
     )

@@ -1,7 +1,8 @@
 """Procedural textures of the renderer: albedo at ray hits from the material's pattern and the hit point.
 
 Patterns (`waresynth.scene.PATTERNS`): plain, noise, tape, label, perforated, tiles, bricks, panels,
-wood, each a function of the hit point in the world or in its part's own frame, on top of a 2 cm
+wood, wrap (stretch film: sheen bands, washed-out colour), printed (a carton's printed band and logo in a
+second colour), stained (blotches of wear and dirt), lines (a floor's painted aisle lines), each a function of the hit point in the world or in its part's own frame, on top of a 2 cm
 grain everywhere. The noise lattices are constants (fixed seeds), so textures never depend on the run.
 """
 
@@ -16,6 +17,11 @@ from waresynth.scene import PATTERNS
 #: Fixed value-noise lattice (64^3) for textures: a constant, so textures never depend on the run.
 _NOISE = np.random.default_rng(20240607).random(64**3, dtype=np.float32)
 _NOISE_SHIFT = 1 << 20  # keeps lattice coordinates positive before the integer cast
+#: colours of a printed carton's band and logo (by part index)
+_PRINT = np.array(
+    [[0.8, 0.1, 0.1], [0.1, 0.25, 0.6], [0.1, 0.45, 0.2], [0.15, 0.15, 0.15], [0.9, 0.6, 0.05], [0.95, 0.95, 0.95]],
+    np.float32,
+)
 _GRAIN = np.float32(0.94) + np.float32(0.06) * np.random.default_rng(20240608).random(256 * 256, dtype=np.float32)
 
 
@@ -98,7 +104,43 @@ def albedo(tab: SurfaceTables, prim: np.ndarray, px: np.ndarray, py: np.ndarray,
     if len(m):
         q = px[m] / tab.scale[tab.part[prim[m]]]
         f[m] *= (np.where(q % 1.0 < 0.02, 0.6, 1.0) * (0.92 + 0.08 * np.cos(q * 2 * np.pi * 8))).astype(np.float32)
+    m = where("stained")
+    if len(m):
+        blot = value_noise(px[m], py[m], pz[m], 1.3) * value_noise(px[m] + 0.37, py[m], pz[m], 3.1)
+        f[m] *= np.float32(0.62) + np.float32(0.38) * np.sqrt(1.0 - blot).astype(np.float32)
+    m = where("wrap")
+    if len(m):
+        part, lx, ly, _ = local(m)
+        band = np.cos((ly * 9.0 + lx * 3.0) + 6.0 * value_noise(lx, ly, part.astype(np.float32), 4.0))
+        f[m] *= (np.float32(0.92) + np.float32(0.18) * band).astype(np.float32)
     cols = [np.take(tab, prim) * f for tab in tab.colour]
+    _overlays(tab, prim, px, py, pz, cols, where, local)
+    return cols
+
+
+def _overlays(tab: SurfaceTables, prim, px, py, pz, cols: list[np.ndarray], where, local) -> None:
+    """Patterns that replace the colour (film, printing, paint, labels) on the albedo channels, in place."""
+    m = where("wrap")
+    if len(m):  # film washes the colour toward a grey-white sheen
+        for ch in cols:
+            ch[m] = ch[m] * np.float32(0.65) + np.float32(0.3)
+    m = where("printed")
+    if len(m):
+        part, lx, ly, _ = local(m)
+        w, hh = tab.size[part, 0], tab.size[part, 1]
+        side = np.abs(tab.normal_z[prim[m]]) > 0.5
+        band = side & (ly < -hh * 0.18) & (ly > -hh * 0.36)
+        logo = side & (np.abs(lx + w * 0.22) < w * 0.12) & (np.abs(ly - hh * 0.12) < hh * 0.14)
+        ink = _PRINT[part % len(_PRINT)]
+        for k, ch in enumerate(cols):
+            ch[m] = np.where(band | logo, ink[:, k] * (ch[m] * 0.25 + 0.75), ch[m]).astype(np.float32)
+    m = where("lines")
+    if len(m):  # a solid line along the rack front and a dashed one across the aisle, in safety yellow
+        solid = np.abs(pz[m] + np.float32(0.35)) < 0.05
+        dashed = (np.abs(pz[m] + np.float32(1.9)) < 0.04) & ((px[m] * 1.5) % 1.0 < 0.6)
+        paint = solid | dashed
+        for ch, v in zip(cols, (0.85, 0.7, 0.1)):
+            ch[m] = np.where(paint, np.float32(v), ch[m]).astype(np.float32)
     m = where("label")
     if len(m):
         part, lx, ly, _ = local(m)
@@ -108,4 +150,3 @@ def albedo(tab: SurfaceTables, prim: np.ndarray, px: np.ndarray, py: np.ndarray,
         bars = lab & ((lx * 150.0) % 1.0 < 0.5) & (ly > -hh * 0.05)
         for ch in cols:
             ch[m] = np.where(lab, np.where(bars, 0.1, 0.93), ch[m]).astype(np.float32)
-    return cols
