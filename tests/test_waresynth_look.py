@@ -257,6 +257,10 @@ def test_generate_takes_a_shipped_config_name_and_an_old_manifest_resumes(tmp_pa
     ds = open_dataset(tmp_path / "w")
     assert ds.config["lighting"]["level"] == [0.35, 1.3]
     assert all(sq.scene()["look"] for sq in ds.sequences())
+    from waresynth.preview import format_summary, summarise
+
+    said = format_summary(summarise(ds, progress=False))
+    assert "look         2 of 2 sequences (waresynth.look): light level" in said
     # a dataset written before the look existed was neutral: it resumes as the default
     kw = dict(num_sequences=2, frames=2, image_size=(32, 32), spec=LayoutSpec(size=16), seed=4, progress=False)
     plain = generate_dataset(tmp_path / "plain", **kw)

@@ -369,7 +369,8 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         lay_hist["top"] += np.bincount(lay.top.ravel(), minlength=256)
         lay_hist["front"] += np.bincount(lay.front.ravel(), minlength=256)
         visible_shelves.append(int((lay.top > 0).any(axis=(1, 2)).sum()))
-    counts = [c for s in seqs for c in _iter_boxes_per_shelf(s.scene())]
+    scenes = [s.scene() for s in seqs]
+    counts = [c for sc in scenes for c in _iter_boxes_per_shelf(sc)]
     w, h = dataset.image_size
     total = int(sem_hist.sum())
     return {
@@ -396,6 +397,8 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
         "supersample": int(dataset.config.get("sensor", {}).get("supersample", 1)),
         # the fraction of a step the shutter stays open, one per sequence (0: sharp)
         "motion_blur": _range([float(s.meta.get("camera", {}).get("motion_blur", 0.0)) for s in seqs]),
+        # what the sequences' looks change (waresynth.look; scene.json "look"), {} when every one is neutral
+        "look": _look_summary([sc.get("look", {}) for sc in scenes]),
         # the cameras' horizontal fields of view (degrees), one per sequence (camera.hfov_deg)
         "hfov_deg": _range([float(s.intrinsics.hfov_deg) for s in seqs]),
         # the cameras' rotations (degrees; each 0 for a level camera), one per sequence
@@ -403,6 +406,18 @@ def summarise(dataset: Any, max_frames: int = 200, progress: bool = True) -> dic
             k.removesuffix("_deg"): _range([s.camera_angles[j] for s in seqs]) for j, k in enumerate(CAMERA_ANGLE_KEYS)
         },
     }
+
+
+def _look_summary(looks: list[dict[str, Any]]) -> dict[str, Any]:
+    """How many sequences have a look, the spans of its light level, noise and lens, and the codecs' counts."""
+    if not any(looks):
+        return {}
+    out: dict[str, Any] = {"sequences": sum(bool(lk) for lk in looks), "of": len(looks)}
+    for key, neutral in (("level", 1.0), ("shot_noise", 0.0), ("read_noise", 0.0), ("lens_k1", 0.0)):
+        out[key] = _range([float(lk.get(key, neutral)) for lk in looks])
+    codecs = [lk.get("compression", "none") for lk in looks]
+    out["compression"] = {c: codecs.count(c) for c in sorted(set(codecs))}
+    return out
 
 
 def _range(values: list[float]) -> list[float]:
@@ -444,6 +459,16 @@ def format_summary(s: dict[str, Any]) -> str:
             f"pixels       motion-blurred: the shutter open {blur[0]:.2f}"
             + (f" to {blur[1]:.2f}" if blur[1] != blur[0] else "")
             + " of a step (sensor.motion_blur)"
+        )
+    look = s.get("look")
+    if look:
+        codecs = ", ".join(f"{c} {n}" for c, n in look["compression"].items())
+        lines.append(
+            f"look         {look['sequences']} of {look['of']} sequences (waresynth.look): light level "
+            + ", ".join(f"{k} {r[0]:.2f} to {r[1]:.2f}" for k, r in look.items() if isinstance(r, list)).removeprefix(
+                "level "
+            )
+            + f"; compression {codecs}"
         )
     fov = s.get("hfov_deg")
     if fov:
