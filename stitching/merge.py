@@ -17,7 +17,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -26,7 +26,7 @@ from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 from stitching.fused_box import FusedBox, dedup_boxes
 from stitching.lift import FrameBox, FrameReconstruction
-from stitching.shift import Edges, ShiftConfig, correlate_shift, vote_offset
+from stitching.shift import Edges, MotionPrior, ShiftConfig, correlate_shift, vote_offset
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap, partial_side
 from stitching.xindex import XIndex
 
@@ -131,6 +131,9 @@ class MapBuilder:
         self._prev_top: np.ndarray | None = None
         self._offset = 0.0
         self._velocity = 0.0
+        self.prior = MotionPrior(self.shift_cfg)
+        self.untrusted_x: list[list[float]] = []  # merged X intervals seen by untrusted frames
+        self.untrusted_frames: list[int] = []
 
     # ------------------------------------------------------------------ registration
     def _frame_edges(self, rec: FrameReconstruction) -> Edges:
@@ -214,34 +217,83 @@ class MapBuilder:
     def register(self, rec: FrameReconstruction, top: np.ndarray | None, motion: float | None = None) -> StepRecord:
         """Estimate this frame's camera offset in the map (does not change the map).
 
-        ``motion`` (metres, + = the camera moved to +X) is an independent estimate of the camera's
-        step since the previous frame (wheel odometry, or the images via `network.model.motion`). It is
-        used only where the layouts give no consensus, instead of the constant-velocity guess: the
-        layouts' edges are the better measurement wherever they agree (centring the edge vote on
-        image-estimated steps instead made the held-out drift worse, see docs/stitching.md).
+        The box-edge vote is centred on the robust velocity of `MotionPrior` (median of the recent
+        trusted steps). A vote outside the prior's gate is believed only when ``motion`` agrees with it
+        or when ``relock`` strong votes in a row (``override_support`` edges, twice those of the best
+        vote inside the gate) line up on a new speed (`MotionPrior.propose`);
+        otherwise the gated vote, the correlation or ``motion`` stands, and with none of them the step
+        is the prior's and marked untrusted. ``motion`` (metres, + = the camera moved to +X) is an
+        independent estimate of the step (wheel odometry, or the images via `network.model.motion`):
+        it replaces the correlation and velocity fallbacks (the layouts' edges are the better
+        measurement wherever they agree, see docs/stitching.md), arbitrates a vote that breaks the
+        prior, and lowers the confidence of a step it disagrees with.
         """
         idx = self.frames
         if idx == 0:
             return StepRecord(0, 0.0, 0.0, 0, 1.0, "first", 0)
-        cfg = self.shift_cfg
+        cfg, prior = self.shift_cfg, self.prior
         pred = self._offset
+        vel = prior.predict(idx, pred, self._velocity)
         half = self.spec.x_extent / 2 + cfg.max_step
         # Box edges and rack ends vote together (each kind only pairs with its own kind).
         fe = _concat(self._frame_edges(rec), self._frame_rack_edges(rec))
         me = _concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
-        off, support, conf = vote_offset(fe, me, pred, cfg, self.dx, pred + self._velocity)
-        method = "edges"
-        if support < cfg.min_support and motion is not None:
-            method, conf, off = "motion", 0.5, self._offset + motion
-        elif support < cfg.min_support:
-            method, conf, off = "prediction", 0.0, self._offset + self._velocity
-            if top is not None and self._prev_top is not None:
-                s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
-                if c >= cfg.min_corr_conf and cfg.allows(s, self._velocity):
-                    off, conf, method = self._offset + s, c * 0.5, "correlation"
+        off, support, conf = vote_offset(fe, me, pred, cfg, self.dx, pred + vel)
+        method, trusted, gate = "edges", True, prior.gate()
+        mtol = max(gate, 2 * cfg.prior_gate)  # how far a given step may be from a vote and still agree
+        outside = support >= cfg.min_support and not prior.agrees(off - pred)
+        done = False
+        if (outside or support < cfg.min_support) and prior.rejected and prior.rejected[-1][0] == idx - 1:
+            # the last step broke the prior: does this one go on at its speed (the camera changed speed)?
+            p_off, p_support, p_conf = vote_offset(fe, me, pred, cfg, self.dx, pred + self._velocity)
+            vetoed = motion is not None and abs(motion - (p_off - pred)) > mtol
+            if p_support >= cfg.min_support and abs(p_off - pred - self._velocity) <= gate and not vetoed:
+                trusted = prior.propose(idx, p_off)
+                off, support, conf, done = p_off, p_support, p_conf * (0.5 if trusted else 0.25), True
+        if outside and not done:
+            g_off, g_support, g_conf = vote_offset(
+                fe, me, pred, replace(cfg, max_speed_change=gate), self.dx, pred + vel
+            )
+            if motion is not None and prior.agrees(motion):
+                # the image motion sides with the prior: the vote inside the gate, else the motion itself
+                off, conf, support = (g_off, g_conf, g_support) if g_support >= cfg.min_support else (off, 0.0, 0)
+            elif motion is not None and abs(motion - (off - pred)) <= mtol:
+                conf *= 0.5  # the image motion confirms a change of speed: believed, not as well as a fit
+                prior.restart(idx - 1, pred)
+            elif support >= max(cfg.override_support, 2 * g_support):
+                # strong, but one frame cannot tell a change of speed from a wrong consensus: taken,
+                # untrusted, until `relock` frames in a row go on at its speed
+                trusted = prior.propose(idx, off)
+                conf *= 0.5 if trusted else 0.25
+            elif g_support >= cfg.min_support:
+                off, conf = g_off, g_conf * g_support / (g_support + support)
+                support = g_support
+            else:
+                support = 0  # the vote broke the prior with nothing to back it: as if no edges agreed
+            done = support >= cfg.min_support
+        if support < cfg.min_support:
+            method, conf, off, trusted = self._fallback(top, motion, vel)
+        elif not done or trusted:
+            conf *= prior.agreement(off - pred) ** 0.5
+        if motion is not None and method != "motion" and not abs(motion - (off - pred)) <= mtol:
+            conf *= 0.5  # the two estimators disagree
         shift = off - self._offset
         direction = 0 if abs(shift) < 0.25 * self.dx else int(math.copysign(1, shift))
-        return StepRecord(idx, off, shift, direction, conf, method, int(support))
+        return StepRecord(idx, off, shift, direction, float(conf), method, int(support), bool(trusted))
+
+    def _fallback(self, top: np.ndarray | None, motion: float | None, vel: float) -> tuple[str, float, float, bool]:
+        """(method, confidence, offset, trusted) where too few edges agree: the given ``motion``, else the
+        profile correlation, else the prior's velocity ``vel`` (untrusted); a step the prior rejects is untrusted."""
+        cfg, prior = self.shift_cfg, self.prior
+        if motion is not None:
+            ok = prior.agrees(motion)
+            return "motion", 0.5 * prior.agreement(motion), self._offset + motion, ok
+        if top is not None and self._prev_top is not None:
+            s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
+            fits = prior.agrees(s) if prior.ready else cfg.allows(s, self._velocity)
+            if c >= cfg.min_corr_conf and fits:
+                return "correlation", c * 0.5 * prior.agreement(s), self._offset + s, True
+        return "prediction", 0.0, self._offset + vel, False
 
     # ------------------------------------------------------------------ merging
     def add(
@@ -261,6 +313,7 @@ class MapBuilder:
             step.frame = frame
         off = step.offset
         self._velocity = step.shift if step.method != "prediction" else self._velocity
+        self.prior.update(self.frames, off, step.trusted)
         self._offset = off
         self.steps.append(step)
         self.step_stats.add(step)
@@ -270,6 +323,8 @@ class MapBuilder:
         self._merge_ends(rec, off)
         lo = self.spec.col_to_x(rec.vis_lo) + off
         hi = self.spec.col_to_x(rec.vis_hi) + off
+        if not step.trusted:
+            self._mark_untrusted(step.frame, float(lo), float(hi))
         by_slot: list[list[FrameBox]] = [[] for _ in self.boxes]
         for b in rec.boxes:
             by_slot[b.slot].append(b)
@@ -282,6 +337,21 @@ class MapBuilder:
                     m.n_seen += 1
             self._merge_slot(r, fbs, near, off)
         return step
+
+    def _mark_untrusted(self, frame: int, lo: float, hi: float) -> None:
+        """Remember what an untrusted frame saw (intervals merged: bounded by the row, not the frames)."""
+        self.untrusted_frames.append(frame)
+        for iv in self.untrusted_x:
+            if lo <= iv[1] and hi >= iv[0]:
+                iv[0], iv[1] = min(iv[0], lo), max(iv[1], hi)
+                break
+        else:
+            self.untrusted_x.append([lo, hi])
+
+    def _untrusted_share(self, x0: float, x1: float) -> float:
+        """Fraction of ``[x0, x1]`` that an untrusted frame saw (its place in the map is a guess)."""
+        cover = sum(max(0.0, min(x1, b) - max(x0, a)) for a, b in self.untrusted_x)
+        return float(min(1.0, cover / max(x1 - x0, 1e-9)))
 
     def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[FusedBox], off: float) -> None:
         if not fbs:
@@ -359,6 +429,16 @@ class MapBuilder:
         self.votes, self.seen, self.g0 = votes, seen, new_lo
 
     # ------------------------------------------------------------------ output
+    def _registration(self, shares: list[float]) -> dict:
+        """What the map says of its own camera path: the untrusted frames, the X they saw, and per rack
+        the share of it placed by them (its shelves' confidence is lowered by half that share)."""
+        return {
+            "trusted": not self.untrusted_frames,
+            "untrusted_frames": list(self.untrusted_frames),
+            "untrusted_x": [_round_iv(iv) for iv in sorted(self.untrusted_x)],
+            "rack_untrusted_share": {f"rack_{k:02d}": round(v, 4) for k, v in enumerate(shares)},
+        }
+
     def build(self, origin_world: tuple[float, float, float] | None = None, meta: dict | None = None) -> WarehouseMap:
         """The current map as a `WarehouseMap` (racks from the shelf strip, boxes with stable ids)."""
         cfg = self.cfg
@@ -394,6 +474,7 @@ class MapBuilder:
                 if not rack_ranges:
                     continue
                 boxes_out[_nearest_range(rack_ranges, rack_starts, cx)].append((cx, m))
+        shares = [self._untrusted_share(x0, x1) for x0, x1 in rack_ranges]
         for k, (x0, x1) in enumerate(rack_ranges):
             rid = f"rack_{k:02d}"
             shelves = []
@@ -419,15 +500,20 @@ class MapBuilder:
                             m.n_obs,
                         )
                     )
-                s_conf = float(self.slot_present[r] / frames)
+                s_conf = float(self.slot_present[r] / frames) * (1.0 - 0.5 * shares[k])
                 shelves.append(
                     MapShelf(sid, r, board, clear, (x0, x1), tuple(self.zr[r]), s_conf, boxes, rack_partial[k])
                 )
             racks.append(MapRack(rid, (x0, x1), shelves, rack_partial[k]))
         meta = dict(meta or {})
         meta.setdefault("step_summary", self.step_stats.to_dict())
+        meta.setdefault("registration", self._registration(shares))
         seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
         return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
+
+
+def _round_iv(iv: list[float]) -> list[float]:
+    return [round(iv[0], 6), round(iv[1], 6)]
 
 
 def _partial_run(seen: np.ndarray, a: int, b: int, margin: int) -> str | None:

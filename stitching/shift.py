@@ -12,11 +12,18 @@ Two estimators, the second a fallback:
 * `correlate_shift`: correlation of the previous and current top-view layouts' per-column
   profiles (box and shelf fraction per slot; parabolic sub-pixel peak), used when too few edges
   agree.
+
+`MotionPrior` is the robust motion model both answer to: the median of the camera's last few
+trusted steps (a constant-velocity prior that one bad step cannot pull) and a gate from their
+spread (MAD). A step outside the gate is believed only with strong support or a second estimator
+agreeing; otherwise the step is predicted from the prior and marked untrusted, so one stretch of
+bad layouts (dim, noisy, blurred frames) leaves a flagged gap in the path instead of a bend.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,15 +43,20 @@ class ShiftConfig:
     min_corr_conf: float = 0.5  #: profile correlation below this is not used
     max_speed_change: float = 0.3  #: metres; largest |step - previous step| (a camera does not jump back
     #: at once: a reversal takes several frames); keeps a wrong consensus of a few edges out
+    prior_steps: int = 10  #: trusted frames the robust line is fitted to (< 3: no motion prior)
+    prior_gate: float = 0.04  #: metres; the least gate around the robust velocity (it widens to 3 MADs)
+    override_support: int = 6  #: edges (and twice the gated vote's) a step outside the gate needs to be proposed
+    relock: int = 4  #: strong votes in a row at one new speed that restart the prior (a real change of speed)
 
     def __post_init__(self) -> None:
-        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf", "max_speed_change"):
+        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf", "max_speed_change", "prior_gate"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise LayoutError(f"ShiftConfig.{name} must be a finite number >= 0, got {v!r}")
-        m = self.min_support
-        if isinstance(m, bool) or not isinstance(m, int) or m < 0:
-            raise LayoutError(f"ShiftConfig.min_support must be an integer >= 0, got {m!r}")
+        for name in ("min_support", "prior_steps", "override_support", "relock"):
+            m = getattr(self, name)
+            if isinstance(m, bool) or not isinstance(m, int) or m < 0:
+                raise LayoutError(f"ShiftConfig.{name} must be an integer >= 0, got {m!r}")
 
     def allows(self, step: float | np.ndarray, velocity: float | None = None) -> bool | np.ndarray:
         """Whether a camera step (metres; a float or an array) is plausible: within ``max_step`` and,
@@ -54,6 +66,99 @@ class ShiftConfig:
         if velocity is not None:
             ok = ok & (np.abs(step - velocity) <= self.max_speed_change)
         return ok
+
+
+class MotionPrior:
+    """Robust constant-velocity model of the camera along the row, updated one frame at a time.
+
+    Keeps the offsets of the last ``prior_steps`` trusted frames and fits a line to them by
+    Theil-Sen (median of pairwise slopes, median intercept): one bad offset cannot pull it, and the
+    prediction for a frame after a stretch of untrusted ones is extrapolated from trusted anchors,
+    not from accumulated guesses. ``gate``: how far an offset may lie from the line and still agree
+    (``prior_gate`` or three scaled MADs of the residuals, widened by half for every ``relock``
+    untrusted frames in a row; at most ``max_speed_change``). A real change of speed is taken up
+    by `propose`. Ready with three trusted frames; O(``prior_steps``^2) per frame.
+    """
+
+    MIN_STEPS = 3
+
+    def __init__(self, cfg: ShiftConfig):
+        self.cfg = cfg
+        self.points: deque[tuple[int, float]] = deque(maxlen=max(cfg.prior_steps, 1))
+        self.misses = 0
+        self.rejected: deque[tuple[int, float]] = deque(maxlen=max(cfg.relock, 1))  # strong votes it broke
+        self._line = (0.0, 0.0, 0.0)  # slope, intercept, residual spread
+        self.expected = 0.0  #: the step `predict` expects for the current frame
+
+    @property
+    def ready(self) -> bool:
+        return self.cfg.prior_steps >= self.MIN_STEPS and len(self.points) >= self.MIN_STEPS
+
+    def _fit(self) -> None:
+        k, y = np.array(self.points, dtype=np.float64).T
+        i, j = np.triu_indices(len(k), 1)
+        slope = float(np.median((y[j] - y[i]) / (k[j] - k[i])))
+        icpt = float(np.median(y - slope * k))
+        res = y - (icpt + slope * k)
+        self._line = (slope, icpt, 1.4826 * float(np.median(np.abs(res - np.median(res)))))
+
+    def predict(self, frame: int, offset: float, fallback: float) -> float:
+        """The step expected from ``offset`` (the previous frame's) to ``frame``: the line's, else ``fallback``."""
+        if self.ready:
+            slope, icpt, _ = self._line
+            self.expected = icpt + slope * frame - offset
+        else:
+            self.expected = fallback
+        return self.expected
+
+    def gate(self) -> float:
+        base = max(self.cfg.prior_gate, 3.0 * self._line[2])
+        widen = 1.0 + 0.5 * (self.misses // max(self.cfg.relock, 1)) if self.cfg.relock else 1.0
+        return float(min(base * widen, self.cfg.max_speed_change))
+
+    def agreement(self, step: float) -> float:
+        """1 at the expected step, 0.5 at the gate, falling off beyond it (1 while not ready)."""
+        if not self.ready:
+            return 1.0
+        return float(1.0 / (1.0 + (abs(step - self.expected) / max(self.gate(), 1e-9)) ** 2))
+
+    def agrees(self, step: float) -> bool:
+        return not self.ready or abs(step - self.expected) <= self.gate()
+
+    def propose(self, frame: int, offset: float) -> bool:
+        """A strongly supported offset that breaks the prior: True (and the prior restarts from them) once
+        the last ``relock`` such offsets are of consecutive frames and lie on one line within the gate:
+        the camera really changed speed. Scattered wrong votes (bad layouts) never line up."""
+        self.rejected.append((frame, float(offset)))
+        r = list(self.rejected)
+        if not self.cfg.relock or len(r) < max(self.cfg.relock, 2) or r[-1][0] - r[0][0] != len(r) - 1:
+            return False
+        k, y = np.array(r).T
+        slope = float(np.median(np.diff(y) / np.diff(k)))
+        res = y - slope * k
+        if float(np.max(np.abs(res - np.median(res)))) > self.gate():
+            return False
+        self.points.clear()
+        self.points.extend(r[:-1])
+        self.rejected.clear()
+        return True
+
+    def restart(self, frame: int, offset: float) -> None:
+        """Forget the line (a change of speed another estimator confirmed): start again from one point."""
+        self.points.clear()
+        self.rejected.clear()
+        self.points.append((frame, float(offset)))
+
+    def update(self, frame: int, offset: float, trusted: bool) -> None:
+        if trusted:
+            self.points.append((frame, float(offset)))
+            self.misses = 0
+            if self.rejected and self.rejected[-1][0] != frame:
+                self.rejected.clear()
+            if len(self.points) >= 2:
+                self._fit()
+        else:
+            self.misses += 1
 
 
 @dataclass

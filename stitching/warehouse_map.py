@@ -98,6 +98,7 @@ class StepRecord:
     confidence: float
     method: str  #: 'first', 'edges' (box edges and rack ends), 'motion' (the given camera step), 'correlation', 'prediction'
     matches: int
+    trusted: bool = True  #: False: no estimate agreed with the camera's recent motion; the offset is a guess
 
 
 @dataclass
@@ -190,6 +191,7 @@ class WarehouseMap:
                     "confidence": round(s.confidence, 4),
                     "method": s.method,
                     "matches": s.matches,
+                    "trusted": s.trusted,
                 }
                 for s in self.steps
             ],
@@ -276,6 +278,7 @@ class WarehouseMap:
                     float(s["confidence"]),
                     str(s["method"]),
                     int(s["matches"]),
+                    bool(s.get("trusted", True)),
                 )
                 for s in d["steps"]
             ]
