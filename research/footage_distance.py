@@ -4,7 +4,8 @@
 
 For each of the first N sequences: its RGB frames as a phone folder (``IMG_0001.jpg`` ..., JPEG 90) and as a
 10 fps H.264 ``.mp4``; ``mvracklay run`` on both (no camera file, no distance) and on the sequence itself with
-``--distance`` set 5 / 10 / 20 % off its recorded one and at the recorded one; each map scored with
+``--distance`` set -10 / +5 / +10 / +20 % off its recorded one and at the recorded one, and on the folder with
+``--camera-height`` (the true one, as a robot's mount knows it); each map scored with
 ``mvracklay eval-reconstruction SEQ --map OUT/warehouse.json --scale-corrected --json``. Prints the reading
 errors (median, 90th percentile) and the maps' figures as they are and with the scale corrected.
 """
@@ -78,29 +79,39 @@ def main() -> None:
     a = ap.parse_args()
     seqs = sorted(p for p in a.data.iterdir() if (p / "meta.json").is_file())[: a.sequences]
     table: dict[str, list[dict]] = {}
-    errors: dict[str, list[float]] = {"folder": [], "video": []}
+    errors: dict[str, list[float]] = {"folder": [], "video": [], "height": []}
     for seq in seqs:
         meta = json.loads((seq / "meta.json").read_text())
         true_d = float(np.median([f["distance"] for f in meta["frames"]]))
+        height = -float(meta["frames"][0]["camera_position"][1])
         folder, video = to_footage(seq, a.work)
         runs = {
             "recorded": run_and_score(seq, seq, a.work / "out" / seq.name / "recorded"),
             "folder": run_and_score(folder, seq, a.work / "out" / seq.name / "folder"),
             "video": run_and_score(video, seq, a.work / "out" / seq.name / "video"),
+            # the folder again with the camera's true height above the floor, as a robot's mount gives it
+            "height": run_and_score(
+                folder, seq, a.work / "out" / seq.name / "height", "--camera-height", f"{height:.3f}"
+            ),
         }
         for f in FACTORS:
             runs[f"x{f:g}"] = run_and_score(
                 seq, seq, a.work / "out" / seq.name / f"x{f:g}", "--distance", f"{true_d * f:.4f}"
             )
-        for k in ("folder", "video"):
-            errors[k].append(100 * (runs[k]["distance"] / true_d - 1))
+        for k in ("folder", "video", "height"):
+            if k != "height" or runs[k]["source"] == "camera height":
+                errors[k].append(100 * (runs[k]["distance"] / true_d - 1))
         for k, v in runs.items():
             table.setdefault(k, []).append(v)
         print(seq.name, f"true {true_d:.3f}", {k: round(v["distance"], 3) for k, v in runs.items()}, flush=True)
     print("\ndistance read, error % (signed): median |e|, 90th percentile |e|, mean e")
     for k, e in errors.items():
+        if not e:
+            continue
         e = np.array(e)
-        print(f"  {k:<8} {np.median(np.abs(e)):5.2f} {np.percentile(np.abs(e), 90):5.2f} {e.mean():+5.2f}")
+        print(
+            f"  {k:<8} n {len(e):2d} {np.median(np.abs(e)):5.2f} {np.percentile(np.abs(e), 90):5.2f} {e.mean():+5.2f}"
+        )
     print("\nmaps (pooled): precision / recall / shelves with the exact count, as they are | scale corrected")
     for k, rows in table.items():
         s, c = pooled(rows, "as_is"), pooled(rows, "corrected")

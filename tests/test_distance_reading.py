@@ -198,3 +198,38 @@ def test_warehouse_json_records_the_camera_and_lens_used(tiny_dataset: Path, tin
     assert meta["lens"]["k1"] == pytest.approx(-0.05) and meta["intrinsics_source"].startswith(f"--camera {cam}")
     assert main([*args[:4], "--distance", "2.5", "--threads", "1", "--quiet", "--out", str(tmp_path / "p")]) == 0
     assert _meta(tmp_path / "p")["lens"] is None
+
+
+def test_a_map_scales_every_length_about_its_origin():
+    from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
+
+    box = MapBox("rack_00/shelf_00/box_000", (0.5, -0.2, 0.1), (0.4, 0.4, 0.3), 0.2, 0.9, 3)
+    shelf = MapShelf("rack_00/shelf_00", 0, 0.0, 0.8, (0.0, 2.0), (-0.5, 0.5), 1.0, [box])
+    step = StepRecord(1, 0.3, 0.3, 1, 1.0, "edges", 2)
+    wmap = WarehouseMap([MapRack("rack_00", (0.0, 2.0), [shelf])], [step], 0.05, seen_x=[(-1.0, 3.0)])
+    big = wmap.scaled(2.0)
+    b = big.boxes()[0]
+    assert b.center == (1.0, -0.4, 0.2) and b.size == (0.8, 0.8, 0.6) and b.yaw == 0.2
+    assert big.shelves()[0].clear_height == 1.6 and big.racks[0].x_range == (0.0, 4.0)
+    assert big.steps[0].offset == 0.6 and big.seen_x == [(-2.0, 6.0)] and big.board_thickness == 0.1
+    assert wmap.boxes()[0].center == (0.5, -0.2, 0.1)  # the original untouched
+    with pytest.raises(InputError, match="scale factor"):
+        wmap.scaled(0.0)
+
+
+def test_eval_reconstruction_scores_a_map_with_its_scale_corrected(
+    tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path, capsys
+):
+    seq = tiny_dataset / "seq_00000"
+    recorded = float(np.median([f["distance"] for f in json.loads((seq / "meta.json").read_text())["frames"]]))
+    out = tmp_path / "far"
+    run = ["run", str(seq), "--checkpoint", str(tiny_checkpoint), "--threads", "1", "--quiet", "--no-rrd"]
+    assert main([*run, "--distance", f"{recorded * 1.1:.4f}", "--out", str(out)]) == 0
+    capsys.readouterr()
+    args = ["eval-reconstruction", str(seq), "--map", str(out / "warehouse.json"), "--json", "--quiet"]
+    assert main([*args, "--scale-corrected"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    (name,) = got["scale_corrected"]
+    assert name == f"seq_00000 x{1 / 1.1:.3f}"
+    assert main(["eval-reconstruction", str(seq), "--scale-corrected", "--quiet"]) == 2
+    assert "--scale-corrected rescales a given map: it needs --map" in capsys.readouterr().err

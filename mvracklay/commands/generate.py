@@ -33,7 +33,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--slots", metavar="R", type=int, default=3, help="shelf slots per layout")
     p.add_argument("--seed", type=int, default=0, help="dataset seed (same seed + config -> same bytes)")
     p.add_argument(
-        "--config", metavar="FILE", type=Path, default=None, help="JSON config overriding waresynth/default_config.json"
+        "--config",
+        metavar="FILE",
+        type=Path,
+        default=None,
+        help="JSON config overriding waresynth/default_config.json, or a shipped one by name (wide_look: the wider camera and building look meant for training; shifted_look: a look outside it, for held-out tests)",
     )
     p.add_argument(
         "--supersample",
