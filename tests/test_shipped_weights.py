@@ -26,7 +26,8 @@ FLOORS = {("top", "rack"): 70.0, ("top", "box"): 45.0, ("front", "rack"): 85.0, 
 
 def test_the_package_ships_the_inference_models_and_the_default():
     folder = models.default_checkpoint().parent
-    assert sorted(p.stem for p in folder.glob("*.pt")) == sorted(models.SHIPPED)
+    assert sorted(p.stem for p in folder.glob("*.pt")) == sorted([*models.SHIPPED, models.DISTANCE_READER])
+    assert models.distance_reader_path().is_file()
     assert all(p.is_file() and json_path(p).is_file() for p in SHIPPED)
     assert pipeline.DEFAULT_CHECKPOINT == models.default_checkpoint() == models.resolve_checkpoint(None)
     assert pipeline.DEFAULT_CHECKPOINT.stem == models.DEFAULT_MODEL

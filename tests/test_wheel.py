@@ -77,6 +77,7 @@ def test_the_wheel_holds_the_code_the_models_and_the_data_files_and_nothing_else
     for name in ("mvracklay-disc-4", "mvracklay-disc-4-256"):
         assert {f"mvracklay/models/{name}.pt", f"mvracklay/models/{name}.json"} <= names, name
     assert "mvracklay/models/README.md" in names and "waresynth/default_config.json" in names
+    assert "mvracklay/models/distance-reader.pt" in names and "waresynth/configs/shifted_look.json" in names
     # every file of the packages' source is in it: modules, configs, recipes (a package-data line forgotten shows)
     beside_code = {
         p.relative_to(src).as_posix()
