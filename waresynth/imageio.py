@@ -74,3 +74,20 @@ def read_png(path: str | os.PathLike, dtype: type, channels: int | None = None) 
     if channels is None and arr.ndim != 2:
         raise InputError(f"{path}: expected a single-channel image, found shape {arr.shape}")
     return arr
+
+
+def read_rgb(path: str | os.PathLike) -> np.ndarray:
+    """Any image file Pillow reads (PNG, JPEG, ...) as uint8 ``(H, W, 3)``; one-line `InputError` naming
+    the file when it is missing or unreadable."""
+    from PIL import Image, UnidentifiedImageError
+
+    from layouts.errors import InputError
+
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except (UnidentifiedImageError, OSError) as e:
+        raise InputError(f"{path}: not a readable image ({e})") from None
+

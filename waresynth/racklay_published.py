@@ -166,16 +166,9 @@ class PublishedSequence:
         return self.names[int(i)]
 
     def rgb(self, i: int) -> np.ndarray:
-        from PIL import Image, UnidentifiedImageError
+        from waresynth.imageio import read_rgb
 
-        p = self.data.image_path(self._name(i))
-        try:
-            with Image.open(p) as im:
-                return np.asarray(im.convert("RGB"))
-        except FileNotFoundError:
-            raise InputError(f"{p}: file not found") from None
-        except (UnidentifiedImageError, OSError) as e:
-            raise InputError(f"{p}: not a readable image ({e})") from None
+        return read_rgb(self.data.image_path(self._name(i)))
 
     def layouts(self, i: int) -> FrameLayouts:
         n = self._name(i)

@@ -240,16 +240,9 @@ class RackLayExport:
 
     def rgb(self, index: int) -> np.ndarray:
         """uint8 ``(H, W, 3)`` image of frame ``index``."""
-        from PIL import Image, UnidentifiedImageError
+        from waresynth.imageio import read_rgb
 
-        p = self.image_path(index)
-        try:
-            with Image.open(p) as im:
-                return np.asarray(im.convert("RGB"))
-        except FileNotFoundError:
-            raise InputError(f"{p}: file not found") from None
-        except (UnidentifiedImageError, OSError) as e:
-            raise InputError(f"{p}: not a readable image ({e})") from None
+        return read_rgb(self.image_path(index))
 
     def layouts(self, index: int) -> FrameLayouts:
         """Class-id layouts (0/1/2) of frame ``index``, with its visible columns when exported."""
