@@ -214,7 +214,9 @@ class MapBuilder:
                         self._end_index.add(len(self.ends), x)
                         self.ends.append([sh.slot, side, x, 1])
 
-    def register(self, rec: FrameReconstruction, top: np.ndarray | None, motion: float | None = None) -> StepRecord:
+    def register(
+        self, rec: FrameReconstruction, top: np.ndarray | None, motion: float | None = None, motion_conf: float = 1.0
+    ) -> StepRecord:
         """Estimate this frame's camera offset in the map (does not change the map).
 
         The box-edge vote is centred on the robust velocity of `MotionPrior` (median of the recent
@@ -226,7 +228,11 @@ class MapBuilder:
         independent estimate of the step (wheel odometry, or the images via `network.model.motion`):
         it replaces the correlation and velocity fallbacks (the layouts' edges are the better
         measurement wherever they agree, see docs/stitching.md), arbitrates a vote that breaks the
-        prior, and lowers the confidence of a step it disagrees with.
+        prior, and lowers the confidence of a step it disagrees with. Where the two agree the offset is their
+        blend, weighted by ``motion_conf`` (the images' confidence, [0, 1]) against the vote's and scaled by
+        ``ShiftConfig.motion_gain``: the images' step is precise from frame to frame but biased over a row
+        (parallax), the vote is noisier but placed against the map, so the blend follows the images' step
+        while the map keeps it from drifting (method ``edges+motion``).
         """
         idx = self.frames
         if idx == 0:
@@ -272,22 +278,31 @@ class MapBuilder:
                 support = 0  # the vote broke the prior with nothing to back it: as if no edges agreed
             done = support >= cfg.min_support
         if support < cfg.min_support:
-            method, conf, off, trusted = self._fallback(top, motion, vel)
+            method, conf, off, trusted = self._fallback(top, motion, vel, motion_conf)
         elif not done or trusted:
             conf *= prior.agreement(off - pred) ** 0.5
-        if motion is not None and method != "motion" and not abs(motion - (off - pred)) <= mtol:
-            conf *= 0.5  # the two estimators disagree
+        if motion is not None and method != "motion":
+            gap = motion - (off - pred)
+            if not abs(gap) <= mtol:
+                conf *= 0.5  # the two estimators disagree: the layouts' step stands, less confidently
+            elif method == "edges" and cfg.motion_gain > 0 and motion_conf > 0:
+                w = cfg.motion_gain * motion_conf / (motion_conf + max(conf, 1e-3))
+                off += w * gap
+                conf *= 1.0 - 0.5 * abs(gap) / max(mtol, 1e-9)  # the wider the gap, the less sure the blend
+                method = "edges+motion"
         shift = off - self._offset
         direction = 0 if abs(shift) < 0.25 * self.dx else int(math.copysign(1, shift))
         return StepRecord(idx, off, shift, direction, float(conf), method, int(support), bool(trusted))
 
-    def _fallback(self, top: np.ndarray | None, motion: float | None, vel: float) -> tuple[str, float, float, bool]:
+    def _fallback(
+        self, top: np.ndarray | None, motion: float | None, vel: float, motion_conf: float = 1.0
+    ) -> tuple[str, float, float, bool]:
         """(method, confidence, offset, trusted) where too few edges agree: the given ``motion``, else the
         profile correlation, else the prior's velocity ``vel`` (untrusted); a step the prior rejects is untrusted."""
         cfg, prior = self.shift_cfg, self.prior
         if motion is not None:
             ok = prior.agrees(motion)
-            return "motion", 0.5 * prior.agreement(motion), self._offset + motion, ok
+            return "motion", 0.5 * motion_conf * prior.agreement(motion), self._offset + motion, ok
         if top is not None and self._prev_top is not None:
             s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
             fits = prior.agrees(s) if prior.ready else cfg.allows(s, self._velocity)
@@ -302,13 +317,18 @@ class MapBuilder:
         top: np.ndarray | None = None,
         frame: int | None = None,
         motion: float | None = None,
+        motion_conf: float | None = None,
     ) -> StepRecord:
-        """Register one frame and fuse it into the map; returns its step record (``motion``: see `register`)."""
+        """Register one frame and fuse it into the map; returns its step record (``motion``, ``motion_conf``
+        (default 1): see `register`)."""
         if motion is not None and (
             isinstance(motion, bool) or not isinstance(motion, (int, float)) or not math.isfinite(motion)
         ):
             raise LayoutError(f"motion must be a finite number of metres or None, got {motion!r}")
-        step = self.register(rec, top, None if motion is None else float(motion))
+        mc = 1.0 if motion_conf is None else motion_conf
+        if isinstance(mc, bool) or not isinstance(mc, (int, float)) or not 0 <= mc <= 1:
+            raise LayoutError(f"motion_conf must be a number in [0, 1] or None, got {motion_conf!r}")
+        step = self.register(rec, top, None if motion is None else float(motion), float(mc))
         if frame is not None:
             step.frame = frame
         off = step.offset

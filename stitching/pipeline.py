@@ -104,13 +104,18 @@ class Stitcher:
         self.count = 0
 
     def push(
-        self, frame: FrameInput, index: int | None = None, motion: float | None = None
+        self,
+        frame: FrameInput,
+        index: int | None = None,
+        motion: float | None = None,
+        motion_conf: float | None = None,
     ) -> tuple[FrameReconstruction, StepRecord]:
         """Detect, lift, register and merge one frame.
 
         ``motion``: optional camera step along the row since the previous pushed frame (metres,
         + = toward +X) from another source, e.g. the images (`network.model.motion`); the layouts still
-        decide where they agree, the step fills in where they do not.
+        decide, the step fills in where they fail and, where both agree, is blended in by ``motion_conf``
+        (its confidence in [0, 1], default 1; `stitching.merge.MapBuilder.register`).
         """
         idx = self.count if index is None else _frame_index(index)
         fl = _as_frame(frame, idx)
@@ -119,7 +124,7 @@ class Stitcher:
         top = fl.top
         if fl.visible is not None and not fl.visible.all():
             top = top * fl.visible[None, None, :].astype(np.uint8)  # unseen columns are guesses
-        step = self.builder.add(rec, top, frame=idx, motion=motion)
+        step = self.builder.add(rec, top, frame=idx, motion=motion, motion_conf=motion_conf)
         self.count += 1
         return rec, step
 

@@ -47,9 +47,18 @@ class ShiftConfig:
     prior_gate: float = 0.04  #: metres; the least gate around the robust velocity (it widens to 3 MADs)
     override_support: int = 6  #: edges (and twice the gated vote's) a step outside the gate needs to be proposed
     relock: int = 4  #: strong votes in a row at one new speed that restart the prior (a real change of speed)
+    motion_gain: float = 0.0  #: how far an agreeing image step pulls the vote (x its confidence share; 0: not)
 
     def __post_init__(self) -> None:
-        for name in ("max_step", "tol_px", "size_tol", "min_corr_conf", "max_speed_change", "prior_gate"):
+        for name in (
+            "max_step",
+            "tol_px",
+            "size_tol",
+            "min_corr_conf",
+            "max_speed_change",
+            "prior_gate",
+            "motion_gain",
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise LayoutError(f"ShiftConfig.{name} must be a finite number >= 0, got {v!r}")

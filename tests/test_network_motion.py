@@ -13,7 +13,7 @@ from layouts.spec import LayoutSpec
 from network.inference.predictor import Predictor
 from network.model.config import ModelConfig
 from network.model.memory import shift_columns
-from network.model.motion import MAX_SHIFT, camera_shift, motion_signature
+from network.model.motion import MAX_SHIFT, camera_motion, camera_shift, motion_signature
 from network.model.net import MVRackLay
 from network.training.fit_boxdepth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
@@ -227,14 +227,14 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
             want.append(out)
     calls = {"infer": 0, "model": 0}
 
-    def counted(where):
+    def counted(where, read=camera_shift):
         def shift(prev, cur, view):
             calls[where] += 1
-            return camera_shift(prev, cur, view)
+            return read(prev, cur, view)
 
         return shift
 
-    monkeypatch.setattr("network.inference.predictor.camera_shift", counted("infer"))
+    monkeypatch.setattr("network.inference.predictor.camera_motion", counted("infer", camera_motion))
     monkeypatch.setattr("network.model.memory.camera_shift", counted("model"))
     got = list(HeadInputPredictor(model, read_depth=False).stream(frames))
     assert calls == {"infer": 4, "model": 0}

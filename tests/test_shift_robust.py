@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from layouts import LayoutError, LayoutSpec
-from stitching.pipeline import Stitcher
+from stitching.pipeline import StitchConfig, Stitcher
 from stitching.shift import MotionPrior, ShiftConfig
 from stitching.synthetic import make_sequence, render_frame
 from stitching.warehouse_map import WarehouseMap
@@ -96,3 +96,44 @@ def test_config_checks():
         ShiftConfig(prior_gate=-1.0)
     with pytest.raises(LayoutError, match="override_support"):
         ShiftConfig(override_support=1.5)
+
+
+def _stitch_with(seq, corrupt: range, motion: list[float], conf: float = 1.0):
+    """Stitch ``seq`` with the frames in ``corrupt`` rendered 0.15-0.3 m off and ``motion`` given as the images'
+    steps, blended in where they agree (``motion_gain`` 0.5)."""
+    rng = np.random.default_rng(7)
+    st = Stitcher(SPEC, StitchConfig(shift=ShiftConfig(motion_gain=0.5)))
+    xs = [r["camera_position"][0] for r in seq.frames]
+    levels = list(range(len(seq.frames[0]["slots"])))
+    for i, fl in enumerate(seq.layouts):
+        if i in corrupt:
+            fl = render_frame(seq.scene, SPEC, xs[i] + (-1) ** i * rng.uniform(0.15, 0.3), levels)
+            fl.visible = seq.layouts[i].visible
+        st.push(fl, i, *((motion[i], conf) if i else ()))
+    return st.map(), [abs(s.offset - (x - xs[0])) for s, x in zip(st.map().steps, xs)]
+
+
+def test_good_image_steps_carry_a_long_corrupted_stretch(seq):
+    """A long stretch of wrong layouts with good image steps: the path stays on the camera's."""
+    xs = [r["camera_position"][0] for r in seq.frames]
+    wmap, errs = _stitch_with(seq, range(12, 30), [0.0] + list(np.diff(xs)))
+    assert max(errs) < 0.05 and errs[-1] < 0.03
+    assert any(s.method == "edges+motion" for s in wmap.steps)  # blended where both agree
+
+
+def test_wrong_image_steps_lose_to_good_layouts(seq):
+    """Image steps 15 cm too long against good layouts: the layouts' offsets stand, the steps' confidence falls."""
+    xs = [r["camera_position"][0] for r in seq.frames]
+    right, _ = _stitch_with(seq, range(0), [0.0] + list(np.diff(xs)))
+    wmap, errs = _stitch_with(seq, range(0), [0.0] + list(np.diff(xs) + 0.15))
+    assert max(errs) < 0.02
+    later = wmap.steps[5:]
+    assert all(s.method == "edges" for s in later)  # not blended: they disagree
+    assert np.mean([s.confidence for s in later]) < 0.6 * np.mean([s.confidence for s in right.steps[5:]])
+
+
+def test_motion_confidence_checked(seq):
+    st = Stitcher(SPEC)
+    st.push(seq.layouts[0], 0)
+    with pytest.raises(LayoutError, match="motion_conf"):
+        st.push(seq.layouts[1], 1, 0.1, 1.5)

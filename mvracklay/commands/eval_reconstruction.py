@@ -98,8 +98,11 @@ def evaluate_sequence(
     deg: Degrade | None = None,
     iou: float = 0.5,
     wmap: WarehouseMap | None = None,
+    motion: tuple[list[float], list[float]] | None = None,
 ) -> tuple[EvalResult, WarehouseMap]:
-    """Stitch ``seq`` (a waresynth Sequence) from ``folder`` (default: its ground truth) and score it."""
+    """Stitch ``seq`` (a waresynth Sequence) from ``folder`` (default: its ground truth) and score it; ``motion``:
+    each frame's camera step as the images read it and its confidence (`mvracklay.commands.predict.read_camera_steps`),
+    handed to the stitcher while no frame is dropped."""
     from stitching.detect import visible_range
     from stitching.evaluate import covered_range, evaluate_map, origin_from_record
     from stitching.pipeline import Stitcher
@@ -123,7 +126,8 @@ def evaluate_sequence(
         if wmap is None:
             if deg.morph or deg.flip > 0:
                 fl = degrade(fl, rng, deg.morph, deg.flip)
-            stitcher.push(fl, i)
+            step = motion is not None and deg.drop_frame < 0 and 0 < i < len(motion[0])
+            stitcher.push(fl, i, *((motion[0][i], motion[1][i]) if step else ()))
     records = [seq.frame(i) for i in indices]
     if wmap is None:
         wmap = stitcher.map(origin_from_record(records[0]))

@@ -259,14 +259,49 @@ def _write_layouts(
             bar.update(1)
 
     depth, n = float("nan"), 0
+    steps: dict[str, list[float]] = {"step": [], "confidence": []}
     for i, logits in enumerate(pred.run(frames(), mode)):
         lay = frame_layouts(logits, spec)
         depth = float(logits["rack_depth"])
         visible = np.asarray(intr.visible_columns(spec, dist_of(i)), bool)
         folder.write(i, FrameLayouts(lay["top"], lay["front"], visible))
+        if "camera_step" in logits:
+            steps["step"].append(round(float(logits["camera_step"]), 6))
+            steps["confidence"].append(round(float(logits["camera_step_confidence"]), 4))
         n = i + 1
     bar.close()
+    if n and len(steps["step"]) == n:
+        write_camera_steps(folder.root, steps["step"], steps["confidence"])
     return n, depth
+
+
+#: beside a predicted layout folder's frames: each frame's camera step along the row as the images read it
+CAMERA_STEPS = "camera_steps.json"
+
+
+def write_camera_steps(root: Path, steps: list[float], confidence: list[float]) -> None:
+    """Store the image-read camera steps (metres, frame i-1 -> i; ``steps[0]`` is 0) and their confidences."""
+    import json
+
+    from layouts.fileio import atomic_write_text
+
+    doc = {"frames": len(steps), "step_m": steps, "confidence": confidence}
+    atomic_write_text(Path(root) / CAMERA_STEPS, json.dumps(doc) + "\n")
+
+
+def read_camera_steps(root: Path) -> tuple[list[float], list[float]] | None:
+    """The steps `write_camera_steps` stored in ``root`` (None when there are none), checked."""
+    from layouts.fileio import load_json
+    path = Path(root) / CAMERA_STEPS
+    if not path.is_file():
+        return None
+    doc = load_json(path)
+    steps, conf = (doc.get(k) if isinstance(doc, dict) else None for k in ("step_m", "confidence"))
+    ok = isinstance(steps, list) and isinstance(conf, list) and len(steps) == len(conf)
+    ok = ok and all(isinstance(v, (int, float)) and math.isfinite(v) for v in steps + conf)
+    if not ok:
+        raise InputError(f"{path}: expected step_m and confidence, two lists of finite numbers of one length")
+    return [float(v) for v in steps], [float(v) for v in conf]
 
 
 def _sequence_camera(

@@ -37,7 +37,7 @@ from network.inference.decision import apply_box_offset
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
 from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
 from network.model.decoders import board_peaks
-from network.model.motion import camera_shift, motion_signature
+from network.model.motion import camera_motion, motion_signature
 from network.model.net import MVRackLay, head_outputs
 
 MODES = ("stream", "window")
@@ -168,8 +168,8 @@ class Predictor:
         #: the camera's rotation, known or read from the frames (None: the camera is taken as level)
         turned = (self.roll or 0.0, self.pitch or 0.0, self.yaw or 0.0)
         self.leveller = CameraLeveller(*turned) if any(a != 0 for a in turned) else None
-        #: the direct pass's camera steps (metres), motion signatures and canonical images not yet used
-        self._motion: deque[tuple[float, torch.Tensor, torch.Tensor]] = deque()
+        #: the direct pass's camera steps (metres), motion signatures, canonical images and step confidences not yet used
+        self._motion: deque[tuple[float, torch.Tensor, torch.Tensor, float]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -220,10 +220,12 @@ class Predictor:
             step = None
             if self._tracks_motion or (streaming and self._model_motion):
                 sig = motion_signature(x)
-                step = x.new_zeros(1) if prev is None else camera_shift(prev, sig, self.cfg.view)
+                step, conf = (
+                    (x.new_zeros(1), x.new_ones(1)) if prev is None else camera_motion(prev, sig, self.cfg.view)
+                )
                 prev = sig
                 if self._tracks_motion:
-                    self._motion.append((float(step[0]), sig, x))
+                    self._motion.append((float(step[0]), sig, x, float(conf[0])))
             yield x, self._anchors(i), step
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
@@ -273,7 +275,10 @@ class Predictor:
             if out:  # not a frame the network skipped (`trunk_from`)
                 out["rack_depth"] = _depth_tensor(depth)
             if self._tracks_motion:
-                step, sig, x = self._motion.popleft()
+                step, sig, x, conf = self._motion.popleft()
+                if out:  # the camera's step as the images read it, for a stitcher (`stitching.merge.MapBuilder`)
+                    out["camera_step"] = torch.tensor(step, dtype=torch.float64)
+                    out["camera_step_confidence"] = torch.tensor(conf, dtype=torch.float64)
                 if history is not None and i < self.box_inputs_from:
                     history.keep(x, step)
                 elif history is not None:

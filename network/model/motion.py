@@ -127,10 +127,15 @@ def _peak(prof: torch.Tensor, m: int) -> tuple[torch.Tensor, torch.Tensor]:
     return (k[..., 0] - m).to(prof.dtype) + frac, prof.gather(-1, k)[..., 0]
 
 
-def _front(shifts: np.ndarray, heights: np.ndarray, whole: float, px_per_metre: float) -> float:
-    """The front plane's motion (pixels) from one pair's band motions and the whole image's."""
+def _front(
+    shifts: np.ndarray, heights: np.ndarray, whole: float, px_per_metre: float, whole_h: float = 0.0
+) -> tuple[float, float]:
+    """The front plane's motion (pixels) from one pair's band motions and the whole image's, and a confidence
+    in [0, 1]: the mean correlation peak of the bands that read it times the share of the bands they are (the
+    whole image's peak where it stands alone), low where dim, noisy or blurred frames correlate poorly and where
+    fewer than four bands read close to the largest motion."""
     if abs(whole) < 1.0:
-        return whole
+        return whole, max(0.0, whole_h)
     sign = 1.0 if whole > 0 else -1.0
     lo, hi = sorted([0.9 * whole - sign, whole / 0.5 + sign])
     idx = np.flatnonzero((heights > MIN_NCC) & (shifts >= lo) & (shifts <= hi))
@@ -140,7 +145,13 @@ def _front(shifts: np.ndarray, heights: np.ndarray, whole: float, px_per_metre: 
         idx = idx[:-1]
     while len(idx) > 1 and mag[idx[0]] > mag[idx[1]] + step:  # a ceiling, from the top down
         idx = idx[1:]
-    return sign * float(mag[idx].max()) if len(idx) else whole
+    if not len(idx):
+        return whole, max(0.0, whole_h)
+    best = float(mag[idx].max())
+    # the share of the bands that read it: a few bands far above the rest (a floor the shear test missed) are doubtful
+    near = np.count_nonzero(mag[idx] >= 0.85 * best)
+    conf = float(np.mean(heights[idx])) * min(1.0, 2.0 * len(idx) / max(len(heights), 1)) * min(1.0, near / 4.0)
+    return sign * best, float(np.clip(conf, 0.0, 1.0))
 
 
 def camera_shift(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) -> torch.Tensor:
@@ -148,6 +159,12 @@ def camera_shift(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) -> 
 
     Within +-`MAX_SHIFT`; the front plane's motion as the bands read it (module docstring).
     """
+    return camera_motion(prev, cur, view)[0]
+
+
+def camera_motion(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) -> tuple[torch.Tensor, torch.Tensor]:
+    """`camera_shift` and its confidence ``(N,)`` in [0, 1] (the correlation peaks behind it, see `_front`):
+    what a stitcher weighs the step by against the layouts' own estimate."""
     if prev.shape != cur.shape or prev.ndim != 4 or prev.shape[1] != 2:
         raise ValueError(
             f"expected two signatures (N, 2, H, W) of one shape, got {tuple(prev.shape)} and {tuple(cur.shape)}"
@@ -155,7 +172,12 @@ def camera_shift(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) -> 
     h, w = prev.shape[-2:]
     m = max(1, min(int(MAX_SHIFT / view.metres_per_pixel), w // 2 - 1))
     band_prof, whole_prof = _profiles(prev, cur, m, max(1, min(BANDS, h)))
-    whole = _peak(whole_prof, m)[0].cpu().double().numpy()
+    whole, whole_h = (t.cpu().double().numpy() for t in _peak(whole_prof, m))
     shifts, heights = (t.cpu().double().numpy() for t in _peak(band_prof, m))
-    px = [_front(shifts[i], heights[i], float(whole[i]), 1.0 / view.metres_per_pixel) for i in range(len(whole))]
-    return torch.tensor(px, dtype=torch.float32, device=prev.device) * view.metres_per_pixel
+    read = [
+        _front(shifts[i], heights[i], float(whole[i]), 1.0 / view.metres_per_pixel, float(whole_h[i]))
+        for i in range(len(whole))
+    ]
+    px = torch.tensor([r[0] for r in read], dtype=torch.float32, device=prev.device)
+    conf = torch.tensor([r[1] for r in read], dtype=torch.float32, device=prev.device)
+    return px * view.metres_per_pixel, conf
