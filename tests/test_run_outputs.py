@@ -96,7 +96,16 @@ def test_a_signalled_run_leaves_no_staging_folder(tiny_dataset, tiny_checkpoint,
     out = tmp_path / "out"
     argv = [sys.executable, "-m", "mvracklay", "run", str(frames), "--out", str(out)]
     argv += ["--checkpoint", str(tiny_checkpoint), "--threads", "1", "--no-rrd"]
-    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # a shell running this suite in the background ignores SIGINT, and children inherit that: reset it, as a
+    # terminal's Ctrl-C finds it
+    proc = subprocess.Popen(
+        argv,
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     deadline = time.monotonic() + 120
     while not list(tmp_path.glob(".out.partial-*")) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
