@@ -125,7 +125,9 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
     model = with_box_head(MVRackLay(tiny_config(spec)).eval())
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
     step = spec.x_extent / spec.size
-    monkeypatch.setattr("network.inference.predictor.camera_shift", lambda prev, cur, v: torch.tensor([step]))
+    monkeypatch.setattr(
+        "network.inference.predictor.camera_motion", lambda prev, cur, v: (torch.tensor([step]), torch.ones(1))
+    )
     seq = ToySequence(spec, num_frames=4, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(4)]
     plain_pred = Predictor(model, rack_depth=0.8, fuse_tau=0)

@@ -50,7 +50,9 @@ def _heads_shown_last(monkeypatch) -> MVRackLay:
         return out
 
     monkeypatch.setattr("network.inference.predictor.board_peaks", lambda p, v: fronts)
-    monkeypatch.setattr("network.inference.predictor.camera_shift", lambda prev, cur, v: torch.tensor([STEP]))
+    monkeypatch.setattr(
+        "network.inference.predictor.camera_motion", lambda prev, cur, v: (torch.tensor([STEP]), torch.ones(1))
+    )
     monkeypatch.setattr(model.back, "forward", back_forward)
     monkeypatch.setattr(model.box_depth, "forward", box_forward)
     model.frozen_graphs = False  # the patched forwards count their calls in Python: a traced graph would not

@@ -100,7 +100,7 @@ class Predictor:
     output (`network.heads.boxdepth.ParallaxHistory`). (Fitting that head reads its inputs through
     `network.training.head_inputs.HeadInputPredictor`.)
 
-    The camera's step along the row is read from the images once per frame (`network.model.motion.camera_shift`)
+    The camera's step along the row is read from the images once per frame (`network.model.motion.camera_motion`)
     and given to the memory, the parallax and the readers alike.
 
     ``whole_sequence``: the rack depth and the box depths come from every frame of the sequence, not
