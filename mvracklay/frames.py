@@ -37,7 +37,7 @@ DEFAULT_HFOV_DEG = 60.0
 """Horizontal field of view of the default camera (the generator's default, waresynth/default_config.json)."""
 SINGLE_FRAME_HINT = (
     "one frame gives one view without the motion the map needs: the map holds one rack span, its scale "
-    "from the assumed camera-to-rack distance (--distance)"
+    "from the camera-to-rack distance (read from the frame unless --distance or --camera-height gives it)"
 )
 _EXIF_ORIENTATION = 0x0112
 _SWAPS_SIDES = (5, 6, 7, 8)

@@ -233,3 +233,13 @@ def test_eval_reconstruction_scores_a_map_with_its_scale_corrected(
     assert name == f"seq_00000 x{1 / 1.1:.3f}"
     assert main(["eval-reconstruction", str(seq), "--scale-corrected", "--quiet"]) == 2
     assert "--scale-corrected rescales a given map: it needs --map" in capsys.readouterr().err
+
+
+def test_predict_reads_footages_distance_as_run_does(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path, capsys):
+    folder = _folder(tiny_dataset, tmp_path)
+    args = ["predict", str(folder), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "lay")]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "distance to the racks: " in out and "read from 4 frames" in out
+    assert main([*args[:-1], str(tmp_path / "given"), "--distance", "2.4"]) == 0
+    assert "distance to the racks: 2.40 m, given (--distance)" in capsys.readouterr().out

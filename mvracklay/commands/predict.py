@@ -45,10 +45,10 @@ DESCRIPTION = (
     "'mvracklay reconstruct' reads. Streaming mode carries the ConvLSTM state frame to frame (one encoder "
     "pass per frame); window mode predicts each frame from the last seq_len frames, as in the paper. "
     "Every frame is warped into the model's canonical view with the camera intrinsics and the "
-    "camera-to-rack distance, which also give the visible columns: from meta.json when present, else "
-    "--camera / --distance, else the camera and mean distance the model was trained with. One image "
-    "cannot tell how far the racks are, so a wrong distance scales the layouts (and the map) by "
-    "true / assumed distance: pass --distance when you know it. Without --checkpoint it runs the shipped "
+    "camera-to-rack distance, which also give the visible columns: --camera / --distance when given, else "
+    "meta.json's, else the default camera and the distance read from the first frames (as 'mvracklay run' "
+    "reads it, printed). A wrong distance scales the layouts (and the map) by true / used distance: pass "
+    "--distance when you know it. Without --checkpoint it runs the shipped "
     f"{DEFAULT_MODEL}, as 'mvracklay run' does."
 )
 GROUP = "use"
@@ -74,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     add_hidden_alias(p, "--intrinsics", "camera")
     p.add_argument(
-        "--distance", type=float, help="camera to rack front in metres (default: meta.json, else the training mean)"
+        "--distance", type=float, help="camera to rack front in metres (default: meta.json, else read from the frames)"
     )
     p.add_argument("--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP)
     p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
@@ -205,7 +205,7 @@ def predict_folder(
     differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
     if differs:
         print(f"mvracklay predict: warning: camera {differs}", file=sys.stderr)
-    dist_of = _frame_distances(distance, frames, record)
+    dist_of = _frame_distances(distance, frames, record, intr)
     spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
     if rack_depth is not None:
         check_rack_depth(rack_depth, spec)
@@ -228,6 +228,9 @@ def predict_folder(
     if n == 0:
         raise InputError(f"{frames.path}: no frames to process")
     _report_readings(pred, depth, intr, progress)
+    reading = getattr(dist_of, "reading", None)
+    if progress and reading is not None and reading.source != "recorded":
+        print(f"distance to the racks: {reading.describe()}")
     return n
 
 
@@ -254,7 +257,8 @@ def _write_layouts(
     bar = tqdm(total=seq.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
-        for rgb in seq.frames(undistort=(intr, lens) if lens is not None else None):
+        raw = seq.frames(undistort=(intr, lens) if lens is not None else None)
+        for rgb in dist_of.lead(raw) if hasattr(dist_of, "lead") else raw:  # footage: its distance read first
             yield rgb
             bar.update(1)
 
@@ -292,6 +296,7 @@ def write_camera_steps(root: Path, steps: list[float], confidence: list[float]) 
 def read_camera_steps(root: Path) -> tuple[list[float], list[float]] | None:
     """The steps `write_camera_steps` stored in ``root`` (None when there are none), checked."""
     from layouts.fileio import load_json
+
     path = Path(root) / CAMERA_STEPS
     if not path.is_file():
         return None
@@ -321,20 +326,18 @@ def _sequence_camera(
     return Intrinsics.from_fov(width, height, 60.0), None
 
 
-def _frame_distances(distance: float | None, frames: FrameSource, record: dict[str, Any]) -> Callable[[int], float]:
-    """Frame index -> camera-to-rack distance: ``distance`` when given, else the frame's in meta.json, else the
-    checkpoint's nominal distance, else `network.data.DEFAULT_DISTANCE`."""
+def _frame_distances(
+    distance: float | None, frames: FrameSource, record: dict[str, Any], intr: Intrinsics
+) -> Callable[[int], float]:
+    """Frame index -> camera-to-rack distance, as `mvracklay run` has it (`mvracklay.distance.FrameDistances`):
+    ``distance`` when given, else the frames' in meta.json, else read from the first frames (the default: the
+    checkpoint's nominal distance, else `network.data.DEFAULT_DISTANCE`)."""
+    from mvracklay.distance import FrameDistances
     from network.data import DEFAULT_DISTANCE
 
     nominal = record.get("nominal_distance")
     nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
-    default_distance = distance or nominal or DEFAULT_DISTANCE
-
-    def dist_of(i: int) -> float:
-        recorded = frames.distance(i) if distance is None else None
-        return recorded if recorded is not None else default_distance
-
-    return dist_of
+    return FrameDistances(frames, intr, distance, None, nominal or DEFAULT_DISTANCE, prog=f"mvracklay {NAME}")
 
 
 def _report_readings(pred: Predictor, depth: float, intr: Intrinsics, progress: bool) -> None:
