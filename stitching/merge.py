@@ -133,7 +133,8 @@ class MapBuilder:
         self._velocity = 0.0
         self.prior = MotionPrior(self.shift_cfg)
         self.untrusted_x: list[list[float]] = []  # merged X intervals seen by untrusted frames
-        self.untrusted_frames: list[int] = []
+        self.untrusted_frames: list[int] = []  # the last `keep_steps` of them when that is set
+        self.untrusted_count = 0
 
     # ------------------------------------------------------------------ registration
     def _frame_edges(self, rec: FrameReconstruction) -> Edges:
@@ -360,7 +361,11 @@ class MapBuilder:
 
     def _mark_untrusted(self, frame: int, lo: float, hi: float) -> None:
         """Remember what an untrusted frame saw (intervals merged: bounded by the row, not the frames)."""
+        self.untrusted_count += 1
         self.untrusted_frames.append(frame)
+        keep = self.cfg.keep_steps
+        if keep is not None and len(self.untrusted_frames) > keep:  # a long aisle's memory stays bounded
+            del self.untrusted_frames[: len(self.untrusted_frames) - keep]
         for iv in self.untrusted_x:
             if lo <= iv[1] and hi >= iv[0]:
                 iv[0], iv[1] = min(iv[0], lo), max(iv[1], hi)
@@ -453,7 +458,8 @@ class MapBuilder:
         """What the map says of its own camera path: the untrusted frames, the X they saw, and per rack
         the share of it placed by them (its shelves' confidence is lowered by half that share)."""
         return {
-            "trusted": not self.untrusted_frames,
+            "trusted": not self.untrusted_count,
+            "untrusted_count": self.untrusted_count,
             "untrusted_frames": list(self.untrusted_frames),
             "untrusted_x": [_round_iv(iv) for iv in sorted(self.untrusted_x)],
             "rack_untrusted_share": {f"rack_{k:02d}": round(v, 4) for k, v in enumerate(shares)},

@@ -65,6 +65,23 @@ def test_corrupted_stretch_is_flagged_not_bent(seq):
     assert [s.trusted for s in back.steps] == [s.trusted for s in wmap.steps]
 
 
+def test_a_bounded_step_history_bounds_the_untrusted_list_too(seq):
+    from stitching.merge import MergeConfig
+    from stitching.pipeline import StitchConfig
+
+    rng = np.random.default_rng(7)
+    st = Stitcher(SPEC, StitchConfig(merge=MergeConfig(keep_steps=2)))
+    xs = [r["camera_position"][0] for r in seq.frames]
+    levels = list(range(len(seq.frames[0]["slots"])))
+    for i, fl in enumerate(seq.layouts):
+        if i in BAD:
+            fl = render_frame(seq.scene, SPEC, xs[i] + (-1) ** i * rng.uniform(0.15, 0.3), levels)
+            fl.visible = seq.layouts[i].visible
+        st.push(fl, i)
+    reg = st.map().meta["registration"]
+    assert reg["untrusted_count"] > 2 and len(reg["untrusted_frames"]) == 2 and reg["trusted"] is False
+
+
 def test_agreeing_motion_keeps_steps_trusted(seq):
     """Where the layouts say nothing, a given camera step that fits the prior is trusted."""
     xs = [r["camera_position"][0] for r in seq.frames]
