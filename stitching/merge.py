@@ -5,7 +5,7 @@ layout resolution, running means of shelf heights) plus the previous frame's top
 correlation fallback: memory does not grow with the frames already merged. The one exception is
 the camera path, one `StepRecord` per frame (``MergeConfig.keep_steps = None``, the default, which
 ``warehouse.json`` stores); ``keep_steps = N`` keeps only the last N beside running totals
-(`StepStats`), so memory is bounded by the map alone. Map boxes and rack ends are indexed by X
+(`stitching.path_record.StepStats`), so memory is bounded by the map alone. Map boxes and rack ends are indexed by X
 (`stitching.xindex.XIndex`), so a frame's cost depends on what is near it, not on how much of the
 row is already mapped (time grows linearly with the frame count on a long aisle).
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 import bisect
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -26,6 +26,7 @@ from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 from stitching.fused_box import FusedBox, dedup_boxes
 from stitching.lift import FrameBox, FrameReconstruction
+from stitching.path_record import StepStats, UntrustedFrames
 from stitching.shift import Edges, MotionPrior, ShiftConfig, correlate_shift, vote_offset
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap, partial_side
 from stitching.xindex import XIndex
@@ -50,46 +51,6 @@ class MergeConfig:
         k = self.keep_steps
         if k is not None and (isinstance(k, bool) or not isinstance(k, int) or k < 0):
             raise LayoutError(f"MergeConfig.keep_steps must be None or an integer >= 0, got {k!r}")
-
-
-@dataclass
-class StepStats:
-    """Running totals over every step record, kept whatever ``keep_steps`` is (a few numbers)."""
-
-    frames: int = 0
-    methods: dict[str, int] = field(default_factory=dict)  #: frames per registration method
-    reversals: int = 0  #: direction changes between moving frames (+1 <-> -1)
-    path_length: float = 0.0  #: sum of |shift|, metres
-    offset_min: float = 0.0
-    offset_max: float = 0.0
-    confidence_min: float = 1.0
-    confidence_mean: float = 0.0
-    last_direction: int = 0
-
-    def add(self, step: StepRecord) -> None:
-        n = self.frames
-        self.methods[step.method] = self.methods.get(step.method, 0) + 1
-        if step.direction and self.last_direction and step.direction != self.last_direction:
-            self.reversals += 1
-        if step.direction:
-            self.last_direction = step.direction
-        self.path_length += abs(step.shift)
-        self.offset_min = step.offset if n == 0 else min(self.offset_min, step.offset)
-        self.offset_max = step.offset if n == 0 else max(self.offset_max, step.offset)
-        self.confidence_min = min(self.confidence_min, step.confidence)
-        self.confidence_mean = (self.confidence_mean * n + step.confidence) / (n + 1)
-        self.frames = n + 1
-
-    def to_dict(self) -> dict:
-        return {
-            "frames": self.frames,
-            "methods": dict(sorted(self.methods.items())),
-            "reversals": self.reversals,
-            "path_length": round(self.path_length, 6),
-            "offset_range": [round(self.offset_min, 6), round(self.offset_max, 6)],
-            "confidence_min": round(self.confidence_min, 4),
-            "confidence_mean": round(self.confidence_mean, 4),
-        }
 
 
 class MapBuilder:
@@ -132,9 +93,7 @@ class MapBuilder:
         self._offset = 0.0
         self._velocity = 0.0
         self.prior = MotionPrior(self.shift_cfg)
-        self.untrusted_x: list[list[float]] = []  # merged X intervals seen by untrusted frames
-        self.untrusted_frames: list[int] = []  # the last `keep_steps` of them when that is set
-        self.untrusted_count = 0
+        self.untrusted = UntrustedFrames(keep)  # what the frames placed by a guess saw
 
     # ------------------------------------------------------------------ registration
     def _frame_edges(self, rec: FrameReconstruction) -> Edges:
@@ -345,7 +304,7 @@ class MapBuilder:
         lo = self.spec.col_to_x(rec.vis_lo) + off
         hi = self.spec.col_to_x(rec.vis_hi) + off
         if not step.trusted:
-            self._mark_untrusted(step.frame, float(lo), float(hi))
+            self.untrusted.add(step.frame, float(lo), float(hi))
         by_slot: list[list[FrameBox]] = [[] for _ in self.boxes]
         for b in rec.boxes:
             by_slot[b.slot].append(b)
@@ -358,25 +317,6 @@ class MapBuilder:
                     m.n_seen += 1
             self._merge_slot(r, fbs, near, off)
         return step
-
-    def _mark_untrusted(self, frame: int, lo: float, hi: float) -> None:
-        """Remember what an untrusted frame saw (intervals merged: bounded by the row, not the frames)."""
-        self.untrusted_count += 1
-        self.untrusted_frames.append(frame)
-        keep = self.cfg.keep_steps
-        if keep is not None and len(self.untrusted_frames) > keep:  # a long aisle's memory stays bounded
-            del self.untrusted_frames[: len(self.untrusted_frames) - keep]
-        for iv in self.untrusted_x:
-            if lo <= iv[1] and hi >= iv[0]:
-                iv[0], iv[1] = min(iv[0], lo), max(iv[1], hi)
-                break
-        else:
-            self.untrusted_x.append([lo, hi])
-
-    def _untrusted_share(self, x0: float, x1: float) -> float:
-        """Fraction of ``[x0, x1]`` that an untrusted frame saw (its place in the map is a guess)."""
-        cover = sum(max(0.0, min(x1, b) - max(x0, a)) for a, b in self.untrusted_x)
-        return float(min(1.0, cover / max(x1 - x0, 1e-9)))
 
     def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[FusedBox], off: float) -> None:
         if not fbs:
@@ -454,17 +394,6 @@ class MapBuilder:
         self.votes, self.seen, self.g0 = votes, seen, new_lo
 
     # ------------------------------------------------------------------ output
-    def _registration(self, shares: list[float]) -> dict:
-        """What the map says of its own camera path: the untrusted frames, the X they saw, and per rack
-        the share of it placed by them (its shelves' confidence is lowered by half that share)."""
-        return {
-            "trusted": not self.untrusted_count,
-            "untrusted_count": self.untrusted_count,
-            "untrusted_frames": list(self.untrusted_frames),
-            "untrusted_x": [_round_iv(iv) for iv in sorted(self.untrusted_x)],
-            "rack_untrusted_share": {f"rack_{k:02d}": round(v, 4) for k, v in enumerate(shares)},
-        }
-
     def build(self, origin_world: tuple[float, float, float] | None = None, meta: dict | None = None) -> WarehouseMap:
         """The current map as a `WarehouseMap` (racks from the shelf strip, boxes with stable ids)."""
         cfg = self.cfg
@@ -500,7 +429,7 @@ class MapBuilder:
                 if not rack_ranges:
                     continue
                 boxes_out[_nearest_range(rack_ranges, rack_starts, cx)].append((cx, m))
-        shares = [self._untrusted_share(x0, x1) for x0, x1 in rack_ranges]
+        shares = [self.untrusted.share(x0, x1) for x0, x1 in rack_ranges]
         for k, (x0, x1) in enumerate(rack_ranges):
             rid = f"rack_{k:02d}"
             shelves = []
@@ -533,13 +462,9 @@ class MapBuilder:
             racks.append(MapRack(rid, (x0, x1), shelves, rack_partial[k]))
         meta = dict(meta or {})
         meta.setdefault("step_summary", self.step_stats.to_dict())
-        meta.setdefault("registration", self._registration(shares))
+        meta.setdefault("registration", self.untrusted.to_dict(shares))
         seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
         return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
-
-
-def _round_iv(iv: list[float]) -> list[float]:
-    return [round(iv[0], 6), round(iv[1], 6)]
 
 
 def _partial_run(seen: np.ndarray, a: int, b: int, margin: int) -> str | None:

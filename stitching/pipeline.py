@@ -20,7 +20,8 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from stitching.detect import DetectConfig, detect_frame
 from stitching.lift import FrameReconstruction, LiftConfig, lift_frame
-from stitching.merge import MapBuilder, MergeConfig, StepStats
+from stitching.merge import MapBuilder, MergeConfig
+from stitching.path_record import StepStats
 from stitching.shift import ShiftConfig
 from stitching.warehouse_map import StepRecord, WarehouseMap
 

@@ -9,7 +9,8 @@ import pytest
 
 import stitching
 from layouts import InputError, LayoutError, LayoutSpec
-from stitching.merge import MergeConfig, StepStats
+from stitching.merge import MergeConfig
+from stitching.path_record import StepStats
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.synthetic import long_aisle, random_scene, stream_frames
 from stitching.xindex import XIndex
