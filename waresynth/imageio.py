@@ -90,4 +90,3 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"{path}: file not found") from None
     except (UnidentifiedImageError, OSError) as e:
         raise InputError(f"{path}: not a readable image ({e})") from None
-
