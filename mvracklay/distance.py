@@ -15,13 +15,22 @@ import itertools
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from layouts import Intrinsics
 from mvracklay.frames import FrameSource
 from mvracklay.models import distance_reader_path
+from network.data import DEFAULT_DISTANCE
 from network.inference.distance import LEAD_FRAMES, DistanceReading, load_reader, read_distance
+
+
+def default_distance(record: dict[str, Any]) -> float:
+    """The distance used when none is given, recorded or read: the checkpoint record's ``nominal_distance``
+    (its training data's mean), else `network.data.DEFAULT_DISTANCE`."""
+    nominal = record.get("nominal_distance")
+    return float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else DEFAULT_DISTANCE
 
 
 class FrameDistances:
@@ -33,7 +42,7 @@ class FrameDistances:
         intr: Intrinsics,
         given: float | None = None,
         camera_height: float | None = None,
-        default: float = 2.6,
+        default: float = DEFAULT_DISTANCE,
         reader: str | Path | None = None,
         prog: str = "mvracklay run",
     ) -> None:

@@ -30,12 +30,11 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
-from mvracklay.distance import FrameDistances
+from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from network.checkpoint import load_model
-from network.data import DEFAULT_DISTANCE
 from network.inference.distance import DistanceReading, check_camera_height
 from network.inference.fusion import check_tau
 from network.inference.predictor import MODES, Predictor, frame_layouts
@@ -199,9 +198,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     ckpt, model, record = _load_model(cfg)
     intr, intr_source, lens = _resolve_camera(source, cfg, record, ckpt, warnings)
     spec = _layout_spec(model, cfg)
-    nominal = record.get("nominal_distance")
-    default_distance = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else DEFAULT_DISTANCE
-    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance, cfg.distance_reader)
+    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 

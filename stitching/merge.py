@@ -108,7 +108,7 @@ class MapBuilder:
             if b.yaw != 0.0 and not (b.cut_left or b.cut_right):
                 # A turned box's fitted centre is sub-pixel accurate (its slanted sides cross many columns).
                 rows.append((b.slot, 2, b.cx, w, d, zc, b.height))
-        return _edges(rows)
+        return Edges.from_rows(rows)
 
     def _map_edges(self, lo: float, hi: float) -> Edges:
         rows = []
@@ -124,7 +124,7 @@ class MapBuilder:
                     rows.append((m.slot, 1, m.x1, w, m.depth, zc, m.h, m.nr))
                 if m.n_full and abs(math.atan2(m.s4, m.c4)) > 1e-3:
                     rows.append((m.slot, 2, m.cx, w, m.depth, zc, m.h, m.n_full))
-        return _edges(rows)
+        return Edges.from_rows(rows)
 
     def _frame_rack_edges(self, rec: FrameReconstruction) -> Edges:
         rows = []
@@ -134,7 +134,7 @@ class MapBuilder:
                     rows.append((sh.slot + RACK_SLOT, 0, x0, math.nan, 0.0, 0.0, 0.0))
                 if not cut_r:
                     rows.append((sh.slot + RACK_SLOT, 1, x1, math.nan, 0.0, 0.0, 0.0))
-        return _edges(rows)
+        return Edges.from_rows(rows)
 
     def _map_rack_edges(self, lo: float, hi: float) -> Edges:
         """Fused rack ends (shelf-run ends) between ``lo`` and ``hi``."""
@@ -143,7 +143,7 @@ class MapBuilder:
             slot, side, x, n = self.ends[i]
             if lo <= x <= hi:
                 rows.append((slot + RACK_SLOT, side, x, math.nan, 0.0, 0.0, 0.0, n))
-        return _edges(rows)
+        return Edges.from_rows(rows)
 
     def _boxes_near(self, r: int, lo: float, hi: float) -> list[FusedBox]:
         """Slot ``r``'s map boxes that may overlap ``[lo, hi]`` (a superset), in creation order."""
@@ -202,8 +202,8 @@ class MapBuilder:
         vel = prior.predict(idx, pred, self._velocity)
         half = self.spec.x_extent / 2 + cfg.max_step
         # Box edges and rack ends vote together (each kind only pairs with its own kind).
-        fe = _concat(self._frame_edges(rec), self._frame_rack_edges(rec))
-        me = _concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
+        fe = Edges.concat(self._frame_edges(rec), self._frame_rack_edges(rec))
+        me = Edges.concat(self._map_edges(pred - half, pred + half), self._map_rack_edges(pred - half, pred + half))
         off, support, conf = vote_offset(fe, me, pred, cfg, self.dx, pred + vel)
         method, trusted, gate = "edges", True, prior.gate()
         mtol = max(gate, 2 * cfg.prior_gate)  # how far a given step may be from a vote and still agree
@@ -486,19 +486,6 @@ def _nearest_range(ranges: list[tuple[float, float]], starts: list[float], x: fl
             if d < best_d:
                 best, best_d = j, d
     return best
-
-
-def _concat(a: Edges, b: Edges) -> Edges:
-    return Edges(
-        *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in ("slot", "side", "x", "w", "d", "z", "h", "n"))
-    )
-
-
-def _edges(rows: list[tuple]) -> Edges:
-    if not rows:
-        return Edges.empty()
-    a = np.array([r if len(r) == 8 else (*r, 1) for r in rows], dtype=float)
-    return Edges(a[:, 0].astype(int), a[:, 1].astype(int), a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6], a[:, 7])
 
 
 def _bin_runs(mask: np.ndarray, fill: int) -> list[tuple[int, int]]:

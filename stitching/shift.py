@@ -191,6 +191,20 @@ class Edges:
     def __len__(self) -> int:
         return len(self.x)
 
+    @classmethod
+    def from_rows(cls, rows: list[tuple]) -> Edges:
+        """Edges from ``(slot, side, x, w, d, z, h[, n])`` rows (``n`` 1 when left out)."""
+        if not rows:
+            return cls.empty()
+        a = np.array([r if len(r) == 8 else (*r, 1) for r in rows], dtype=float)
+        return cls(a[:, 0].astype(int), a[:, 1].astype(int), a[:, 2], a[:, 3], a[:, 4], a[:, 5], a[:, 6], a[:, 7])
+
+    @classmethod
+    def concat(cls, a: Edges, b: Edges) -> Edges:
+        return cls(
+            *(np.concatenate([getattr(a, f), getattr(b, f)]) for f in ("slot", "side", "x", "w", "d", "z", "h", "n"))
+        )
+
 
 def vote_offset(
     frame: Edges, mapped: Edges, predicted: float, cfg: ShiftConfig, dx: float, expected: float | None = None

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from layouts import LayoutError, LayoutSpec
+from stitching.merge import MergeConfig
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.shift import MotionPrior, ShiftConfig
 from stitching.synthetic import make_sequence, render_frame
@@ -14,11 +15,11 @@ SPEC = LayoutSpec(size=128)
 BAD = range(20, 28)
 
 
-def _stitch(seq, corrupt: bool, motion: list[float] | None = None):
+def _stitch(seq, corrupt: bool, motion: list[float] | None = None, config: StitchConfig | None = None):
     """Stitch ``seq``; with ``corrupt`` the frames in BAD are rendered where the camera is not (a wrong
     jump of 0.15-0.3 m, alternately ahead and behind: layouts that agree with the map at a wrong offset)."""
     rng = np.random.default_rng(7)
-    st = Stitcher(SPEC)
+    st = Stitcher(SPEC, config)
     xs = [r["camera_position"][0] for r in seq.frames]
     levels = list(range(len(seq.frames[0]["slots"])))
     for i, fl in enumerate(seq.layouts):
@@ -66,18 +67,7 @@ def test_corrupted_stretch_is_flagged_not_bent(seq):
 
 
 def test_a_bounded_step_history_bounds_the_untrusted_list_too(seq):
-    from stitching.merge import MergeConfig
-    from stitching.pipeline import StitchConfig
-
-    rng = np.random.default_rng(7)
-    st = Stitcher(SPEC, StitchConfig(merge=MergeConfig(keep_steps=2)))
-    xs = [r["camera_position"][0] for r in seq.frames]
-    levels = list(range(len(seq.frames[0]["slots"])))
-    for i, fl in enumerate(seq.layouts):
-        if i in BAD:
-            fl = render_frame(seq.scene, SPEC, xs[i] + (-1) ** i * rng.uniform(0.15, 0.3), levels)
-            fl.visible = seq.layouts[i].visible
-        st.push(fl, i)
+    st, _ = _stitch(seq, corrupt=True, config=StitchConfig(merge=MergeConfig(keep_steps=2)))
     reg = st.map().meta["registration"]
     assert reg["untrusted_count"] > 2 and len(reg["untrusted_frames"]) == 2 and reg["trusted"] is False
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from layouts import Intrinsics, LayoutSpec
     from layouts.codecs import LayoutFolder
     from layouts.lens import Lens
+    from mvracklay.distance import FrameDistances
     from mvracklay.frames import FrameSource
     from network.inference.predictor import Predictor
     from network.model.net import MVRackLay
@@ -228,9 +229,8 @@ def predict_folder(
     if n == 0:
         raise InputError(f"{frames.path}: no frames to process")
     _report_readings(pred, depth, intr, progress)
-    reading = getattr(dist_of, "reading", None)
-    if progress and reading is not None and reading.source != "recorded":
-        print(f"distance to the racks: {reading.describe()}")
+    if progress and dist_of.reading is not None and not dist_of.recorded:
+        print(f"distance to the racks: {dist_of.reading.describe()}")
     return n
 
 
@@ -241,7 +241,7 @@ def _write_layouts(
     spec: LayoutSpec,
     intr: Intrinsics,
     lens: Lens | None,
-    dist_of: Callable[[int], float],
+    dist_of: FrameDistances,
     mode: str,
     progress: bool,
 ) -> tuple[int, float]:
@@ -258,7 +258,7 @@ def _write_layouts(
 
     def frames() -> Iterator[np.ndarray]:  # the bar counts frames read (all of them first with whole_sequence)
         raw = seq.frames(undistort=(intr, lens) if lens is not None else None)
-        for rgb in dist_of.lead(raw) if hasattr(dist_of, "lead") else raw:  # footage: its distance read first
+        for rgb in dist_of.lead(raw):  # footage: its distance read from its first frames first
             yield rgb
             bar.update(1)
 
@@ -328,16 +328,12 @@ def _sequence_camera(
 
 def _frame_distances(
     distance: float | None, frames: FrameSource, record: dict[str, Any], intr: Intrinsics
-) -> Callable[[int], float]:
+) -> FrameDistances:
     """Frame index -> camera-to-rack distance, as `mvracklay run` has it (`mvracklay.distance.FrameDistances`):
-    ``distance`` when given, else the frames' in meta.json, else read from the first frames (the default: the
-    checkpoint's nominal distance, else `network.data.DEFAULT_DISTANCE`)."""
-    from mvracklay.distance import FrameDistances
-    from network.data import DEFAULT_DISTANCE
+    ``distance`` when given, else the frames' in meta.json, else read from the first frames."""
+    from mvracklay.distance import FrameDistances, default_distance
 
-    nominal = record.get("nominal_distance")
-    nominal = float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else None
-    return FrameDistances(frames, intr, distance, None, nominal or DEFAULT_DISTANCE, prog=f"mvracklay {NAME}")
+    return FrameDistances(frames, intr, distance, None, default_distance(record), prog=f"mvracklay {NAME}")
 
 
 def _report_readings(pred: Predictor, depth: float, intr: Intrinsics, progress: bool) -> None:
