@@ -138,9 +138,13 @@ def check_steps(ctx: Context, out: Path, quiet: bool) -> list[Step]:
             continue
         if not path.exists():
             problems.append(f"{ctx.recipe.path}: key 'requires': {path} is missing")
+    from waresynth.config import shipped_configs
+
     for spec in ctx.recipe.data.values():
-        if spec.config and not Path(spec.config).is_file():
-            problems.append(f"{ctx.recipe.path}: data {spec.name!r}: key 'config': {spec.config} is no file")
+        if spec.config and not Path(spec.config).is_file() and spec.config not in shipped_configs():
+            problems.append(
+                f"{ctx.recipe.path}: data {spec.name!r}: key 'config': {spec.config} is no file nor a shipped config"
+            )
     if problems:
         raise InputError("\n".join(problems))
     return steps

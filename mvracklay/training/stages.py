@@ -26,6 +26,7 @@ STAGE_MODULES: dict[str, str] = {
     "fit-uprights": "mvracklay.training.fit_uprights",
     "fit-box-depth": "mvracklay.training.fit_box_depth",
     "fit-distance": "mvracklay.training.fit_distance",
+    "fit-look": "mvracklay.training.fit_look",
     "graft": "mvracklay.training.graft",
     "copy": "mvracklay.training.small_stages:copy",
     "export": "mvracklay.training.small_stages:export",

@@ -1,0 +1,83 @@
+"""Stage ``fit-look`` of ``mvracklay train``: a trained checkpoint made to see footage in other looks as it sees
+the generator's default one (the trunk tuned, everything after it as trained)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from layouts.errors import InputError
+
+NAME = "fit-look"
+HELP = "tune a trained checkpoint's trunk so dim, tinted, noisy, blurred, compressed frames give its usual features"
+DESCRIPTION = (
+    "Every sample is a generated frame (default look) and a copy of it in a look drawn from --look (light "
+    "level and an uneven field, exposure, white balance, vignetting, shot and read noise, tone curve, motion "
+    "blur along the row, JPEG / H.264-like compression; waresynth/restyle.py). The trunk (encoder and "
+    "pyramid) is tuned so that its maps of the copy match the untouched checkpoint's maps of the frame; "
+    "the decoders, the memory and the depth heads are kept as they are, so their fits still hold. Writes "
+    "OUT with the record's look_fit; rerunning the command resumes an interrupted fit."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--checkpoint", required=True, help="a trained .pt checkpoint or a shipped model's name")
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="generated dataset(s) in the default look")
+    p.add_argument("--sequences", type=int, default=600, help="training sequences to use (the first N of --data)")
+    p.add_argument("--out", type=Path, required=True, help="the checkpoint to write (.pt)")
+    p.add_argument(
+        "--look", default="wide_look",
+        help="the config whose lighting and sensor ranges the copies are drawn from (a file or a shipped name)",
+    )  # fmt: skip
+    p.add_argument("--steps", type=int, default=1500, help="optimiser steps (the learning rate's cosine spans them)")
+    p.add_argument("--minutes", type=float, help="stop at this wall time even if steps remain")
+    p.add_argument("--batch", type=int, default=12, help="frames per step")
+    p.add_argument("--lr", type=float, default=1e-4, help="peak learning rate")
+    p.add_argument(
+        "--clean-share", type=float, default=0.25, help="share of samples the student sees unaltered (keeps the default look)"
+    )  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of the samples and their looks")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
+    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from layouts.fileio import atomic_write_json
+    from mvracklay.models import resolve_checkpoint
+    from network.training.fit_look import fit_look
+    from network.training.train_data import open_data
+    from waresynth.restyle import Restyler
+
+    if args.threads < 1 or args.sequences < 1:
+        raise InputError(f"--threads and --sequences must be >= 1, got {args.threads} and {args.sequences}")
+    if args.minutes is not None and args.minutes <= 0:
+        raise InputError(f"--minutes must be > 0, got {args.minutes}")
+    ckpt = resolve_checkpoint(args.checkpoint)
+    restyler = Restyler(args.look)
+    train, val = [], []
+    for root in args.data:
+        data = open_data(root)
+        train += data.sequences("train")
+        val += data.sequences("val") + data.sequences("test")
+    train = train[: args.sequences]
+    if not train or not val:
+        raise InputError(f"--data {' '.join(map(str, args.data))}: needs train and val/test sequences")
+
+    def restyle(rgb, rng, intr, step_px):
+        return restyler.apply(rgb, restyler.draw(rng, intr), intr, step_px)
+
+    fit = fit_look(
+        ckpt, train, val, args.out, restyle,
+        steps=args.steps, minutes=args.minutes, batch=args.batch, lr=args.lr, clean_share=args.clean_share,
+        seed=args.seed, threads=args.threads, progress=not args.quiet,
+        info={"look": str(args.look), "data": [str(d) for d in args.data], "sequences": len(train)},
+    )  # fmt: skip
+    if args.json:
+        atomic_write_json(args.json, fit)
+    before, after = fit["val_map_loss"]
+    print(
+        f"fit-look: wrote {args.out} after {fit['steps']} steps ({fit['wall_minutes']:.1f} min); the maps' loss on "
+        f"{len(val)} held-back sequences in drawn looks {before:.4f} -> {after:.4f}"
+    )
+    return 0

@@ -1,0 +1,123 @@
+"""A look drawn from a config, applied to a default-look frame in image space (`restyle`).
+
+A default-look render is the renderer's shaded 8-bit levels at light level 1, balanced light, no tone
+curve and a little Gaussian noise. `Restyler` draws a look as the generator does (`waresynth.look.draw_look`
+over the config's ranges) and applies what the camera and the light do to those levels: the light level
+times an uneven field (the falloff and the extra lights as a smooth gain over the image), the exposure and
+auto-exposure, motion blur along the row, white balance, vignetting, shot + read noise and the tone curve
+(`SensorLook.linear`), the Gaussian noise and the codec (`SensorLook.compress`). The scene stays pixel for
+pixel the same, so a network's features on the copy can be held to its own on the original
+(`network.training.fit_look`). What image space cannot change (palettes, shadows, the lens) comes from
+rendering with the config itself.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from layouts.camera import Intrinsics
+from layouts.errors import InputError
+from waresynth.config import load_config
+from waresynth.look import SensorLook, amplification, draw_look
+
+#: the uneven field's blobs: their width (a share of the image width) and the most of them
+BLOB_WIDTH = (0.15, 0.45)
+MAX_BLOBS = 4
+#: the falloff a default-look frame was rendered with (only more than it tilts the field)
+NEUTRAL_FALLOFF = 0.015
+
+
+def _u(rng: np.random.Generator, r: list[float]) -> float:
+    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
+
+
+def light_field(rng: np.random.Generator, h: int, w: int, falloff: float, lights: int, strength: float) -> np.ndarray:
+    """A smooth gain ``(H, W)`` with mean 1: a tilt that grows with ``falloff`` beyond the default render's
+    (light from one side) plus ``lights`` bright blobs of relative ``strength`` (extra lights along the aisle)."""
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    u, v = u / w - 0.5, v / h - 0.5
+    angle = rng.uniform(0, 2 * np.pi)
+    tilt = np.float32(min(8.0 * max(falloff - NEUTRAL_FALLOFF, 0.0), 0.9))
+    field = 1.0 + tilt * (np.cos(angle) * u + np.sin(angle) * v) * 2.0
+    for _ in range(min(lights, MAX_BLOBS)):
+        cu, cv = rng.uniform(-0.5, 0.5), rng.uniform(-0.6, 0.2)
+        s = _u(rng, list(BLOB_WIDTH))
+        field = field + strength * np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * s * s))
+    field = np.clip(field, 0.05, None)
+    return (field / field.mean()).astype(np.float32)
+
+
+def box_blur_rows(cols: list[np.ndarray], h: int, w: int, length: float) -> None:
+    """Average each channel (``(H*W,)`` float32, in place) over ``length`` pixels along the rows (the camera
+    moving along X during the exposure); fractional lengths weight the two end taps."""
+    if length <= 1.0:
+        return
+    n = int(np.ceil(length))
+    taps = np.ones(n, np.float32)
+    if n > length and n >= 2:  # the two end taps share what the length lacks of n
+        taps[0] = taps[-1] = (length - n + 2) / 2
+    taps /= taps.sum()
+    lo = len(taps) // 2
+    for k, c in enumerate(cols):
+        img = c.reshape(h, w)
+        pad = np.pad(img, ((0, 0), (lo, len(taps) - 1 - lo)), mode="edge")
+        out = np.zeros_like(img)
+        for j, t in enumerate(taps):
+            out += t * pad[:, j : j + w]
+        cols[k] = out.reshape(-1)
+
+
+class Restyler:
+    """Looks drawn from ``config`` (a file or a shipped config's name) applied to default-look frames."""
+
+    def __init__(self, config: str | Any = "wide_look") -> None:
+        self.cfg = load_config(config) if isinstance(config, str) or hasattr(config, "__fspath__") else config
+        self.sensor = self.cfg["sensor"]
+        self.lighting = self.cfg["lighting"]
+
+    def draw(self, rng: np.random.Generator, intr: Intrinsics) -> dict[str, Any]:
+        """One look (`draw_look`'s, the lens left out: it moves pixels) with the sensor's gain, noise and
+        motion-blur share (of the camera's step) drawn too."""
+        look = draw_look(rng, self.cfg, intr, np.zeros(1))
+        look.pop("lens_k1", None)
+        look.pop("lens_k2", None)
+        sc = self.sensor
+        blurred = sc["motion_blur_probability"] >= 1.0 or rng.random() < sc["motion_blur_probability"]
+        extra = look.get("extra_lights", [])
+        return {
+            "look": look,
+            "gain": _u(rng, sc["gain"]),
+            "noise_sigma": _u(rng, sc["noise_sigma"]),
+            "motion_blur": _u(rng, sc["motion_blur"]) if blurred else 0.0,
+            "lights": len(extra),
+            "light_strength": float(np.mean([e["intensity"] for e in extra])) if extra else 0.0,
+            "seed": int(rng.integers(2**31)),
+        }
+
+    def apply(self, rgb: np.ndarray, drawn: dict[str, Any], intr: Intrinsics, step_px: float = 0.0) -> np.ndarray:
+        """``rgb`` (uint8 ``(H, W, 3)``, a default-look frame) in the look ``drawn`` (`draw`); ``step_px``: the
+        camera's step between frames in pixels at the racks (the motion blur is its ``motion_blur`` share)."""
+        rgb = np.asarray(rgb)
+        if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+            raise InputError(f"restyle: expected a uint8 (H, W, 3) frame, got {rgb.dtype} {rgb.shape}")
+        h, w = rgb.shape[:2]
+        if (intr.width, intr.height) != (w, h):
+            intr = intr.scaled(w, h)
+        look = drawn["look"]
+        rng = np.random.default_rng(drawn["seed"])
+        level, camera = amplification(look)
+        field = light_field(rng, h, w, float(look.get("falloff", 0.015)), drawn["lights"], drawn["light_strength"])
+        scale = (np.float32(level * camera * drawn["gain"]) * field).reshape(-1)
+        cols = [np.ascontiguousarray(rgb[..., k], np.float32).reshape(-1) * scale + np.float32(0.5) for k in range(3)]
+        box_blur_rows(cols, h, w, drawn["motion_blur"] * abs(step_px))
+        sensor = SensorLook(look, intr, drawn["gain"], drawn["seed"])
+        sensor.linear(cols, rng)
+        sigma = np.float32(drawn["noise_sigma"])
+        out = np.empty((h, w, 3), np.uint8)
+        for k, c in enumerate(cols):
+            if sigma > 0:
+                c = c + sigma * rng.standard_normal(c.shape, dtype=np.float32)
+            out[..., k] = np.clip(c, 0, 255).reshape(h, w)
+        return sensor.compress(out, rng)
