@@ -134,3 +134,23 @@ def test_fit_look_refuses_bad_options_in_one_line(tiny_checkpoint, tiny_dataset,
     assert stages.run_stage("fit-look", [*argv, "--quiet", *extra]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and not (tmp_path / "x.pt").exists()
+
+
+def test_objects_are_recoloured_one_colour_each_and_only_with_their_labels():
+    from waresynth.restyle import recolour_gains
+
+    sem = np.zeros((48, 64), np.uint8)
+    inst = np.zeros((48, 64), np.uint16)
+    sem[10:30, 8:40], inst[10:30, 8:40] = 5, 3
+    g = recolour_gains(sem, inst, seed=4).reshape(48, 64, 3)
+    assert np.allclose(g[10:30, 8:40], g[12, 10]) and np.allclose(g[:10], g[0, 0])
+    assert not np.allclose(g[12, 10], g[0, 0])
+    assert np.array_equal(g, recolour_gains(sem, inst, seed=4).reshape(48, 64, 3))
+    cfg = load_config()
+    cfg["sensor"]["noise_sigma"] = [0.0, 0.0]
+    r = Restyler(cfg)
+    d = {**r.draw(np.random.default_rng(0), INTR), "recolour": True}
+    img = _frame()
+    assert not np.array_equal(r.apply(img, d, INTR, labels=(sem, inst)), r.apply(img, d, INTR))
+    with pytest.raises(InputError, match="labels of shape"):
+        r.apply(img, d, INTR, labels=(sem[:10], inst[:10]))

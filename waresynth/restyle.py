@@ -5,10 +5,12 @@ curve and a little Gaussian noise. `Restyler` draws a look as the generator does
 over the config's ranges) and applies what the camera and the light do to those levels: the light level
 times an uneven field (the falloff and the extra lights as a smooth gain over the image), the exposure and
 auto-exposure, motion blur along the row, white balance, vignetting, shot + read noise and the tone curve
-(`SensorLook.linear`), the Gaussian noise and the codec (`SensorLook.compress`). The scene stays pixel for
-pixel the same, so a network's features on the copy can be held to its own on the original
-(`network.training.fit_look`). What image space cannot change (palettes, shadows, the lens) comes from
-rendering with the config itself.
+(`SensorLook.linear`), the Gaussian noise and the codec (`SensorLook.compress`). Given the frame's label
+images, each object (a semantic class and instance) is also recoloured: its levels times a gain per channel
+(a surface of another colour under the same light; `RECOLOUR_BRIGHTNESS` x `RECOLOUR_TINT` span what
+wide_look's palettes add to the default ones). The scene's geometry stays pixel for pixel the same, so a
+network's features on the copy can be held to its own on the original (`network.training.fit_look`). What
+image space cannot change (shadows, textures, the lens) comes from rendering with the config itself.
 """
 
 from __future__ import annotations
@@ -25,6 +27,11 @@ from waresynth.look import SensorLook, amplification, draw_look
 #: the uneven field's blobs: their width (a share of the image width) and the most of them
 BLOB_WIDTH = (0.15, 0.45)
 MAX_BLOBS = 4
+#: an object's recolouring: one brightness factor and a factor per channel, each log-uniform over its range
+RECOLOUR_BRIGHTNESS = (0.4, 1.6)
+RECOLOUR_TINT = (0.6, 1.6)
+#: the share of drawn looks that recolour the objects (given the labels)
+RECOLOUR_PROBABILITY = 0.7
 #: the falloff a default-look frame was rendered with (only more than it tilts the field)
 NEUTRAL_FALLOFF = 0.015
 
@@ -69,6 +76,23 @@ def box_blur_rows(cols: list[np.ndarray], h: int, w: int, length: float) -> None
         cols[k] = out.reshape(-1)
 
 
+def _log_u(rng: np.random.Generator, r: tuple[float, float], n: int | None = None) -> np.ndarray:
+    return np.exp(rng.uniform(np.log(r[0]), np.log(r[1]), n))
+
+
+def recolour_gains(semantic: np.ndarray, instance: np.ndarray, seed: int) -> np.ndarray:
+    """Per pixel ``(H*W, 3)`` float32 gains: one colour factor per object (semantic class x instance id),
+    drawn from ``seed`` and the object's key (an object keeps its colour across frames)."""
+    sem = np.asarray(semantic, np.int64).reshape(-1)
+    inst = np.asarray(instance, np.int64).reshape(-1)
+    keys, inverse = np.unique(inst * 16 + sem, return_inverse=True)
+    gains = np.empty((len(keys), 3), np.float32)
+    for j, k in enumerate(keys):
+        rng = np.random.default_rng([seed, int(k)])
+        gains[j] = _log_u(rng, RECOLOUR_BRIGHTNESS) * _log_u(rng, RECOLOUR_TINT, 3)
+    return gains[inverse.reshape(-1)]
+
+
 class Restyler:
     """Looks drawn from ``config`` (a file or a shipped config's name) applied to default-look frames."""
 
@@ -93,12 +117,21 @@ class Restyler:
             "motion_blur": _u(rng, sc["motion_blur"]) if blurred else 0.0,
             "lights": len(extra),
             "light_strength": float(np.mean([e["intensity"] for e in extra])) if extra else 0.0,
+            "recolour": bool(rng.random() < RECOLOUR_PROBABILITY),
             "seed": int(rng.integers(2**31)),
         }
 
-    def apply(self, rgb: np.ndarray, drawn: dict[str, Any], intr: Intrinsics, step_px: float = 0.0) -> np.ndarray:
+    def apply(
+        self,
+        rgb: np.ndarray,
+        drawn: dict[str, Any],
+        intr: Intrinsics,
+        step_px: float = 0.0,
+        labels: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
         """``rgb`` (uint8 ``(H, W, 3)``, a default-look frame) in the look ``drawn`` (`draw`); ``step_px``: the
-        camera's step between frames in pixels at the racks (the motion blur is its ``motion_blur`` share)."""
+        camera's step between frames in pixels at the racks (the motion blur is its ``motion_blur`` share);
+        ``labels``: the frame's semantic and instance images, to recolour its objects (`recolour_gains`)."""
         rgb = np.asarray(rgb)
         if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
             raise InputError(f"restyle: expected a uint8 (H, W, 3) frame, got {rgb.dtype} {rgb.shape}")
@@ -110,7 +143,16 @@ class Restyler:
         level, camera = amplification(look)
         field = light_field(rng, h, w, float(look.get("falloff", 0.015)), drawn["lights"], drawn["light_strength"])
         scale = (np.float32(level * camera * drawn["gain"]) * field).reshape(-1)
-        cols = [np.ascontiguousarray(rgb[..., k], np.float32).reshape(-1) * scale + np.float32(0.5) for k in range(3)]
+        if labels is not None and drawn.get("recolour"):
+            if labels[0].shape != (h, w) or labels[1].shape != (h, w):
+                raise InputError(f"restyle: labels of shape {labels[0].shape} do not fit a {w}x{h} frame")
+            per = recolour_gains(labels[0], labels[1], drawn["seed"])
+            scales = [scale * per[:, k] for k in range(3)]
+        else:
+            scales = [scale] * 3
+        cols = [
+            np.ascontiguousarray(rgb[..., k], np.float32).reshape(-1) * scales[k] + np.float32(0.5) for k in range(3)
+        ]
         box_blur_rows(cols, h, w, drawn["motion_blur"] * abs(step_px))
         sensor = SensorLook(look, intr, drawn["gain"], drawn["seed"])
         sensor.linear(cols, rng)

@@ -13,7 +13,7 @@ HELP = "tune a trained checkpoint's trunk so dim, tinted, noisy, blurred, compre
 DESCRIPTION = (
     "Every sample is a generated frame (default look) and a copy of it in a look drawn from --look (light "
     "level and an uneven field, exposure, white balance, vignetting, shot and read noise, tone curve, motion "
-    "blur along the row, JPEG / H.264-like compression; waresynth/restyle.py). The trunk (encoder and "
+    "blur along the row, JPEG / H.264-like compression, each object recoloured; waresynth/restyle.py). The trunk (encoder and "
     "pyramid) is tuned so that its maps of the copy match the untouched checkpoint's maps of the frame; "
     "the decoders, the memory and the depth heads are kept as they are, so their fits still hold. Writes "
     "OUT with the record's look_fit; rerunning the command resumes an interrupted fit."
@@ -64,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     if not train or not val:
         raise InputError(f"--data {' '.join(map(str, args.data))}: needs train and val/test sequences")
 
-    def restyle(rgb, rng, intr, step_px):
-        return restyler.apply(rgb, restyler.draw(rng, intr), intr, step_px)
+    def restyle(rgb, rng, intr, step_px, labels):
+        return restyler.apply(rgb, restyler.draw(rng, intr), intr, step_px, labels)
 
     fit = fit_look(
         ckpt, train, val, args.out, restyle,

@@ -33,8 +33,9 @@ from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.data import canonical_image, frame_camera, sequence_angles, to_tensor
 from network.model.frozen import PARTS, trunk_maps
 
-#: ``restyle(rgb, rng, intrinsics, step_px) -> rgb``: a frame in another look, the scene unmoved
-Restyle = Callable[[np.ndarray, np.random.Generator, Intrinsics, float], np.ndarray]
+#: ``restyle(rgb, rng, intrinsics, step_px, labels) -> rgb``: a frame in another look, the scene unmoved
+#: (``labels``: its semantic and instance images, or None)
+Restyle = Callable[[np.ndarray, np.random.Generator, Intrinsics, float, Any], np.ndarray]
 #: steps between two saves of the fit's state (`fit_look` resumes from the last)
 SAVE_EVERY = 50
 #: the frames of the validation batch
@@ -73,7 +74,11 @@ def make_pairs(
         seq, i, step = frames[int(k)]
         intr, dist = frame_camera(seq, i)
         rgb = seq.rgb(i)
-        alt = rgb if rng.random() < clean_share else restyle(rgb, rng, intr, step * intr.fx / dist)
+        if rng.random() < clean_share:
+            alt = rgb
+        else:
+            labels = (seq.semantic(i), seq.instance(i)) if hasattr(seq, "semantic") else None
+            alt = restyle(rgb, rng, intr, step * intr.fx / dist, labels)
         angles = sequence_angles(seq)
         a, b = canonical_image(rgb, view, intr, dist, *angles), canonical_image(alt, view, intr, dist, *angles)
         if rng.random() < 0.5:
