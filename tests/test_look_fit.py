@@ -112,7 +112,7 @@ def test_fit_look_tunes_the_trunk_alone_and_resumes(tiny_checkpoint, tiny_datase
     assert out.is_file() and not state.exists()
     (old, _), (new, record) = load_checkpoint(tiny_checkpoint), load_checkpoint(out)
     fit = record["look_fit"]
-    assert fit["steps"] == 3 and len(fit["val_map_loss"]) == 2 and fit["look"] == "wide_look"
+    assert fit["steps"] == 3 and len(fit["val_loss"]) == 2 and fit["look"] == "wide_look"
     trunk = tuple(f"{m}." for m in PARTS["trunk"].modules)
     moved = [k for k in old["model"] if not torch.equal(old["model"][k], new["model"][k])]
     assert moved and all(k.startswith(trunk) for k in moved)

@@ -75,9 +75,9 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     if args.json:
         atomic_write_json(args.json, fit)
-    before, after = fit["val_map_loss"]
+    before, after = fit["val_loss"]
     print(
-        f"fit-look: wrote {args.out} after {fit['steps']} steps ({fit['wall_minutes']:.1f} min); the maps' loss on "
+        f"fit-look: wrote {args.out} after {fit['steps']} steps ({fit['wall_minutes']:.1f} min); the loss on "
         f"{len(val)} held-back sequences in drawn looks {before:.4f} -> {after:.4f}"
     )
     return 0

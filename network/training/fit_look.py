@@ -9,8 +9,9 @@ trunk stays as trained, the heads included, and the standard look keeps its figu
 samples shows the student the original frame: there the target is its own old output). Batch norm runs on
 its trained statistics (eval mode) throughout.
 
-The loss: the mean squared difference of each map, per channel over the teacher's spread on the first
-batch. Samples are seeded by (seed, step), so a run is reproducible; the state is saved every
+The loss: the mean squared difference of each map, per channel over the teacher's spread on the validation
+batch, plus ``ROW_WEIGHT`` times the row head's divergence from the teacher's (the shelf boards every slot
+is anchored on: a board lost there loses the slot, whatever the maps). Samples are seeded by (seed, step), so a run is reproducible; the state is saved every
 ``SAVE_EVERY`` steps beside ``out`` and a rerun of the same command resumes from it.
 """
 
@@ -25,6 +26,7 @@ from typing import Any
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 from layouts.camera import Intrinsics
 from layouts.canonical import CanonicalView
@@ -40,6 +42,8 @@ Restyle = Callable[[np.ndarray, np.random.Generator, Intrinsics, float, Any], np
 SAVE_EVERY = 50
 #: the frames of the validation batch
 VAL_FRAMES = 32
+#: the weight of the row head's term in the loss
+ROW_WEIGHT = 0.5
 
 
 def trunk_parameters(model: torch.nn.Module) -> list[torch.nn.Parameter]:
@@ -93,6 +97,25 @@ def map_loss(student: tuple[torch.Tensor, ...], teacher: tuple[torch.Tensor, ...
     return sum(((s - t) / sc).pow(2).mean() for s, t, sc in zip(student, teacher, scale)) / len(student)
 
 
+class Target:
+    """The teacher's outputs for a batch: its pyramid maps and its row head's probabilities (with their
+    entropy, so that the row term is 0 where the student matches)."""
+
+    def __init__(self, teacher: torch.nn.Module, images: torch.Tensor) -> None:
+        with torch.no_grad():
+            self.maps = trunk_maps(teacher, images)
+            logits = teacher.rows(*self.maps)
+            self.rows = torch.sigmoid(logits)
+            self.entropy = F.binary_cross_entropy_with_logits(logits, self.rows)
+
+
+def look_loss(student: torch.nn.Module, images: torch.Tensor, target: Target, scale: list[torch.Tensor]):
+    """`map_loss` of the student's maps of ``images`` plus ``ROW_WEIGHT`` x its row head's divergence."""
+    maps = trunk_maps(student, images)
+    rows = F.binary_cross_entropy_with_logits(student.rows(*maps), target.rows) - target.entropy
+    return map_loss(maps, target.maps, scale) + ROW_WEIGHT * rows
+
+
 def _spread(maps: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
     return [m.std(dim=(0, 2, 3), keepdim=True).clamp(min=1e-3) for m in maps]
 
@@ -139,15 +162,16 @@ def fit_look(
     opt = torch.optim.AdamW(params, lr=lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: float(0.5 * (1 + np.cos(np.pi * min(s, steps) / steps))))
     vt, vs = make_pairs(vframes, view, restyle, np.random.default_rng([seed, 1 << 30]), VAL_FRAMES, 0.0)
+    vtarget = Target(teacher, vt)
+    scale = _spread(vtarget.maps)
     with torch.no_grad():
-        vtarget = trunk_maps(teacher, vt)
-        scale = _spread(vtarget)
-        val_before = float(map_loss(trunk_maps(student, vs), vtarget, scale))
+        val_before = float(look_loss(student, vs, vtarget, scale))
     state_path = out.with_name(out.name + ".fit-state.pt")
+    settings = [str(checkpoint), steps, batch, lr, clean_share, seed, ROW_WEIGHT, len(frames)]
     start, losses = 0, []
     if state_path.is_file():
         st = torch.load(state_path, map_location="cpu", weights_only=True)
-        if st.get("checkpoint") == str(checkpoint) and st.get("steps") == steps and st.get("seed") == seed:
+        if st.get("settings") == settings:
             student.load_state_dict(st["model"])
             opt.load_state_dict(st["opt"])
             sched.load_state_dict(st["sched"])
@@ -161,9 +185,7 @@ def fit_look(
             break
         rng = np.random.default_rng([seed, step])
         xt, xs = make_pairs(frames, view, restyle, rng, batch, clean_share)
-        with torch.no_grad():
-            target = trunk_maps(teacher, xt)
-        loss = map_loss(trunk_maps(student, xs), target, scale)
+        loss = look_loss(student, xs, Target(teacher, xt), scale)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -173,10 +195,10 @@ def fit_look(
         bar.update(1)
         bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
         if step % SAVE_EVERY == 0 and step < steps:
-            _save_state(state_path, student, opt, sched, step, losses, checkpoint, steps, seed)
+            _save_state(state_path, student, opt, sched, step, losses, settings)
     bar.close()
     with torch.no_grad():
-        val_after = float(map_loss(trunk_maps(student, vs), vtarget, scale))
+        val_after = float(look_loss(student, vs, vtarget, scale))
     fit = {
         "from": Path(checkpoint).name,
         "steps": step,
@@ -188,7 +210,8 @@ def fit_look(
         "train_frames": len(frames),
         "wall_minutes": (time.perf_counter() - t0) / 60,
         "loss_first_last": [float(np.mean(losses[:20])), float(np.mean(losses[-20:]))] if losses else [],
-        "val_map_loss": [val_before, val_after],
+        "val_loss": [val_before, val_after],
+        "row_weight": ROW_WEIGHT,
         **(info or {}),
     }
     dtype = next(v.dtype for v in payload["model"].values() if v.is_floating_point())
@@ -201,7 +224,7 @@ def fit_look(
     return fit
 
 
-def _save_state(path: Path, model, opt, sched, step: int, losses: list[float], ckpt: Path, steps: int, seed: int):
+def _save_state(path: Path, model, opt, sched, step: int, losses: list[float], settings: list[Any]):
     import io
 
     from layouts.fileio import atomic_write_bytes
@@ -214,9 +237,7 @@ def _save_state(path: Path, model, opt, sched, step: int, losses: list[float], c
             "sched": sched.state_dict(),
             "step": step,
             "losses": losses,
-            "checkpoint": str(ckpt),
-            "steps": steps,
-            "seed": seed,
+            "settings": settings,
         },
         buf,
     )
