@@ -36,6 +36,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--clean-share", type=float, default=0.25, help="share of samples the student sees unaltered (keeps the default look)"
     )  # fmt: skip
+    p.add_argument(
+        "--layout-weight", type=float, default=1.0,
+        help="weight of the single-frame layouts' divergence from the untouched model's (0: the maps and rows only)",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the samples and their looks")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
@@ -69,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     fit = fit_look(
         ckpt, train, val, args.out, restyle,
-        steps=args.steps, minutes=args.minutes, batch=args.batch, lr=args.lr, clean_share=args.clean_share,
+        steps=args.steps, minutes=args.minutes, batch=args.batch, lr=args.lr, clean_share=args.clean_share, layout_weight=args.layout_weight,
         seed=args.seed, threads=args.threads, progress=not args.quiet,
         info={"look": str(args.look), "data": [str(d) for d in args.data], "sequences": len(train)},
     )  # fmt: skip

@@ -11,7 +11,9 @@ its trained statistics (eval mode) throughout.
 
 The loss: the mean squared difference of each map, per channel over the teacher's spread on the validation
 batch, plus ``ROW_WEIGHT`` times the row head's divergence from the teacher's (the shelf boards every slot
-is anchored on: a board lost there loses the slot, whatever the maps). Samples are seeded by (seed, step), so a run is reproducible; the state is saved every
+is anchored on: a board lost there loses the slot, whatever the maps), plus ``layout_weight`` times the
+single-frame layouts' divergence (the slot decoders on the teacher's anchors, per pixel over the classes):
+what the maps are for, where detail the noise has erased cannot be matched and need not be. Samples are seeded by (seed, step), so a run is reproducible; the state is saved every
 ``SAVE_EVERY`` steps beside ``out`` and a rerun of the same command resumes from it.
 """
 
@@ -33,6 +35,7 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.data import canonical_image, frame_camera, sequence_angles, to_tensor
+from network.model.decoders import anchors_from_rows
 from network.model.frozen import PARTS, trunk_maps
 
 #: ``restyle(rgb, rng, intrinsics, step_px, labels) -> rgb``: a frame in another look, the scene unmoved
@@ -97,23 +100,50 @@ def map_loss(student: tuple[torch.Tensor, ...], teacher: tuple[torch.Tensor, ...
     return sum(((s - t) / sc).pow(2).mean() for s, t, sc in zip(student, teacher, scale)) / len(student)
 
 
-class Target:
-    """The teacher's outputs for a batch: its pyramid maps and its row head's probabilities (with their
-    entropy, so that the row term is 0 where the student matches)."""
+def _layouts(model: torch.nn.Module, maps: tuple[torch.Tensor, torch.Tensor], anchors: torch.Tensor) -> torch.Tensor:
+    """Single-frame layout logits ``(N, R, 2, C, D, D)`` (top, front) of the slot decoders on ``anchors``."""
+    out = model.slots(*maps, anchors)
+    return torch.stack([out["top"], out["front"]], 2)
 
-    def __init__(self, teacher: torch.nn.Module, images: torch.Tensor) -> None:
+
+class Target:
+    """The teacher's outputs for a batch: its pyramid maps, its row head's probabilities and anchors, and its
+    single-frame layouts' class probabilities (entropies kept, so that a term is 0 where the student matches)."""
+
+    def __init__(self, teacher: torch.nn.Module, images: torch.Tensor, layouts: bool) -> None:
         with torch.no_grad():
             self.maps = trunk_maps(teacher, images)
             logits = teacher.rows(*self.maps)
             self.rows = torch.sigmoid(logits)
             self.entropy = F.binary_cross_entropy_with_logits(logits, self.rows)
+            self.anchors = self.layouts = None
+            if layouts:
+                cfg = teacher.cfg
+                self.anchors = anchors_from_rows(logits, cfg.view, cfg.spec.num_slots)
+                self.valid = torch.isfinite(self.anchors)
+                lay = _layouts(teacher, self.maps, self.anchors)
+                self.layouts = lay.softmax(3)
+                self.layout_entropy = _cross_entropy(lay, self.layouts, self.valid)
 
 
-def look_loss(student: torch.nn.Module, images: torch.Tensor, target: Target, scale: list[torch.Tensor]):
-    """`map_loss` of the student's maps of ``images`` plus ``ROW_WEIGHT`` x its row head's divergence."""
+def _cross_entropy(logits: torch.Tensor, probs: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Mean over the valid slots' pixels of the cross entropy of ``logits`` against ``probs`` (0 if none)."""
+    ce = -(probs * logits.log_softmax(3)).sum(3).mean((-2, -1)).mean(2)  # (N, R)
+    return (ce * valid).sum() / valid.sum().clamp(min=1)
+
+
+def look_loss(
+    student: torch.nn.Module, images: torch.Tensor, target: Target, scale: list[torch.Tensor], layout_weight: float
+) -> torch.Tensor:
+    """`map_loss` of the student's maps of ``images`` plus ``ROW_WEIGHT`` x its row head's divergence plus
+    ``layout_weight`` x its layouts' divergence."""
     maps = trunk_maps(student, images)
     rows = F.binary_cross_entropy_with_logits(student.rows(*maps), target.rows) - target.entropy
-    return map_loss(maps, target.maps, scale) + ROW_WEIGHT * rows
+    loss = map_loss(maps, target.maps, scale) + ROW_WEIGHT * rows
+    if layout_weight > 0 and target.layouts is not None:
+        lay = _layouts(student, maps, target.anchors)
+        loss = loss + layout_weight * (_cross_entropy(lay, target.layouts, target.valid) - target.layout_entropy)
+    return loss
 
 
 def _spread(maps: tuple[torch.Tensor, ...]) -> list[torch.Tensor]:
@@ -132,6 +162,7 @@ def fit_look(
     batch: int = 12,
     lr: float = 1e-4,
     clean_share: float = 0.25,
+    layout_weight: float = 0.0,
     seed: int = 0,
     threads: int = 2,
     info: dict[str, Any] | None = None,
@@ -142,9 +173,10 @@ def fit_look(
 
     ``minutes`` stops the fit early at that wall time (the learning rate then ends where it is). The
     validation figure is the map loss on ``VAL_FRAMES`` restyled frames of ``val`` before and after."""
-    if steps < 1 or batch < 2 or not 0.0 <= clean_share < 1.0 or lr <= 0:
+    if steps < 1 or batch < 2 or not 0.0 <= clean_share < 1.0 or lr <= 0 or layout_weight < 0:
         raise InputError(
-            f"fit-look: steps >= 1, batch >= 2, lr > 0, 0 <= clean share < 1; got {steps}, {batch}, {lr}, {clean_share}"
+            f"fit-look: steps >= 1, batch >= 2, lr > 0, 0 <= clean share < 1, layout weight >= 0; got {steps}, {batch}, {lr}, "
+            f"{clean_share}, {layout_weight}"
         )
     torch.set_num_threads(threads)
     torch.manual_seed(seed)
@@ -162,12 +194,12 @@ def fit_look(
     opt = torch.optim.AdamW(params, lr=lr, weight_decay=0.0)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: float(0.5 * (1 + np.cos(np.pi * min(s, steps) / steps))))
     vt, vs = make_pairs(vframes, view, restyle, np.random.default_rng([seed, 1 << 30]), VAL_FRAMES, 0.0)
-    vtarget = Target(teacher, vt)
+    vtarget = Target(teacher, vt, layout_weight > 0)
     scale = _spread(vtarget.maps)
     with torch.no_grad():
-        val_before = float(look_loss(student, vs, vtarget, scale))
+        val_before = float(look_loss(student, vs, vtarget, scale, layout_weight))
     state_path = out.with_name(out.name + ".fit-state.pt")
-    settings = [str(checkpoint), steps, batch, lr, clean_share, seed, ROW_WEIGHT, len(frames)]
+    settings = [str(checkpoint), steps, batch, lr, clean_share, layout_weight, seed, ROW_WEIGHT, len(frames)]
     start, losses = 0, []
     if state_path.is_file():
         st = torch.load(state_path, map_location="cpu", weights_only=True)
@@ -185,7 +217,7 @@ def fit_look(
             break
         rng = np.random.default_rng([seed, step])
         xt, xs = make_pairs(frames, view, restyle, rng, batch, clean_share)
-        loss = look_loss(student, xs, Target(teacher, xt), scale)
+        loss = look_loss(student, xs, Target(teacher, xt, layout_weight > 0), scale, layout_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -198,7 +230,7 @@ def fit_look(
             _save_state(state_path, student, opt, sched, step, losses, settings)
     bar.close()
     with torch.no_grad():
-        val_after = float(look_loss(student, vs, vtarget, scale))
+        val_after = float(look_loss(student, vs, vtarget, scale, layout_weight))
     fit = {
         "from": Path(checkpoint).name,
         "steps": step,
@@ -212,6 +244,7 @@ def fit_look(
         "loss_first_last": [float(np.mean(losses[:20])), float(np.mean(losses[-20:]))] if losses else [],
         "val_loss": [val_before, val_after],
         "row_weight": ROW_WEIGHT,
+        "layout_weight": layout_weight,
         **(info or {}),
     }
     dtype = next(v.dtype for v in payload["model"].values() if v.is_floating_point())
