@@ -123,3 +123,20 @@ def test_calibrate_in_place_updates_the_record_and_its_json(
     beside = json.loads(ckpt.with_suffix(".json").read_text())
     assert record["box_logit_offset"] == beside["box_logit_offset"] and set(record["box_logit_offset"]) == set(VIEWS)
     assert beside["calibration"]["every"] == 4 and beside["step"] == load_checkpoint(tiny_checkpoint)[1]["step"]
+
+
+def test_a_model_that_reads_no_rack_depth_gets_offset_zero_not_a_failure(tiny_dataset, monkeypatch) -> None:
+    from network.training import calibrate
+
+    class Reads:  # rack heads present, yet no frame gives a reading
+        back, uprights, rack_depth_offset = object(), None, 0.25
+
+    def outputs(model, seqs, *a):
+        for k, _ in enumerate(seqs):
+            yield k, 0, {"top": None}
+
+    monkeypatch.setattr(calibrate, "_tuning_outputs", outputs)
+    model = Reads()
+    res = calibrate.fit_rack_depth_offset(model, open_dataset(tiny_dataset).sequences(None), progress=False)
+    assert res["rack_depth_offset"] == 0.0 and res["frames"] == 0 and np.isnan(res["error_before"])
+    assert model.rack_depth_offset == 0.25  # the model's own offset is put back

@@ -4,6 +4,7 @@ rack-depth offset, on a tuning set."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import torch
@@ -65,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
     opts = {"every": args.every, "mode": args.mode, "flip": args.flip_average, "progress": not args.quiet}
     if args.target == "rack-depth":
         res = fit_rack_depth_offset(model, seqs, **opts)
+        if not res["frames"]:
+            print(f"warning: {args.checkpoint} read no rack depth on {args.data}: its rack-depth offset is left at 0",
+                  file=sys.stderr)  # fmt: skip
         print(
             f"rack depth: offset {100 * res['rack_depth_offset']:+.2f} cm  mean error {100 * res['error_before']:.2f} "
             f"-> {100 * res['error_after']:.2f} cm ({res['frames']} frames with a reading)"

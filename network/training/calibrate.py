@@ -129,7 +129,8 @@ def fit_rack_depth_offset(
     Streams each generated sequence as `network.inference.predictor.Predictor` does (the depth from the frames so far,
     every frame run, every ``every``-th one counted) with the offset at 0, and returns
     ``{"rack_depth_offset": -median(read - true), "frames", "error_before", "error_after", "mode",
-    "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading).
+    "flip_average", "every"}`` (errors: mean absolute, metres, over the counted frames with a reading; a
+    model that reads no depth there gets offset 0, 0 frames and NaN errors).
     """
     if model.back is None and model.uprights is None:
         raise InputError("the model reads no rack depth (it has neither the back-edge nor the upright head)")
@@ -144,8 +145,9 @@ def fit_rack_depth_offset(
                 errors.append(read - truths[k])
     finally:
         model.rack_depth_offset = saved
-    if not errors:
-        raise InputError("the model read no rack depth on the calibration sequences")
+    if not errors:  # nothing to centre: the offset stays 0 (the stage says so; a recipe goes on)
+        return {"rack_depth_offset": 0.0, "frames": 0, "error_before": float("nan"), "error_after": float("nan"),
+                "mode": mode, "flip_average": flip, "every": every}  # fmt: skip
     err = np.asarray(errors)
     offset = -float(np.median(err))
     check_depth_offset(offset, "the measured rack-depth bias")
