@@ -48,6 +48,25 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any], record: di
 RACK_DEPTH_HEADS = ("back_edges", "uprights")
 
 
+def save_updated(
+    path: str | os.PathLike,
+    payload: dict[str, Any],
+    record: dict[str, Any],
+    weights: dict[str, torch.Tensor],
+    drop: str | None = None,
+    **entries: Any,
+) -> None:
+    """A loaded checkpoint (`load_checkpoint`) written to ``path`` with ``weights`` replacing or adding
+    tensors (in the payload's float dtype; every old tensor under the prefix ``drop`` removed first) and the
+    record's ``entries`` set."""
+    state = {k: v for k, v in payload["model"].items() if drop is None or not k.startswith(drop)}
+    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
+    state.update({k: (v.detach().to(dtype) if v.is_floating_point() else v) for k, v in weights.items()})
+    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
+    record.update(entries)
+    save_checkpoint(path, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+
+
 def save_with_head(
     path: str | os.PathLike,
     payload: dict[str, Any],
@@ -61,15 +80,10 @@ def save_with_head(
     """A loaded checkpoint written to ``path`` with a head fitted afterwards (the trunk untouched): its
     weights under ``name.`` (any old ones replaced, in the payload's float dtype), ``cfg`` as the model
     config and ``info`` in the record under ``key``."""
-    state = {k: v for k, v in payload["model"].items() if not k.startswith(f"{name}.")}
-    dtype = next(v.dtype for v in state.values() if v.is_floating_point())
-    state.update({f"{name}.{k}": (v.to(dtype) if v.is_floating_point() else v) for k, v in head.state_dict().items()})
-    record = {k: v for k, v in record.items() if k not in ("format", "format_version")}
     if key in RACK_DEPTH_HEADS:
-        record.pop("rack_depth_offset", None)  # measured on the heads it replaces
-    record["model_config"] = cfg.to_dict()
-    record[key] = info
-    save_checkpoint(path, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, record)
+        record = {k: v for k, v in record.items() if k != "rack_depth_offset"}  # measured on the heads it replaces
+    weights = {f"{name}.{k}": v for k, v in head.state_dict().items()}
+    save_updated(path, payload, record, weights, drop=f"{name}.", model_config=cfg.to_dict(), **{key: info})
 
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, Any]]:

@@ -63,6 +63,14 @@ def _pick(rng: np.random.Generator, items: list[str]) -> str:
     return items[int(rng.integers(len(items)))] if len(items) > 1 else items[0]
 
 
+def draw_motion_blur(rng: np.random.Generator, sensor: dict[str, Any]) -> float:
+    """A sequence's motion-blur share of the camera's step: drawn only from a range that is not one value, and
+    the chance of any blur drawn only below a probability of 1 (so a sharp config draws nothing)."""
+    p = sensor["motion_blur_probability"]
+    blurred = p >= 1.0 or rng.random() < p
+    return _u(rng, sensor["motion_blur"]) if blurred else 0.0
+
+
 def temperature_gains(kelvin: float) -> tuple[float, float, float]:
     """Channel gains of light at ``kelvin`` seen by a camera balanced for `BALANCED_K` (a blackbody's sRGB
     colour, Tanner Helland's fit, over the balanced one's; mean 1 so the level stays)."""

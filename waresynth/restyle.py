@@ -18,11 +18,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import correlate1d
 
 from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from waresynth.config import load_config
-from waresynth.look import SensorLook, amplification, draw_look
+from waresynth.look import NEUTRAL, SensorLook, _u, amplification, draw_look, draw_motion_blur
 
 #: the uneven field's blobs: their width (a share of the image width) and the most of them
 BLOB_WIDTH = (0.15, 0.45)
@@ -33,11 +34,7 @@ RECOLOUR_TINT = (0.6, 1.6)
 #: the share of drawn looks that recolour the objects (given the labels)
 RECOLOUR_PROBABILITY = 0.7
 #: the falloff a default-look frame was rendered with (only more than it tilts the field)
-NEUTRAL_FALLOFF = 0.015
-
-
-def _u(rng: np.random.Generator, r: list[float]) -> float:
-    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
+NEUTRAL_FALLOFF = NEUTRAL["lighting"]["falloff"][0]
 
 
 def light_field(rng: np.random.Generator, h: int, w: int, falloff: float, lights: int, strength: float) -> np.ndarray:
@@ -66,14 +63,8 @@ def box_blur_rows(cols: list[np.ndarray], h: int, w: int, length: float) -> None
     if n > length and n >= 2:  # the two end taps share what the length lacks of n
         taps[0] = taps[-1] = (length - n + 2) / 2
     taps /= taps.sum()
-    lo = len(taps) // 2
     for k, c in enumerate(cols):
-        img = c.reshape(h, w)
-        pad = np.pad(img, ((0, 0), (lo, len(taps) - 1 - lo)), mode="edge")
-        out = np.zeros_like(img)
-        for j, t in enumerate(taps):
-            out += t * pad[:, j : j + w]
-        cols[k] = out.reshape(-1)
+        cols[k] = correlate1d(c.reshape(h, w), taps, axis=1, mode="nearest").reshape(-1)
 
 
 def _log_u(rng: np.random.Generator, r: tuple[float, float], n: int | None = None) -> np.ndarray:
@@ -94,12 +85,12 @@ def recolour_gains(semantic: np.ndarray, instance: np.ndarray, seed: int) -> np.
 
 
 class Restyler:
-    """Looks drawn from ``config`` (a file or a shipped config's name) applied to default-look frames."""
+    """Looks drawn from ``config`` (a dict, a file or a shipped config's name; `load_config`) applied to
+    default-look frames."""
 
     def __init__(self, config: str | Any = "wide_look") -> None:
-        self.cfg = load_config(config) if isinstance(config, str) or hasattr(config, "__fspath__") else config
+        self.cfg = load_config(config)
         self.sensor = self.cfg["sensor"]
-        self.lighting = self.cfg["lighting"]
 
     def draw(self, rng: np.random.Generator, intr: Intrinsics) -> dict[str, Any]:
         """One look (`draw_look`'s, the lens left out: it moves pixels) with the sensor's gain, noise and
@@ -108,13 +99,12 @@ class Restyler:
         look.pop("lens_k1", None)
         look.pop("lens_k2", None)
         sc = self.sensor
-        blurred = sc["motion_blur_probability"] >= 1.0 or rng.random() < sc["motion_blur_probability"]
         extra = look.get("extra_lights", [])
         return {
             "look": look,
             "gain": _u(rng, sc["gain"]),
             "noise_sigma": _u(rng, sc["noise_sigma"]),
-            "motion_blur": _u(rng, sc["motion_blur"]) if blurred else 0.0,
+            "motion_blur": draw_motion_blur(rng, sc),
             "lights": len(extra),
             "light_strength": float(np.mean([e["intensity"] for e in extra])) if extra else 0.0,
             "recolour": bool(rng.random() < RECOLOUR_PROBABILITY),
@@ -141,7 +131,9 @@ class Restyler:
         look = drawn["look"]
         rng = np.random.default_rng(drawn["seed"])
         level, camera = amplification(look)
-        field = light_field(rng, h, w, float(look.get("falloff", 0.015)), drawn["lights"], drawn["light_strength"])
+        field = light_field(
+            rng, h, w, float(look.get("falloff", NEUTRAL_FALLOFF)), drawn["lights"], drawn["light_strength"]
+        )
         scale = (np.float32(level * camera * drawn["gain"]) * field).reshape(-1)
         if labels is not None and drawn.get("recolour"):
             if labels[0].shape != (h, w) or labels[1].shape != (h, w):

@@ -19,7 +19,7 @@ from layouts.camera import Intrinsics
 from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.errors import InputError
 from waresynth import semantics as sem
-from waresynth.look import draw_look
+from waresynth.look import draw_look, draw_motion_blur
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
 
 
@@ -403,8 +403,7 @@ def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intri
     # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
     camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
     # The same for the motion blur: a sharp config draws nothing (nor does a probability of 1).
-    blurred = sc["motion_blur_probability"] >= 1.0 or rng.random() < sc["motion_blur_probability"]
-    sensor["motion_blur"] = _u(rng, sc["motion_blur"]) if blurred else 0.0
+    sensor["motion_blur"] = draw_motion_blur(rng, sc)
     # And the look (light level, white balance, noise, lens, codec): a neutral config draws nothing.
     look = draw_look(rng, cfg, intrinsics, xs)
     row_record = {

@@ -20,6 +20,7 @@ what the maps are for, where detail the noise has erased cannot be matched and n
 from __future__ import annotations
 
 import copy
+import io
 import sys
 import time
 from collections.abc import Callable
@@ -33,7 +34,8 @@ import torch.nn.functional as F
 from layouts.camera import Intrinsics
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network.checkpoint import load_checkpoint, model_from, save_checkpoint
+from layouts.fileio import atomic_write_bytes
+from network.checkpoint import load_checkpoint, model_from, save_updated
 from network.data import canonical_image, frame_camera, sequence_angles, to_tensor
 from network.model.decoders import anchors_from_rows
 from network.model.frozen import PARTS, trunk_maps
@@ -172,7 +174,7 @@ def fit_look(
     model to ``out`` and return the fit's record (also kept in the file's record under ``look_fit``).
 
     ``minutes`` stops the fit early at that wall time (the learning rate then ends where it is). The
-    validation figure is the map loss on ``VAL_FRAMES`` restyled frames of ``val`` before and after."""
+    validation figure is the loss on ``VAL_FRAMES`` restyled frames of ``val`` before and after."""
     if steps < 1 or batch < 2 or not 0.0 <= clean_share < 1.0 or lr <= 0 or layout_weight < 0:
         raise InputError(
             f"fit-look: steps >= 1, batch >= 2, lr > 0, 0 <= clean share < 1, layout weight >= 0; got {steps}, {batch}, {lr}, "
@@ -247,21 +249,14 @@ def fit_look(
         "layout_weight": layout_weight,
         **(info or {}),
     }
-    dtype = next(v.dtype for v in payload["model"].values() if v.is_floating_point())
-    tuned = {k: (v.detach().to(dtype) if v.is_floating_point() else v) for k, v in student.state_dict().items()}
-    state = {k: tuned[k] if k in tuned else v for k, v in payload["model"].items()}
-    rec = {k: v for k, v in record.items() if k not in ("format", "format_version")}
-    rec["look_fit"] = fit
-    save_checkpoint(out, {**{k: v for k, v in payload.items() if k != "record_json"}, "model": state}, rec)
+    trunk = tuple(f"{name}." for name in PARTS["trunk"].modules)
+    weights = {k: v for k, v in student.state_dict().items() if k.startswith(trunk)}
+    save_updated(out, payload, record, weights, look_fit=fit)
     state_path.unlink(missing_ok=True)
     return fit
 
 
 def _save_state(path: Path, model, opt, sched, step: int, losses: list[float], settings: list[Any]):
-    import io
-
-    from layouts.fileio import atomic_write_bytes
-
     buf = io.BytesIO()
     torch.save(
         {
