@@ -47,6 +47,7 @@ from stitching.box_colours import BoxColours
 from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.lift import LiftConfig
+from stitching.path_record import registration_warning
 from stitching.pipeline import StitchConfig, Stitcher
 from stitching.warehouse_map import WarehouseMap
 
@@ -258,7 +259,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         shutil.rmtree(stage, ignore_errors=True)
         raise
     warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
-    for said in angle_warnings(read, width=intr.width):
+    path_said = registration_warning(wmap.meta.get("registration"), n)
+    for said in [*angle_warnings(read, width=intr.width), *([path_said] if path_said else [])]:
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read, dists.reading)

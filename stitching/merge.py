@@ -32,6 +32,7 @@ from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, Wareh
 from stitching.xindex import XIndex
 
 RACK_SLOT = 1000  # slot code offset for rack-end edges, so they only pair with rack ends
+MAX_HELD = 64  #: untrusted frames held back at most; older ones of a longer stretch are left out of the map
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,9 @@ class MapBuilder:
         self._velocity = 0.0
         self.prior = MotionPrior(self.shift_cfg)
         self.untrusted = UntrustedFrames(keep)  # what the frames placed by a guess saw
+        self._anchor = (0, 0.0)  # (frame position, offset) of the last trusted frame
+        self._held_dropped = 0  # held frames pushed out by longer stretches (left out of the map)
+        self._held: deque[tuple[int, FrameReconstruction, StepRecord]] = deque(maxlen=MAX_HELD)
 
     # ------------------------------------------------------------------ registration
     def _frame_edges(self, rec: FrameReconstruction) -> Edges:
@@ -209,6 +213,12 @@ class MapBuilder:
         mtol = max(gate, 2 * cfg.prior_gate)  # how far a given step may be from a vote and still agree
         outside = support >= cfg.min_support and not prior.agrees(off - pred)
         done = False
+        if outside and prior.plausible(off - pred) and self._corroborated(off - pred, top, motion, mtol):
+            # a second estimator (the layouts' own frame-to-frame correlation, or the given motion) reads the
+            # same step: the camera stopped, sped up, slowed down or stepped back; the prior starts again here
+            conf *= 0.75
+            prior.restart(idx - 1, pred)
+            outside, done = False, True
         if (outside or support < cfg.min_support) and prior.rejected and prior.rejected[-1][0] == idx - 1:
             # the last step broke the prior: does this one go on at its speed (the camera changed speed)?
             p_off, p_support, p_conf = vote_offset(fe, me, pred, cfg, self.dx, pred + self._velocity)
@@ -253,6 +263,18 @@ class MapBuilder:
         shift = off - self._offset
         direction = 0 if abs(shift) < 0.25 * self.dx else int(math.copysign(1, shift))
         return StepRecord(idx, off, shift, direction, float(conf), method, int(support), bool(trusted))
+
+    def _corroborated(self, step: float, top: np.ndarray | None, motion: float | None, mtol: float) -> bool:
+        """Whether an estimator other than the box vote reads ``step`` too: the given ``motion`` (when given it
+        decides), else the correlation of this frame's top layouts with the previous frame's, confident and
+        within two layout columns of it."""
+        if motion is not None:  # it decides; one that sides with the prior says the camera kept its speed
+            return abs(motion - step) <= mtol and not self.prior.agrees(motion)
+        if top is None or self._prev_top is None:
+            return False
+        cfg = self.shift_cfg
+        s, c = correlate_shift(self._prev_top, top, self.spec, cfg.max_step)
+        return c >= cfg.min_corr_conf and abs(s - step) <= 2 * cfg.tol_px * self.dx
 
     def _fallback(
         self, top: np.ndarray | None, motion: float | None, vel: float, motion_conf: float = 1.0
@@ -299,12 +321,38 @@ class MapBuilder:
         self.step_stats.add(step)
         self.frames += 1
         self._prev_top = top
+        if not step.trusted:
+            # placed by a guess: held back, so that a wrong guess cannot bend the map (later frames register
+            # against what trusted frames placed); placed between the trusted frames on either side once the
+            # path is found again (`_place_held`), left out when it is not
+            lo, hi = self.spec.col_to_x(rec.vis_lo) + off, self.spec.col_to_x(rec.vis_hi) + off
+            self.untrusted.add(step.frame, float(lo), float(hi))
+            self._held_dropped += len(self._held) == self._held.maxlen
+            self._held.append((self.frames - 1, rec, step))
+            return step
+        if self._held:
+            self._place_held(self.frames - 1, off)
+        self._anchor = (self.frames - 1, off)
+        self._merge_frame(rec, off)
+        return step
+
+    def _place_held(self, pos: int, off: float) -> None:
+        """Merge the held-back frames of the stretch that ends at trusted frame ``pos`` (offset ``off``), each
+        at the offset interpolated between the trusted frames on either side (their step records updated)."""
+        p0, o0 = self._anchor
+        prev = o0
+        for p, rec, step in self._held:
+            o = o0 + (off - o0) * (p - p0) / max(pos - p0, 1)
+            step.offset, step.shift, prev = o, o - prev, o
+            self._merge_frame(rec, o)
+        self._held.clear()
+
+    def _merge_frame(self, rec: FrameReconstruction, off: float) -> None:
+        """Fuse one frame placed at camera offset ``off``: shelf evidence, rack ends, boxes."""
         self._merge_shelves(rec, off)
         self._merge_ends(rec, off)
         lo = self.spec.col_to_x(rec.vis_lo) + off
         hi = self.spec.col_to_x(rec.vis_hi) + off
-        if not step.trusted:
-            self.untrusted.add(step.frame, float(lo), float(hi))
         by_slot: list[list[FrameBox]] = [[] for _ in self.boxes]
         for b in rec.boxes:
             by_slot[b.slot].append(b)
@@ -316,7 +364,6 @@ class MapBuilder:
                 if m.x0 >= lo and m.x1 <= hi:
                     m.n_seen += 1
             self._merge_slot(r, fbs, near, off)
-        return step
 
     def _merge_slot(self, r: int, fbs: list[FrameBox], near: list[FusedBox], off: float) -> None:
         if not fbs:
@@ -462,7 +509,7 @@ class MapBuilder:
             racks.append(MapRack(rid, (x0, x1), shelves, rack_partial[k]))
         meta = dict(meta or {})
         meta.setdefault("step_summary", self.step_stats.to_dict())
-        meta.setdefault("registration", self.untrusted.to_dict(shares))
+        meta.setdefault("registration", self.untrusted.to_dict(shares, len(self._held) + self._held_dropped))
         seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
         return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
 

@@ -74,13 +74,52 @@ class UntrustedFrames:
         cover = sum(max(0.0, min(x1, b) - max(x0, a)) for a, b in self.x)
         return float(min(1.0, cover / max(x1 - x0, 1e-9)))
 
-    def to_dict(self, shares: list[float]) -> dict:
+    def to_dict(self, shares: list[float], left_out: int = 0) -> dict:
         """The map's ``meta.registration``: the untrusted frames, the X they saw and, per rack, the share of it
-        placed by them (its shelves' confidence is lowered by half that share)."""
+        placed by them (its shelves' confidence is lowered by half that share); ``left_out``: how many of them
+        the map leaves out (no trusted frame followed them to place them by)."""
         return {
             "trusted": not self.count,
             "untrusted_count": self.count,
+            "untrusted_left_out": left_out,
             "untrusted_frames": list(self.frames),
             "untrusted_x": [[round(a, 6), round(b, 6)] for a, b in sorted(self.x)],
             "rack_untrusted_share": {f"rack_{k:02d}": round(v, 4) for k, v in enumerate(shares)},
         }
+
+
+def _frame_runs(frames: list[int]) -> str:
+    """``[3, 4, 5, 9]`` -> ``"3-5, 9"`` (at most six runs, then how many more)."""
+    runs: list[list[int]] = []
+    for f in sorted(set(frames)):
+        if runs and f == runs[-1][1] + 1:
+            runs[-1][1] = f
+        else:
+            runs.append([f, f])
+    text = [f"{a}-{b}" if b > a else f"{a}" for a, b in runs[:6]]
+    if len(runs) > 6:
+        text.append(f"and {len(runs) - 6} more stretches")
+    return ", ".join(text)
+
+
+def registration_warning(registration: dict | None, frames: int | None = None) -> str | None:
+    """One line saying where the camera path is a guess (from a map's ``meta.registration``), else None: the
+    frames, what became of their boxes and each rack's share seen only by them."""
+    if not registration or not registration.get("untrusted_count"):
+        return None
+    n = int(registration["untrusted_count"])
+    of = f" of {frames}" if frames else ""
+    listed = registration.get("untrusted_frames") or []
+    where = f" (frames {_frame_runs(listed)}{', the last ones kept' if len(listed) < n else ''})" if listed else ""
+    left = int(registration.get("untrusted_left_out", 0))
+    fate = (
+        f"{left} of them left out of the map, the rest placed between the frames around them"
+        if left
+        else "their boxes placed between the frames around them"
+    )
+    shares = {k: v for k, v in (registration.get("rack_untrusted_share") or {}).items() if v >= 0.05}
+    racks = "; " + ", ".join(f"{k} {v:.0%} seen only by them" for k, v in shares.items()) if shares else ""
+    return (
+        f"the camera's place along the row is a guess at {n}{of} frames{where}: no two estimates agreed; "
+        f"{fate}{racks} (shelf confidences lowered; meta.registration in warehouse.json)"
+    )

@@ -41,12 +41,14 @@ class ShiftConfig:
     size_tol: float = 0.06  #: metres; like edges must agree this well in depth/height/width
     min_support: int = 2  #: distinct agreeing frame edges needed to trust the box vote
     min_corr_conf: float = 0.5  #: profile correlation below this is not used
-    max_speed_change: float = 0.3  #: metres; largest |step - previous step| (a camera does not jump back
-    #: at once: a reversal takes several frames); keeps a wrong consensus of a few edges out
+    max_speed_change: float = 0.6  #: metres; largest |step - previous step|: a hand-held camera stops, doubles
+    #: its step or steps back from one frame to the next (the motion prior and a second estimator judge such steps)
     prior_steps: int = 10  #: trusted frames the robust line is fitted to (< 3: no motion prior)
     prior_gate: float = 0.04  #: metres; the least gate around the robust velocity (it widens to 3 MADs)
     override_support: int = 6  #: edges (and twice the gated vote's) a step outside the gate needs to be proposed
     relock: int = 4  #: strong votes in a row at one new speed that restart the prior (a real change of speed)
+    speedup: float = 2.5  #: a step that breaks the prior may be up to this many times its speed (a hand's jerk)
+    backstep: float = 1.5  #: ... or back by up to this many times it (a step back)
     motion_gain: float = 0.0  #: how far an agreeing image step pulls the vote (x its confidence share; 0: not)
 
     def __post_init__(self) -> None:
@@ -57,6 +59,8 @@ class ShiftConfig:
             "min_corr_conf",
             "max_speed_change",
             "prior_gate",
+            "speedup",
+            "backstep",
             "motion_gain",
         ):
             v = getattr(self, name)
@@ -98,6 +102,7 @@ class MotionPrior:
         self.rejected: deque[tuple[int, float]] = deque(maxlen=max(cfg.relock, 1))  # strong votes it broke
         self._line = (0.0, 0.0, 0.0)  # slope, intercept, residual spread
         self.expected = 0.0  #: the step `predict` expects for the current frame
+        self.speeds: deque[float] = deque(maxlen=4 * max(cfg.prior_steps, 1))  #: trusted steps per frame
 
     @property
     def ready(self) -> bool:
@@ -134,6 +139,20 @@ class MotionPrior:
     def agrees(self, step: float) -> bool:
         return not self.ready or abs(step - self.expected) <= self.gate()
 
+    def plausible(self, step: float) -> bool:
+        """Whether a step that breaks the line is one a camera carried by hand or robot makes: a stop, up to
+        ``speedup`` times the line's speed, or back by up to ``backstep`` times it (plus the gate), in the
+        direction of travel. Always True while the prior is not ready."""
+        if not self.ready or len(self.speeds) < self.MIN_STEPS:
+            return True
+        sp = np.asarray(self.speeds)
+        moving = np.abs(sp)[np.abs(sp) > 0.25 * self.cfg.prior_gate]
+        if moving.size < self.MIN_STEPS:
+            return True
+        v, g = float(np.median(moving)), self.gate()  # the usual speed while moving
+        s = step if sp.sum() >= 0 else -step  # in the direction of travel
+        return -self.cfg.backstep * v - g <= s <= self.cfg.speedup * v + g
+
     def propose(self, frame: int, offset: float) -> bool:
         """A strongly supported offset that breaks the prior: True (and the prior restarts from them) once
         the last ``relock`` such offsets are of consecutive frames and lie on one line within the gate:
@@ -160,6 +179,9 @@ class MotionPrior:
 
     def update(self, frame: int, offset: float, trusted: bool) -> None:
         if trusted:
+            if self.points and frame > self.points[-1][0]:
+                f0, o0 = self.points[-1]
+                self.speeds.append((offset - o0) / (frame - f0))
             self.points.append((frame, float(offset)))
             self.misses = 0
             if self.rejected and self.rejected[-1][0] != frame:

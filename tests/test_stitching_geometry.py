@@ -74,8 +74,9 @@ def test_min_area_rect_recovers_a_turned_rectangle():
 
 
 def test_vote_offset_keeps_a_sudden_reversal_out():
-    """Four frame edges agree on a jump 0.38 m back, two on the constant-velocity step: with the
-    motion prior the step wins; without it (a huge max_speed_change) the larger consensus would."""
+    """Four frame edges agree on a jump 0.42 m back after steps of 0.2 m forward (a change of speed beyond
+    max_speed_change), two on the constant-velocity step: the step wins; without the bound (a huge
+    max_speed_change) the larger consensus would."""
     from stitching.shift import Edges, ShiftConfig, vote_offset
 
     def edges(xs, ws):
@@ -86,10 +87,10 @@ def test_vote_offset_keeps_a_sudden_reversal_out():
         )
 
     frame = edges([0.0, 0.5, 1.0, 1.5], [0.5, 0.5, 0.5, 0.5])
-    # Map edges: the true offset is +0.15 (two frame edges match), a repeated pattern at -0.38 matches four.
-    mapped = edges([0.15, 0.65, -0.38, 0.12, 0.62, 1.12], [0.5, 0.5, 0.5, 0.5, 0.5, 0.5])
+    # Map edges: the true offset is +0.2 (two frame edges match), a repeated pattern at -0.42 matches four.
+    mapped = edges([0.2, 0.7, -0.42, 0.08, 0.58, 1.08], [0.5, 0.5, 0.5, 0.5, 0.5, 0.5])
     dx = 3.0 / 128
-    off, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(), dx, expected=0.15)
-    assert abs(off - 0.15) < 0.02
-    off_free, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(max_speed_change=10.0), dx, expected=0.15)
-    assert abs(off_free + 0.38) < 0.02
+    off, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(), dx, expected=0.2)
+    assert abs(off - 0.2) < 0.02
+    off_free, _, _ = vote_offset(frame, mapped, 0.0, ShiftConfig(max_speed_change=10.0), dx, expected=0.2)
+    assert abs(off_free + 0.42) < 0.02

@@ -74,7 +74,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--morph", type=int, default=0, help="degrade: grow (>0) / shrink (<0) boxes by N pixels")
     p.add_argument("--flip", type=float, default=0.0, help="degrade: fraction of pixels flipped to a random class")
     p.add_argument("--drop-frame", type=int, default=-1, help="degrade: leave this frame index out")
-    p.add_argument("--seed", type=int, default=0, help="seed of the degradation")
+    p.add_argument(
+        "--handheld",
+        action="store_true",
+        help="walk each sequence as a hand-held camera would (stops of 3-6 frames, uneven steps up to twice the "
+        "usual, a step back: waresynth.handheld) before stitching, seeded by --seed; meant for fine-step sequences "
+        "(the walk's usual step is 2 of their frames), e.g. generated with a config whose camera.step is halved",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the degradation and of --handheld's walks")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     add_quiet_option(p, "no progress bar")
 
@@ -220,6 +227,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--checkpoint predicts the layouts itself: drop --layouts / --map")
     if args.scale_corrected and not args.map:
         raise InputError("--scale-corrected rescales a given map: it needs --map")
+    if args.handheld and (args.layouts != "gt" or args.map):
+        raise InputError("--handheld walks the sequence's own frames: drop --layouts / --map")
     if args.rack_depth is not None and not args.checkpoint:
         raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
     rack_depth = _rack_depth_option(args.rack_depth)
@@ -229,7 +238,9 @@ def run(args: argparse.Namespace) -> int:
     model, record = _load_checkpoint(args) if args.checkpoint else (None, None)
     results, corrected = [], []
     with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
-        for seq in tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr):
+        for k, seq in enumerate(tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr)):
+            if args.handheld:
+                seq = _handheld(seq, Path(tmp) / "handheld" / seq.name, args.seed + k)
             if model is not None:
                 folder = _predicted_layouts(model, record, seq, Path(tmp) / seq.name, args, rack_depth)
             elif args.layouts == "gt":
@@ -252,6 +263,16 @@ def run(args: argparse.Namespace) -> int:
         return 0
     _print_table(results + corrected, summary, deg)
     return 0
+
+
+def _handheld(seq: Sequence, out: Path, seed: int) -> Sequence:
+    """``seq`` walked by a hand-held camera (`waresynth.handheld`), written (hard links) to ``out``."""
+    from mvracklay.commands.reconstruct import open_sequence
+    from waresynth.handheld import HandheldWalk, handheld_indices, resample_sequence, walk_note
+
+    walk = HandheldWalk()
+    resample_sequence(seq.root, out, handheld_indices(seq.num_frames, seed, walk), walk_note(walk, seed))
+    return open_sequence(out)
 
 
 def _load_checkpoint(args: argparse.Namespace) -> tuple[MVRackLay, dict[str, Any]]:

@@ -166,6 +166,7 @@ def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: l
 
     from stitching import rerun_log
     from stitching.export_gltf import export_glb
+    from stitching.path_record import registration_warning
     from stitching.pipeline import Stitcher
 
     origin = origin_of(seq, indices[0])
@@ -200,6 +201,9 @@ def _reconstruct(args: argparse.Namespace, seq, folder: LayoutFolder, indices: l
         rec.flush()
         rec.disconnect()
     n_boxes = len(wmap.boxes())
+    said = registration_warning(wmap.meta.get("registration"), len(indices))
+    if said:
+        print(f"mvracklay reconstruct: warning: {said}", file=sys.stderr)
     fps = len(indices) / t_stitch if t_stitch > 0 else float("inf")
     print(
         f"{len(indices)} frames -> {len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {n_boxes} boxes "
