@@ -194,3 +194,27 @@ def test_cli_generate(tmp_path, capsys):
     assert (tmp_path / "cli_yolo").is_dir()
     assert main([*args, "--no-progress", "--format", "yolo"]) == 0
     assert "kept" in capsys.readouterr().out
+
+
+def test_a_pool_of_workers_finishes_every_time(tmp_path):
+    """Two workers, many runs in a row: the pool is joined, never terminated while a worker holds its queue
+    (a terminated Pool hung about one run in ten). Each run in a subprocess with a timeout, so a hang fails."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys; from pathlib import Path; from layouts.spec import LayoutSpec; "
+        "from waresynth.generate import generate_dataset\n"
+        "for k in range(12):\n"
+        "    generate_dataset(Path(sys.argv[1]) / str(k), num_sequences=3, frames=1, image_size=(32, 24), "
+        "spec=LayoutSpec(size=16), seed=k, workers=2, progress=False)\n"
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert r.returncode == 0, r.stderr
+    assert all((tmp_path / str(k) / "seq_00002" / "meta.json").is_file() for k in range(12))

@@ -16,6 +16,7 @@ import resource
 import shutil
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -406,10 +407,19 @@ def _write_sequences(
         else:
             nthreads = max(1, cores // workers)
             jobs = [(str(root), e, spec.to_dict(), cfg, image_size, nthreads) for e in todo]
-            with _pool_context().Pool(workers) as pool:
-                for st in pool.imap_unordered(_worker, jobs, chunksize=1):
-                    bar.update(int(st["frames"]))
-                    if stats is not None:
-                        stats.append(st)
+            # An executor, not `with Pool()`: leaving a Pool's block terminates it, which can deadlock when a
+            # worker is stopped while it holds the task queue's lock; the executor shuts down by joining.
+            with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as ex:
+                futures = [ex.submit(_worker, job) for job in jobs]
+                try:
+                    for fut in as_completed(futures):
+                        st = fut.result()
+                        bar.update(int(st["frames"]))
+                        if stats is not None:
+                            stats.append(st)
+                except BaseException:
+                    for fut in futures:
+                        fut.cancel()
+                    raise
     finally:
         bar.close()
