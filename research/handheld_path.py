@@ -95,7 +95,7 @@ def main() -> int:
             reg = wmap.meta.get("registration", {})
             rows.append(
                 dict(seq=seq.name, tp=res.tp, fp=res.fp, fn=res.fn, drift=res.drift_end,
-                     warned=reg.get("untrusted_count", 0))
+                     warned=reg.get("untrusted_count", 0), exact=res.count_exact, shelves=res.shelves)
             )
             r = rows[-1]
             print(f"{seq.name} tp {r['tp']:3d} fp {r['fp']:3d} fn {r['fn']:3d} drift {r['drift']*100:6.1f} cm "
@@ -127,7 +127,8 @@ def main() -> int:
         tp, fp, fn = (sum(r[x] for r in rows) for x in ("tp", "fp", "fn"))
         d = np.array([r["drift"] for r in rows]) * 100
         print(f"pooled precision {tp/max(tp+fp,1):.3f} recall {tp/max(tp+fn,1):.3f}; drift p90 {np.percentile(d,90):.1f} "
-              f"max {d.max():.1f} mean {d.mean():.1f} cm; over 10 cm unwarned: "
+              f"max {d.max():.1f} mean {d.mean():.1f} cm; exact counts "
+              f"{sum(r['exact'] for r in rows) / max(sum(r['shelves'] for r in rows), 1):.1%}; over 10 cm unwarned: "
               f"{sum(1 for r in rows if r['drift'] > 0.1 and not r['warned'])}")
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
