@@ -195,6 +195,7 @@ def predict_folder(
     tilt (up > 0) / turn (right > 0), the same.
     """
     from layouts.codecs import LayoutFolder
+    from layouts.publish import check_writable, refuse_overlap
     from layouts.rackdepth import check_rack_depth
     from mvracklay.every import every_nth
     from mvracklay.frames import camera_warning, open_source
@@ -202,6 +203,8 @@ def predict_folder(
     from network.inference.roll import resolve_angles
 
     frames = every_nth(open_source(seq_dir, prog=f"mvracklay {NAME}"), every)  # ``every``: every N-th frame
+    refuse_overlap([out], {"INPUT": seq_dir})  # the layouts never land in (or over) the input
+    check_writable(out)
     intr, lens = _sequence_camera(intrinsics, frames, record, source)
     differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
     if differs:
