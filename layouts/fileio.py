@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -136,14 +137,39 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> di
     return out
 
 
+def _finite_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"number {text[:20]} is out of range (finite numbers only)")
+    return v
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number JSON allows (finite numbers only)")
+
+
+def loads_json(text: str, source: str) -> Any:
+    """Parse JSON a user gave (a map, a camera, a config, a meta.json): malformed text, nesting too deep to
+    read, NaN / Infinity or a number beyond a float's range (1e400) each become one line naming ``source``."""
+    try:
+        return json.loads(text, parse_float=_finite_float, parse_constant=_no_constant)
+    except json.JSONDecodeError as e:
+        raise LayoutError(f"{source}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise LayoutError(f"{source}: not readable JSON (nested too deep)") from None
+    except ValueError as e:  # a non-finite number, or an integer of more digits than Python converts
+        raise LayoutError(f"{source}: not readable JSON ({e})") from None
+
+
 def load_json(path: str | os.PathLike) -> Any:
-    """Read JSON; a missing or malformed file becomes one line naming the file."""
+    """Read JSON (`loads_json`); a missing, unreadable or malformed file becomes one line naming the file."""
     path = Path(path)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise LayoutError(f"{path}: file not found") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    except UnicodeDecodeError as e:
         raise LayoutError(f"{path}: not valid JSON ({e})") from None
     except OSError as e:
         raise LayoutError(f"{path}: cannot read ({e.strerror})") from None
+    return loads_json(text, str(path))

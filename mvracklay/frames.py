@@ -30,6 +30,7 @@ from layouts.canonical import FILL_RGB
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
+from waresynth.imageio import rgb8
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
@@ -79,7 +80,7 @@ def _read_rgb(path: Path, size: tuple[int, int]) -> np.ndarray:
             if upright.size != size:
                 w, h = upright.size
                 raise InputError(f"{path}: {w}x{h} upright, but the first image is {size[0]}x{size[1]}")
-            return np.asarray(upright.convert("RGB"))
+            return rgb8(upright, path)  # 16-bit, palette, alpha: converted faithfully or refused
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         if isinstance(e, InputError):
             raise

@@ -100,6 +100,9 @@ def load_reader(path: str | os.PathLike) -> tuple[DistanceReader, dict[str, Any]
         if record.get("format") != FORMAT:
             raise ValueError(f"format {record.get('format')!r}")
         reader = DistanceReader(DistanceReaderConfig.from_dict(record["config"]))
+        from network.checkpoint import check_finite
+
+        check_finite(payload["state"], path)
         reader.load_state_dict(payload["state"])
     except InputError:
         raise
