@@ -376,9 +376,15 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
     nothing else. A principal point outside the image, or an image of another aspect ratio than the
     frames: `InputError` (scaling it would stretch the camera).
     """
-    d = {"width": width, "height": height, **_camera_record(path)}
-    intr = Intrinsics.from_dict(d, f"--camera {path}")
-    check_camera_fits(intr, width, height, f"--camera {path}")
+    return camera_from_record(_camera_record(path), width, height, f"--camera {path}")
+
+
+def camera_from_record(record: dict[str, Any], width: int, height: int, source: str) -> Intrinsics:
+    """The one check of a camera, from a ``--camera`` file or typed as fx,fy,cx,cy: `Intrinsics` fields (width
+    and height default to the frames'), the principal point inside the image and the frames' aspect ratio
+    (`check_camera_fits`), scaled to the frame size."""
+    intr = Intrinsics.from_dict({"width": width, "height": height, **record}, source)
+    check_camera_fits(intr, width, height, source)
     return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
 
 
