@@ -137,28 +137,41 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> di
     return out
 
 
-def _finite_float(text: str) -> float:
+def finite_float(text: str) -> float:
+    """A number as written, refused when it lies beyond a float's range (``1e400`` would read as infinity)."""
     v = float(text)
     if not math.isfinite(v):
-        raise ValueError(f"number {text[:20]} is out of range (finite numbers only)")
+        raise ValueError(f"number {text[:20]} is out of range (beyond a float's)")
     return v
-
-
-def _no_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not a number JSON allows (finite numbers only)")
 
 
 def loads_json(text: str, source: str) -> Any:
     """Parse JSON a user gave (a map, a camera, a config, a meta.json): malformed text, nesting too deep to
-    read, NaN / Infinity or a number beyond a float's range (1e400) each become one line naming ``source``."""
+    read, or a number beyond a float's range (1e400) each become one line naming ``source``. The literals
+    ``NaN`` / ``Infinity`` (Python's own JSON writes them) parse; each format's schema says where they may be."""
     try:
-        return json.loads(text, parse_float=_finite_float, parse_constant=_no_constant)
+        return json.loads(text, parse_float=finite_float)
     except json.JSONDecodeError as e:
         raise LayoutError(f"{source}: not valid JSON ({e})") from None
     except RecursionError:
         raise LayoutError(f"{source}: not readable JSON (nested too deep)") from None
-    except ValueError as e:  # a non-finite number, or an integer of more digits than Python converts
+    except ValueError as e:  # a number out of range, or an integer of more digits than Python converts
         raise LayoutError(f"{source}: not readable JSON ({e})") from None
+
+
+def loads_toml(text: str, source: str) -> dict[str, Any]:
+    """Parse TOML a user gave (a recipe, a config): one line naming ``source`` for malformed text, nesting too
+    deep, or a number that is not finite (``inf``, ``nan``, ``1e400``)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(text, parse_float=finite_float)
+    except tomllib.TOMLDecodeError as e:
+        raise LayoutError(f"{source}: not TOML: {e}") from None
+    except RecursionError:
+        raise LayoutError(f"{source}: not readable TOML (nested too deep)") from None
+    except ValueError as e:
+        raise LayoutError(f"{source}: not readable TOML ({e})") from None
 
 
 def load_json(path: str | os.PathLike) -> Any:

@@ -210,9 +210,9 @@ def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tupl
     try:
         text = path.read_text(encoding="utf-8")
         if path.suffix.lower() == ".toml":
-            import tomllib
+            from layouts.fileio import loads_toml
 
-            data = tomllib.loads(text)
+            data = loads_toml(text, where)
         else:
             from layouts.fileio import loads_json
 
