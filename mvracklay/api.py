@@ -62,11 +62,12 @@ def reconstruct(
     The map's ``meta`` records the distance used and its source, the camera and the model.
     """
     from mvracklay.argtypes import check_call
+
+    check_call(reconstruct, locals())  # each argument's type: one InputError line, not a TypeError further on
     from mvracklay.commands.run import PRESETS
     from mvracklay.frames import array_source
     from mvracklay.pipeline import RunConfig, run_pipeline
 
-    check_call(reconstruct, distance=distance, camera_height=camera_height, checkpoint=checkpoint, quality=quality, out=out, progress=progress)
     if quality not in PRESETS:
         raise InputError(f"quality must be one of {', '.join(PRESETS)}, got {quality!r}")
     fields = set(RunConfig.__dataclass_fields__)

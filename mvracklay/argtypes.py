@@ -18,7 +18,14 @@ from typing import Any
 
 from layouts.errors import InputError
 
-_NAMES = {float: "a number", int: "an integer", bool: "True or False", str: "a string", Path: "a path", os.PathLike: "a path"}
+_NAMES = {
+    float: "a number",
+    int: "an integer",
+    bool: "True or False",
+    str: "a string",
+    Path: "a path",
+    os.PathLike: "a path",
+}
 
 
 def _accepts(kind: Any, value: Any) -> bool | None:
@@ -56,9 +63,9 @@ def check_dataclass(obj: Any) -> None:
         check_value(f.name, hints[f.name], getattr(obj, f.name))
 
 
-def check_call(func: Any, **values: Any) -> None:
-    """Check the arguments ``values`` given to ``func`` against its annotations."""
+def check_call(func: Any, values: dict[str, Any]) -> None:
+    """Check the arguments ``values`` (``locals()`` at the top of ``func``) against ``func``'s annotations."""
     hints = typing.get_type_hints(func)
     for name, value in values.items():
-        if name in hints:
+        if name in hints and name != "return":
             check_value(name, hints[name], value)

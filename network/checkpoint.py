@@ -124,7 +124,9 @@ def check_finite(state: dict[str, Any], path: str | os.PathLike) -> None:
     for k, v in state.items():
         if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all()):
             bad = int((~torch.isfinite(v)).sum())
-            raise InputError(f"{path}: tensor {k} holds {bad} NaN or infinite values of {v.numel()}; not a usable model")
+            raise InputError(
+                f"{path}: tensor {k} holds {bad} NaN or infinite values of {v.numel()}; not a usable model"
+            )
 
 
 def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.PathLike) -> MVRackLay:

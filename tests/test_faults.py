@@ -39,9 +39,7 @@ QUIET = ["--quiet", "--no-rrd"]
 
 def snapshot(root: Path) -> dict[str, bytes | None]:
     """Every file's bytes and every folder (None) under ``root``, by relative path."""
-    return {
-        str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(Path(root).rglob("*"))
-    }
+    return {str(p.relative_to(root)): (p.read_bytes() if p.is_file() else None) for p in sorted(Path(root).rglob("*"))}
 
 
 def one_line(capsys: pytest.CaptureFixture[str], rc: int, command: str, *needles: str) -> str:
@@ -419,7 +417,9 @@ DEEP = "[" * 100_000 + "]" * 100_000
 @pytest.mark.parametrize("text", [DEEP, '{"fx": 1e400}'], ids=["nested", "1e400"])
 def test_json_nesting_and_overflow_are_one_line(flag, text, seq, tiny_checkpoint, tmp_path, capsys):
     f = tmp_path / ("bad.toml" if flag == "recipe" else "bad.json")
-    f.write_text(text if flag != "recipe" else ("x = " + "[" * 100_000 + "]" * 100_000 if text == DEEP else "x = 1e400"))
+    f.write_text(
+        text if flag != "recipe" else ("x = " + "[" * 100_000 + "]" * 100_000 if text == DEEP else "x = 1e400")
+    )
     out = tmp_path / "out"
     run = ["run", str(seq), "--out", str(out), "--checkpoint", str(tiny_checkpoint), *QUIET]
     argv = {
@@ -546,7 +546,9 @@ def test_modes_not_read_faithfully_are_refused(mode, needle, grey8, tiny_checkpo
         a = np.asarray(im)
     for i in range(2):
         if mode == "RGBA":
-            Image.fromarray(np.stack([a, a, a, np.where(a > 128, 255, 0).astype(np.uint8)], -1)).save(folder / f"f{i}.png")
+            Image.fromarray(np.stack([a, a, a, np.where(a > 128, 255, 0).astype(np.uint8)], -1)).save(
+                folder / f"f{i}.png"
+            )
         else:
             Image.fromarray(a).convert("CMYK").save(folder / f"f{i}.jpg")
     argv = ["run", str(folder), "--out", str(tmp_path / "out"), "--checkpoint", str(tiny_checkpoint), *QUIET]

@@ -171,7 +171,11 @@ def run(args: argparse.Namespace) -> int:
     )
     cfg.validate()
     check_out(args.out, args.overwrite)
-    check_apart(args.out, OUTPUTS, {"INPUT": args.input, "--camera": args.camera, "--config": args.config, "--checkpoint": args.checkpoint})
+    check_apart(
+        args.out,
+        OUTPUTS,
+        {"INPUT": args.input, "--camera": args.camera, "--config": args.config, "--checkpoint": args.checkpoint},
+    )
     from mvracklay.pipeline import resolve_checkpoint
 
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
