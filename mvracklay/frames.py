@@ -224,8 +224,9 @@ def _image_folder(folder: Path, kind: str = "images") -> FrameSource:
 def _sequence(folder: Path) -> FrameSource:
     meta_path = folder / "meta.json"
     meta = load_json(meta_path)
-    if not isinstance(meta, dict):
-        raise InputError(f"{meta_path}: not a WareSynth meta.json (want a JSON object)")
+    from waresynth.meta_schema import check_meta
+
+    check_meta(meta, str(meta_path))  # the declared schema (`waresynth.meta_schema`)
     src = _image_folder(folder / "rgb", "sequence")
     src.path = folder
     if "intrinsics" in meta:

@@ -22,7 +22,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, StrictInt, StrictStr, ValidationError, model_validator
 
-from layouts.errors import InputError
+from layouts.errors import InputError, first_problem
 
 #: the largest coordinate or length a map may hold, metres (a warehouse row is far shorter)
 MAX_METRES = 1.0e4
@@ -136,21 +136,9 @@ class MapDoc(_Doc):
         return self
 
 
-def one_line(e: ValidationError) -> str:
-    """The first problem pydantic found, as ``field.path: what is wrong``."""
-    err = e.errors()[0]
-    loc = ""
-    for part in err["loc"]:
-        loc += f"[{part}]" if isinstance(part, int) else (f".{part}" if loc else str(part))
-    msg = str(err["msg"]).removeprefix("Value error, ")
-    got = err.get("input")
-    tail = "" if err["type"] in ("value_error", "missing") or isinstance(got, (dict, list)) else f" (got {got!r})"
-    return f"{loc}: {msg}{tail}" if loc else f"{msg}{tail}"
-
-
 def check_map(doc: Any, source: str) -> None:
     """Refuse (one `InputError` line naming ``source``) a parsed warehouse map that breaks the schema."""
     try:
         MapDoc.model_validate(doc)
     except ValidationError as e:
-        raise InputError(f"{source}: malformed warehouse map: {one_line(e)}") from None
+        raise InputError(f"{source}: malformed warehouse map: {first_problem(e.errors())}") from None

@@ -477,6 +477,35 @@ def test_distance_out_of_range_refused_or_warned(seq, tiny_checkpoint, tmp_path,
     assert snapshot(own) == before and not (tmp_path / "c").exists()
 
 
+META_FAULTS = {
+    "distance NaN": (("frames", 1, "distance"), float("nan"), "frames[1].distance"),
+    "distance negative": (("frames", 1, "distance"), -3.0, "frames[1].distance"),
+    "visible fraction 5": (("frames", 0, "visible_fraction"), 5, "frames[0].visible_fraction"),
+    "clear height negative": (("frames", 0, "slots", 0, "clear_height"), -1, "clear_height"),
+    "camera position short": (("frames", 2, "camera_position"), [0.0, 1.0], "camera_position"),
+    "image size 0": (("image_size",), [0, 128], "image_size[0]"),
+}
+
+
+@pytest.mark.parametrize("fault", list(META_FAULTS))
+@pytest.mark.parametrize("command", ["reconstruct", "run"])
+def test_an_impossible_meta_json_is_one_line(fault, command, seq, tiny_checkpoint, tmp_path, capsys):
+    keys, value, needle = META_FAULTS[fault]
+    own = copy_of(seq, tmp_path / "seq")
+    meta = json.loads((own / "meta.json").read_text())
+    target = meta
+    for k in keys[:-1]:
+        target = target[k]
+    target[keys[-1]] = value
+    (own / "meta.json").write_text(json.dumps(meta))
+    before = snapshot(own)
+    argv = [command, str(own), "--out", str(tmp_path / "out"), *QUIET]
+    if command == "run":
+        argv += ["--checkpoint", str(tiny_checkpoint), "--threads", "1"]
+    one_line(capsys, main(argv), command, "meta.json", "malformed meta.json", needle)
+    assert snapshot(own) == before and not (tmp_path / "out").exists()
+
+
 # --- frames in odd image modes ----------------------------------------------------------------------------------
 
 
