@@ -652,3 +652,14 @@ def test_api_wrong_types_are_input_errors(kwargs, needle):
     with pytest.raises(mvracklay.InputError) as e:
         mvracklay.reconstruct(frames, **kwargs)
     assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_evaluate_json_never_replaces_an_input(tiny_dataset, tiny_checkpoint, capsys):
+    manifest = tiny_dataset / "manifest.json"
+    before = manifest.read_bytes()
+    for argv in (
+        ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--json", str(manifest)],
+        ["evaluate-baseline", "--data", str(tiny_dataset), "--json", str(manifest)],
+    ):
+        one_line(capsys, main(argv), argv[0], "--json", "lies inside the input --data")
+    assert manifest.read_bytes() == before
