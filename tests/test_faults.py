@@ -663,3 +663,11 @@ def test_evaluate_json_never_replaces_an_input(tiny_dataset, tiny_checkpoint, ca
     ):
         one_line(capsys, main(argv), argv[0], "--json", "lies inside the input --data")
     assert manifest.read_bytes() == before
+
+
+@pytest.mark.parametrize("option", [["--margin", "inf"], ["--margin", "nan"], ["--box", "1e400x0.3x0.3"]])
+def test_free_space_options_must_be_finite(option, map_doc, tmp_path, capsys):
+    path = tmp_path / "warehouse.json"
+    path.write_text(json.dumps(map_doc))
+    argv = ["free-space", str(path), *(["--box", "0.4x0.3x0.3"] if option[0] != "--box" else []), *option]
+    one_line(capsys, main(argv), "free-space", option[0])
