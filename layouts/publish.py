@@ -158,7 +158,7 @@ def publish(
             if name in made:
                 os.replace(st / name, dst)
                 done.append((st / name, dst))
-    except OSError as e:
+    except BaseException as e:  # a failed move, or Ctrl-C / SIGTERM between two: undo every move made
         kept = ""
         for src, dst in reversed(done):
             try:
@@ -168,6 +168,8 @@ def publish(
         shutil.rmtree(st, ignore_errors=True)
         if not kept:
             shutil.rmtree(aside, ignore_errors=True)
+        if not isinstance(e, OSError):
+            raise
         raise _cannot(what, out, e, kept or "; the earlier outputs are kept") from None
     shutil.rmtree(aside, ignore_errors=True)
     shutil.rmtree(st, ignore_errors=True)

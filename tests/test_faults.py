@@ -196,7 +196,8 @@ def test_a_read_only_filesystem_out(read_only_mount: Path, seq: Path, capsys):
     assert snapshot(read_only_mount) == before
 
 
-def test_a_move_failing_half_way_leaves_the_earlier_outputs_whole(seq, earlier, tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("fault", ["disk full", "Ctrl-C"])
+def test_a_move_failing_half_way_leaves_the_earlier_outputs_whole(fault, seq, earlier, tmp_path, monkeypatch, capsys):
     import layouts.publish as publish
 
     prev = copy_of(earlier, tmp_path / "prev")
@@ -208,13 +209,16 @@ def test_a_move_failing_half_way_leaves_the_earlier_outputs_whole(seq, earlier, 
     def flaky(src, dst, *a, **k):
         if Path(dst).parent.resolve() == prev.resolve() or Path(dst).parent.name.endswith("-old"):
             calls.append((src, dst))  # a swap into OUT or aside
-            if len(calls) == 3:  # an earlier output went aside and a new one came in: then the disk is full
-                raise OSError(errno.ENOSPC, "No space left on device")
+            if len(calls) == 3:  # an earlier output went aside and a new one came in: then the fault
+                raise OSError(errno.ENOSPC, "No space left on device") if fault == "disk full" else KeyboardInterrupt
         return real(src, dst, *a, **k)
 
     monkeypatch.setattr(publish.os, "replace", flaky)
     rc = main(["reconstruct", str(seq), "--out", str(prev), *QUIET])
-    one_line(capsys, rc, "reconstruct", "cannot write there", "No space left", "earlier outputs are kept")
+    if fault == "disk full":
+        one_line(capsys, rc, "reconstruct", "cannot write there", "No space left", "earlier outputs are kept")
+    else:
+        assert rc == 130 and "interrupted" in capsys.readouterr().err
     assert len(calls) >= 3 and snapshot(prev) == before
     no_stage_left(prev, tmp_path)
     monkeypatch.undo()
