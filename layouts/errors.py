@@ -11,3 +11,17 @@ class InputError(ValueError):
 
 class LayoutError(InputError):
     """Bad layout data, spec or file."""
+
+
+def first_problem(errors: list[dict]) -> str:
+    """The first entry of a schema validator's error list (pydantic's ``ValidationError.errors()``: dicts with
+    ``loc``, ``msg``, ``type``, ``input``) as one line, ``racks[0].shelves[1].yaw: what is wrong (got ...)``."""
+    err = errors[0]
+    loc = ""
+    for part in err.get("loc", ()):
+        loc += f"[{part}]" if isinstance(part, int) else (f".{part}" if loc else str(part))
+    msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+    got = err.get("input")
+    quiet = err.get("type") in ("value_error", "missing") or isinstance(got, (dict, list))
+    tail = "" if quiet else f" (got {got!r})"[:80]
+    return f"{loc}: {msg}{tail}" if loc else f"{msg}{tail}"

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import tempfile
 import zipfile
@@ -136,14 +137,52 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> di
     return out
 
 
+def finite_float(text: str) -> float:
+    """A number as written, refused when it lies beyond a float's range (``1e400`` would read as infinity)."""
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"number {text[:20]} is out of range (beyond a float's)")
+    return v
+
+
+def loads_json(text: str, source: str) -> Any:
+    """Parse JSON a user gave (a map, a camera, a config, a meta.json): malformed text, nesting too deep to
+    read, or a number beyond a float's range (1e400) each become one line naming ``source``. The literals
+    ``NaN`` / ``Infinity`` (Python's own JSON writes them) parse; each format's schema says where they may be."""
+    try:
+        return json.loads(text, parse_float=finite_float)
+    except json.JSONDecodeError as e:
+        raise LayoutError(f"{source}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise LayoutError(f"{source}: not readable JSON (nested too deep)") from None
+    except ValueError as e:  # a number out of range, or an integer of more digits than Python converts
+        raise LayoutError(f"{source}: not readable JSON ({e})") from None
+
+
+def loads_toml(text: str, source: str) -> dict[str, Any]:
+    """Parse TOML a user gave (a recipe, a config): one line naming ``source`` for malformed text, nesting too
+    deep, or a number that is not finite (``inf``, ``nan``, ``1e400``)."""
+    import tomllib
+
+    try:
+        return tomllib.loads(text, parse_float=finite_float)
+    except tomllib.TOMLDecodeError as e:
+        raise LayoutError(f"{source}: not TOML: {e}") from None
+    except RecursionError:
+        raise LayoutError(f"{source}: not readable TOML (nested too deep)") from None
+    except ValueError as e:
+        raise LayoutError(f"{source}: not readable TOML ({e})") from None
+
+
 def load_json(path: str | os.PathLike) -> Any:
-    """Read JSON; a missing or malformed file becomes one line naming the file."""
+    """Read JSON (`loads_json`); a missing, unreadable or malformed file becomes one line naming the file."""
     path = Path(path)
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise LayoutError(f"{path}: file not found") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+    except UnicodeDecodeError as e:
         raise LayoutError(f"{path}: not valid JSON ({e})") from None
     except OSError as e:
         raise LayoutError(f"{path}: cannot read ({e.strerror})") from None
+    return loads_json(text, str(path))

@@ -155,8 +155,6 @@ class LayoutSpec:
 
     @classmethod
     def from_json(cls, text: str, source: str = "LayoutSpec") -> LayoutSpec:
-        try:
-            d = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise LayoutError(f"{source}: not valid JSON ({e.msg} at line {e.lineno})") from None
-        return cls.from_dict(d, source)
+        from layouts.fileio import loads_json
+
+        return cls.from_dict(loads_json(text, source), source)

@@ -61,6 +61,9 @@ def reconstruct(
     ``out``: also keep the run's files there (layouts, warehouse.json/.glb/.rrd; default: none kept).
     The map's ``meta`` records the distance used and its source, the camera and the model.
     """
+    from mvracklay.argtypes import check_call
+
+    check_call(reconstruct, locals())  # each argument's type: one InputError line, not a TypeError further on
     from mvracklay.commands.run import PRESETS
     from mvracklay.frames import array_source
     from mvracklay.pipeline import RunConfig, run_pipeline

@@ -7,7 +7,7 @@ and ``mvracklay COMMAND ...`` imports that command's module only. A module may a
 the command line) and ``RESUME`` (what to say when the command is interrupted: how to resume it) or
 ``INTERRUPTED`` (what to say then of a command with nothing to resume). SIGTERM is handled like Ctrl-C:
 raised as `Terminated` (a `KeyboardInterrupt`) in the main thread, so the command's clean-up runs; exit
-status 130 after Ctrl-C, 143 after SIGTERM.
+status 130 after Ctrl-C, 143 after SIGTERM. A closed stdout (``| head``) ends the command quietly, status 141.
 """
 
 from __future__ import annotations
@@ -170,17 +170,42 @@ def _close_progress_bars() -> None:
         bar.close()
 
 
+#: exit status when the reader of stdout went away (``mvracklay run ... | head``): 128 + SIGPIPE, as a shell
+#: reports a writer a closed pipe ended; nothing is printed and OUT holds whatever the command had published
+BROKEN_PIPE = 141
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from mvracklay.threads import quiet_openmp
 
     quiet_openmp()  # before any command imports torch: idle OpenMP threads sleep (mvracklay/threads.py)
-    if threading.current_thread() is not threading.main_thread():
-        return _main(argv)
-    previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     try:
-        return _main(argv)
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+        if threading.current_thread() is not threading.main_thread():
+            return _flushed(_main(argv))
+        previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
+        try:
+            return _flushed(_main(argv))
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    except BrokenPipeError:
+        _quiet_stdout()
+        return BROKEN_PIPE
+
+
+def _flushed(rc: int) -> int:
+    """``rc`` once stdout is flushed (so a closed pipe shows here, not as a message at exit)."""
+    sys.stdout.flush()
+    return rc
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null: the interpreter's last flush then has nowhere to fail."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # no file descriptor (a captured stdout in tests)
+        pass
 
 
 def _main(argv: Sequence[str] | None = None) -> int:

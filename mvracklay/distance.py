@@ -23,7 +23,7 @@ from layouts import Intrinsics
 from mvracklay.frames import FrameSource
 from mvracklay.models import distance_reader_path
 from network.data import DEFAULT_DISTANCE
-from network.inference.distance import LEAD_FRAMES, DistanceReading, load_reader, read_distance
+from network.inference.distance import LEAD_FRAMES, DistanceReading, check_distance, load_reader, read_distance
 
 
 def default_distance(record: dict[str, Any]) -> float:
@@ -50,11 +50,26 @@ class FrameDistances:
         self.default, self.reader_path, self.prog = default, Path(reader) if reader else None, prog
         self.reading: DistanceReading | None = None
         self.warnings: list[str] = []
+        recorded: list[float | None] = []
         if given is not None:
             self.reading = DistanceReading(float(given), "given")
         elif camera_height is None and source.distance(0) is not None:
             recorded = [source.distance(i) for i in range(len(source.records or []))]
             self.reading = DistanceReading(float(np.median([d for d in recorded if d])), "recorded")
+        self._check_range(given, recorded if self.recorded else [])
+
+    def _check_range(self, given: float | None, recorded: list[float | None]) -> None:
+        """A given or recorded distance outside the limits refused, outside the trained range warned of."""
+        checks = [(given, "--distance")] if given is not None else []
+        known = [d for d in recorded if d]
+        if known:
+            where = f"{self.source.path / 'meta.json'}"
+            checks += [(min(known), where), (max(known), where)]
+        for value, where in checks:
+            said = check_distance(float(value), where)
+            if said and said not in self.warnings:
+                self.warnings.append(said)
+                print(f"{self.prog}: warning: {said}", file=sys.stderr)
 
     @property
     def recorded(self) -> bool:

@@ -30,6 +30,7 @@ from layouts.canonical import FILL_RGB
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens, undistort_frame
+from waresynth.imageio import rgb8
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".ts")
@@ -79,7 +80,7 @@ def _read_rgb(path: Path, size: tuple[int, int]) -> np.ndarray:
             if upright.size != size:
                 w, h = upright.size
                 raise InputError(f"{path}: {w}x{h} upright, but the first image is {size[0]}x{size[1]}")
-            return np.asarray(upright.convert("RGB"))
+            return rgb8(upright, path)  # 16-bit, palette, alpha: converted faithfully or refused
     except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as e:
         if isinstance(e, InputError):
             raise
@@ -223,8 +224,9 @@ def _image_folder(folder: Path, kind: str = "images") -> FrameSource:
 def _sequence(folder: Path) -> FrameSource:
     meta_path = folder / "meta.json"
     meta = load_json(meta_path)
-    if not isinstance(meta, dict):
-        raise InputError(f"{meta_path}: not a WareSynth meta.json (want a JSON object)")
+    from waresynth.meta_schema import check_meta
+
+    check_meta(meta, str(meta_path))  # the declared schema (`waresynth.meta_schema`)
     src = _image_folder(folder / "rgb", "sequence")
     src.path = folder
     if "intrinsics" in meta:
@@ -375,9 +377,15 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
     nothing else. A principal point outside the image, or an image of another aspect ratio than the
     frames: `InputError` (scaling it would stretch the camera).
     """
-    d = {"width": width, "height": height, **_camera_record(path)}
-    intr = Intrinsics.from_dict(d, f"--camera {path}")
-    check_camera_fits(intr, width, height, f"--camera {path}")
+    return camera_from_record(_camera_record(path), width, height, f"--camera {path}")
+
+
+def camera_from_record(record: dict[str, Any], width: int, height: int, source: str) -> Intrinsics:
+    """The one check of a camera, from a ``--camera`` file or typed as fx,fy,cx,cy: `Intrinsics` fields (width
+    and height default to the frames'), the principal point inside the image and the frames' aspect ratio
+    (`check_camera_fits`), scaled to the frame size."""
+    intr = Intrinsics.from_dict({"width": width, "height": height, **record}, source)
+    check_camera_fits(intr, width, height, source)
     return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)
 
 

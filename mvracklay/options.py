@@ -210,14 +210,16 @@ def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tupl
     try:
         text = path.read_text(encoding="utf-8")
         if path.suffix.lower() == ".toml":
-            import tomllib
+            from layouts.fileio import loads_toml
 
-            data = tomllib.loads(text)
+            data = loads_toml(text, where)
         else:
-            import json
+            from layouts.fileio import loads_json
 
-            data = json.loads(text)
-    except (OSError, UnicodeDecodeError, ValueError) as e:
+            data = loads_json(text, where)
+    except InputError:
+        raise
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as e:
         raise InputError(
             f"{where}: not a readable {'TOML' if path.suffix.lower() == '.toml' else 'JSON'} file ({e})"
         ) from None

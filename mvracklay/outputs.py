@@ -1,16 +1,16 @@
-"""What the commands write, and how: staged beside OUT and moved in only when complete (`staging_dir`,
-`publish`) and the Rerun viewer opened on a written recording (`spawn_viewer`). Imports no torch: `mvracklay reconstruct` uses it too."""
+"""What the commands write, and how: staged on OUT's filesystem and moved in only when complete (`staging_dir`,
+`publish`, both `layouts.publish`) and the Rerun viewer opened on a written recording (`spawn_viewer`). Imports no torch: `mvracklay reconstruct` uses it too."""
 
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 from layouts.errors import InputError
+from layouts.publish import check_writable, is_stage_name, refuse_overlap, stage
+from layouts.publish import publish as publish_stage
 
 #: what `mvracklay run` writes into OUT
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
@@ -22,7 +22,7 @@ def _is_map(path: Path) -> bool:
 
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
     return isinstance(data, dict) and data.get("format") == MAP_FORMAT
 
@@ -33,9 +33,10 @@ def check_out(out: Path, overwrite: bool = False, untouched: tuple[str, ...] = (
     ``untouched``: outputs the command leaves alone (reconstruct's layouts/), alone in OUT they count as empty."""
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
+    check_writable(out)
     if overwrite or not out.is_dir():
         return
-    names = {p.name for p in out.iterdir()}
+    names = {p.name for p in out.iterdir() if not is_stage_name(p.name)}
     if names <= set(untouched):
         return
     if names <= set(OUTPUTS) and _is_map(out / "warehouse.json"):
@@ -48,55 +49,26 @@ def check_out(out: Path, overwrite: bool = False, untouched: tuple[str, ...] = (
     )
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:
-        return True  # e.g. another user's process
-    return True
+def check_apart(out: Path, names: tuple[str, ...], inputs: dict[str, object]) -> None:
+    """Refuse an OUT whose outputs ``names`` would be, lie inside or hold one of ``inputs`` (what the user
+    calls each -> its path or None): an output never replaces an input (`layouts.publish.refuse_overlap`)."""
+    given = {k: v for k, v in inputs.items() if isinstance(v, (str, Path)) and Path(v).exists()}
+    refuse_overlap([out / n for n in names], given)
 
 
 def staging_dir(out: Path) -> Path:
-    """A fresh staging folder ``.OUT.partial-PID`` beside OUT; stale ones of processes no longer alive are removed."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    prefix = f".{out.name}.partial-"
-    for old in out.parent.glob(f"{prefix}*"):
-        pid = old.name[len(prefix) :]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and old.is_dir():
-            shutil.rmtree(old, ignore_errors=True)
-    stage = out.parent / f"{prefix}{os.getpid()}"
-    if stage.exists():
-        shutil.rmtree(stage)
-    stage.mkdir()
-    return stage
+    """A fresh staging folder on OUT's filesystem (`layouts.publish.stage`: beside a missing OUT, inside an
+    existing one); stale ones of processes no longer alive are removed."""
+    return stage(out)
 
 
-def publish(stage: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
-    """Move the staged outputs into OUT, replacing those of an earlier run.
+def publish(stage_dir: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
+    """Move the staged outputs into OUT, replacing those of an earlier run (`layouts.publish.publish`).
 
     Of the ``managed`` names, an earlier run's output this run did not write is removed (it would
-    be stale); nothing else in OUT is touched.
+    be stale); nothing else in OUT is touched. A failed move leaves the earlier outputs whole.
     """
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    made = {p.name for p in stage.iterdir()}
-    for name in managed:
-        old = out / name
-        if name not in made and old.is_dir() and not old.is_symlink():
-            shutil.rmtree(old)
-        elif name not in made and (old.exists() or old.is_symlink()):
-            old.unlink()
-    for item in sorted(stage.iterdir()):
-        dst = out / item.name
-        if dst.is_dir() and not dst.is_symlink():
-            shutil.rmtree(dst)
-        elif dst.exists() or dst.is_symlink():
-            dst.unlink()
-        os.replace(item, dst)
-    stage.rmdir()
+    publish_stage(stage_dir, out, managed)
 
 
 def spawn_viewer(rrd: Path) -> None:

@@ -30,6 +30,7 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
+from mvracklay.argtypes import check_dataclass
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
@@ -93,6 +94,7 @@ class RunConfig:
     progress: bool = True
 
     def validate(self) -> None:
+        check_dataclass(self)  # each field's type first: one line, not a TypeError further on
         if self.mode not in MODES:
             raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.max_frames < 0:

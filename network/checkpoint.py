@@ -20,7 +20,7 @@ from typing import Any
 import torch
 
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_bytes, atomic_write_json
+from layouts.fileio import atomic_write_bytes, atomic_write_json, loads_json
 from network.inference.decision import check_depth_offset, check_offsets
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
@@ -102,10 +102,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, 
         raise InputError(f"{path}: not a readable checkpoint ({type(e).__name__}: {msg})") from None
     if not isinstance(payload, dict) or "model" not in payload or "record_json" not in payload:
         raise InputError(f"{path}: not an MVRackLay checkpoint (no model state or record)")
-    try:
-        record = json.loads(payload["record_json"])
-    except (TypeError, json.JSONDecodeError):
-        raise InputError(f"{path}: checkpoint record is not valid JSON") from None
+    if not isinstance(payload["record_json"], str):
+        raise InputError(f"{path}: checkpoint record is not valid JSON")
+    record = loads_json(payload["record_json"], f"{path} (record)")
     if not isinstance(record, dict) or record.get("format") != FORMAT:
         raise InputError(f"{path}: not an MVRackLay checkpoint (format {record.get('format')!r})")
     if record.get("format_version") != FORMAT_VERSION:
@@ -117,6 +116,17 @@ def load_model(path: str | os.PathLike) -> tuple[MVRackLay, dict[str, Any]]:
     """Rebuild the model from a checkpoint (float32, eval mode) and return it with its record."""
     payload, record = load_checkpoint(path)
     return model_from(payload, record, path), record
+
+
+def check_finite(state: dict[str, Any], path: str | os.PathLike) -> None:
+    """One line naming the first tensor of a state dict holding NaN or infinite values (a diverged or damaged
+    checkpoint: it would map nothing, silently)."""
+    for k, v in state.items():
+        if isinstance(v, torch.Tensor) and v.is_floating_point() and not bool(torch.isfinite(v).all()):
+            bad = int((~torch.isfinite(v)).sum())
+            raise InputError(
+                f"{path}: tensor {k} holds {bad} NaN or infinite values of {v.numel()}; not a usable model"
+            )
 
 
 def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.PathLike) -> MVRackLay:
@@ -137,6 +147,7 @@ def model_from(payload: dict[str, Any], record: dict[str, Any], path: str | os.P
         raise InputError(
             f"{path}: tensor {bad[0]} has shape {tuple(state[bad[0]].shape)}, want {tuple(own[bad[0]].shape)}"
         )
+    check_finite(state, path)
     model.load_state_dict({k: v.to(own[k].dtype) for k, v in state.items()})
     model.box_logit_offset = check_offsets(record.get("box_logit_offset"), f"{path} (record)")
     model.rack_depth_offset = check_depth_offset(record.get("rack_depth_offset"), f"{path} (record)")

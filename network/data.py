@@ -413,8 +413,12 @@ class ImageFolderSequence:
         p = self.paths[i]
         try:
             with Image.open(p) as im:
-                return np.asarray(im.convert("RGB"))
+                from waresynth.imageio import rgb8  # 16-bit, palette, alpha: converted faithfully or refused
+
+                return rgb8(im, p)
         except (OSError, ValueError) as e:
+            if isinstance(e, InputError):
+                raise
             raise InputError(f"{p}: not a readable image ({e})") from None
 
     def image_size(self) -> tuple[int, int]:

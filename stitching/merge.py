@@ -475,7 +475,10 @@ class MapBuilder:
                 cx = (m.x0 + m.x1) / 2
                 if not rack_ranges:
                     continue
-                boxes_out[_nearest_range(rack_ranges, rack_starts, cx)].append((cx, m))
+                k = _nearest_range(rack_ranges, rack_starts, cx)
+                if m.x1 <= rack_ranges[k][0] or m.x0 >= rack_ranges[k][1]:
+                    continue  # wholly beside the racks: on no shelf (`stitching.map_schema`)
+                boxes_out[k].append((cx, m))
         shares = [self.untrusted.share(x0, x1) for x0, x1 in rack_ranges]
         for k, (x0, x1) in enumerate(rack_ranges):
             rid = f"rack_{k:02d}"

@@ -238,6 +238,9 @@ class WarehouseMap:
             raise InputError(
                 f"{source}: warehouse map version {d.get('version')!r} is not supported (reads {list(READ_VERSIONS)})"
             )
+        from stitching.map_schema import check_map
+
+        check_map(d, source)  # the declared schema: finite, in range, ids unique, boxes inside their shelf
         try:
             racks = []
             for r in d["racks"]:

@@ -71,7 +71,10 @@ class Sequence:
     def meta(self) -> dict[str, Any]:
         path = self.root / "meta.json"
         meta = load_json(path)
-        if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list):
+        from waresynth.meta_schema import check_meta
+
+        check_meta(meta, str(path))  # the declared schema (`waresynth.meta_schema`)
+        if not isinstance(meta.get("frames"), list):
             raise InputError(f"{path}: not a WareSynth sequence meta.json (no frames list)")
         return meta
 

@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_reference_table, format_table
+    from layouts.publish import refuse_overlap
     from network.checkpoint import load_model
     from network.inference.evaluate import evaluate_sequences
     from network.inference.fusion import check_tau
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from network.training.distributed import single_process_device
     from network.training.train_data import open_data
 
+    refuse_overlap([args.json] if args.json else [], {"--data": args.data, "--checkpoint": args.checkpoint}, "--json")
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")

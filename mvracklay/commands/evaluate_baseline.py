@@ -56,8 +56,10 @@ def evaluate_depth_projection(sequences, max_frames: int | None = None, progress
 def run(args: argparse.Namespace) -> int:
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_table
+    from layouts.publish import refuse_overlap
     from waresynth.dataset import open_dataset
 
+    refuse_overlap([args.json] if args.json else [], {"--data": args.data}, "--json")
     if args.max_frames < 0:
         raise InputError(f"--max-frames must be >= 0, got {args.max_frames}")
     ds = open_dataset(args.data)

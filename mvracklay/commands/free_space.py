@@ -83,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
     from stitching.warehouse_map import WarehouseMap
 
     path = map_path(args.map)
-    if not (args.margin >= 0):
-        raise InputError(f"--margin must be >= 0 metres, got {args.margin}")
+    if not (0 <= args.margin <= 10):
+        raise InputError(f"--margin must be in [0, 10] metres, got {args.margin}")
     if args.json and args.csv:
         raise InputError("choose one of --json and --csv")
     wmap = WarehouseMap.load(path)

@@ -88,6 +88,12 @@ def run(args: argparse.Namespace) -> int:
     ):
         if not lo <= value <= hi:
             raise InputError(f"{flag} must be in [{lo}, {hi}], got {value}")
+    from layouts.publish import refuse_overlap
+
+    if args.config is not None and Path(args.config).exists():
+        refuse_overlap([args.out], {"--config": args.config}, "OUT")
+    if args.format != "native" and args.export_out is not None:
+        refuse_overlap([args.export_out], {"OUT": args.out}, "--export-out")
     shard = None
     if args.shard is not None:
         from waresynth.generate import parse_shard

@@ -48,6 +48,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{root}: dataset folder not found")
     if not (root / "manifest.json").is_file():
         raise InputError(f"{root}: not a WareSynth dataset (no manifest.json)")
+    if not args.no_sheet:
+        from layouts.publish import refuse_overlap
+
+        refuse_overlap([out], {"DIR": root})  # the sheet never replaces a file of the dataset
     from waresynth.dataset import open_dataset
 
     ds = open_dataset(root)

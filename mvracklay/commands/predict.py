@@ -94,8 +94,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
     """``--camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any), read and
     checked as `run` reads it (`mvracklay.frames.load_camera`: scaled to the frames' ``width x height``)."""
-    from layouts import Intrinsics
-    from mvracklay.frames import load_camera, load_lens
+    from mvracklay.frames import camera_from_record, load_camera, load_lens
 
     path = Path(text)
     if path.suffix == ".json" or path.is_file():
@@ -104,7 +103,7 @@ def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, L
         fx, fy, cx, cy = (float(v) for v in text.split(","))
     except ValueError:
         raise InputError(f"--camera: want a JSON file or fx,fy,cx,cy, got {text!r}") from None
-    return Intrinsics(fx, fy, cx, cy, width, height), None
+    return camera_from_record({"fx": fx, "fy": fy, "cx": cx, "cy": cy}, width, height, f"--camera {text}"), None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -195,6 +194,7 @@ def predict_folder(
     tilt (up > 0) / turn (right > 0), the same.
     """
     from layouts.codecs import LayoutFolder
+    from layouts.publish import check_writable, refuse_overlap
     from layouts.rackdepth import check_rack_depth
     from mvracklay.every import every_nth
     from mvracklay.frames import camera_warning, open_source
@@ -202,6 +202,8 @@ def predict_folder(
     from network.inference.roll import resolve_angles
 
     frames = every_nth(open_source(seq_dir, prog=f"mvracklay {NAME}"), every)  # ``every``: every N-th frame
+    refuse_overlap([out], {"INPUT": seq_dir})  # the layouts never land in (or over) the input
+    check_writable(out)
     intr, lens = _sequence_camera(intrinsics, frames, record, source)
     differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
     if differs:

@@ -121,7 +121,7 @@ def stitch_config(args: argparse.Namespace) -> StitchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvracklay.outputs import check_out, publish, spawn_viewer, staging_dir
+    from mvracklay.outputs import check_apart, check_out, publish, spawn_viewer, staging_dir
 
     seq_dir = Path(args.seq_dir)
     if not seq_dir.is_dir():
@@ -145,6 +145,9 @@ def run(args: argparse.Namespace) -> int:
         )
     final_out = Path(args.out)
     check_out(final_out, args.overwrite, untouched=("layouts",))
+    check_apart(
+        final_out, MAP_OUTPUTS, {"layouts": folder.root, "meta.json": seq_dir / "meta.json", "rgb": seq_dir / "rgb"}
+    )
     out = staging_dir(final_out)  # outputs appear in OUT only when the whole run succeeded
     try:
         _reconstruct(args, seq, folder, indices, out)

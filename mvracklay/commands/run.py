@@ -132,7 +132,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
-    from mvracklay.outputs import check_out, spawn_viewer
+    from mvracklay.outputs import OUTPUTS, check_apart, check_out, spawn_viewer
     from mvracklay.pipeline import RunConfig, run_pipeline
     from network.inference.roll import describe_angles
     from stitching.free_space import format_table
@@ -171,6 +171,11 @@ def run(args: argparse.Namespace) -> int:
     )
     cfg.validate()
     check_out(args.out, args.overwrite)
+    check_apart(
+        args.out,
+        OUTPUTS,
+        {"INPUT": args.input, "--camera": args.camera, "--config": args.config, "--checkpoint": args.checkpoint},
+    )
     from mvracklay.pipeline import resolve_checkpoint
 
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything

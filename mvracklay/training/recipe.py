@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from layouts.errors import InputError
+from layouts.fileio import loads_toml
 
 TOP_KEYS = ("description", "precision", "workers", "requires", "vars", "data", "budget", "defaults", "stages")
 DATA_KEYS = {
@@ -160,9 +161,10 @@ def load_recipe(name_or_file: str, overrides: list[str] | None = None) -> Recipe
     """Read, override and check a recipe's structure (the stages' options are checked by `check_options`)."""
     path = find_recipe(name_or_file)
     try:
-        raw = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        text = path.read_text()
+    except UnicodeDecodeError as e:
         raise InputError(f"{path}: not TOML: {e}") from None
+    raw = loads_toml(text, str(path))
     apply_overrides(raw, list(overrides or []), path)
     problems: list[str] = []
     for key in raw:

@@ -41,6 +41,22 @@ LEAD_FRAMES = 12
 FLOOR_SEEN = 0.5
 #: distances the reading may return (metres): the reader's trained range, widened
 DISTANCE_RANGE = (0.8, 8.0)
+#: distances taken at all (metres, given or recorded): outside them no rack row is readable in a frame
+DISTANCE_LIMITS = (0.05, 100.0)
+
+
+def check_distance(value: float, where: str) -> str | None:
+    """Refuse (one line) a camera-to-rack distance outside `DISTANCE_LIMITS`; one outside `DISTANCE_RANGE`
+    (the range the networks were trained for) is used, and this returns the warning to print."""
+    lo, hi = DISTANCE_LIMITS
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise InputError(f"{where}: distance {value:g} m is out of range (a rack row is filmed from {lo:g}-{hi:g} m)")
+    if not DISTANCE_RANGE[0] <= value <= DISTANCE_RANGE[1]:
+        return (
+            f"{where}: distance {value:g} m is outside the range the model was trained for "
+            f"({DISTANCE_RANGE[0]:g}-{DISTANCE_RANGE[1]:g} m); the layouts may be poor"
+        )
+    return None
 
 
 @dataclass(frozen=True)
@@ -100,6 +116,9 @@ def load_reader(path: str | os.PathLike) -> tuple[DistanceReader, dict[str, Any]
         if record.get("format") != FORMAT:
             raise ValueError(f"format {record.get('format')!r}")
         reader = DistanceReader(DistanceReaderConfig.from_dict(record["config"]))
+        from network.checkpoint import check_finite
+
+        check_finite(payload["state"], path)
         reader.load_state_dict(payload["state"])
     except InputError:
         raise

@@ -4,8 +4,6 @@ once complete, split names, file copies and the record of the source dataset."""
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,6 +13,7 @@ from tqdm import tqdm
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
+from layouts.publish import check_writable, discard, is_stage_name, publish, stage
 
 #: version of the COCO and YOLO exports (`export.json`)
 EXPORT_VERSION = 1
@@ -73,7 +72,8 @@ def open_checked(dataset_dir: str | os.PathLike) -> Any:
 
 @dataclass
 class Staging:
-    """A temporary folder beside ``out`` that replaces ``out`` only once complete."""
+    """A staging folder on ``out``'s filesystem that replaces ``out``'s content only once complete
+    (`layouts.publish`: a failed or interrupted export leaves ``out`` as it was)."""
 
     out: Path
     overwrite: bool
@@ -83,23 +83,17 @@ class Staging:
         if self.out.exists():
             if not self.out.is_dir():
                 raise InputError(f"{self.out}: exists and is not a folder")
-            if any(self.out.iterdir()) and not self.overwrite:
+            if any(not is_stage_name(p.name) for p in self.out.iterdir()) and not self.overwrite:
                 raise InputError(f"{self.out}: output folder exists and is not empty (pass --overwrite to replace it)")
-        self.out.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".partial", dir=self.out.parent))
+        check_writable(self.out, "output folder")
+        self.tmp = stage(self.out, "output folder")
 
     def commit(self) -> Path:
-        old = None
-        if self.out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".old", dir=self.out.parent))
-            os.replace(self.out, old / "x")
-        os.replace(self.tmp, self.out)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
+        publish(self.tmp, self.out, managed=None, what="output folder")
         return self.out
 
     def abort(self) -> None:
-        shutil.rmtree(self.tmp, ignore_errors=True)
+        discard(self.tmp)
 
 
 def run_staged(

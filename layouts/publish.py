@@ -1,0 +1,209 @@
+"""Output folders written whole or not at all, and never over an input: the one place outputs are published.
+
+A command builds its outputs in a staging folder (`stage`) on OUT's own filesystem, then `publish` swaps
+them in:
+
+* OUT missing: the stage is ``.OUT.partial-PID`` beside OUT (OUT will live on its parent's filesystem)
+  and is renamed to OUT in one step.
+* OUT present: the stage is ``OUT/.partial-PID``, inside OUT, so it is on OUT's filesystem even when OUT
+  is a mount point; each entry is swapped in with `os.replace`, an earlier output of the same name first
+  moved aside into ``OUT/.partial-PID-old``. Should any move fail, every move done is undone, so OUT holds
+  its earlier outputs whole; the old ones are deleted only once every new one is in.
+
+`check_writable` probes OUT (or the folder it will be made in) before any work, so a read-only or
+missing place is one line, not a traceback after the work. `refuse_overlap` refuses an output that is,
+lies inside or holds an input. Stale stages of processes no longer alive are removed when the next
+stage is made.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from layouts.errors import InputError
+
+#: names of staging entries inside OUT: ``.partial-PID`` (the new outputs), ``.partial-PID-old`` (the old)
+STAGE_RE = re.compile(r"^\.partial-(\d+)(-old)?$")
+
+
+def is_stage_name(name: str) -> bool:
+    """Whether an entry of OUT is a staging folder (`stage`), not an output."""
+    return STAGE_RE.match(name) is not None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # e.g. another user's process
+    return True
+
+
+def _stale(pid: str) -> bool:
+    return pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid))
+
+
+def _cannot(what: str, out: Path, e: OSError, tail: str = "") -> InputError:
+    reason = e.strerror or type(e).__name__
+    return InputError(f"{what} {out}: cannot write there ({reason}){tail}")
+
+
+def _existing_ancestor(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def check_writable(out: str | os.PathLike, what: str = "--out") -> None:
+    """One line unless OUT can be written: OUT itself when it exists (a folder), else the nearest folder it
+    would be made in. Probed by making and removing an empty folder, so it asks the filesystem itself
+    (a read-only mount, permissions, quotas on folders), not the permission bits."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    where = out if out.is_dir() else _existing_ancestor(out.parent)
+    if not where.is_dir():
+        raise InputError(f"{what} {out}: {where} is not a folder")
+    try:
+        probe = tempfile.mkdtemp(prefix=".partial-probe-", dir=where)
+        os.rmdir(probe)
+    except OSError as e:
+        raise _cannot(what, out, e) from None
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def stage(out: str | os.PathLike, what: str = "--out") -> Path:
+    """A fresh, empty staging folder on OUT's filesystem (see the module docstring); stale ones of
+    processes no longer alive are removed. One line when it cannot be made."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    try:
+        if out.is_dir():
+            for old in out.iterdir():
+                m = STAGE_RE.match(old.name)
+                if m and _stale(m.group(1)):
+                    _remove(old)
+            st = out / f".partial-{os.getpid()}"
+        else:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            prefix = f".{out.name}.partial-"
+            for old in out.parent.glob(f"{prefix}*"):
+                if _stale(old.name[len(prefix) :]) and old.is_dir():
+                    shutil.rmtree(old, ignore_errors=True)
+            st = out.parent / f"{prefix}{os.getpid()}"
+        if st.exists():
+            shutil.rmtree(st)
+        st.mkdir()
+    except OSError as e:
+        raise _cannot(what, out, e) from None
+    return st
+
+
+def publish(
+    st: str | os.PathLike, out: str | os.PathLike, managed: Iterable[str] | None = None, what: str = "--out"
+) -> None:
+    """Move everything staged in ``st`` (made by `stage`) into OUT.
+
+    ``managed``: the output names this command owns; one of them this run did not make is removed (it
+    would be stale), nothing else in OUT is touched. None: every entry of OUT is the command's (an export
+    folder): OUT ends up holding exactly the staged entries. On failure OUT keeps its earlier outputs
+    whole and the stage is removed; the error is one line."""
+    st, out = Path(st), Path(out)
+    if out.exists() and not out.is_dir():
+        shutil.rmtree(st, ignore_errors=True)
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    if st.parent != out:  # staged beside a missing OUT: one rename
+        try:
+            os.replace(st, out)
+            return
+        except OSError as e:
+            if not out.is_dir():
+                shutil.rmtree(st, ignore_errors=True)
+                raise _cannot(what, out, e) from None
+            # OUT was made meanwhile: swap entry by entry below, from a stage inside it
+            inner = stage(out, what)
+            for item in st.iterdir():
+                shutil.move(str(item), str(inner / item.name))
+            st.rmdir()
+            st = inner
+    made = sorted(p.name for p in st.iterdir())
+    old_names = [p.name for p in out.iterdir() if not is_stage_name(p.name)] if managed is None else list(managed)
+    aside = out / f"{st.name}-old"
+    done: list[tuple[Path, Path]] = []  # (from, to) of every move made, to undo them
+    try:
+        aside.mkdir(exist_ok=True)
+        for name in sorted(set(old_names) | set(made)):
+            dst = out / name
+            if dst.exists() or dst.is_symlink():
+                os.replace(dst, aside / name)
+                done.append((dst, aside / name))
+            if name in made:
+                os.replace(st / name, dst)
+                done.append((st / name, dst))
+    except BaseException as e:  # a failed move, or Ctrl-C / SIGTERM between two: undo every move made
+        kept = ""
+        for src, dst in reversed(done):
+            try:
+                os.replace(dst, src)
+            except OSError:
+                kept = f"; the earlier outputs are in {aside}"
+        shutil.rmtree(st, ignore_errors=True)
+        if not kept:
+            shutil.rmtree(aside, ignore_errors=True)
+        if not isinstance(e, OSError):
+            raise
+        raise _cannot(what, out, e, kept or "; the earlier outputs are kept") from None
+    shutil.rmtree(aside, ignore_errors=True)
+    shutil.rmtree(st, ignore_errors=True)
+
+
+def discard(st: str | os.PathLike) -> None:
+    """Remove a stage after a failed or interrupted command (OUT stays as it was)."""
+    shutil.rmtree(st, ignore_errors=True)
+
+
+def _overlap(a: Path, b: Path) -> bool:
+    return a == b or a in b.parents or b in a.parents
+
+
+def _real(p: str | os.PathLike) -> Path:
+    return Path(os.path.realpath(os.path.abspath(os.fspath(p))))
+
+
+def refuse_overlap(
+    outputs: Iterable[str | os.PathLike],
+    inputs: Mapping[str, str | os.PathLike | None],
+    what: str = "--out",
+) -> None:
+    """One line when an output path is, lies inside or holds an input path (links resolved).
+
+    ``outputs``: the paths a command writes (``OUT/layouts``, ``OUT/warehouse.json``; OUT itself for a
+    command that owns all of OUT), so an OUT may hold an input it leaves alone. ``inputs``: what the user
+    calls each input (``INPUT``, ``--camera``) -> its path (None: not given, skipped)."""
+    for opath in outputs:
+        o = _real(opath)
+        for iname, ipath in inputs.items():
+            if ipath is None:
+                continue
+            i = _real(ipath)
+            if _overlap(o, i):
+                rel = "is" if o == i else ("lies inside" if i in o.parents else "holds")
+                raise InputError(f"{what} {opath}: {rel} the input {iname} {ipath}; write the outputs elsewhere")
