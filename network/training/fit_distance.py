@@ -33,11 +33,11 @@ T_NARROW = 0.05
 
 def load_frames(datasets: list[Path], splits: tuple[str, ...]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, list]:
     """Every frame of ``splits``: RGB, distance, camera height above the floor, and the intrinsics."""
-    from waresynth.dataset import open_dataset
+    from network.training.train_data import open_generated
 
     rgb, dist, height, intr = [], [], [], []
     for data, split in ((d, sp) for d in datasets for sp in splits):
-        for seq in open_dataset(data).sequences(split):
+        for seq in open_generated(data).sequences(split):
             for i in range(len(seq)):
                 rec = seq.frame(i)
                 rgb.append(seq.rgb(i))

@@ -25,7 +25,7 @@ from network.heads.uprights import UprightHead, pool_columns
 from network.inference.predictor import Predictor, sequence_camera
 from network.model.net import MVRackLay
 from network.training.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
-from waresynth.dataset import require_level_camera
+from network.training.train_data import require_level_camera, upright_faces
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
 UPRIGHT_ROWS = 0.15
@@ -49,8 +49,6 @@ class Cached:
 def upright_targets(seq: Any, i: int, view: CanonicalView, rack_depth: float) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``i``'s targets ``(2, W)``: does canonical column j show a front (0) / rear (1) upright (at
     least `UPRIGHT_ROWS` of its rows inside the image), and ``(W,)`` which columns lie inside the image."""
-    from waresynth.visibility import upright_faces
-
     require_level_camera(seq, "fitting the upright head")  # its masks are sampled as a level camera's
     intr, distance = frame_camera(seq, i)
     if intr is None:
