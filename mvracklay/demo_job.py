@@ -45,7 +45,7 @@ def parse_args(argv: Seq[str] | None) -> argparse.Namespace:
 
 
 def format_accuracy(rows: list[tuple[str, object]]) -> str:
-    """A small table of `stitching.evaluate.EvalResult` rows."""
+    """A small table of `stitching.map_eval.EvalResult` rows."""
     head = f"{'layouts':<48} {'stacks':>6} {'recall':>6} {'prec':>6} {'mIoU3D':>6} {'count':>7} {'free_err':>8} {'drift':>8}"
     lines = [head, "-" * len(head)]
     for name, r in rows:

@@ -19,7 +19,7 @@ from layouts.errors import InputError
 PRECISIONS = ("fp32", "bf16")
 #: `network.inference.fusion.FUSE_TAU`: what a bare ``--fuse-frames`` gives (frames)
 FUSE_TAU = 1.0
-#: the devices ``--device`` takes (`network.training.distributed.device_for`)
+#: the devices ``--device`` takes (`network.device.device_for`)
 DEVICES = ("auto", "cpu", "cuda")
 
 FLIP_HELP = (

@@ -30,9 +30,10 @@ from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
+from mvracklay.camera import camera_warning, resolve_intrinsics, resolve_lens
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
-from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
+from mvracklay.frames import FrameSource
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from network.checkpoint import load_model
 from network.inference.distance import DistanceReading, check_camera_height
@@ -174,7 +175,7 @@ def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None,
     """World origin of the map and camera height/distance in the map frame, from a sequence's first record."""
     if not source.records:
         return None, None, None
-    from stitching.evaluate import origin_from_record
+    from stitching.warehouse_map import origin_from_record
 
     try:
         origin = origin_from_record(source.records[0])

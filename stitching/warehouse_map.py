@@ -324,3 +324,15 @@ def _vec(v: Any, n: int) -> tuple[float, ...]:
     if not all(math.isfinite(x) for x in out):
         raise ValueError(f"non-finite value in {v!r}")
     return out
+
+
+def origin_from_record(first: dict) -> tuple[float, float, float]:
+    """World position of a map's origin from a generated sequence's first frame record: (the camera's X, slot 0's
+    board top Y, the rack's middle Z), as `WarehouseMap.origin_world` holds it."""
+    try:
+        cam_x = float(first["camera_position"][0])
+        board = float(first["slots"][0]["board_top_y"])
+        mid = float(first["rack_mid_z"])
+    except (KeyError, IndexError, TypeError) as e:
+        raise InputError(f"first frame record lacks camera_position/slots/rack_mid_z ({e})") from None
+    return cam_x, board, mid

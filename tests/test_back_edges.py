@@ -31,7 +31,7 @@ from network.heads.backedge import (
 from network.inference.predictor import Predictor, frame_layouts
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
-from network.training.fit_backedge import FitConfig, cache_features, train_head
+from network.training.fit_back_edges import FitConfig, cache_features, train_head
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset
 

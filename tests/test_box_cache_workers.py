@@ -20,7 +20,7 @@ from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.training.box_cache import CACHE_FIELDS, FrameChoice, cache_inputs, cache_part, shard_name, split_contiguous
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 from network.training.kept_box_cache import part_name
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker

@@ -20,7 +20,7 @@ from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, dec
 from network.inference.predictor import Predictor, frame_layouts
 from network.model.net import MVRackLay
 from network.training.box_cache import Cache, Chain, FrameChoice, cache_inputs, column_targets
-from network.training.fit_boxdepth import FitConfig, train_head, with_box_head
+from network.training.fit_box_depth import FitConfig, train_head, with_box_head
 from network.training.kept_box_cache import part_name
 from network.training.toy import ToySequence
 from stitching.warehouse_map import WarehouseMap

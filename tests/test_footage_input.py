@@ -11,9 +11,10 @@ import pytest
 from PIL import Image
 
 from layouts.errors import InputError
+from mvracklay.camera import load_camera, load_lens
 from mvracklay.cli import main
 from mvracklay.commands.predict import _parse_intrinsics
-from mvracklay.frames import load_camera, load_lens, open_source
+from mvracklay.frames import open_source
 
 ORIENTATION = 0x0112
 

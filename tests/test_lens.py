@@ -16,7 +16,8 @@ from layouts.camera import Intrinsics
 from layouts.canonical import FILL_RGB
 from layouts.errors import InputError, LayoutError
 from layouts.lens import Lens, covering_intrinsics, distort_image, undistort_image
-from mvracklay.frames import load_lens, open_source, resolve_lens
+from mvracklay.camera import load_lens, resolve_lens
+from mvracklay.frames import open_source
 
 INTR = Intrinsics(300.0, 280.0, 120.3, 131.7, 256, 240)
 BARREL = Lens(k1=-0.15, k2=0.03, p1=0.001, p2=-0.002)

@@ -16,7 +16,7 @@ from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model, save_checkpoint
 from network.inference.decision import apply_box_offset, check_offsets
-from network.inference.evaluate import evaluate_sequences
+from network.inference.layout_eval import evaluate_sequences
 from network.inference.predictor import Predictor, sequence_camera
 from waresynth.dataset import open_dataset
 

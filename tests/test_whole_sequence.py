@@ -15,7 +15,7 @@ from network.heads.backedge import DEPTH_STEP, back_edge_rows
 from network.heads.boxdepth import BINS
 from network.inference.predictor import HEAD_INPUTS, Predictor, frame_layouts
 from network.model.net import MVRackLay
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 
 SPEC = LayoutSpec(size=16)
 FRAMES = 5

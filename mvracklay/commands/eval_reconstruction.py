@@ -19,7 +19,7 @@ from mvracklay.options import NO_DEPTH_READ_HELP, add_device_option, add_fuse_op
 
 if TYPE_CHECKING:
     from network.model.net import MVRackLay
-    from stitching.evaluate import EvalResult
+    from stitching.map_eval import EvalResult
     from stitching.pipeline import StitchConfig
     from stitching.warehouse_map import WarehouseMap
     from waresynth.dataset import Sequence
@@ -104,9 +104,10 @@ def evaluate_sequence(
     each frame's camera step as the images read it and its confidence (`mvracklay.commands.predict.read_camera_steps`),
     handed to the stitcher while no frame is dropped."""
     from stitching.detect import visible_range
-    from stitching.evaluate import covered_range, evaluate_map, origin_from_record
+    from stitching.map_eval import covered_range, evaluate_map
     from stitching.pipeline import Stitcher
     from stitching.synthetic import degrade
+    from stitching.warehouse_map import origin_from_record
 
     folder = folder or seq.layout_folder
     deg = deg or Degrade()

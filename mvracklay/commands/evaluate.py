@@ -77,8 +77,8 @@ def run(args: argparse.Namespace) -> int:
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_reference_table, format_table
     from network.checkpoint import load_model
-    from network.inference.evaluate import evaluate_sequences
     from network.inference.fusion import check_tau
+    from network.inference.layout_eval import evaluate_sequences
     from network.inference.roll import ANGLES, check_angle, describe_angles
     from network.model.frozen import trunk_precision, use_precision
     from network.training.distributed import single_process_device

@@ -93,9 +93,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _parse_intrinsics(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
     """``--camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any), read and
-    checked as `run` reads it (`mvracklay.frames.load_camera`: scaled to the frames' ``width x height``)."""
+    checked as `run` reads it (`mvracklay.camera.load_camera`: scaled to the frames' ``width x height``)."""
     from layouts import Intrinsics
-    from mvracklay.frames import load_camera, load_lens
+    from mvracklay.camera import load_camera, load_lens
 
     path = Path(text)
     if path.suffix == ".json" or path.is_file():
@@ -196,8 +196,9 @@ def predict_folder(
     """
     from layouts.codecs import LayoutFolder
     from layouts.rackdepth import check_rack_depth
+    from mvracklay.camera import camera_warning
     from mvracklay.every import every_nth
-    from mvracklay.frames import camera_warning, open_source
+    from mvracklay.frames import open_source
     from network.inference.predictor import Predictor
     from network.inference.roll import resolve_angles
 

@@ -97,7 +97,7 @@ def origin_of(seq, first_index: int) -> tuple[float, float, float] | None:
     """World position of the map origin from the first frame's record (None without records)."""
     if seq is None:
         return None
-    from stitching.evaluate import origin_from_record
+    from stitching.warehouse_map import origin_from_record
 
     return origin_from_record(seq.frame(first_index))
 

@@ -13,7 +13,7 @@ from mvracklay.options import add_precision_option
 from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
 from network.model.frozen import use_precision
-from network.training.fit_boxdepth import FitConfig
+from network.training.fit_box_depth import FitConfig
 
 NAME = "fit-box-depth"
 HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
@@ -116,7 +116,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.training.box_cache import FrameChoice
-    from network.training.fit_boxdepth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
+    from network.training.fit_box_depth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:

@@ -10,7 +10,7 @@ window (`WINDOW_ROWS` rows, every column of that map) with the decoder's front-v
 pooled to those rows, then per layout column the decoder's top-view box probabilities along depth,
 the camera's height above the board and its distance to the rack front. Per layout column it gives a
 distribution over the box's back depth behind the rack front (`BINS`) and the probability that the
-frame shows that depth (fitted to `waresynth.visibility` labels; `network.training.fit_boxdepth`), the rest
+frame shows that depth (fitted to `waresynth.visibility` labels; `network.training.fit_box_depth`), the rest
 of the network frozen.
 
 `BoxDepthReader` carries the head's readings along the row: per slot, a map over world X (cells of

@@ -24,7 +24,7 @@ from network.data import frame_camera
 from network.heads.uprights import UprightHead, pool_columns
 from network.inference.predictor import Predictor, sequence_camera
 from network.model.net import MVRackLay
-from network.training.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
+from network.training.fit_back_edges import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
 from network.training.train_data import require_level_camera, upright_faces
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
@@ -74,7 +74,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     total = sum(len(range(0, s.num_frames, every)) for s in sequences)
     if not total:
         raise InputError("no frames to fit the upright head on")
-    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_backedge)
+    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_back_edges)
     target = np.zeros((total, 2, view.width), np.float32)
     inside = np.zeros((total, view.width), bool)
     seq_ids, dists, depths = np.zeros(total, np.int64), np.zeros(total), np.zeros(total)
