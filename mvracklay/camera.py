@@ -165,3 +165,31 @@ def camera_warning(intr: Intrinsics, record: dict[str, Any], source: str, guesse
         return None
     advice = camera_advice(intr, trained, fov_range, guessed)
     return f"differs from the ones the model was trained with: {why}; {advice}"
+
+
+def parse_camera_option(text: str, width: int, height: int) -> tuple[Intrinsics, Lens | None]:
+    """``predict --camera``: fx,fy,cx,cy, or a JSON file with them (and a lens's k1..k3 beside them, if any), read
+    and checked as `run` reads it (`load_camera`: scaled to the frames' ``width x height``)."""
+    path = Path(text)
+    if path.suffix == ".json" or path.is_file():
+        return load_camera(path, width, height), load_lens(path)
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--camera: want a JSON file or fx,fy,cx,cy, got {text!r}") from None
+    return Intrinsics(fx, fy, cx, cy, width, height), None
+
+
+def frames_camera(
+    camera: str | None, frames: FrameSource, record: dict[str, Any], source: str
+) -> tuple[Intrinsics, Lens | None]:
+    """``predict``'s camera of the frames and its lens's distortion, if any (each frame is then undistorted first):
+    ``--camera``, else the sequence's meta.json, else the checkpoint's record, else a 60 degree view."""
+    width, height = frames.width, frames.height
+    if camera:
+        return parse_camera_option(camera, width, height)
+    if frames.intrinsics is not None:
+        return frames.intrinsics, frames.lens
+    if record.get("intrinsics"):
+        return Intrinsics.from_dict(record["intrinsics"], source).scaled(width, height), None
+    return Intrinsics.from_fov(width, height, DEFAULT_HFOV_DEG), None

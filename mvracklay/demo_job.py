@@ -73,8 +73,8 @@ def main(argv: Seq[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, cli_main) -> int:
-    from mvracklay.commands.eval_reconstruction import evaluate_sequence
     from mvracklay.pipeline import DEFAULT_CHECKPOINT
+    from mvracklay.reconstruction_eval import evaluate_sequence
     from stitching.free_space import format_table, free_space
     from stitching.warehouse_map import WarehouseMap
     from waresynth.dataset import open_dataset

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import sys
 from pathlib import Path
 
 from layouts.errors import InputError
@@ -168,6 +169,26 @@ def add_spawn_option(p: argparse.ArgumentParser, rrd: str = "OUT/warehouse.rrd")
 def add_hidden_alias(p: argparse.ArgumentParser, old: str, dest: str, **kwargs) -> None:
     """An old option name kept parseable but out of ``--help`` (e.g. ``--intrinsics`` for ``--camera``)."""
     p.add_argument(old, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
+
+
+class DeprecatedAlias(argparse.Action):
+    """An old option name still taken (out of ``--help``), with one line on stderr naming the one to use."""
+
+    def __init__(self, option_strings: list[str], dest: str, use: str, **kwargs) -> None:
+        super().__init__(option_strings, dest, **kwargs)
+        self.deprecated_for = use  #: the option to use instead (recipes still take the old name)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"warning: {option_string} is deprecated here: use {self.deprecated_for} (same value)", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def add_json_out_option(p: argparse.ArgumentParser, help_text: str) -> None:
+    """``--json-out PATH``: also write the result as JSON to PATH (``--json`` elsewhere prints JSON instead of a
+    table; the older ``--json PATH`` of these commands is still taken, with a warning)."""
+    p.add_argument("--json-out", type=Path, metavar="PATH", help=help_text)
+    p.add_argument("--json", dest="json_out", type=Path, metavar="PATH", action=DeprecatedAlias, use="--json-out",
+                   default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
 
 
 def _config_value(action: argparse.Action, key: str, value: object, where: str) -> object:

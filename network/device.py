@@ -16,6 +16,7 @@ from layouts.errors import InputError
 
 ENV_VARS = ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT")
 
+
 @dataclass(frozen=True)
 class DistEnv:
     """Where this process sits in a (possibly single-process) run."""

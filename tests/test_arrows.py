@@ -89,3 +89,24 @@ def test_the_check_sees_a_bad_arrow(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from network.model import net\n    import stitching.merge\n")
     assert [(line, name) for line, name, _ in imports(bad)] == [(2, "network"), (3, "stitching")]
+
+
+#: the one test that patches a command's ``run`` to see how the CLI reports an interrupt (the CLI's behaviour)
+CLI_TESTS = ("tests/test_cli_light.py",)
+
+
+@pytest.mark.parametrize("folder", ["mvracklay", "demos", "tests", "benchmarks", "scripts", "research"])
+def test_only_the_cli_imports_a_command(folder):
+    """A command parses, calls the library and prints: what others need lives in a library module."""
+    bad = []
+    for path in _files(folder):
+        rel = path.relative_to(ROOT).as_posix()
+        if rel.startswith("mvracklay/commands/") or rel in ("mvracklay/cli.py", *CLI_TESTS):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            if any(n == "mvracklay.commands" or n.startswith("mvracklay.commands.") for n in names):
+                bad.append(f"{rel}:{node.lineno} imports a command module")
+    assert not bad, "\n".join(bad)

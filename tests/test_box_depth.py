@@ -17,7 +17,8 @@ from mvracklay.cli import main
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
-from network.inference.predictor import Predictor, frame_layouts
+from network.inference.predictor import Predictor
+from network.inference.result import frame_layouts
 from network.model.net import MVRackLay
 from network.training.box_cache import Cache, Chain, FrameChoice, cache_inputs, column_targets
 from network.training.fit_box_depth import FitConfig, train_head, with_box_head

@@ -47,7 +47,7 @@ def calibrated(tiny_checkpoint: Path, tiny_dataset: Path, tmp_path_factory: pyte
     out = tmp_path_factory.mktemp("cal") / "cal.pt"
     scores = out.with_name("scores.json")
     args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--out", str(out)]
-    assert run_stage("calibrate", [*args, "--every", "1", "--threads", "1", "--quiet", "--json", str(scores)]) == 0
+    assert run_stage("calibrate", [*args, "--every", "1", "--threads", "1", "--quiet", "--json-out", str(scores)]) == 0
     return {"path": out, "scores": json.loads(scores.read_text())}
 
 

@@ -14,6 +14,7 @@ from mvracklay.options import (
     WHOLE_SEQUENCE_HELP,
     add_device_option,
     add_fuse_option,
+    add_json_out_option,
     add_precision_option,
     add_quiet_option,
     add_roll_option,
@@ -67,21 +68,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "eval_vracklay.py: all cells, an empty (frame, slot) pair scores 1, precision over the classes in the "
         "ground truth, / frames x slots, targets f0, f0, f1 .. f[N-2] of each sequence), or both",
     )
-    p.add_argument("--json", type=Path, help="also write the full result as JSON here")
+    add_json_out_option(p, "also write the full result as JSON here")
     add_quiet_option(p, "hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
 
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_reference_table, format_table
-    from network.checkpoint import load_model
     from network.inference.fusion import check_tau
     from network.inference.layout_eval import evaluate_sequences
+    from network.inference.loading import load_for_inference
     from network.inference.roll import ANGLES, check_angle, describe_angles
-    from network.model.frozen import trunk_precision, use_precision
-    from network.training.distributed import single_process_device
+    from network.model.frozen import trunk_precision
     from network.training.train_data import open_data
 
     if args.threads < 1:
@@ -89,10 +88,7 @@ def run(args: argparse.Namespace) -> int:
     fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
     # an angle not given is each sequence's recorded one (0 for a level camera); checked here
     roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((args.roll, args.pitch, args.yaw), ANGLES))
-    torch.set_num_threads(args.threads)
-    model, record = load_model(args.checkpoint)
-    model.to(single_process_device(NAME, args.device))
-    use_precision(model, args.precision)
+    model, record = load_for_inference(args.checkpoint, NAME, args.device, args.precision, args.threads)
     ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
@@ -127,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
     for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
         print(line)
-    if args.json:
+    if args.json_out:
         out = {
             "checkpoint": str(args.checkpoint),
             "data": str(args.data),
@@ -138,8 +134,8 @@ def run(args: argparse.Namespace) -> int:
             "precision": trunk_precision(model),
             **res,
         }
-        atomic_write_json(args.json, nan_to_null(out))
-        print(f"wrote {args.json}")
+        atomic_write_json(args.json_out, nan_to_null(out))
+        print(f"wrote {args.json_out}")
     return 0
 
 

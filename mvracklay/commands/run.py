@@ -11,22 +11,17 @@ from mvracklay.options import (
     CAMERA_HEIGHT_HELP,
     CAMERA_JSON_HELP,
     DISTANCE_HELP,
-    FLIP_HELP,
-    FUSE_TAU,
-    NO_DEPTH_READ_HELP,
-    RACK_DEPTH_HELP,
-    WHOLE_SEQUENCE_HELP,
     add,
     add_device_option,
-    add_fuse_option,
     add_help_all_option,
     add_precision_option,
     add_quiet_option,
-    add_roll_option,
     add_spawn_option,
     add_threads_option,
     read_config,
 )
+from mvracklay.presets import PRESETS
+from mvracklay.settings import InferenceSettings, add_options, from_args
 from mvracklay.threads import resolve_threads
 
 NAME = "run"
@@ -48,18 +43,6 @@ GROUP = "use"
 ORDER = 10
 #: what the CLI says when a run is interrupted (Ctrl-C, SIGTERM): nothing to resume
 INTERRUPTED = "OUT left as it was; run it again to start over"
-
-
-#: ``--quality``: the inference settings each preset sets (under a --config file and the command line).
-#: default: today's online settings (streaming; the depths read from the frames so far); offline: every
-#: frame's depths, test-time flip and neighbouring frames fused (layouts once the whole input is read, about
-#: half the frame rate); fast: the decoder's own depths (no back-edge / box-depth reading, ~1.3x the frame
-#: rate measured at 256x256), the recording without RGB and its map every 10th frame
-PRESETS: dict[str, dict[str, object]] = {
-    "fast": {"no_depth_read": True, "no_rgb": True, "map_every": 10},
-    "default": {},
-    "offline": {"whole_sequence": True, "flip_average": True, "fuse_frames": FUSE_TAU},
-}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -101,12 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept")  # fmt: skip
     add(p, "--distance-reader", type=Path, metavar="FILE", **more,
         help="the distance reader to read footage's distance with (default: the shipped one)")  # fmt: skip
-    add(p, "--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP, **more)
-    add(p, "--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP, **more)
-    add(p, "--whole-sequence", action=argparse.BooleanOptionalAction, default=False, help=WHOLE_SEQUENCE_HELP, **more)
-    add(p, "--flip-average", action=argparse.BooleanOptionalAction, default=False, help=FLIP_HELP, **more)
-    add_fuse_option(p, **more)
-    add_roll_option(p, **more)
+    add_options(p, InferenceSettings, **more)  # --flip-average, --rack-depth, ... (mvracklay.settings)
     add(p, "--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)", **more)
     add_precision_option(p, **more)
     add(p, "--no-rrd", action="store_true", help="do not write warehouse.rrd", **more)
@@ -145,20 +123,13 @@ def run(args: argparse.Namespace) -> int:
         checkpoint=args.checkpoint,
         camera=args.camera,
         mode=args.mode,
-        flip=args.flip_average,
         max_frames=args.max_frames,
         every=args.every,
         layout_size=args.layout_size,
         distance=args.distance,
         camera_height=args.camera_height,
         distance_reader=args.distance_reader,
-        rack_depth=args.rack_depth,
-        read_depth=not args.no_depth_read,
-        whole_sequence=args.whole_sequence,
-        fuse_tau=args.fuse_frames,
-        roll=args.roll,
-        pitch=args.pitch,
-        yaw=args.yaw,
+        inference=from_args(InferenceSettings, args),
         rrd=not args.no_rrd,
         rgb=not args.no_rgb,
         map_every=args.map_every,

@@ -9,7 +9,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import add_precision_option
+from mvracklay.options import add_json_out_option, add_precision_option
 from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
 from network.model.frozen import use_precision
@@ -104,7 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "streams (the record says how many); not with --keep-cache or --cache-only",
     )  # fmt: skip
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (the fit's, and a one-process pass's)")
-    p.add_argument("--json", type=Path, help="also write the fit's (or the cache's) summary as JSON here")
+    add_json_out_option(p, "also write the fit's (or the cache's) summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
     add_precision_option(
         p, "; bf16 also runs the head's forward passes in the fit under bf16 autocast (about half the time with "
@@ -154,8 +154,8 @@ def run(args: argparse.Namespace) -> int:
             f"{state} the inputs of {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
             f"in {args.keep_cache} ({summary['cache_minutes']:.1f} minutes); fit with the same --keep-cache"
         )
-        if args.json:
-            atomic_write_json(args.json, nan_to_null(summary))
+        if args.json_out:
+            atomic_write_json(args.json_out, nan_to_null(summary))
         return 0
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
@@ -183,6 +183,6 @@ def run(args: argparse.Namespace) -> int:
     cfg_out = box_head_config(model.cfg, args.parallax, args.head_width, args.front)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
-    if args.json:
-        atomic_write_json(args.json, nan_to_null(summary))
+    if args.json_out:
+        atomic_write_json(args.json_out, nan_to_null(summary))
     return 0

@@ -15,7 +15,7 @@ from mvracklay.training.stages import RUNNER_STAGES, STAGE_MODULES, option_actio
 #: what a stage's ``minutes = "budget"`` stands for before the budget is known (a dry run shows the rule)
 BUDGET_PLACEHOLDER = "<budget>"
 #: option names whose values a stage writes (the summary lists them)
-OUTPUT_OPTIONS = ("out", "json", "to")
+OUTPUT_OPTIONS = ("out", "json-out", "json", "to")
 
 
 @dataclass
@@ -93,7 +93,7 @@ def stage_step(ctx: Context, stage: Stage, out: Path, quiet: bool, pass_minutes:
             raise InputError(f"{where}: unknown option {key!r} (the {stage.name} stage takes: {known})")
         value = ctx.resolve(raw, f"stage {stage.index} ({stage.id}) option {key!r}")
         argv += _flag_values(key, value, actions[key], where)
-        if key in OUTPUT_OPTIONS and value:
+        if key in OUTPUT_OPTIONS and value and value is not True:  # eval-reconstruction's --json prints
             outputs.append(str(value))
     if stage.name == "train" and "--resume" not in argv and "--export" not in argv:
         argv.append("--resume")  # a recipe run again goes on from the run's last.pt

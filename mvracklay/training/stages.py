@@ -31,6 +31,7 @@ STAGE_MODULES: dict[str, str] = {
     "copy": "mvracklay.training.small_stages:copy",
     "export": "mvracklay.training.small_stages:export",
     "check-seeds": "mvracklay.training.small_stages:check_seeds",
+    "curves": "mvracklay.training.small_stages:curves",
     "python": "mvracklay.training.small_stages:python",
     "budget": "mvracklay.training.budget",
     "generate": "mvracklay.commands.generate",
@@ -81,7 +82,7 @@ def option_actions(name: str) -> dict[str, argparse.Action]:
             out.setdefault("args", a)
             continue
         longs = [s for s in a.option_strings if s.startswith("--")]
-        if longs and a.help != argparse.SUPPRESS:
+        if longs and (a.help != argparse.SUPPRESS or getattr(a, "deprecated_for", None)):  # an old name still taken
             out[longs[0][2:]] = a
     return out
 

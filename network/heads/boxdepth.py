@@ -17,7 +17,7 @@ of the network frozen.
 one model column) that multiplies the distributions of every frame that had the cell in view, each
 raised to its shown probability (`RowMap`), the camera's X summed from the steps the images show
 (`network.model.motion`). Each frame's ``"box_back"`` ``(R, D)`` is the fused distribution's expected depth
-(NaN where the frames have not shown it enough yet); `network.inference.predictor.frame_layouts` moves every predicted box's back
+(NaN where the frames have not shown it enough yet); `network.inference.result.frame_layouts` moves every predicted box's back
 there (`layouts.boxdepth.impose_box_backs`).
 
 A head fitted with fronts (``front``; the `fit-box-depth` stage's `--front`) also gives, per column, a

@@ -29,8 +29,8 @@ import torch
 from layouts import Intrinsics
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from network.data import DEFAULT_DISTANCE, canonical_image, to_tensor
 from network.model.distance import DistanceReader, DistanceReaderConfig
+from network.preprocess import DEFAULT_DISTANCE, canonical_image, to_tensor
 
 FORMAT = "mvracklay-distance-reader"
 #: resample-and-read rounds per frame

@@ -18,9 +18,10 @@ from tqdm import tqdm
 
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer, ReferenceMetrics, reference_weights
-from network.data import SequenceLike, board_rows, check_spec_compatible, sequence_angles
-from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera
+from network.data import SequenceLike, board_rows, check_spec_compatible
+from network.inference.predictor import Predictor, rack_depth_source, sequence_camera
 from network.model.net import MVRackLay
+from network.preprocess import sequence_angles
 
 
 def evaluate_sequences(
@@ -130,14 +131,14 @@ def _score_sequence(
     scorer, ref = scorers
     weights = reference_weights(n)
     frames = slots_right = 0
-    for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
+    for i, out in enumerate(pred.predict((seq.rgb(i) for i in range(n)), mode)):
         gt = seq.layouts(i)
-        lay = frame_layouts(out, seq.spec)
+        lay = out.layouts(seq.spec)
         scorer.update(lay, gt)
         if ref is not None:
             for view in VIEWS:
                 ref.update(lay[view], getattr(gt, view), view, weights[i])
-        found = int(torch.isfinite(out["anchors"]).sum())
+        found = int(torch.isfinite(out.anchors).sum())
         slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
         frames += 1
         bar.update(1)

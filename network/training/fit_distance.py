@@ -22,9 +22,10 @@ import torch
 import torch.nn.functional as F
 
 from layouts.errors import InputError
-from network.data import canonical_image, colour_jitter, jpeg_round_trip, to_tensor
+from network.data import colour_jitter, jpeg_round_trip
 from network.inference.distance import read_distances, save_reader
 from network.model.distance import DistanceReader, DistanceReaderConfig
+from network.preprocess import canonical_image, to_tensor
 
 #: half of the samples' log-ratio targets: uniform over +-T_WIDE; the other half normal with sd T_NARROW
 T_WIDE = 0.35

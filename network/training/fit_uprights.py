@@ -20,10 +20,10 @@ from tqdm import tqdm
 
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network.data import frame_camera
 from network.heads.uprights import UprightHead, pool_columns
 from network.inference.predictor import Predictor, sequence_camera
 from network.model.net import MVRackLay
+from network.preprocess import frame_camera
 from network.training.fit_back_edges import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
 from network.training.train_data import require_level_camera, upright_faces
 
