@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -71,6 +72,32 @@ def resolve_lens(source: FrameSource, camera: str | os.PathLike | None = None) -
     """The lens to undistort the frames through: ``--camera``'s when given (None if it gives none), else the
     sequence's meta.json's."""
     return load_lens(camera) if camera is not None else source.lens
+
+
+def run_camera(
+    source: FrameSource,
+    camera: str | os.PathLike | None,
+    record: dict[str, Any],
+    checkpoint: str,
+    warnings: list[str],
+    prog: str = "mvracklay run",
+) -> tuple[Intrinsics, str, Lens | None]:
+    """``run``'s ``(intrinsics, where they came from, lens)`` of the frames (`resolve_intrinsics`,
+    `resolve_lens`); a camera unlike the cameras the model (``record``, read from ``checkpoint``) was trained
+    with is warned about (printed and added to ``warnings``)."""
+    intr, intr_source = resolve_intrinsics(source, camera)
+    lens = resolve_lens(source, camera)
+    if lens is not None:
+        intr_source += (
+            ", frames undistorted through its lens ("
+            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
+            + ")"
+        )
+    differs = camera_warning(intr, record, checkpoint, guessed=camera is None and source.intrinsics is None)
+    if differs:
+        warnings.append(f"camera ({intr_source}) {differs}")
+        print(f"{prog}: warning: {warnings[-1]}", file=sys.stderr)
+    return intr, intr_source, lens
 
 
 def nearest_trained_camera(intr: Intrinsics, trained: Intrinsics, hfov_range: Any = None) -> Intrinsics:

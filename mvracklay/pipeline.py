@@ -29,7 +29,7 @@ from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
-from mvracklay.camera import camera_warning, resolve_intrinsics, resolve_lens
+from mvracklay.camera import run_camera
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource
@@ -38,7 +38,7 @@ from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
 from mvracklay.settings import InferenceSettings
-from network.inference.distance import DistanceReading, check_camera_height
+from network.inference.distance import DistanceReading, check_camera_height, check_distance
 from network.inference.loading import load_for_inference
 from network.inference.predictor import MODES, Predictor
 from network.inference.roll import angle_warnings
@@ -48,7 +48,7 @@ from stitching.box_colours import BoxColours
 from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.pipeline import Stitcher
-from stitching.warehouse_map import WarehouseMap
+from stitching.warehouse_map import WarehouseMap, camera_in_map
 
 if TYPE_CHECKING:
     from layouts.lens import Lens
@@ -105,8 +105,7 @@ class RunConfig:
             raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
         if self.layout_size and not 8 <= self.layout_size <= 1024:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
-        if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
-            raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
+        check_distance(self.distance)
         check_camera_height(self.camera_height)
         self.inference.validate()
         if self.map_every < 1:
@@ -147,17 +146,12 @@ def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
 
 
 def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None, float | None, float | None]:
-    """World origin of the map and camera height/distance in the map frame, from a sequence's first record."""
-    if not source.records:
-        return None, None, None
-    from stitching.warehouse_map import origin_from_record
-
+    """World origin of the map and camera height/distance in the map frame, from a sequence's first record
+    (`stitching.warehouse_map.camera_in_map`; Nones for footage)."""
     try:
-        origin = origin_from_record(source.records[0])
+        return camera_in_map(source.records[0]) if source.records else (None, None, None)
     except InputError:
         return None, None, None
-    p0 = source.records[0]["camera_position"]
-    return origin, float(p0[1]) - origin[1], float(p0[2]) - origin[2]
 
 
 def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | None = None) -> RunResult:
@@ -177,7 +171,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     warnings: list[str] = []
     t0 = time.perf_counter()
     ckpt, model, record = _load_model(cfg)
-    intr, intr_source, lens = _resolve_camera(source, cfg, record, ckpt, warnings)
+    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
     spec = _layout_spec(model, cfg)
     dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
     origin, cam_y, cam_z = _map_origin(source)
@@ -230,26 +224,6 @@ def _load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
     ckpt = resolve_checkpoint(cfg.checkpoint)
     model, record = load_for_inference(ckpt, "run", cfg.device, cfg.precision, cfg.threads)
     return ckpt, model, record
-
-
-def _resolve_camera(
-    source: FrameSource, cfg: RunConfig, record: dict[str, Any], ckpt: Path, warnings: list[str]
-) -> tuple[Intrinsics, str, Lens | None]:
-    """``(intrinsics, where they came from, lens)`` of the frames; a camera unlike the model's training camera
-    is warned about (printed and added to ``warnings``)."""
-    intr, intr_source = resolve_intrinsics(source, cfg.camera)
-    lens = resolve_lens(source, cfg.camera)
-    if lens is not None:
-        intr_source += (
-            ", frames undistorted through its lens ("
-            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
-            + ")"
-        )
-    differs = camera_warning(intr, record, str(ckpt), guessed=cfg.camera is None and source.intrinsics is None)
-    if differs:
-        warnings.append(f"camera ({intr_source}) {differs}")
-        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
-    return intr, intr_source, lens
 
 
 def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:

@@ -1,5 +1,5 @@
 """Layouts -> map, as `mvracklay reconstruct` and `eval-reconstruction` do it: the layout folder a path names
-(`resolve_layouts`), the generated sequence beside it (`open_sequence`) and its map origin (`origin_of`), the
+(`resolve_layouts`), the generated sequence beside it (`open_sequence`) and the map's place from its first record, the
 stitching settings (`stitch_settings`) and the stitched map written with its recording (`reconstruct_folder`).
 """
 
@@ -43,15 +43,6 @@ def resolve_layouts(seq_dir: Path, layouts: str) -> LayoutFolder:
     return LayoutFolder(folder)
 
 
-def origin_of(seq, first_index: int) -> tuple[float, float, float] | None:
-    """World position of the map origin from the first frame's record (None without records)."""
-    if seq is None:
-        return None
-    from stitching.warehouse_map import origin_from_record
-
-    return origin_from_record(seq.frame(first_index))
-
-
 def stitch_settings(board_thickness: float = 0.06, noisy: bool = False, keep_steps: int = 0) -> StitchConfig:
     """The stitching settings: ``board_thickness`` metres between a clear height and the next board top,
     ``noisy`` the clean-up for network output (`StitchConfig.noisy`), ``keep_steps`` the last N camera steps
@@ -90,16 +81,13 @@ def reconstruct_folder(
     from stitching import rerun_log
     from stitching.export_gltf import export_glb
     from stitching.pipeline import Stitcher
+    from stitching.warehouse_map import camera_in_map
 
-    origin = origin_of(seq, indices[0])
+    origin, cam_y, cam_z = camera_in_map(seq.frame(indices[0])) if seq is not None else (None, None, None)
     stitcher = Stitcher(folder.spec, config)
     rec = None
     if rrd:
         rec = rerun_log.start("mvracklay-reconstruct", save=out / "warehouse.rrd", num_slots=folder.spec.num_slots)
-    cam_y = cam_z = None
-    if seq is not None and origin is not None:
-        p0 = seq.frame(indices[0])["camera_position"]
-        cam_y, cam_z = float(p0[1]) - origin[1], float(p0[2]) - origin[2]
     path = []
     t_stitch = 0.0
     for i in tqdm(indices, desc="reconstruct", unit="frame", disable=not progress, file=sys.stderr):

@@ -336,3 +336,14 @@ def origin_from_record(first: dict) -> tuple[float, float, float]:
     except (KeyError, IndexError, TypeError) as e:
         raise InputError(f"first frame record lacks camera_position/slots/rack_mid_z ({e})") from None
     return cam_x, board, mid
+
+
+def camera_in_map(first: dict) -> tuple[tuple[float, float, float], float, float]:
+    """The map's world origin (`origin_from_record`) and the camera's height (Y) and depth (Z) in the map frame,
+    from a generated sequence's first frame record: where a recording draws the camera path."""
+    origin = origin_from_record(first)
+    try:
+        p0 = first["camera_position"]
+        return origin, float(p0[1]) - origin[1], float(p0[2]) - origin[2]
+    except (KeyError, IndexError, TypeError) as e:
+        raise InputError(f"first frame record lacks camera_position ({e})") from None

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from layouts.errors import InputError
@@ -69,12 +68,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from mvracklay.inference import predict_folder
     from mvracklay.models import resolve_checkpoint
+    from network.inference.distance import check_distance
     from network.inference.loading import load_for_inference
 
     settings = from_args(InferenceSettings, args)
     settings.validate()  # checked before the model loads
-    if args.distance is not None and (not math.isfinite(args.distance) or args.distance <= 0):
-        raise InputError(f"--distance must be a positive number of metres, got {args.distance}")
+    check_distance(args.distance)
     if args.layout_size and not 8 <= args.layout_size <= 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
     if args.every < 1:

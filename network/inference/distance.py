@@ -173,6 +173,19 @@ def read_distance(
     return DistanceReading(float(np.median(d)), "read", len(frames), spread)
 
 
+def check_distance(value: Any, option: str = "--distance") -> float | None:
+    """None, or a camera-to-rack distance in metres: a positive finite number (one-line error otherwise)."""
+    if value is None:
+        return None
+    try:
+        d = float(value)
+    except (TypeError, ValueError):
+        d = math.nan
+    if isinstance(value, bool) or not (math.isfinite(d) and d > 0):
+        raise InputError(f"{option} must be a positive number of metres, got {value}")
+    return d
+
+
 def check_camera_height(value: Any, option: str = "--camera-height") -> float | None:
     """None, or a camera height above the floor in metres (one-line error otherwise)."""
     if value is None:
