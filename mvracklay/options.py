@@ -191,7 +191,7 @@ def add_json_out_option(p: argparse.ArgumentParser, help_text: str) -> None:
                    default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
 
 
-def _config_value(action: argparse.Action, key: str, value: object, where: str) -> object:
+def config_value(action: argparse.Action, key: str, value: object, where: str) -> object:
     """A config file's ``value`` for ``action`` as the command line would give it (one line when it cannot be)."""
     if value is None:
         return action.default
@@ -259,5 +259,5 @@ def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tupl
             close = difflib.get_close_matches(str(key).replace("_", "-"), by_name, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(sorted(by_name))}"
             raise InputError(f"{where}: unknown option {key!r}{hint}")
-        out[action.dest] = _config_value(action, key, value, where)
+        out[action.dest] = config_value(action, key, value, where)
     return out
