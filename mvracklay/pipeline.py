@@ -12,7 +12,6 @@ succeeds, so a failed run leaves OUT as it was.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import shutil
 import sys
@@ -37,13 +36,12 @@ from mvracklay.inference import PredictedFrame, make_predictor, predict_frames
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
-from mvracklay.settings import InferenceSettings
-from network.inference.distance import DistanceReading, check_camera_height, check_distance
+from mvracklay.settings import RunConfig
+from network.inference.distance import DistanceReading
 from network.inference.loading import load_for_inference
-from network.inference.predictor import MODES, Predictor
+from network.inference.predictor import Predictor
 from network.inference.roll import angle_warnings
 from network.model.frozen import trunk_precision
-from network.precision import check_precision
 from stitching.box_colours import BoxColours
 from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
@@ -55,68 +53,6 @@ if TYPE_CHECKING:
     from network.model.net import MVRackLay
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Settings of one run (see `mvracklay run --help`): the input and model, what the prediction does
-    (``inference``, `InferenceSettings`), the stitching and the outputs."""
-
-    checkpoint: Path | None = None
-    camera: Path | None = None
-    mode: str = "stream"
-    max_frames: int = 0
-    every: int = 1  #: process every N-th frame of the input (`mvracklay.every`)
-    layout_size: int = 0
-    distance: float | None = None  #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
-    camera_height: float | None = None  #: the camera's height above the floor, metres: the distance from the floor line
-    distance_reader: Path | None = None  #: a distance reader file; None = the shipped one
-    #: what the prediction does: flip, rack depth, depth reading, whole sequence, fusion, the camera's angles
-    inference: InferenceSettings = field(default_factory=InferenceSettings)
-    rrd: bool = True
-    rgb: bool = True
-    map_every: int = 1
-    opening: bool = True
-    board_thickness: float = 0.06
-    threads: int = 2
-    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.model.frozen.set_precision`)
-    device: str = "auto"  #: auto (the GPU when CUDA is present), cpu or cuda
-    progress: bool = True
-
-    @classmethod
-    def build(cls, **values: Any) -> RunConfig:
-        """A RunConfig from field names, `InferenceSettings`' among them (``rack_depth=1.0``); one line naming
-        the unknown ones."""
-        inner = {f.name for f in dataclasses.fields(InferenceSettings)}
-        outer = {f.name for f in dataclasses.fields(cls)} - {"inference"}
-        unknown = sorted(set(values) - inner - outer)
-        if unknown:
-            known = ", ".join(sorted(inner | outer))
-            raise InputError(f"unknown option(s) {', '.join(unknown)}: RunConfig takes {known}")
-        settings = InferenceSettings(**{k: v for k, v in values.items() if k in inner})
-        return cls(**{k: v for k, v in values.items() if k in outer}, inference=settings)
-
-    def validate(self) -> None:
-        if self.mode not in MODES:
-            raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if self.max_frames < 0:
-            raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
-        if not isinstance(self.every, int) or self.every < 1:
-            raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
-        if self.layout_size and not 8 <= self.layout_size <= 1024:
-            raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
-        check_distance(self.distance)
-        check_camera_height(self.camera_height)
-        self.inference.validate()
-        if self.map_every < 1:
-            raise InputError(f"--map-every must be >= 1, got {self.map_every}")
-        if not 0 <= self.board_thickness < 1:
-            raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
-        if self.threads < 1:
-            raise InputError(f"--threads must be >= 1, got {self.threads}")
-        check_precision(self.precision)
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
 
 
 @dataclass

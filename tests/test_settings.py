@@ -96,3 +96,38 @@ def test_evaluate_baseline_writes_its_json_under_either_name(tiny_dataset, tmp_p
     assert "deprecated" in capsys.readouterr().err
     new, old = (json.loads((tmp_path / n).read_text()) for n in ("new.json", "old.json"))
     assert new == old and new["sequences"] > 0
+
+
+def test_runs_options_are_its_config_fields():
+    from mvracklay import cli
+    from mvracklay.settings import dest
+
+    parser = cli.build_parser()
+    (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    run = sub.choices["run"]
+    options = {s for a in run._actions for s in a.option_strings}
+    for cls in (RunConfig, InferenceSettings):
+        named = [f for f in dataclasses.fields(cls) if dest(f) is not None]
+        assert named and all(f.metadata["option"] in options for f in named), cls.__name__
+    argv = [
+        "IN",
+        "--max-frames",
+        "3",
+        "--no-rgb",
+        "--board-thickness",
+        "0.05",
+        "--rack-depth",
+        "1.2",
+        "--mode",
+        "window",
+    ]
+    args = run.parse_args(argv)
+    cfg = from_args(RunConfig, args, inference=from_args(InferenceSettings, args), threads=1)
+    assert cfg == RunConfig(
+        max_frames=3,
+        rgb=False,
+        board_thickness=0.05,
+        mode="window",
+        inference=InferenceSettings(rack_depth=1.2),
+        threads=1,
+    )

@@ -173,27 +173,27 @@ def read_distance(
     return DistanceReading(float(np.median(d)), "read", len(frames), spread)
 
 
+def _metres(value: Any) -> float:
+    """``value`` as a float (NaN when it is no number: a bool, text, None)."""
+    try:
+        return math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def check_distance(value: Any, option: str = "--distance") -> float | None:
     """None, or a camera-to-rack distance in metres: a positive finite number (one-line error otherwise)."""
-    if value is None:
-        return None
-    try:
-        d = float(value)
-    except (TypeError, ValueError):
-        d = math.nan
-    if isinstance(value, bool) or not (math.isfinite(d) and d > 0):
+    d = _metres(value)
+    if value is not None and not (math.isfinite(d) and d > 0):
         raise InputError(f"{option} must be a positive number of metres, got {value}")
-    return d
+    return None if value is None else d
 
 
 def check_camera_height(value: Any, option: str = "--camera-height") -> float | None:
     """None, or a camera height above the floor in metres (one-line error otherwise)."""
-    if value is None:
-        return None
-    try:
-        h = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{option} must be a number of metres, got {value!r}") from None
-    if not (math.isfinite(h) and 0.05 <= h <= 20):
+    h = _metres(value)
+    if value is not None and math.isnan(h):
+        raise InputError(f"{option} must be a number of metres, got {value!r}")
+    if value is not None and not (math.isfinite(h) and 0.05 <= h <= 20):
         raise InputError(f"{option} must be the camera's height above the floor in metres (0.05-20), got {value!r}")
-    return h
+    return None if value is None else h
