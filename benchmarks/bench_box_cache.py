@@ -35,7 +35,7 @@ from mvracklay.options import add_precision_option  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.model.frozen import trunk_precision, use_precision  # noqa: E402
 from network.training.box_cache import FrameChoice, cache_part  # noqa: E402
-from network.training.fit_boxdepth import with_box_head  # noqa: E402
+from network.training.fit_box_depth import with_box_head  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

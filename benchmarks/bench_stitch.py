@@ -23,7 +23,7 @@ if str(_ROOT) not in sys.path:
     sys.path.insert(0, str(_ROOT))
 
 from layouts.spec import LayoutSpec  # noqa: E402
-from mvracklay.commands.eval_reconstruction import Degrade, evaluate_sequence, summarise  # noqa: E402
+from mvracklay.reconstruction_eval import Degrade, evaluate_sequence, summarise  # noqa: E402
 from stitching.detect import DetectConfig, detect_frame  # noqa: E402
 from stitching.lift import lift_frame  # noqa: E402
 from stitching.merge import MapBuilder  # noqa: E402

@@ -13,9 +13,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts import LayoutSpec  # noqa: E402
-from stitching.evaluate import origin_from_record  # noqa: E402
 from stitching.export_gltf import export_glb  # noqa: E402
 from stitching.pipeline import Stitcher  # noqa: E402
+from stitching.warehouse_map import origin_from_record  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.generate import generate_dataset  # noqa: E402
 

@@ -57,32 +57,26 @@ def reconstruct(
     ``camera``: intrinsics (default: 60 deg horizontal field of view, centred); ``distance``: camera to
     rack front in metres (default: read from the first frames; ``camera_height`` above the floor: from the
     floor line); ``quality``: ``fast`` / ``default`` / ``offline`` as ``mvracklay run --quality``;
-    ``options``: any other `mvracklay.pipeline.RunConfig` field (e.g. ``threads=1``, ``rack_depth=1.0``).
+    ``options``: any other `mvracklay.pipeline.RunConfig` field or `mvracklay.settings.InferenceSettings` field
+    (e.g. ``threads=1``, ``rack_depth=1.0``).
     ``out``: also keep the run's files there (layouts, warehouse.json/.glb/.rrd; default: none kept).
     The map's ``meta`` records the distance used and its source, the camera and the model.
     """
     from mvracklay.argtypes import check_call
 
     check_call(reconstruct, locals())  # each argument's type: one InputError line, not a TypeError further on
-    from mvracklay.commands.run import PRESETS
     from mvracklay.frames import array_source
     from mvracklay.pipeline import RunConfig, run_pipeline
+    from mvracklay.presets import preset_fields
 
-    if quality not in PRESETS:
-        raise InputError(f"quality must be one of {', '.join(PRESETS)}, got {quality!r}")
-    fields = set(RunConfig.__dataclass_fields__)
-    unknown = sorted(set(options) - fields)
-    if unknown:
-        raise InputError(f"unknown option(s) {', '.join(unknown)}: RunConfig takes {', '.join(sorted(fields))}")
-    preset = {k.replace("-", "_"): v for k, v in PRESETS[quality].items()}
-    cfg = RunConfig(
+    cfg = RunConfig.build(
         checkpoint=Path(checkpoint) if checkpoint is not None else None,
         camera=Path(camera) if isinstance(camera, (str, os.PathLike)) else None,
         distance=distance,
         camera_height=camera_height,
         progress=progress,
+        **{**preset_fields(quality), **options},
     )
-    cfg = replace(cfg, **{k: v for k, v in {**_run_fields(preset), **options}.items()})
     cfg.validate()
     source = array_source(frames, _intrinsics(camera))
     if out is not None:
@@ -92,15 +86,3 @@ def reconstruct(
         return run_pipeline(source, out, cfg).map
     with tempfile.TemporaryDirectory(prefix="mvracklay-") as tmp:
         return run_pipeline(source, Path(tmp) / "run", replace(cfg, rrd=False)).map
-
-
-def _run_fields(preset: dict[str, Any]) -> dict[str, Any]:
-    """A ``--quality`` preset's options (argparse names) as `RunConfig` fields."""
-    names = {"flip_average": "flip", "fuse_frames": "fuse_tau", "no_depth_read": "read_depth", "no_rrd": "rrd"}
-    out = {}
-    for k, v in preset.items():
-        if k in ("no_depth_read", "no_rrd", "no_rgb", "no_opening"):
-            out[names.get(k, k[3:])] = not v
-        else:
-            out[names.get(k, k)] = v
-    return out

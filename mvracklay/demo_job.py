@@ -45,7 +45,7 @@ def parse_args(argv: Seq[str] | None) -> argparse.Namespace:
 
 
 def format_accuracy(rows: list[tuple[str, object]]) -> str:
-    """A small table of `stitching.evaluate.EvalResult` rows."""
+    """A small table of `stitching.map_eval.EvalResult` rows."""
     head = f"{'layouts':<48} {'stacks':>6} {'recall':>6} {'prec':>6} {'mIoU3D':>6} {'count':>7} {'free_err':>8} {'drift':>8}"
     lines = [head, "-" * len(head)]
     for name, r in rows:
@@ -73,8 +73,8 @@ def main(argv: Seq[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace, cli_main) -> int:
-    from mvracklay.commands.eval_reconstruction import evaluate_sequence
     from mvracklay.pipeline import DEFAULT_CHECKPOINT
+    from mvracklay.reconstruction_eval import evaluate_sequence
     from stitching.free_space import format_table, free_space
     from stitching.warehouse_map import WarehouseMap
     from waresynth.dataset import open_dataset

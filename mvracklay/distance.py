@@ -22,13 +22,20 @@ import numpy as np
 from layouts import Intrinsics
 from mvracklay.frames import FrameSource
 from mvracklay.models import distance_reader_path
-from network.data import DEFAULT_DISTANCE
-from network.inference.distance import LEAD_FRAMES, DistanceReading, check_distance, load_reader, read_distance
+from network.inference.distance import (
+    LEAD_FRAMES,
+    DistanceReading,
+    check_distance,
+    distance_warning,
+    load_reader,
+    read_distance,
+)
+from network.preprocess import DEFAULT_DISTANCE
 
 
 def default_distance(record: dict[str, Any]) -> float:
     """The distance used when none is given, recorded or read: the checkpoint record's ``nominal_distance``
-    (its training data's mean), else `network.data.DEFAULT_DISTANCE`."""
+    (its training data's mean), else `network.preprocess.DEFAULT_DISTANCE`."""
     nominal = record.get("nominal_distance")
     return float(nominal) if isinstance(nominal, (int, float)) and nominal > 0 else DEFAULT_DISTANCE
 
@@ -66,7 +73,8 @@ class FrameDistances:
             where = f"{self.source.path / 'meta.json'}"
             checks += [(min(known), where), (max(known), where)]
         for value, where in checks:
-            said = check_distance(float(value), where)
+            check_distance(float(value), where)
+            said = distance_warning(float(value), where)
             if said and said not in self.warnings:
                 self.warnings.append(said)
                 print(f"{self.prog}: warning: {said}", file=sys.stderr)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import sys
 from pathlib import Path
 
 from layouts.errors import InputError
@@ -19,7 +20,7 @@ from layouts.errors import InputError
 PRECISIONS = ("fp32", "bf16")
 #: `network.inference.fusion.FUSE_TAU`: what a bare ``--fuse-frames`` gives (frames)
 FUSE_TAU = 1.0
-#: the devices ``--device`` takes (`network.training.distributed.device_for`)
+#: the devices ``--device`` takes (`network.device.device_for`)
 DEVICES = ("auto", "cpu", "cuda")
 
 FLIP_HELP = (
@@ -170,7 +171,27 @@ def add_hidden_alias(p: argparse.ArgumentParser, old: str, dest: str, **kwargs) 
     p.add_argument(old, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
 
 
-def _config_value(action: argparse.Action, key: str, value: object, where: str) -> object:
+class DeprecatedAlias(argparse.Action):
+    """An old option name still taken (out of ``--help``), with one line on stderr naming the one to use."""
+
+    def __init__(self, option_strings: list[str], dest: str, use: str, **kwargs) -> None:
+        super().__init__(option_strings, dest, **kwargs)
+        self.deprecated_for = use  #: the option to use instead (recipes still take the old name)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"warning: {option_string} is deprecated here: use {self.deprecated_for} (same value)", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def add_json_out_option(p: argparse.ArgumentParser, help_text: str) -> None:
+    """``--json-out PATH``: also write the result as JSON to PATH (``--json`` elsewhere prints JSON instead of a
+    table; the older ``--json PATH`` of these commands is still taken, with a warning)."""
+    p.add_argument("--json-out", type=Path, metavar="PATH", help=help_text)
+    p.add_argument("--json", dest="json_out", type=Path, metavar="PATH", action=DeprecatedAlias, use="--json-out",
+                   default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
+
+
+def config_value(action: argparse.Action, key: str, value: object, where: str) -> object:
     """A config file's ``value`` for ``action`` as the command line would give it (one line when it cannot be)."""
     if value is None:
         return action.default
@@ -240,5 +261,5 @@ def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tupl
             close = difflib.get_close_matches(str(key).replace("_", "-"), by_name, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(sorted(by_name))}"
             raise InputError(f"{where}: unknown option {key!r}{hint}")
-        out[action.dest] = _config_value(action, key, value, where)
+        out[action.dest] = config_value(action, key, value, where)
     return out

@@ -16,110 +16,44 @@ import os
 import shutil
 import sys
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
 from layouts import Intrinsics, LayoutSpec
-from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
-from mvracklay.argtypes import check_dataclass
+from mvracklay.camera import run_camera
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
-from mvracklay.frames import FrameSource, camera_warning, resolve_intrinsics, resolve_lens
+from mvracklay.frames import FrameSource
+from mvracklay.inference import PredictedFrame, make_predictor, predict_frames
 from mvracklay.outputs import OUTPUTS, publish, staging_dir
-from network.checkpoint import load_model
-from network.inference.distance import DistanceReading, check_camera_height
-from network.inference.fusion import check_tau
-from network.inference.predictor import MODES, Predictor, frame_layouts
-from network.inference.roll import angle_warnings, check_angle, resolve_angles
-from network.model.frozen import trunk_precision, use_precision
-from network.precision import check_precision
-from network.training.distributed import single_process_device
-from stitching import rerun_log
+from mvracklay.reconstruction import stitch_settings
+from mvracklay.recording import RunRecording
+from mvracklay.settings import RunConfig
+from network.inference.distance import DistanceReading
+from network.inference.loading import load_for_inference
+from network.inference.predictor import Predictor
+from network.inference.roll import angle_warnings
+from network.model.frozen import trunk_precision
 from stitching.box_colours import BoxColours
 from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
-from stitching.lift import LiftConfig
 from stitching.path_record import registration_warning
-from stitching.pipeline import StitchConfig, Stitcher
-from stitching.warehouse_map import WarehouseMap
+from stitching.pipeline import Stitcher
+from stitching.warehouse_map import WarehouseMap, camera_in_map
 
 if TYPE_CHECKING:
     from layouts.lens import Lens
     from network.model.net import MVRackLay
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
-RRD_MAX_WIDTH = 640
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """Settings of one run (see `mvracklay run --help`)."""
-
-    checkpoint: Path | None = None
-    camera: Path | None = None
-    mode: str = "stream"
-    flip: bool = False  #: average each frame with its mirror image (`network.inference.predictor.Predictor`)
-    max_frames: int = 0
-    every: int = 1  #: process every N-th frame of the input (`mvracklay.every`)
-    layout_size: int = 0
-    distance: float | None = None  #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
-    camera_height: float | None = None  #: the camera's height above the floor, metres: the distance from the floor line
-    distance_reader: Path | None = None  #: a distance reader file; None = the shipped one
-    rack_depth: float | None = None  #: known rack depth, metres (`layouts.rackdepth`); None = read or as predicted
-    read_depth: bool = True  #: without a known depth, read it from the boards' back edges (models with the head)
-    whole_sequence: bool = False  #: the depths from every frame, not only the frames so far (offline)
-    fuse_tau: float = 0.0  #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
-    #: the camera's roll, pitch (optical axis up > 0) and yaw (turned right > 0), levelled (`network.inference.roll`):
-    #: degrees or "auto"; None = 0 for a generated sequence, else "auto"
-    roll: float | str | None = None
-    pitch: float | str | None = None
-    yaw: float | str | None = None
-    rrd: bool = True
-    rgb: bool = True
-    map_every: int = 1
-    opening: bool = True
-    board_thickness: float = 0.06
-    threads: int = 2
-    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.model.frozen.set_precision`)
-    device: str = "auto"  #: auto (the GPU when CUDA is present), cpu or cuda
-    progress: bool = True
-
-    def validate(self) -> None:
-        check_dataclass(self)  # each field's type first: one line, not a TypeError further on
-        if self.mode not in MODES:
-            raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if self.max_frames < 0:
-            raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
-        if not isinstance(self.every, int) or self.every < 1:
-            raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
-        if self.layout_size and not 8 <= self.layout_size <= 1024:
-            raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
-        if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
-            raise InputError(f"--distance must be a positive number of metres, got {self.distance}")
-        check_camera_height(self.camera_height)
-        if self.rack_depth is not None:
-            check_rack_depth(self.rack_depth)
-        check_tau(self.fuse_tau, "--fuse-frames")
-        for name in ("roll", "pitch", "yaw"):
-            check_angle(getattr(self, name), f"--{name}")
-        if self.map_every < 1:
-            raise InputError(f"--map-every must be >= 1, got {self.map_every}")
-        if not 0 <= self.board_thickness < 1:
-            raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
-        if self.threads < 1:
-            raise InputError(f"--threads must be >= 1, got {self.threads}")
-        check_precision(self.precision)
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
 
 
 @dataclass
@@ -148,47 +82,22 @@ def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
     return models.resolve_checkpoint(path, default=DEFAULT_CHECKPOINT)
 
 
-def stitch_config(cfg: RunConfig) -> StitchConfig:
-    if cfg.opening:
-        return StitchConfig.noisy(board_thickness=cfg.board_thickness)
-    return StitchConfig(lift=LiftConfig(board_thickness=cfg.board_thickness))
-
-
-def _thumbnail(rgb: np.ndarray) -> np.ndarray:
-    """RGB for the recording, at most `RRD_MAX_WIDTH` wide (keeps .rrd files of HD video small)."""
-    h, w = rgb.shape[:2]
-    if w <= RRD_MAX_WIDTH:
-        return rgb
-    from PIL import Image
-
-    size = (RRD_MAX_WIDTH, max(1, round(h * RRD_MAX_WIDTH / w)))
-    return np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BILINEAR))
-
-
-def _decimate(path: list, limit: int = 256) -> list:
-    """At most ``limit`` points of the camera path (first and last kept), so long videos log a bounded path per frame."""
-    if len(path) <= limit:
-        return path
-    idx = np.unique(np.linspace(0, len(path) - 1, limit).round().astype(int))
-    return [path[i] for i in idx]
-
-
 def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None, float | None, float | None]:
-    """World origin of the map and camera height/distance in the map frame, from a sequence's first record."""
-    if not source.records:
-        return None, None, None
-    from stitching.evaluate import origin_from_record
-
+    """World origin of the map and camera height/distance in the map frame, from a sequence's first record
+    (`stitching.warehouse_map.camera_in_map`; Nones for footage)."""
     try:
-        origin = origin_from_record(source.records[0])
+        return camera_in_map(source.records[0]) if source.records else (None, None, None)
     except InputError:
         return None, None, None
-    p0 = source.records[0]["camera_position"]
-    return origin, float(p0[1]) - origin[1], float(p0[2]) - origin[2]
 
 
 def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | None = None) -> RunResult:
-    """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}."""
+    """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
+
+    Four stages: the model, camera and distances are set up; the frames stream through the predictor into the
+    layout folder and the stitcher (`_stream_into_map`); the map is finished and exported (`_export`) into a
+    staging folder; that folder is published as OUT.
+    """
     cfg = cfg or RunConfig()
     cfg.validate()
     source = every_nth(source, cfg.every)
@@ -199,36 +108,27 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     warnings: list[str] = []
     t0 = time.perf_counter()
     ckpt, model, record = _load_model(cfg)
-    intr, intr_source, lens = _resolve_camera(source, cfg, record, ckpt, warnings)
+    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
     spec = _layout_spec(model, cfg)
     dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
-    # a generated sequence's camera rotation is recorded; footage's is read from the frames
-    roll, pitch, yaw = resolve_angles(cfg.roll, cfg.pitch, cfg.yaw, source.camera_angles)
     stage = staging_dir(out)
-    rec = None
+    recording = None
     try:
         folder = LayoutFolder.create(stage / "layouts", spec)
-        stitcher = Stitcher(spec, stitch_config(cfg))
+        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening))
         if cfg.rrd:
-            rec = rerun_log.start(f"mvracklay-run-{out.name}", save=stage / "warehouse.rrd", num_slots=spec.num_slots)
-        pred = Predictor(
-            model,
-            lambda i: (intr, dists(i)),
-            flip=cfg.flip,
-            rack_depth=cfg.rack_depth,
-            read_depth=cfg.read_depth,
-            whole_sequence=cfg.whole_sequence,
-            fuse_tau=cfg.fuse_tau,
-            roll=roll,
-            pitch=pitch,
-            yaw=yaw,
-        )
+            save = stage / "warehouse.rrd"
+            recording = RunRecording(
+                f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb, cfg.map_every
+            )
+        # a generated sequence's camera rotation is recorded; footage's is read from the frames
+        pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
         colours = BoxColours(pred.cfg.view)  # each box's colour from the frames' pixels
-        n, depth, timings = _predict_and_stitch(
-            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, rec, (cam_y, cam_z), colours
+        n, depth, timings = _stream_into_map(
+            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours
         )
         seconds.update(timings)
 
@@ -240,24 +140,13 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
         wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
         colours.paint(wmap)
-        steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if rec is not None else [])
-        with tqdm(total=len(steps), desc="export", unit="file", disable=not cfg.progress, file=sys.stderr) as eb:
-            wmap.save(stage / "warehouse.json")
-            eb.update(1)
-            export_glb(wmap, stage / "warehouse.glb")
-            eb.update(1)
-            if rec is not None:
-                if (n - 1) % cfg.map_every:
-                    rerun_log.log_map(rec, wmap, n - 1, spec.num_slots)
-                rec.flush()
-                rec.disconnect()
-                rec = None
-                eb.update(1)
+        _export(wmap, stage, recording, n, cfg.progress)
+        recording = None
         publish(stage, out)
         seconds["export"] = time.perf_counter() - t1
     except BaseException:
-        if rec is not None:
-            rec.disconnect()
+        if recording is not None:
+            recording.abort()
         shutil.rmtree(stage, ignore_errors=True)
         raise
     warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
@@ -271,31 +160,8 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
 def _load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
     """The checkpoint to run, its model (on ``cfg.device``, in ``cfg.precision``) and its record."""
     ckpt = resolve_checkpoint(cfg.checkpoint)
-    torch.set_num_threads(cfg.threads)
-    model, record = load_model(ckpt)
-    model.to(single_process_device("run", cfg.device))
-    use_precision(model, cfg.precision)
+    model, record = load_for_inference(ckpt, "run", cfg.device, cfg.precision, cfg.threads)
     return ckpt, model, record
-
-
-def _resolve_camera(
-    source: FrameSource, cfg: RunConfig, record: dict[str, Any], ckpt: Path, warnings: list[str]
-) -> tuple[Intrinsics, str, Lens | None]:
-    """``(intrinsics, where they came from, lens)`` of the frames; a camera unlike the model's training camera
-    is warned about (printed and added to ``warnings``)."""
-    intr, intr_source = resolve_intrinsics(source, cfg.camera)
-    lens = resolve_lens(source, cfg.camera)
-    if lens is not None:
-        intr_source += (
-            ", frames undistorted through its lens ("
-            + ", ".join(f"{k} {v:g}" for k, v in lens.to_dict().items() if v)
-            + ")"
-        )
-    differs = camera_warning(intr, record, str(ckpt), guessed=cfg.camera is None and source.intrinsics is None)
-    if differs:
-        warnings.append(f"camera ({intr_source}) {differs}")
-        print(f"mvracklay run: warning: {warnings[-1]}", file=sys.stderr)
-    return intr, intr_source, lens
 
 
 def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
@@ -306,12 +172,12 @@ def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
         from dataclasses import replace
 
         spec = replace(spec, size=cfg.layout_size)
-    if cfg.rack_depth is not None:
-        check_rack_depth(cfg.rack_depth, spec)
+    if cfg.inference.rack_depth is not None:
+        check_rack_depth(cfg.inference.rack_depth, spec)
     return spec
 
 
-def _predict_and_stitch(
+def _stream_into_map(
     source: FrameSource,
     cfg: RunConfig,
     pred: Predictor,
@@ -321,31 +187,13 @@ def _predict_and_stitch(
     dists: FrameDistances,
     folder: LayoutFolder,
     stitcher: Stitcher,
-    rec: Any,
-    camera_yz: tuple[float | None, float | None],
-    colours: BoxColours | None = None,
+    recording: RunRecording | None,
+    colours: BoxColours,
 ) -> tuple[int, float, dict[str, float]]:
-    """Stream the frames through ``pred``: each frame's layouts written to ``folder``, pushed into ``stitcher``
-    and (with a recording ``rec``) logged to Rerun. Returns the frame count, the last rack depth read and the
-    seconds spent predicting, stitching and logging."""
-    cam_y, cam_z = camera_yz
-    depth = float("nan")
-    # each frame's recording thumbnail until its layouts come (all frames' with whole_sequence)
-    pending: deque[np.ndarray | None] = deque()
-
-    def feed():
-        frames = source.frames(cfg.max_frames or None, (intr, lens) if lens is not None else None)
-        for rgb in dists.lead(frames):  # footage's distance read from its first frames before the first is predicted
-            pending.append(_thumbnail(rgb) if rec is not None and cfg.rgb else None)
-            if colours is not None:
-                colours.keep(rgb)
-            yield rgb
-            if cfg.whole_sequence:  # the frames are all read before the first layouts: count reads
-                bar.update(1)
-
-    path: list[tuple[float, float, float]] = []
-    t_pred = t_stitch = t_log = 0.0
-    n = 0
+    """Stream the frames through ``pred`` (`mvracklay.inference.predict_frames`, as ``predict`` does): each frame's
+    layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept) and logged to the
+    ``recording``. Returns the frame count, the last rack depth read and the seconds spent predicting, stitching
+    and logging."""
     bar = tqdm(
         total=source.frame_count(cfg.max_frames or None),
         desc=f"predict+stitch ({cfg.mode})",
@@ -353,43 +201,62 @@ def _predict_and_stitch(
         disable=not cfg.progress,
         file=sys.stderr,
     )
-    outputs = pred.run(feed(), cfg.mode)
-    while True:
-        ta = time.perf_counter()
-        logits = next(outputs, None)
-        if logits is None:
-            break
-        lay = frame_layouts(logits, spec)
-        depth = float(logits["rack_depth"])
-        dist = dists(n)
-        fl = FrameLayouts(lay["top"], lay["front"], np.asarray(intr.visible_columns(spec, dist), bool))
-        folder.write(n, fl)
-        tb = time.perf_counter()
-        frame_rec, step = stitcher.push(fl, n)
-        if colours is not None:
-            anchors = logits["anchors"].float().cpu().numpy().reshape(-1)
-            colours.add(frame_rec, step.offset, anchors, intr, dist, _frame_angles(pred, n))
-        tc = time.perf_counter()
-        if rec is not None:
-            path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
-            rgb = pending.popleft()
-            rerun_log.log_frame(rec, n, fl, frame_rec, step.offset, rgb, _decimate(path))
-            if n % cfg.map_every == 0:
-                rerun_log.log_map(rec, stitcher.map(), n, spec.num_slots)
-        td = time.perf_counter()
-        t_pred, t_stitch, t_log = t_pred + tb - ta, t_stitch + tc - tb, t_log + td - tc
-        n += 1
-        if rec is None:
-            pending.popleft()
-        if not cfg.whole_sequence:
+    whole = cfg.inference.whole_sequence
+
+    def read(rgb: np.ndarray) -> None:
+        if recording is not None:
+            recording.keep(rgb)
+        colours.keep(rgb)
+        if whole:  # the frames are all read before the first layouts: count reads
             bar.update(1)
+
+    frames = predict_frames(pred, source, spec, intr, lens, dists, cfg.mode, cfg.max_frames or None, on_read=read)
+    seconds = {"predict": 0.0, "stitch": 0.0, "rerun": 0.0}
+    n, depth = 0, float("nan")
+    ta = time.perf_counter()
+    for frame in frames:
+        folder.write(frame.index, frame.layouts)
+        tb = time.perf_counter()
+        frame_rec, offset = _stitch(frame, stitcher, colours, pred, intr)
+        tc = time.perf_counter()
+        if recording is not None:
+            recording.log(frame, frame_rec, offset, stitcher)
+        td = time.perf_counter()
+        seconds["predict"] += tb - ta
+        seconds["stitch"] += tc - tb
+        seconds["rerun"] += td - tc
+        n, depth = frame.index + 1, frame.prediction.rack_depth
+        if not whole:
+            bar.update(1)
+        ta = time.perf_counter()
     bar.close()
     if n == 0:
         raise InputError(f"{source.path}: no frames to process")
-    timings = {"predict": t_pred, "stitch": t_stitch}
-    if rec is not None:
-        timings["rerun"] = t_log
-    return n, depth, timings
+    if recording is None:
+        del seconds["rerun"]
+    return n, depth, seconds
+
+
+def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, pred: Predictor, intr: Intrinsics):
+    """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
+    reconstruction and the camera's offset along the row."""
+    frame_rec, step = stitcher.push(frame.layouts, frame.index)
+    anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
+    colours.add(frame_rec, step.offset, anchors, intr, frame.distance, _frame_angles(pred, frame.index))
+    return frame_rec, step.offset
+
+
+def _export(wmap: WarehouseMap, stage: Path, recording: RunRecording | None, frames: int, progress: bool) -> None:
+    """The finished map written into ``stage``: warehouse.json, .glb and, with a ``recording``, .rrd."""
+    steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if recording is not None else [])
+    with tqdm(total=len(steps), desc="export", unit="file", disable=not progress, file=sys.stderr) as bar:
+        wmap.save(stage / "warehouse.json")
+        bar.update(1)
+        export_glb(wmap, stage / "warehouse.glb")
+        bar.update(1)
+        if recording is not None:
+            recording.close(wmap, frames)
+            bar.update(1)
 
 
 def _map_meta(
@@ -412,20 +279,24 @@ def _map_meta(
         **({"every": cfg.every} if cfg.every > 1 else {}),  # every N-th input frame processed
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
-        "flip_average": cfg.flip,
+        "flip_average": cfg.inference.flip,
         "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
-        "depths_from": "the whole sequence" if cfg.whole_sequence else "the frames so far",
-        "fuse_frames": cfg.fuse_tau,
+        "depths_from": "the whole sequence" if cfg.inference.whole_sequence else "the frames so far",
+        "fuse_frames": cfg.inference.fuse_tau,
         # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
         "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-        "camera_roll_source": _angle_source(pred.roll, cfg.roll),
+        "camera_roll_source": _angle_source(pred.roll, cfg.inference.roll),
         "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
-        "camera_pitch_source": _angle_source(pred.pitch, cfg.pitch),
+        "camera_pitch_source": _angle_source(pred.pitch, cfg.inference.pitch),
         "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
-        "camera_yaw_source": _angle_source(pred.yaw, cfg.yaw),
+        "camera_yaw_source": _angle_source(pred.yaw, cfg.inference.yaw),
         # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
         "rack_depth": depth if np.isfinite(depth) else None,
-        "rack_depth_source": "given" if cfg.rack_depth is not None else "read" if pred.reads_depth else "decoder",
+        "rack_depth_source": "given"
+        if cfg.inference.rack_depth is not None
+        else "read"
+        if pred.reads_depth
+        else "decoder",
         # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
         "box_depth_source": "read" if pred.reads_box_depth else "decoder",
         "intrinsics": intr.to_dict(),

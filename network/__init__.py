@@ -12,7 +12,7 @@ Subpackages, each importing only those before it (tests/test_network_layers.py c
   `evaluate` (Table I).
 * `network.training` – making one: `trainer` (`Trainer`; its settings in `train_config`, its data opened by
   `train_data`, its records in `run_records`), `losses`, `distributed`, `curves`, `toy`, `calibrate`, and the
-  fits of the heads on a frozen model (`fit_backedge`, `fit_uprights`, `fit_boxdepth`, whose inputs come
+  fits of the heads on a frozen model (`fit_back_edges`, `fit_uprights`, `fit_box_depth`, whose inputs come
   from `head_inputs` and are cached by `box_cache`, kept between fits by `kept_box_cache`).
 
 On top: `network.fastops` (exact, faster CPU resampling ops), `network.data` (datasets and the canonical warp), `network.checkpoint` (`load_model`,

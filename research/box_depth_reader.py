@@ -32,7 +32,8 @@ from box_top_faces import Table, seen_in  # noqa: E402  (research/, the script's
 from layouts.boxdepth import box_parts  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.heads.boxdepth import BoxDepthReader, decode, frame_head_inputs, reading  # noqa: E402
-from network.inference.predictor import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

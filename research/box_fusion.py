@@ -47,7 +47,8 @@ from layouts.rackdepth import impose_rack_depth  # noqa: E402
 from layouts.spec import LayoutSpec  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.heads.boxdepth import BINS, BoxDepthReader, RowMap, front_reading, reading  # noqa: E402
-from network.inference.predictor import Predictor, logits_to_layout, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import logits_to_layout  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

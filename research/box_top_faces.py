@@ -53,7 +53,8 @@ from layouts.boxdepth import box_parts, cell_z, redraw  # noqa: E402
 from layouts.canonical import CanonicalView  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.inference.predictor import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

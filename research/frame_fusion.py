@@ -38,7 +38,8 @@ from layouts import VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
-from network.inference.predictor import Predictor, frame_layouts, resize_logits, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import frame_layouts, resize_logits  # noqa: E402
 from network.model.motion import camera_shift, motion_signature  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 

@@ -27,8 +27,8 @@ from scipy.optimize import linear_sum_assignment
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.codecs import LayoutFolder  # noqa: E402
-from mvracklay.commands.eval_reconstruction import evaluate_sequence  # noqa: E402
-from mvracklay.commands.reconstruct import open_sequence  # noqa: E402
+from mvracklay.reconstruction import open_sequence  # noqa: E402
+from mvracklay.reconstruction_eval import evaluate_sequence  # noqa: E402
 from stitching.geometry import Cuboid, iou_matrix  # noqa: E402
 from stitching.pipeline import StitchConfig  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
@@ -56,7 +56,7 @@ def layouts_for(seq_root: Path, cache: Path, checkpoint: str | None) -> LayoutFo
     if checkpoint is None:
         return None
     if not (cache / "spec.json").is_file():
-        from mvracklay.commands.predict import predict_folder
+        from mvracklay.inference import predict_folder
         from mvracklay.models import checkpoint_arg
         from network.checkpoint import load_model
 
@@ -94,12 +94,23 @@ def main() -> int:
             res, wmap = evaluate_sequence(seq, folder, config)
             reg = wmap.meta.get("registration", {})
             rows.append(
-                dict(seq=seq.name, tp=res.tp, fp=res.fp, fn=res.fn, drift=res.drift_end,
-                     warned=reg.get("untrusted_count", 0), exact=res.count_exact, shelves=res.shelves)
+                dict(
+                    seq=seq.name,
+                    tp=res.tp,
+                    fp=res.fp,
+                    fn=res.fn,
+                    drift=res.drift_end,
+                    warned=reg.get("untrusted_count", 0),
+                    exact=res.count_exact,
+                    shelves=res.shelves,
+                )
             )
             r = rows[-1]
-            print(f"{seq.name} tp {r['tp']:3d} fp {r['fp']:3d} fn {r['fn']:3d} drift {r['drift']*100:6.1f} cm "
-                  f"untrusted {r['warned']}", flush=True)
+            print(
+                f"{seq.name} tp {r['tp']:3d} fp {r['fp']:3d} fn {r['fn']:3d} drift {r['drift'] * 100:6.1f} cm "
+                f"untrusted {r['warned']}",
+                flush=True,
+            )
             continue
         out = {}
         for walk, idx in (("steady", steady_indices(seq.num_frames)), ("hand", handheld_indices(seq.num_frames, k))):
@@ -113,23 +124,38 @@ def main() -> int:
         (rs, ms), (rh, mh) = out["steady"], out["hand"]
         got, of = kept(ms, mh)
         reg = mh.meta.get("registration", {})
-        row = dict(seq=seq.name, kept=got, of=of, rec_s=rs.recall, rec_h=rh.recall, prec_s=rs.precision,
-                   prec_h=rh.precision, drift_s=rs.drift_end, drift_h=rh.drift_end,
-                   untrusted=reg.get("untrusted_count", 0))
+        row = dict(
+            seq=seq.name,
+            kept=got,
+            of=of,
+            rec_s=rs.recall,
+            rec_h=rh.recall,
+            prec_s=rs.precision,
+            prec_h=rh.precision,
+            drift_s=rs.drift_end,
+            drift_h=rh.drift_end,
+            untrusted=reg.get("untrusted_count", 0),
+        )
         rows.append(row)
-        print(f"{seq.name} kept {got:3d}/{of:<3d} recall {rs.recall:.3f}/{rh.recall:.3f} prec {rs.precision:.3f}/"
-              f"{rh.precision:.3f} drift {rs.drift_end*100:5.1f}/{rh.drift_end*100:6.1f} cm untrusted {row['untrusted']}",
-              flush=True)
+        print(
+            f"{seq.name} kept {got:3d}/{of:<3d} recall {rs.recall:.3f}/{rh.recall:.3f} prec {rs.precision:.3f}/"
+            f"{rh.precision:.3f} drift {rs.drift_end * 100:5.1f}/{rh.drift_end * 100:6.1f} cm untrusted {row['untrusted']}",
+            flush=True,
+        )
     if a.what == "walks":
         k = [r["kept"] / max(r["of"], 1) for r in rows]
-        print(f"kept: min {min(k):.3f} mean {np.mean(k):.3f}; hand-held drift max {max(r['drift_h'] for r in rows)*100:.1f} cm")
+        print(
+            f"kept: min {min(k):.3f} mean {np.mean(k):.3f}; hand-held drift max {max(r['drift_h'] for r in rows) * 100:.1f} cm"
+        )
     else:
         tp, fp, fn = (sum(r[x] for r in rows) for x in ("tp", "fp", "fn"))
         d = np.array([r["drift"] for r in rows]) * 100
-        print(f"pooled precision {tp/max(tp+fp,1):.3f} recall {tp/max(tp+fn,1):.3f}; drift p90 {np.percentile(d,90):.1f} "
-              f"max {d.max():.1f} mean {d.mean():.1f} cm; exact counts "
-              f"{sum(r['exact'] for r in rows) / max(sum(r['shelves'] for r in rows), 1):.1%}; over 10 cm unwarned: "
-              f"{sum(1 for r in rows if r['drift'] > 0.1 and not r['warned'])}")
+        print(
+            f"pooled precision {tp / max(tp + fp, 1):.3f} recall {tp / max(tp + fn, 1):.3f}; drift p90 {np.percentile(d, 90):.1f} "
+            f"max {d.max():.1f} mean {d.mean():.1f} cm; exact counts "
+            f"{sum(r['exact'] for r in rows) / max(sum(r['shelves'] for r in rows), 1):.1%}; over 10 cm unwarned: "
+            f"{sum(1 for r in rows if r['drift'] > 0.1 and not r['warned'])}"
+        )
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
     return 0

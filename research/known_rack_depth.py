@@ -30,7 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, rack_depth_source, sequence_camera  # noqa: E402
+from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

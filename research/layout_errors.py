@@ -57,7 +57,8 @@ from layouts import BOX, SHELF  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import front_rows, shift_rows  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
-from network.inference.predictor import Predictor, frame_layouts, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import frame_layouts  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 

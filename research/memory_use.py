@@ -29,7 +29,8 @@ from layouts import BOX, VIEWS  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.inference.decision import apply_box_offset  # noqa: E402
-from network.inference.predictor import Predictor, logits_to_layout, sequence_camera  # noqa: E402
+from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
+from network.inference.result import logits_to_layout  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

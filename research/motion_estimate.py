@@ -22,8 +22,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.canonical import CanonicalView  # noqa: E402
-from network.data import canonical_image, frame_camera, to_tensor  # noqa: E402
 from network.model.motion import camera_shift, motion_signature  # noqa: E402
+from network.preprocess import canonical_image, frame_camera, to_tensor  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 

@@ -26,7 +26,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network.checkpoint import load_model  # noqa: E402
-from network.inference.evaluate import evaluate_sequences  # noqa: E402
+from network.inference.layout_eval import evaluate_sequences  # noqa: E402
 from network.inference.roll import ANGLES, tilt_frame, turn_frame  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 

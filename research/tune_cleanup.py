@@ -6,7 +6,7 @@
 Predicts every sequence of a *tuning* set once (streaming, the checkpoint's box offsets applied),
 then stitches the same layouts with every combination of box-mask openings (0-2), merge support
 (0.3-0.7) and minimum box area (0.012-0.05 m^2), scores each map against the generator's cuboids
-(`mvracklay.commands.eval_reconstruction.evaluate_sequence`, 3D IoU 0.5, pooled over sequences) and
+(`mvracklay.reconstruction_eval.evaluate_sequence`, 3D IoU 0.5, pooled over sequences) and
 prints the combinations by box F1, best first, with `StitchConfig.noisy()`'s row marked. Choose on
 a tuning set, never on the held-out set you report.
 """
@@ -25,8 +25,8 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.codecs import LayoutFolder  # noqa: E402
-from mvracklay.commands.eval_reconstruction import evaluate_sequence  # noqa: E402
-from mvracklay.commands.predict import predict_folder  # noqa: E402
+from mvracklay.inference import predict_folder  # noqa: E402
+from mvracklay.reconstruction_eval import evaluate_sequence  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from stitching.detect import DetectConfig  # noqa: E402
 from stitching.merge import MergeConfig  # noqa: E402

@@ -327,3 +327,26 @@ def _vec(v: Any, n: int) -> tuple[float, ...]:
     if not all(math.isfinite(x) for x in out):
         raise ValueError(f"non-finite value in {v!r}")
     return out
+
+
+def origin_from_record(first: dict) -> tuple[float, float, float]:
+    """World position of a map's origin from a generated sequence's first frame record: (the camera's X, slot 0's
+    board top Y, the rack's middle Z), as `WarehouseMap.origin_world` holds it."""
+    try:
+        cam_x = float(first["camera_position"][0])
+        board = float(first["slots"][0]["board_top_y"])
+        mid = float(first["rack_mid_z"])
+    except (KeyError, IndexError, TypeError) as e:
+        raise InputError(f"first frame record lacks camera_position/slots/rack_mid_z ({e})") from None
+    return cam_x, board, mid
+
+
+def camera_in_map(first: dict) -> tuple[tuple[float, float, float], float, float]:
+    """The map's world origin (`origin_from_record`) and the camera's height (Y) and depth (Z) in the map frame,
+    from a generated sequence's first frame record: where a recording draws the camera path."""
+    origin = origin_from_record(first)
+    try:
+        p0 = first["camera_position"]
+        return origin, float(p0[1]) - origin[1], float(p0[2]) - origin[2]
+    except (KeyError, IndexError, TypeError) as e:
+        raise InputError(f"first frame record lacks camera_position ({e})") from None

@@ -18,7 +18,7 @@ from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
-from network.data import DEFAULT_DISTANCE, row_target
+from network.data import row_target
 from network.heads.backedge import (
     DEPTH_STEP,
     MIN_OFFSET,
@@ -28,10 +28,12 @@ from network.heads.backedge import (
     depth_hypotheses,
     frame_depth_scores,
 )
-from network.inference.predictor import Predictor, frame_layouts
+from network.inference.predictor import Predictor
+from network.inference.result import frame_layouts
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
-from network.training.fit_backedge import FitConfig, cache_features, train_head
+from network.preprocess import DEFAULT_DISTANCE
+from network.training.fit_back_edges import FitConfig, cache_features, train_head
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset
 

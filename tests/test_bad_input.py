@@ -108,7 +108,16 @@ def _inspect(ds, t):
 
 
 def _baseline(ds, t):
-    return ["evaluate-baseline", "--data", str(ds), "--split", "all", "--json", str(t / "out" / "r.json"), "--quiet"]
+    return [
+        "evaluate-baseline",
+        "--data",
+        str(ds),
+        "--split",
+        "all",
+        "--json-out",
+        str(t / "out" / "r.json"),
+        "--quiet",
+    ]
 
 
 def _reconstruct(ds, t):
@@ -126,7 +135,7 @@ def _run(ds, t, ckpt=None):
 
 def _evaluate(ds, t):
     argv = ["evaluate", "--checkpoint", str(t / "bad.pt"), "--data", str(ds), "--split", "all"]
-    return argv + ["--json", str(t / "out" / "r.json"), "--quiet"]
+    return argv + ["--json-out", str(t / "out" / "r.json"), "--quiet"]
 
 
 def _predict(ds, t):

@@ -55,7 +55,8 @@ def test_evaluate_baseline_cli(tiny_dataset, tmp_path, capsys):
 
     out = tmp_path / "r.json"
     assert (
-        main(["evaluate-baseline", "--data", str(tiny_dataset), "--split", "all", "--json", str(out), "--quiet"]) == 0
+        main(["evaluate-baseline", "--data", str(tiny_dataset), "--split", "all", "--json-out", str(out), "--quiet"])
+        == 0
     )
     printed = capsys.readouterr().out
     assert "columns in view" in printed and "front  rack" in printed

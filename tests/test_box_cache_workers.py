@@ -20,7 +20,7 @@ from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.training.box_cache import CACHE_FIELDS, FrameChoice, cache_inputs, cache_part, shard_name, split_contiguous
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 from network.training.kept_box_cache import part_name
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
@@ -114,7 +114,7 @@ def test_cache_only_keeps_the_inputs_and_a_later_fit_reuses_them(tiny_checkpoint
     base = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--parallax",
             "--frames", "4", "--from-frame", "1", "--epochs", "1", "--threads", "1", "--quiet"]  # fmt: skip
     made = ["--cache-only", "--cache-workers", "2", "--keep-cache", str(keep), "--out", str(tmp_path / "no.pt")]
-    assert run_stage("fit-box-depth", [*base, *made, "--json", str(tmp_path / "cache.json")]) == 0
+    assert run_stage("fit-box-depth", [*base, *made, "--json-out", str(tmp_path / "cache.json")]) == 0
     out = capsys.readouterr().out
     assert out.startswith("made the inputs of ") and not (tmp_path / "no.pt").exists()  # no head, no checkpoint
     summary = json.loads((tmp_path / "cache.json").read_text())

@@ -17,10 +17,11 @@ from mvracklay.cli import main
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, MIN_WEIGHT, BoxDepthReader, RowMap, decode, reading
-from network.inference.predictor import Predictor, frame_layouts
+from network.inference.predictor import Predictor
+from network.inference.result import frame_layouts
 from network.model.net import MVRackLay
 from network.training.box_cache import Cache, Chain, FrameChoice, cache_inputs, column_targets
-from network.training.fit_boxdepth import FitConfig, train_head, with_box_head
+from network.training.fit_box_depth import FitConfig, train_head, with_box_head
 from network.training.kept_box_cache import part_name
 from network.training.toy import ToySequence
 from stitching.warehouse_map import WarehouseMap

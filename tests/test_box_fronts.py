@@ -15,10 +15,11 @@ from layouts.spec import LayoutSpec
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import BINS, FRONT_BINS, BoxDepthHead, BoxDepthReader, front_reading, reading, split_logits
-from network.inference.evaluate import box_depth_source
-from network.inference.predictor import Predictor, frame_layouts
+from network.inference.layout_eval import box_depth_source
+from network.inference.predictor import Predictor
+from network.inference.result import frame_layouts
 from network.training.box_cache import Cache, cache_inputs
-from network.training.fit_boxdepth import FitConfig, train_head, with_box_head
+from network.training.fit_box_depth import FitConfig, train_head, with_box_head
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker
 

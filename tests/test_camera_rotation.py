@@ -139,7 +139,8 @@ def test_a_manifest_from_before_the_rotation_still_resumes(turned_dataset, tmp_p
 
 
 def test_training_windows_are_levelled_by_the_recorded_rotation(turned_dataset):
-    from network.data import WindowDataset, canonical_image, sequence_angles
+    from network.data import WindowDataset
+    from network.preprocess import canonical_image, sequence_angles
     from waresynth.dataset import open_dataset
 
     view = CanonicalView(64, 64, 3.0)
@@ -181,12 +182,12 @@ def test_commands_level_a_generated_sequence_by_its_record(turned_dataset, tiny_
     assert open_source(turned_dataset[1] / "seq_00000").camera_angles == (0.0, 0.0, 4.0)
     out = tmp_path / "eval.json"
     args = ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(turned_dataset[1]), "--split", "all"]
-    assert main([*args, "--json", str(out), "--quiet", "--threads", "1"]) == 0
+    assert main([*args, "--json-out", str(out), "--quiet", "--threads", "1"]) == 0
     res = json.loads(out.read_text())
     assert res["recorded_angles"] == [[0.0, 0.0, 4.0]] * 2 and res["yaw"] is None
     assert res["yaws"] == [4.0] * 10 and set(res["rolls"]) == {0.0}
     assert "camera yaw levelled as recorded (4 deg)" in capsys.readouterr().out
-    assert main([*args, "--json", str(out), "--quiet", "--threads", "1", "--yaw", "0"]) == 0
+    assert main([*args, "--json-out", str(out), "--quiet", "--threads", "1", "--yaw", "0"]) == 0
     assert json.loads(out.read_text())["yaws"] == []
     assert "camera yaw taken as level (recorded 4 deg)" in capsys.readouterr().out
     base = ["--checkpoint", str(tiny_checkpoint), "--quiet", "--no-rrd", "--threads", "1", "--max-frames", "3"]

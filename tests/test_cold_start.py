@@ -14,7 +14,7 @@ from network.checkpoint import load_checkpoint, load_model
 from network.heads.boxdepth import PARALLAX_CHANNELS
 from network.inference.predictor import Predictor, sequence_camera
 from network.training.box_cache import FrameChoice, cache_inputs
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
 from waresynth.dataset import open_dataset
 from waresynth.visibility import SeenTracker

@@ -175,7 +175,7 @@ def test_the_python_api_refuses_bad_input_in_one_line(tiny_checkpoint: Path, fra
 
 
 def test_camera_advice_fits_what_differs():
-    from mvracklay.frames import camera_advice, camera_warning
+    from mvracklay.camera import camera_advice, camera_warning
 
     trained = Intrinsics.from_fov(256, 256, 60.0)
     phone = Intrinsics.from_fov(640, 480, 60.0)  # same horizontal field of view, less of it vertically

@@ -111,9 +111,10 @@ def _as_nobody(argv: list[str]) -> tuple[int, str]:
     import contextlib
     import io
 
-    import mvracklay.commands.reconstruct  # noqa: F401 - loaded before the fork: the child may not read them
-    import mvracklay.commands.run  # noqa: F401
-    import mvracklay.pipeline  # noqa: F401
+    import mvracklay.pipeline  # noqa: F401 - loaded before the fork: the child may not read them
+    from mvracklay.cli import build_parser
+
+    build_parser()  # imports every command module
 
     r, w = os.pipe()
     pid = os.fork()
@@ -446,7 +447,7 @@ def test_json_nesting_and_overflow_are_one_line(flag, text, seq, tiny_checkpoint
 
 
 def test_inline_camera_is_checked_as_the_file_is(tmp_path):
-    from mvracklay.commands.predict import _parse_intrinsics
+    from mvracklay.camera import parse_camera_option as _parse_intrinsics
 
     cam = tmp_path / "cam.json"
     cam.write_text(json.dumps({"fx": 100.0, "fy": 100.0, "cx": 3200.0, "cy": 64.0, "width": 128, "height": 128}))
@@ -591,7 +592,7 @@ def test_modes_not_read_faithfully_are_refused(mode, needle, grey8, tiny_checkpo
 
 @pytest.mark.parametrize("mode", ["F", "I", "I;16 beyond", "HSV"])
 def test_rgb8_converts_or_refuses_every_mode(mode):
-    from waresynth.imageio import rgb8
+    from layouts.images import rgb8
 
     a = np.arange(64, dtype=np.uint8).reshape(8, 8)
     im = {
@@ -662,10 +663,10 @@ def test_evaluate_json_never_replaces_an_input(tiny_dataset, tiny_checkpoint, ca
     manifest = tiny_dataset / "manifest.json"
     before = manifest.read_bytes()
     for argv in (
-        ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--json", str(manifest)],
-        ["evaluate-baseline", "--data", str(tiny_dataset), "--json", str(manifest)],
+        ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--json-out", str(manifest)],
+        ["evaluate-baseline", "--data", str(tiny_dataset), "--json-out", str(manifest)],
     ):
-        one_line(capsys, main(argv), argv[0], "--json", "lies inside the input --data")
+        one_line(capsys, main(argv), argv[0], "--json-out", "lies inside the input --data")
     assert manifest.read_bytes() == before
 
 

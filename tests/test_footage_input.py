@@ -11,9 +11,9 @@ import pytest
 from PIL import Image
 
 from layouts.errors import InputError
+from mvracklay.camera import load_camera, load_lens, parse_camera_option
 from mvracklay.cli import main
-from mvracklay.commands.predict import _parse_intrinsics
-from mvracklay.frames import load_camera, load_lens, open_source
+from mvracklay.frames import open_source
 
 ORIENTATION = 0x0112
 
@@ -162,14 +162,14 @@ def test_camera_files_that_cannot_be_meant_are_refused(tmp_path: Path, record: d
     with pytest.raises(InputError, match=needle):
         load_camera(cam, 128, 128)
     with pytest.raises(InputError, match=needle):  # predict reads camera files the same way
-        _parse_intrinsics(str(cam), 128, 128)
+        parse_camera_option(str(cam), 128, 128)
 
 
 def test_distortion_beside_nested_intrinsics_is_taken(tmp_path: Path):
     cam = _cam(tmp_path, {"intrinsics": {**INTR, "k1": -0.1}, "k2": 0.02, "p1": 0.001})
     lens = load_lens(cam)
     assert (lens.k1, lens.k2, lens.p1) == (-0.1, 0.02, 0.001)
-    assert _parse_intrinsics(str(cam), 128, 128)[1] == lens
+    assert parse_camera_option(str(cam), 128, 128)[1] == lens
 
 
 def test_run_refuses_a_camera_file_in_one_line(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path, capsys):

@@ -18,7 +18,7 @@ from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, see
 from network.inference.predictor import Predictor
 from network.model.motion import motion_signature
 from network.model.net import MVRackLay
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 from network.training.toy import ToySequence
 
 D = 16

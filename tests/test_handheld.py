@@ -147,7 +147,16 @@ def test_resampled_sequence_reads_as_a_sequence(tiny_dataset, tmp_path):
 
 def test_eval_reconstruction_walks_hand_held(tiny_dataset):
     r = subprocess.run(
-        [sys.executable, "-m", "mvracklay", "eval-reconstruction", str(tiny_dataset), "--handheld", "--json", "--quiet"],
+        [
+            sys.executable,
+            "-m",
+            "mvracklay",
+            "eval-reconstruction",
+            str(tiny_dataset),
+            "--handheld",
+            "--json",
+            "--quiet",
+        ],
         capture_output=True,
         text=True,
         cwd=ROOT,

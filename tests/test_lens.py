@@ -16,7 +16,8 @@ from layouts.camera import Intrinsics
 from layouts.canonical import FILL_RGB
 from layouts.errors import InputError, LayoutError
 from layouts.lens import Lens, covering_intrinsics, distort_image, undistort_image
-from mvracklay.frames import load_lens, open_source, resolve_lens
+from mvracklay.camera import load_lens, resolve_lens
+from mvracklay.frames import open_source
 
 INTR = Intrinsics(300.0, 280.0, 120.3, 131.7, 256, 240)
 BARREL = Lens(k1=-0.15, k2=0.03, p1=0.001, p2=-0.002)
@@ -122,22 +123,22 @@ def test_a_sequence_whose_record_gives_a_lens_is_undistorted_unasked(tiny_datase
 
 
 def test_predict_takes_the_lens_beside_its_intrinsics(tiny_dataset: Path, tiny_checkpoint: Path, tmp_path: Path):
+    from mvracklay.camera import parse_camera_option
     from mvracklay.cli import main
-    from mvracklay.commands.predict import _parse_intrinsics
 
     seq = tiny_dataset / "seq_00000"
     intr = open_source(seq).intrinsics
     cam = tmp_path / "cam.json"
     cam.write_text(json.dumps({"intrinsics": {**intr.to_dict(), "k1": -0.1}}))
-    assert _parse_intrinsics(str(cam), 128, 128) == (intr, Lens(k1=-0.1))
-    assert _parse_intrinsics("100,100,64,64", 128, 128)[1] is None
+    assert parse_camera_option(str(cam), 128, 128) == (intr, Lens(k1=-0.1))
+    assert parse_camera_option("100,100,64,64", 128, 128)[1] is None
     out = tmp_path / "lay"
     argv = ["predict", str(seq), "--checkpoint", str(tiny_checkpoint), "--out", str(out), "--camera", str(cam)]
     assert main([*argv, "--threads", "1", "--quiet"]) == 0
     assert len(list(out.glob("*.npz"))) == 8
     cam.write_text(json.dumps({**intr.to_dict(), "k3": float("inf")}))
     with pytest.raises(InputError, match="--camera .*cam.json: lens k3 must be a finite number"):
-        _parse_intrinsics(str(cam), 128, 128)
+        parse_camera_option(str(cam), 128, 128)
 
 
 def test_bench_lens_prints_a_cost_per_frame_size():

@@ -90,7 +90,7 @@ def test_fit_look_tunes_the_trunk_alone_and_resumes(tiny_checkpoint, tiny_datase
 
     out = tmp_path / "look.pt"
     argv = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--out", str(out), "--steps", "3"]
-    argv += ["--batch", "2", "--threads", "1", "--quiet", "--json", str(tmp_path / "fit.json")]
+    argv += ["--batch", "2", "--threads", "1", "--quiet", "--json-out", str(tmp_path / "fit.json")]
     # the first run stops after the state of step 2 is saved: the rerun resumes there
     monkeypatch.setattr(fit_look, "SAVE_EVERY", 1)
     real, calls = fit_look.make_pairs, {"n": 0}

@@ -16,7 +16,7 @@ from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model, save_checkpoint
 from network.inference.decision import apply_box_offset, check_offsets
-from network.inference.evaluate import evaluate_sequences
+from network.inference.layout_eval import evaluate_sequences
 from network.inference.predictor import Predictor, sequence_camera
 from waresynth.dataset import open_dataset
 
@@ -47,7 +47,7 @@ def calibrated(tiny_checkpoint: Path, tiny_dataset: Path, tmp_path_factory: pyte
     out = tmp_path_factory.mktemp("cal") / "cal.pt"
     scores = out.with_name("scores.json")
     args = ["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--out", str(out)]
-    assert run_stage("calibrate", [*args, "--every", "1", "--threads", "1", "--quiet", "--json", str(scores)]) == 0
+    assert run_stage("calibrate", [*args, "--every", "1", "--threads", "1", "--quiet", "--json-out", str(scores)]) == 0
     return {"path": out, "scores": json.loads(scores.read_text())}
 
 

@@ -63,7 +63,7 @@ def test_evaluate_prints_table_and_json(run_dir, tiny_dataset, tmp_path, capsys)
             "--threads",
             "1",
             "--quiet",
-            "--json",
+            "--json-out",
             str(out),
         ]
     )
@@ -78,7 +78,7 @@ def test_evaluate_and_predict_take_flip_average(run_dir, tiny_dataset, tmp_path,
     out = tmp_path / "eval.json"
     ckpt = ["--checkpoint", str(run_dir / "best.pt"), "--threads", "1", "--quiet", "--flip-average"]
     rc = main(
-        ["evaluate", *ckpt, "--data", str(tiny_dataset), "--split", "all", "--max-frames", "2", "--json", str(out)]
+        ["evaluate", *ckpt, "--data", str(tiny_dataset), "--split", "all", "--max-frames", "2", "--json-out", str(out)]
     )
     assert rc == 0
     assert "flip-averaged" in capsys.readouterr().out
@@ -102,7 +102,18 @@ def test_evaluate_and_predict_run_a_bf16_trunk_on_request(run_dir, tiny_dataset,
     ckpt = ["--checkpoint", str(run_dir / "best.pt"), "--threads", "1", "--quiet", "--precision", "bf16"]
     assert (
         main(
-            ["evaluate", *ckpt, "--data", str(tiny_dataset), "--split", "all", "--max-frames", "2", "--json", str(out)]
+            [
+                "evaluate",
+                *ckpt,
+                "--data",
+                str(tiny_dataset),
+                "--split",
+                "all",
+                "--max-frames",
+                "2",
+                "--json-out",
+                str(out),
+            ]
         )
         == 0
     )

@@ -15,7 +15,7 @@ from network.model.config import ModelConfig
 from network.model.memory import shift_columns
 from network.model.motion import MAX_SHIFT, camera_motion, camera_shift, motion_signature
 from network.model.net import MVRackLay
-from network.training.fit_boxdepth import with_box_head
+from network.training.fit_box_depth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
 from network.training.toy import ToySequence
 from tests.test_network_model import ANCHORS, tiny

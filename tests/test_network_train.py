@@ -12,7 +12,7 @@ from tiny_net import tiny_config
 
 from layouts import InputError, LayoutSpec
 from network.checkpoint import export_weights, init_weights_from, load_checkpoint, load_model, save_checkpoint
-from network.inference.evaluate import evaluate_sequences
+from network.inference.layout_eval import evaluate_sequences
 from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.model.net import MVRackLay

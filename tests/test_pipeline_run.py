@@ -150,7 +150,7 @@ def test_camera_json_and_mismatch_warning(seq_dir: Path, checkpoint: Path, tmp_p
     out = tmp_path / "o"
     argv = ["run", str(seq_dir), "--out", str(out), "--checkpoint", str(checkpoint), "--camera", str(cam)]
     assert main([*argv, "--quiet", "--no-rrd", "--max-frames", "2"]) == 0
-    err = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    err = [line for line in capsys.readouterr().err.splitlines() if "warning: camera" in line]
     assert len(err) == 1 and "horizontal FOV" in err[0] and "trained" in err[0]
     assert "camera.hfov_deg 116.0" in err[0] and "further back" not in err[0]  # wider: no distance helps
     assert WarehouseMap.load(out / "warehouse.json").meta["intrinsics"]["fx"] == 40.0
@@ -170,7 +170,7 @@ def test_rerun_replaces_earlier_outputs_and_keeps_other_files(seq_dir: Path, che
 
 def test_camera_advice_says_how_far_back_a_narrower_camera_stands():
     from layouts import Intrinsics
-    from mvracklay.frames import camera_advice
+    from mvracklay.camera import camera_advice
 
     trained = Intrinsics.from_fov(128, 128, 60.0)
     said = camera_advice(Intrinsics.from_fov(640, 480, 51.4), trained)
@@ -179,7 +179,7 @@ def test_camera_advice_says_how_far_back_a_narrower_camera_stands():
 
 def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
     from layouts import Intrinsics
-    from mvracklay.frames import camera_advice, camera_mismatch
+    from mvracklay.camera import camera_advice, camera_mismatch
 
     mid = Intrinsics.from_fov(128, 128, 55.0)
     inside, narrow = Intrinsics.from_fov(256, 256, 47.0), Intrinsics.from_fov(256, 256, 36.0)

@@ -63,7 +63,8 @@ def test_calibrate_centres_the_reading_and_every_reading_moves_by_it(
     args = ["--target", "rack-depth", "--checkpoint", str(with_heads), "--data", str(tiny_dataset)]
     assert (
         run_stage(
-            "calibrate", [*args, "--every", "1", "--out", str(out), "--json", str(scores), "--threads", "1", "--quiet"]
+            "calibrate",
+            [*args, "--every", "1", "--out", str(out), "--json-out", str(scores), "--threads", "1", "--quiet"],
         )
         == 0
     )

@@ -18,7 +18,7 @@ from tiny_net import TINY_NET
 
 from layouts.errors import InputError
 from mvracklay.cli import main
-from network.data import DEFAULT_DISTANCE
+from network.preprocess import DEFAULT_DISTANCE
 from network.training.train_data import open_data
 from waresynth.dataset import open_dataset
 from waresynth.exporters import export_dataset
@@ -192,7 +192,7 @@ def test_train_and_evaluate_on_their_layout(tmp_path: Path, capsys: pytest.Captu
     assert main(["train", "--data", str(tmp_path / "theirs"), "--out", str(run), *args]) == 0
     out = tmp_path / "eval.json"
     cmd = ["evaluate", "--checkpoint", str(run / "last.pt"), "--data", str(tmp_path / "theirs"), "--split", "train"]
-    assert main([*cmd, "--metric", "reference", "--threads", "1", "--quiet", "--json", str(out)]) == 0
+    assert main([*cmd, "--metric", "reference", "--threads", "1", "--quiet", "--json-out", str(out)]) == 0
     res = json.loads(out.read_text())
     assert res["reference_windows"] == 6 and res["reference"]["top"]["rack"]["pairs"] == 6 * 4
     assert "reference metric" in capsys.readouterr().out

@@ -68,7 +68,9 @@ def test_evaluate_metric_reference_beside_ours(
 ) -> None:
     out = tmp_path / "r.json"
     cmd = ["evaluate", "--checkpoint", str(tiny_checkpoint), "--data", str(tiny_dataset), "--split", "all"]
-    assert main([*cmd, "--max-frames", "3", "--metric", "both", "--threads", "1", "--quiet", "--json", str(out)]) == 0
+    assert (
+        main([*cmd, "--max-frames", "3", "--metric", "both", "--threads", "1", "--quiet", "--json-out", str(out)]) == 0
+    )
     text = capsys.readouterr().out
     assert "columns in view" in text and "reference metric, 9 windows of 3 sequences" in text
     res = json.loads(out.read_text())

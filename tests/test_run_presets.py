@@ -46,17 +46,8 @@ def test_the_default_preset_is_the_run_defaults(settings):
     cfg = settings()
     assert cfg == settings("--quality", "default")
     plain = RunConfig()
-    for name in (
-        "mode",
-        "flip",
-        "whole_sequence",
-        "fuse_tau",
-        "read_depth",
-        "rgb",
-        "map_every",
-        "opening",
-        "precision",
-    ):
+    assert cfg.inference == plain.inference
+    for name in ("mode", "rgb", "map_every", "opening", "precision"):
         assert getattr(cfg, name) == getattr(plain, name), name
     from mvracklay.threads import AUTO_MAX, usable_cores
 
@@ -65,13 +56,18 @@ def test_the_default_preset_is_the_run_defaults(settings):
 
 def test_offline_and_fast_presets(settings):
     off = settings("--quality", "offline")
-    assert off.whole_sequence and off.flip and off.fuse_tau == FUSE_TAU and off.read_depth
+    assert (
+        off.inference.whole_sequence
+        and off.inference.flip
+        and off.inference.fuse_tau == FUSE_TAU
+        and off.inference.read_depth
+    )
     fast = settings("--quality", "fast")
-    assert not fast.read_depth and not fast.rgb and fast.map_every == 10
-    assert not fast.flip and not fast.whole_sequence and fast.fuse_tau == 0
+    assert not fast.inference.read_depth and not fast.rgb and fast.map_every == 10
+    assert not fast.inference.flip and not fast.inference.whole_sequence and fast.inference.fuse_tau == 0
     # the command line still wins over a preset
-    assert settings("--quality", "offline", "--no-flip-average", "--fuse-frames", "0").flip is False
-    assert settings("--quality", "offline", "--fuse-frames", "0").fuse_tau == 0
+    assert settings("--quality", "offline", "--no-flip-average", "--fuse-frames", "0").inference.flip is False
+    assert settings("--quality", "offline", "--fuse-frames", "0").inference.fuse_tau == 0
 
 
 @pytest.mark.parametrize("suffix", [".json", ".toml"])
@@ -82,10 +78,17 @@ def test_a_config_file_sets_options_by_their_long_names(settings, tmp_path, suff
     else:
         path.write_text('quality = "offline"\nrack-depth = 1.1\nflip-average = false\nthreads = 1\n')
     cfg = settings("--config", str(path))
-    assert cfg.whole_sequence and not cfg.flip and cfg.rack_depth == 1.1 and cfg.threads == 1
+    assert (
+        cfg.inference.whole_sequence and not cfg.inference.flip and cfg.inference.rack_depth == 1.1 and cfg.threads == 1
+    )
     # the command line wins over the file, the file over the preset
     cfg = settings("--config", str(path), "--threads", "2", "--quality", "fast")
-    assert cfg.threads == 2 and not cfg.read_depth and not cfg.whole_sequence and cfg.rack_depth == 1.1
+    assert (
+        cfg.threads == 2
+        and not cfg.inference.read_depth
+        and not cfg.inference.whole_sequence
+        and cfg.inference.rack_depth == 1.1
+    )
 
 
 @pytest.mark.parametrize(

@@ -76,7 +76,7 @@ def test_shipped_file_is_fp16_small_and_documented(weights: Path):
 def test_shipped_model_reads_layouts(weights: Path, tiny_dataset: Path, tmp_path: Path):
     out = tmp_path / "table1.json"
     args = ["evaluate", "--checkpoint", str(weights), "--data", str(tiny_dataset), "--split", "all"]
-    assert main([*args, "--json", str(out), "--quiet", "--threads", "2"]) == 0
+    assert main([*args, "--json-out", str(out), "--quiet", "--threads", "2"]) == 0
     table = json.loads(out.read_text())["visible"]
     for (view, cls), floor in FLOORS.items():
         assert 100 * table[view][cls]["miou"] >= floor, (view, cls, table[view][cls]["miou"])

@@ -6,7 +6,7 @@ import pytest
 
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from mvracklay.commands.eval_reconstruction import Degrade, evaluate_sequence, summarise
+from mvracklay.reconstruction_eval import Degrade, evaluate_sequence, summarise
 from stitching.pipeline import StitchConfig
 
 

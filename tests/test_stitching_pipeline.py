@@ -9,8 +9,8 @@ from layouts import BOX, SHELF, InputError, LayoutError, LayoutSpec
 from layouts.codecs import FrameLayouts
 from layouts.raster import fill_rect
 from stitching.detect import DetectConfig, detect_frame
-from stitching.evaluate import covered_range, evaluate_map
 from stitching.lift import lift_frame
+from stitching.map_eval import covered_range, evaluate_map
 from stitching.pipeline import StitchConfig, Stitcher, frame_arrays, reconstruct
 from stitching.synthetic import degrade, make_sequence
 

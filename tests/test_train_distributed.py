@@ -15,9 +15,10 @@ import torch
 
 from layouts import InputError
 from network.checkpoint import load_checkpoint, load_model
+from network.device import DistEnv, device_for, single_process_device
 from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
-from network.training.distributed import DistEnv, device_for, rank_indices, single_process_device
+from network.training.distributed import rank_indices
 from network.training.run_records import weights_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]

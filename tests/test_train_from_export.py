@@ -65,7 +65,7 @@ def test_train_and_evaluate_on_an_export(tiny_dataset: Path, racklay_export: Pat
     for name, data in (("export", racklay_export), ("dataset", tiny_dataset)):
         out = tmp_path / f"{name}.json"
         cmd = ["evaluate", "--checkpoint", str(run / "last.pt"), "--data", str(data), "--split", "all"]
-        assert main([*cmd, "--threads", "1", "--quiet", "--json", str(out)]) == 0
+        assert main([*cmd, "--threads", "1", "--quiet", "--json-out", str(out)]) == 0
         scores[name] = json.loads(out.read_text())
     assert scores["export"]["frames"] == sum(s.num_frames for s in open_dataset(tiny_dataset).sequences())
     assert scores["export"]["visible"] == scores["dataset"]["visible"]

@@ -18,7 +18,7 @@ from network.heads.uprights import REAR_FACE, UprightHead, column_offsets, uprig
 from network.inference.predictor import Predictor
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
-from network.training.fit_backedge import FitConfig
+from network.training.fit_back_edges import FitConfig
 from network.training.fit_uprights import cache_features, train_head, upright_targets
 from stitching.warehouse_map import WarehouseMap
 from waresynth.dataset import open_dataset

@@ -10,12 +10,14 @@ import torch
 from tiny_net import tiny_config
 
 from layouts.spec import LayoutSpec
-from network.data import DEFAULT_DISTANCE, row_target
+from network.data import row_target
 from network.heads.backedge import DEPTH_STEP, back_edge_rows
 from network.heads.boxdepth import BINS
-from network.inference.predictor import HEAD_INPUTS, Predictor, frame_layouts
+from network.inference.predictor import HEAD_INPUTS, Predictor
+from network.inference.result import frame_layouts
 from network.model.net import MVRackLay
-from network.training.fit_boxdepth import with_box_head
+from network.preprocess import DEFAULT_DISTANCE
+from network.training.fit_box_depth import with_box_head
 
 SPEC = LayoutSpec(size=16)
 FRAMES = 5

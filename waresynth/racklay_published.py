@@ -34,7 +34,7 @@ from layouts.spec import LayoutSpec
 
 #: horizontal field of view assumed for the images (the toolkit's default camera)
 DEFAULT_HFOV_DEG = 60.0
-#: camera-to-rack distance assumed for every frame (equals `network.data.DEFAULT_DISTANCE`)
+#: camera-to-rack distance assumed for every frame (equals `network.preprocess.DEFAULT_DISTANCE`)
 DEFAULT_DISTANCE_M = 2.6
 LIST_FOLDERS = ("splits/warehouse", "splits", ".")
 SPLITS = ("train", "val", "test")

@@ -4,23 +4,20 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from layouts.errors import InputError
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from mvracklay.options import (
-    FLIP_HELP,
-    NO_DEPTH_READ_HELP,
-    WHOLE_SEQUENCE_HELP,
     add_device_option,
-    add_fuse_option,
+    add_json_out_option,
     add_precision_option,
     add_quiet_option,
-    add_roll_option,
 )
+from mvracklay.settings import InferenceSettings, add_options, from_args
 
 if TYPE_CHECKING:
-    from network.model.net import MVRackLay
+    pass
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -33,6 +30,8 @@ DESCRIPTION = (
 )
 GROUP = "models"
 ORDER = 31
+#: the inference settings scoring takes (a rack depth is each sequence's own to read)
+INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll", "pitch", "yaw")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,11 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
-    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
-    p.add_argument("--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP)
-    p.add_argument("--whole-sequence", action="store_true", help=WHOLE_SEQUENCE_HELP)
-    add_fuse_option(p)
-    add_roll_option(p)
+    add_options(p, InferenceSettings, only=INFERENCE)  # --flip-average, --no-depth-read, ... (mvracklay.settings)
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
     add_precision_option(p)
@@ -67,34 +62,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "eval_vracklay.py: all cells, an empty (frame, slot) pair scores 1, precision over the classes in the "
         "ground truth, / frames x slots, targets f0, f0, f1 .. f[N-2] of each sequence), or both",
     )
-    p.add_argument("--json", type=Path, help="also write the full result as JSON here")
+    add_json_out_option(p, "also write the full result as JSON here")
     add_quiet_option(p, "hide the progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
+
+    from dataclasses import replace
 
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_reference_table, format_table
     from layouts.publish import refuse_overlap
-    from network.checkpoint import load_model
-    from network.inference.evaluate import evaluate_sequences
-    from network.inference.fusion import check_tau
+    from network.inference.layout_eval import evaluate_sequences, table_title
+    from network.inference.loading import load_for_inference
     from network.inference.roll import ANGLES, check_angle, describe_angles
-    from network.model.frozen import trunk_precision, use_precision
-    from network.training.distributed import single_process_device
+    from network.model.frozen import trunk_precision
     from network.training.train_data import open_data
 
-    refuse_overlap([args.json] if args.json else [], {"--data": args.data, "--checkpoint": args.checkpoint}, "--json")
+    refuse_overlap(
+        [args.json_out] if args.json_out else [], {"--data": args.data, "--checkpoint": args.checkpoint}, "--json-out"
+    )
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
-    fuse_tau = check_tau(args.fuse_frames, "--fuse-frames")
-    # an angle not given is each sequence's recorded one (0 for a level camera); checked here
-    roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((args.roll, args.pitch, args.yaw), ANGLES))
-    torch.set_num_threads(args.threads)
-    model, record = load_model(args.checkpoint)
-    model.to(single_process_device(NAME, args.device))
-    use_precision(model, args.precision)
+    settings = from_args(InferenceSettings, args)
+    settings.validate()
+    fuse_tau = settings.fuse_tau
+    # an angle not given is each sequence's recorded one (0 for a level camera)
+    roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((settings.roll, settings.pitch, settings.yaw), ANGLES))
+    model, record = load_for_inference(args.checkpoint, NAME, args.device, args.precision, args.threads)
     ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
@@ -106,16 +101,19 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames or None,
         progress=not args.quiet,
         true_anchors=args.true_anchors,
-        flip=args.flip_average,
-        read_depth=not args.no_depth_read,
-        whole_sequence=args.whole_sequence,
+        flip=settings.flip,
+        read_depth=settings.read_depth,
+        whole_sequence=settings.whole_sequence,
         fuse_tau=fuse_tau,
         roll=roll,
         pitch=pitch,
         yaw=yaw,
         reference=args.metric != "ours",
     )
-    title = _title(args, record, model, res, len(seqs), fuse_tau, (roll, pitch, yaw))
+    title = table_title(
+        record.get("variant"), f"{args.data} [{args.split}]", args.mode, model, res, len(seqs),
+        replace(settings, roll=roll, pitch=pitch, yaw=yaw), args.true_anchors,
+    )  # fmt: skip
     if args.metric != "reference":
         print(format_table(res["visible"], title + " -- columns in view"))
         print()
@@ -129,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     lists = {"roll": (roll, res["rolls"]), "pitch": (pitch, res["pitches"]), "yaw": (yaw, res["yaws"])}
     for line in describe_angles({w: v for w, (given, v) in lists.items() if given == "auto"}):
         print(line)
-    if args.json:
+    if args.json_out:
         out = {
             "checkpoint": str(args.checkpoint),
             "data": str(args.data),
@@ -140,50 +138,6 @@ def run(args: argparse.Namespace) -> int:
             "precision": trunk_precision(model),
             **res,
         }
-        atomic_write_json(args.json, nan_to_null(out))
-        print(f"wrote {args.json}")
+        atomic_write_json(args.json_out, nan_to_null(out))
+        print(f"wrote {args.json_out}")
     return 0
-
-
-def _title(
-    args: argparse.Namespace,
-    record: dict[str, Any],
-    model: MVRackLay,
-    res: dict[str, Any],
-    sequences: int,
-    fuse_tau: float,
-    angles: tuple[float | str | None, float | str | None, float | str | None],
-) -> str:
-    """The tables' title: model, data, frames and every setting that changes what was scored."""
-    import numpy as np
-
-    from network.inference.roll import ANGLES
-    from network.model.frozen import trunk_precision
-
-    roll, pitch, yaw = angles
-    title = f"{record.get('variant')} on {args.data} [{args.split}], {res['frames']} frames of {sequences} sequences, {args.mode} mode"
-    if args.flip_average:
-        title += ", flip-averaged"
-    if trunk_precision(model) != "fp32":
-        title += f", the trunk in {trunk_precision(model)}"
-    if model.back is not None or model.uprights is not None:
-        title += f", rack depth {res['rack_depth']}"
-    if model.box_depth is not None:
-        title += f", box depths {res['box_depth']}"
-    if args.whole_sequence and not args.no_depth_read and (model.back, model.uprights, model.box_depth) != (None,) * 3:
-        title += ", depths from the whole sequence"
-    if fuse_tau > 0:
-        title += f", neighbouring frames fused (tau {fuse_tau:g})"
-    recorded = np.asarray(res["recorded_angles"], float).reshape(-1, 3)
-    for k, (what, given) in enumerate(zip(ANGLES, (roll, pitch, yaw))):
-        if given is None and recorded[:, k].any():
-            lo, hi = recorded[:, k].min(), recorded[:, k].max()
-            span = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
-            title += f", camera {what} levelled as recorded ({span} deg)"
-        elif given == 0 and recorded[:, k].any():
-            title += f", camera {what} taken as level (recorded {np.abs(recorded[:, k]).max():g} deg)"
-        elif given not in (None, 0):
-            title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
-    if args.true_anchors:
-        title += ", ground-truth shelf boards"
-    return title

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_quiet_option
+from mvracklay.options import add_json_out_option, add_quiet_option
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", type=Path, required=True, help="dataset folder written by 'mvracklay generate'")
     p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
     p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
-    p.add_argument("--json", type=Path, help="also write the result as JSON here")
+    add_json_out_option(p, "also write the result as JSON here")
     add_quiet_option(p, "no progress bar")
 
 
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from layouts.publish import refuse_overlap
     from waresynth.dataset import open_dataset
 
-    refuse_overlap([args.json] if args.json else [], {"--data": args.data}, "--json")
+    refuse_overlap([args.json_out] if args.json_out else [], {"--data": args.data}, "--json-out")
     if args.max_frames < 0:
         raise InputError(f"--max-frames must be >= 0, got {args.max_frames}")
     ds = open_dataset(args.data)
@@ -71,9 +71,9 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(res["visible"], title + " -- columns in view"))
     print()
     print(format_table(res["all"], title + " -- all cells"))
-    if args.json:
+    if args.json_out:
         atomic_write_json(
-            args.json, nan_to_null({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
+            args.json_out, nan_to_null({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
         )
-        print(f"wrote {args.json}")
+        print(f"wrote {args.json_out}")
     return 0

@@ -6,27 +6,17 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
 from mvracklay.options import (
-    CAMERA_HEIGHT_HELP,
-    CAMERA_JSON_HELP,
-    DISTANCE_HELP,
-    FLIP_HELP,
-    FUSE_TAU,
-    NO_DEPTH_READ_HELP,
-    RACK_DEPTH_HELP,
-    WHOLE_SEQUENCE_HELP,
-    add,
     add_device_option,
-    add_fuse_option,
     add_help_all_option,
     add_precision_option,
     add_quiet_option,
-    add_roll_option,
     add_spawn_option,
     add_threads_option,
     read_config,
 )
+from mvracklay.presets import PRESETS
+from mvracklay.settings import InferenceSettings, RunConfig, add_options, from_args
 from mvracklay.threads import resolve_threads
 
 NAME = "run"
@@ -50,18 +40,6 @@ ORDER = 10
 INTERRUPTED = "OUT left as it was; run it again to start over"
 
 
-#: ``--quality``: the inference settings each preset sets (under a --config file and the command line).
-#: default: today's online settings (streaming; the depths read from the frames so far); offline: every
-#: frame's depths, test-time flip and neighbouring frames fused (layouts once the whole input is read, about
-#: half the frame rate); fast: the decoder's own depths (no back-edge / box-depth reading, ~1.3x the frame
-#: rate measured at 256x256), the recording without RGB and its map every 10th frame
-PRESETS: dict[str, dict[str, object]] = {
-    "fast": {"no_depth_read": True, "no_rgb": True, "map_every": 10},
-    "default": {},
-    "offline": {"whole_sequence": True, "flip_average": True, "fuse_frames": FUSE_TAU},
-}
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("input", metavar="INPUT", help="sequence folder, image folder or video file")
     p.add_argument("--out", type=Path, help="output folder (required)")
@@ -71,10 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="write into an OUT holding other files (only run's outputs there are replaced); without it OUT "
         "must be missing, empty or an earlier run's output folder",
     )
-    p.add_argument("--checkpoint", type=checkpoint_arg, help=f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}")
-    p.add_argument("--camera", type=Path, help=CAMERA_JSON_HELP)
-    p.add_argument("--distance", type=float, metavar="M", help=DISTANCE_HELP)
-    p.add_argument("--camera-height", type=float, metavar="M", help=CAMERA_HEIGHT_HELP)
+    add_options(p, RunConfig, only=("checkpoint", "camera", "distance", "camera_height"))  # mvracklay.settings
     p.add_argument(
         "--quality",
         choices=tuple(PRESETS),
@@ -94,27 +69,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_spawn_option(p)
     add_quiet_option(p)
     add_help_all_option(p)
-    more = {"hidden": True}  # the rest: config-file keys, still parseable (--help-all shows them)
-    add(p, "--mode", choices=["stream", "window"], default="stream", help="network inference mode", **more)
-    add(p, "--max-frames", type=int, default=0, help="process at most N frames (0 = all)", **more)
-    add(p, "--every", type=int, default=1, metavar="N", **more,
-        help="process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept")  # fmt: skip
-    add(p, "--distance-reader", type=Path, metavar="FILE", **more,
-        help="the distance reader to read footage's distance with (default: the shipped one)")  # fmt: skip
-    add(p, "--rack-depth", type=float, metavar="M", help=RACK_DEPTH_HELP, **more)
-    add(p, "--no-depth-read", action="store_true", help=NO_DEPTH_READ_HELP, **more)
-    add(p, "--whole-sequence", action=argparse.BooleanOptionalAction, default=False, help=WHOLE_SEQUENCE_HELP, **more)
-    add(p, "--flip-average", action=argparse.BooleanOptionalAction, default=False, help=FLIP_HELP, **more)
-    add_fuse_option(p, **more)
-    add_roll_option(p, **more)
-    add(p, "--layout-size", type=int, default=0, help="resolution D of the written layouts (0 = the model's)", **more)
-    add_precision_option(p, **more)
-    add(p, "--no-rrd", action="store_true", help="do not write warehouse.rrd", **more)
-    add(p, "--no-rgb", action="store_true", help="do not log the RGB frames to Rerun", **more)
-    add(p, "--map-every", type=int, default=1, help="log the growing map to Rerun every N frames", **more)
-    add(p, "--no-opening", action="store_true", **more,
-        help="stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)")  # fmt: skip
-    add(p, "--board-thickness", type=float, default=0.06, help="assumed shelf board thickness (metres)", **more)
+    # the rest: config-file keys, still parseable (--help-all shows them)
+    add_options(p, RunConfig, hidden=True, only=("mode", "max_frames", "every", "distance_reader"))
+    add_options(p, InferenceSettings, hidden=True)
+    add_options(p, RunConfig, hidden=True, only=("layout_size",))
+    add_precision_option(p, hidden=True)
+    add_options(p, RunConfig, hidden=True, only=("rrd", "rgb", "map_every", "opening", "board_thickness"))
     hidden = [a.option_strings[0][2:] for a in p._actions if a.help == argparse.SUPPRESS and hasattr(a, "full_help")]
     p.epilog = (
         f"More options, by their long names in a --config file (or as --NAME here): {', '.join(hidden)}. "
@@ -133,7 +93,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
     from mvracklay.outputs import OUTPUTS, check_apart, check_out, spawn_viewer
-    from mvracklay.pipeline import RunConfig, run_pipeline
+    from mvracklay.pipeline import run_pipeline
     from network.inference.roll import describe_angles
     from stitching.free_space import format_table
 
@@ -141,29 +101,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--out is required (on the command line or as 'out' in the --config file)")
     if args.spawn and args.no_rrd:
         raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
-    cfg = RunConfig(
-        checkpoint=args.checkpoint,
-        camera=args.camera,
-        mode=args.mode,
-        flip=args.flip_average,
-        max_frames=args.max_frames,
-        every=args.every,
-        layout_size=args.layout_size,
-        distance=args.distance,
-        camera_height=args.camera_height,
-        distance_reader=args.distance_reader,
-        rack_depth=args.rack_depth,
-        read_depth=not args.no_depth_read,
-        whole_sequence=args.whole_sequence,
-        fuse_tau=args.fuse_frames,
-        roll=args.roll,
-        pitch=args.pitch,
-        yaw=args.yaw,
-        rrd=not args.no_rrd,
-        rgb=not args.no_rgb,
-        map_every=args.map_every,
-        opening=not args.no_opening,
-        board_thickness=args.board_thickness,
+    cfg = from_args(
+        RunConfig,
+        args,
+        inference=from_args(InferenceSettings, args),
         threads=resolve_threads(args.threads),
         precision=args.precision,
         device=args.device,

@@ -11,7 +11,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import FLIP_HELP
+from mvracklay.options import FLIP_HELP, add_json_out_option
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.training.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 
@@ -44,9 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    p.add_argument(
-        "--json", type=Path, help="also write the scores (every box offset's, or the depth errors) as JSON here"
-    )
+    add_json_out_option(p, "also write the scores (every box offset's, or the depth errors) as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
@@ -94,6 +92,6 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or args.checkpoint
     save_checkpoint(out, {k: v for k, v in payload.items() if k != "record_json"}, record)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
-    if args.json:
-        atomic_write_json(args.json, nan_to_null(res))
+    if args.json_out:
+        atomic_write_json(args.json_out, nan_to_null(res))
     return 0

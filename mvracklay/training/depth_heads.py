@@ -12,7 +12,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import add_precision_option
+from mvracklay.options import add_json_out_option, add_precision_option
 from network.model.frozen import trunk_precision, use_precision
 
 
@@ -29,7 +29,7 @@ def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -
     p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
     p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    add_json_out_option(p, "also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
     add_precision_option(p)
     add_jpeg_arguments(p)
@@ -100,8 +100,8 @@ def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source:
     }
     save_with_head(out, payload, record, replace(model.cfg, **{flag: True}), name, head, flag, info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
-    if args.json:
-        atomic_write_json(args.json, nan_to_null(summary))
+    if args.json_out:
+        atomic_write_json(args.json_out, nan_to_null(summary))
     return 0
 
 

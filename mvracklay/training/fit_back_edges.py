@@ -22,6 +22,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from network.training.fit_backedge import FitConfig, fit_back_edges
+    from network.training.fit_back_edges import FitConfig, fit_back_edges
 
     return run_fit(args, FitConfig(), fit_back_edges, "the back edges", "back_edges", "back")

@@ -9,11 +9,11 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import add_precision_option
+from mvracklay.options import add_json_out_option, add_precision_option
 from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
 from network.model.frozen import use_precision
-from network.training.fit_boxdepth import FitConfig
+from network.training.fit_box_depth import FitConfig
 
 NAME = "fit-box-depth"
 HELP = "fit the box-depth head (reads each box's depth, carried along the row) to a trained checkpoint"
@@ -104,7 +104,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "streams (the record says how many); not with --keep-cache or --cache-only",
     )  # fmt: skip
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (the fit's, and a one-process pass's)")
-    p.add_argument("--json", type=Path, help="also write the fit's (or the cache's) summary as JSON here")
+    add_json_out_option(p, "also write the fit's (or the cache's) summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bars")
     add_precision_option(
         p, "; bf16 also runs the head's forward passes in the fit under bf16 autocast (about half the time with "
@@ -116,7 +116,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.training.box_cache import FrameChoice
-    from network.training.fit_boxdepth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
+    from network.training.fit_box_depth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
     if args.threads < 1:
@@ -154,8 +154,8 @@ def run(args: argparse.Namespace) -> int:
             f"{state} the inputs of {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
             f"in {args.keep_cache} ({summary['cache_minutes']:.1f} minutes); fit with the same --keep-cache"
         )
-        if args.json:
-            atomic_write_json(args.json, nan_to_null(summary))
+        if args.json_out:
+            atomic_write_json(args.json_out, nan_to_null(summary))
         return 0
     head, summary = fit_box_depth(
         model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
@@ -183,6 +183,6 @@ def run(args: argparse.Namespace) -> int:
     cfg_out = box_head_config(model.cfg, args.parallax, args.head_width, args.front)
     save_with_head(out, payload, record, cfg_out, "box_depth", head, "box_depth", info)
     print(f"wrote {out} (and {Path(out).with_suffix('.json').name})")
-    if args.json:
-        atomic_write_json(args.json, nan_to_null(summary))
+    if args.json_out:
+        atomic_write_json(args.json_out, nan_to_null(summary))
     return 0

@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.options import add_json_out_option
 
 NAME = "fit-look"
 HELP = "tune a trained checkpoint's trunk so dim, tinted, noisy, blurred, compressed frames give its usual features"
@@ -42,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="seed of the samples and their looks")
     p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    p.add_argument("--json", type=Path, help="also write the fit's summary as JSON here")
+    add_json_out_option(p, "also write the fit's summary as JSON here")
     p.add_argument("--quiet", action="store_true", help="hide the progress bar")
 
 
@@ -77,8 +78,8 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed, threads=args.threads, progress=not args.quiet,
         info={"look": str(args.look), "data": [str(d) for d in args.data], "sequences": len(train)},
     )  # fmt: skip
-    if args.json:
-        atomic_write_json(args.json, fit)
+    if args.json_out:
+        atomic_write_json(args.json_out, fit)
     before, after = fit["val_loss"]
     print(
         f"fit-look: wrote {args.out} after {fit['steps']} steps ({fit['wall_minutes']:.1f} min); the loss on "

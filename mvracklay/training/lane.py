@@ -1,5 +1,6 @@
 """One lane of a group of side-by-side stages, in a process of its own: ``python -m mvracklay.training.lane
-SPEC.json`` runs the stages the runner wrote into SPEC in order, each's output (and progress) into its log,
+SPEC.json`` runs the stages the runner wrote into SPEC in order (on the settings their values give,
+`mvracklay.training.stages.stage_settings`), each's output (and progress) into its log,
 and records each in the run's state file as it finishes. The process ends with the runner's (Linux)."""
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 from layouts.errors import InputError
 from mvracklay.training.plan import shell_line
-from mvracklay.training.stages import call_stage
+from mvracklay.training.stages import run_settings, stage_settings
 from mvracklay.training.state import State
 
 
@@ -40,7 +41,7 @@ def main(argv: list[str]) -> int:
                 f.flush()
             try:
                 with contextlib.redirect_stdout(f), contextlib.redirect_stderr(f):
-                    rc = call_stage(st["name"], st["argv"])
+                    rc = run_settings(st["name"], stage_settings(st["name"], st["options"], st["args"]))
             except InputError as e:
                 print(f"stage {st['name']} ({st['id']}): {e}", file=sys.stderr)
                 return 2

@@ -1,21 +1,23 @@
-"""A recipe's stages as argument lists: options (a TOML table) turned into each stage's own flags, and all
-of them parsed once before anything runs so that a bad option is refused up front."""
+"""A recipe's stages resolved: each stage's options (a TOML table) checked against its own parser before anything
+runs, so that a bad option is refused up front. A stage runs on the settings its values give
+(`Step.settings`, `mvracklay.training.stages.stage_settings`); its argument list (`Step.argv`, the same
+values as flags) is what a dry run and the logs show, and what a lane of side-by-side stages is handed."""
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from layouts.errors import InputError
 from mvracklay.training.recipe import MINUTES_OPTION, Context, DataSpec, Recipe, Stage
-from mvracklay.training.stages import RUNNER_STAGES, STAGE_MODULES, option_actions, stage_parser
+from mvracklay.training.stages import RUNNER_STAGES, STAGE_MODULES, option_actions, stage_parser, stage_settings
 
 #: what a stage's ``minutes = "budget"`` stands for before the budget is known (a dry run shows the rule)
 BUDGET_PLACEHOLDER = "<budget>"
 #: option names whose values a stage writes (the summary lists them)
-OUTPUT_OPTIONS = ("out", "json", "to")
+OUTPUT_OPTIONS = ("out", "json-out", "json", "to")
 
 
 @dataclass
@@ -27,6 +29,15 @@ class Step:
     log: Path
     outputs: list[str]
     skip_reason: str | None = None
+    #: the values the stage runs with, by option name, and its positional arguments (what ``argv`` spells out)
+    options: dict[str, Any] = field(default_factory=dict)
+    args: list[str] = field(default_factory=list)
+
+    def settings(self) -> argparse.Namespace:
+        """The stage's settings, built from its values (no command line in between)."""
+        if self.budget_minutes:
+            raise InputError(f"stage {self.stage.id}: its minutes wait for the budget")
+        return stage_settings(self.stage.name, self.options, self.args)
 
     @property
     def budget_minutes(self) -> bool:
@@ -86,19 +97,26 @@ def stage_step(ctx: Context, stage: Stage, out: Path, quiet: bool, pass_minutes:
         options[MINUTES_OPTION[stage.name]] = minutes
     argv: list[str] = []
     outputs: list[str] = []
+    values: dict[str, Any] = {}
     for key, raw in options.items():
         key = key.replace("_", "-")  # pass_minutes or pass-minutes
         if key not in actions or key == "args":
             known = ", ".join(k for k in actions if k != "args")
             raise InputError(f"{where}: unknown option {key!r} (the {stage.name} stage takes: {known})")
         value = ctx.resolve(raw, f"stage {stage.index} ({stage.id}) option {key!r}")
-        argv += _flag_values(key, value, actions[key], where)
-        if key in OUTPUT_OPTIONS and value:
+        flags = _flag_values(key, value, actions[key], where)
+        argv += flags
+        if flags:  # a false switch or an empty value leaves the stage's own default
+            values[key] = value
+        if key in OUTPUT_OPTIONS and value and value is not True:  # eval-reconstruction's --json prints
             outputs.append(str(value))
     if stage.name == "train" and "--resume" not in argv and "--export" not in argv:
         argv.append("--resume")  # a recipe run again goes on from the run's last.pt
+        values["resume"] = True
     if quiet and "--quiet" not in argv:
-        argv += _quiet_flag(stage.name)
+        flag = _quiet_flag(stage.name)
+        argv += flag
+        values.update({f[2:]: True for f in flag})
     args = [str(a) for a in ctx.resolve(stage.args, f"stage {stage.index} ({stage.id}) args")]
     if args:
         if "args" not in actions:
@@ -107,7 +125,7 @@ def stage_step(ctx: Context, stage: Stage, out: Path, quiet: bool, pass_minutes:
     if not outputs and "checkpoint" in options:  # updated in place
         outputs.append(str(ctx.resolve(options["checkpoint"], where)))
     log = Path(ctx.resolve(stage.log, f"{where} log")) if stage.log else out / "logs" / f"{stage.id}.log"
-    step = Step(stage, argv, log, outputs)
+    step = Step(stage, argv, log, outputs, options=values, args=args)
     if stage.skip:
         step.skip_reason = "skip = true"
     elif stage.unless_exists:

@@ -24,7 +24,7 @@ from layouts.errors import InputError
 from mvracklay.training import budget as budget_mod
 from mvracklay.training.plan import Step, check_steps, describe_recipe, generate_argv, shell_line, stage_step
 from mvracklay.training.recipe import Context, load_recipe
-from mvracklay.training.stages import call_stage
+from mvracklay.training.stages import call_stage, run_settings
 from mvracklay.training.state import State
 
 #: a test hook: the runner kills itself (SIGKILL, as ``kill -9`` would) once stage K of this run is recorded
@@ -171,8 +171,11 @@ class Runner:
         self.say(f"{INDENT}done in {minutes:.1f} min")
         self._after(1)
 
-    def call(self, n: int, name: str, key: str, argv: list[str], log: Path, fresh: bool) -> None:
-        """Run one stage in this process, its printed output into ``log``; a failure names the stage."""
+    def call(
+        self, n: int, name: str, key: str, argv: list[str], log: Path, fresh: bool, step: Step | None = None
+    ) -> None:
+        """Run one stage in this process (on ``step``'s settings; ``generate`` on ``argv``), its printed output into
+        ``log``; a failure names the stage."""
         log.parent.mkdir(parents=True, exist_ok=True)
         with open(log, "w" if fresh else "a") as f:
             if not fresh:
@@ -180,7 +183,7 @@ class Runner:
                 f.flush()
             try:
                 with contextlib.redirect_stdout(f):
-                    rc = call_stage(name, argv)
+                    rc = run_settings(name, step.settings()) if step is not None else call_stage(name, argv)
             except InputError as e:
                 raise InputError(f"stage {n}/{self.count} {name} ({key}): {e}") from None
             except BaseException:
@@ -229,7 +232,7 @@ class Runner:
             except InputError as e:
                 raise InputError(f"stage {n}/{self.count} {s.name} ({s.id}): {e}") from None
             self.say(f"[{n}/{self.count}] {s.name} ({s.id}) ...")
-            self.call(n, s.name, s.id, step.argv, step.log, fresh=s.log is not None)
+            self.call(n, s.name, s.id, step.argv, step.log, fresh=s.log is not None, step=step)
             line = last_line(step.log)
         minutes = (time.monotonic() - t0) / 60
         self.state.mark(s.id, s.name, minutes, step.argv, step.outputs)
@@ -288,8 +291,8 @@ class Runner:
         spec = {
             "out": str(self.out),
             "steps": [
-                {"id": st.stage.id, "name": st.stage.name, "argv": st.argv, "log": str(st.log),
-                 "outputs": st.outputs, "fresh": st.stage.log is not None}
+                {"id": st.stage.id, "name": st.stage.name, "argv": st.argv, "options": st.options, "args": st.args,
+                 "log": str(st.log), "outputs": st.outputs, "fresh": st.stage.log is not None}
                 for _, st in members
             ],
         }  # fmt: skip

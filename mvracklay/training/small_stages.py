@@ -1,5 +1,5 @@
-"""The small stages of a recipe: copy a checkpoint, export fp16 weights, check the held-out seeds, run a
-Python module or script (curves, benchmarks, tables)."""
+"""The small stages of a recipe: copy a checkpoint, export fp16 weights, check the held-out seeds, draw learning
+curves, run a Python module or script (benchmarks, tables)."""
 
 from __future__ import annotations
 
@@ -96,13 +96,41 @@ class check_seeds(_Stage):  # noqa: N801
         return 0
 
 
+class curves(_Stage):  # noqa: N801
+    NAME = "curves"
+    HELP = "draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG"
+
+    @staticmethod
+    def add_arguments(p: argparse.ArgumentParser) -> None:
+        from network.training.curves import X_AXES
+
+        p.add_argument("out", metavar="OUT.png", help="PNG to write")
+        p.add_argument(
+            "runs", nargs="+", metavar="LABEL=RUN_DIR", help="a run directory (or metrics.jsonl) and its label"
+        )
+        p.add_argument("--from", dest="x_from", type=float, default=0.0, metavar="X", help="draw points from this x on")
+        p.add_argument("--x", choices=sorted(X_AXES), default="cpu-minutes",
+                       help="x axis: training CPU-minutes (default), wall-clock minutes, or optimiser steps")  # fmt: skip
+
+    @staticmethod
+    def run(args: argparse.Namespace) -> int:
+        from network.training.curves import X_AXES, plot_curves
+
+        bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
+        if bad:
+            raise InputError(f"not LABEL=RUN_DIR: {bad[0]!r}")
+        plot_curves(dict(a.split("=", 1) for a in args.runs), args.out, x_key=X_AXES[args.x], x_from=args.x_from)
+        print(f"wrote {args.out}")
+        return 0
+
+
 class python(_Stage):  # noqa: N801
     NAME = "python"
     HELP = "run a Python module (-m) or script with arguments; its output goes to the stage's log"
 
     @staticmethod
     def add_arguments(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--module", help="a module to run as python -m MODULE (e.g. network.training.curves)")
+        p.add_argument("--module", help="a module to run as python -m MODULE (e.g. a benchmark)")
         p.add_argument("--script", type=Path, help="a script file to run")
         p.add_argument("args", nargs="*", help="its arguments (the recipe's args = [...])")
 

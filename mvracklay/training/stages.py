@@ -4,7 +4,9 @@ Every stage is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and `
 command of the CLI has; the fitting and calibration stages were commands of their own once, and take
 the same options. `run_stage` runs one stage from an argument list as the CLI ran it (one line and
 status 2 on bad input): the tests drive the stages through it, and
-``python -m mvracklay.training.stages NAME ARGS...`` does the same from a shell.
+``python -m mvracklay.training.stages NAME ARGS...`` does the same from a shell. A recipe's stage needs no
+command line: `stage_settings` builds the settings its ``run`` takes from the recipe's values by option name,
+each converted and checked by that option's own type and choices.
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from types import ModuleType
 from typing import Any
 
@@ -31,6 +33,7 @@ STAGE_MODULES: dict[str, str] = {
     "copy": "mvracklay.training.small_stages:copy",
     "export": "mvracklay.training.small_stages:export",
     "check-seeds": "mvracklay.training.small_stages:check_seeds",
+    "curves": "mvracklay.training.small_stages:curves",
     "python": "mvracklay.training.small_stages:python",
     "budget": "mvracklay.training.budget",
     "generate": "mvracklay.commands.generate",
@@ -81,9 +84,70 @@ def option_actions(name: str) -> dict[str, argparse.Action]:
             out.setdefault("args", a)
             continue
         longs = [s for s in a.option_strings if s.startswith("--")]
-        if longs and a.help != argparse.SUPPRESS:
+        if longs and (a.help != argparse.SUPPRESS or getattr(a, "deprecated_for", None)):  # an old name still taken
             out[longs[0][2:]] = a
     return out
+
+
+def stage_settings(name: str, options: Mapping[str, Any], args: Sequence[Any] = ()) -> argparse.Namespace:
+    """Stage ``name``'s settings as its ``run`` takes them: ``options`` by long option name (``pass-minutes``;
+    a switch ``true`` / ``false``, a list for several values), ``args`` its positional arguments; the parser's
+    defaults for the rest. Each value is converted and checked as its option converts it
+    (`mvracklay.options.config_value`); an unknown or missing one is one line (`InputError`)."""
+    from mvracklay.options import config_value
+
+    parser = stage_parser(name)
+    by_name = option_actions(name)
+    ns = argparse.Namespace()
+    for a in parser._actions:
+        if a.dest == argparse.SUPPRESS or a.default is argparse.SUPPRESS or hasattr(ns, a.dest):
+            continue
+        given = isinstance(a.default, str) and callable(a.type)
+        setattr(ns, a.dest, a.type(a.default) if given else a.default)  # as argparse converts a string default
+    seen = set()
+    for key, value in options.items():
+        action = by_name.get(key) or parser._option_string_actions.get(f"--{key}")  # a hidden alias too
+        if action is None or key == "args":
+            raise InputError(f"unknown option {key!r} (the {name} stage takes: {', '.join(sorted(by_name))})")
+        if getattr(action, "deprecated_for", None):
+            print(f"warning: --{key} is deprecated here: use {action.deprecated_for} (same value)", file=sys.stderr)
+        setattr(ns, action.dest, config_value(action, key, value, f"stage {name}"))
+        seen.add(action.dest)
+    seen |= _positionals(parser, ns, [str(a) for a in args], name)
+    missing = [a for a in parser._actions if a.required and a.dest not in seen]
+    if missing:
+        said = ", ".join("/".join(a.option_strings) or a.metavar or a.dest for a in missing)
+        raise InputError(f"the following arguments are required: {said}")
+    return ns
+
+
+def _positionals(parser: argparse.ArgumentParser, ns: argparse.Namespace, args: list[str], name: str) -> set[str]:
+    """``args`` shared out over the parser's positional arguments in order, each taking what its ``nargs``
+    allows while leaving the later ones their least; returns the dests set."""
+    from mvracklay.options import config_value
+
+    positionals = [a for a in parser._actions if not a.option_strings]
+    least = [0 if a.nargs in ("?", "*") else 1 if a.nargs in (None, "+") else int(a.nargs) for a in positionals]
+    seen, i = set(), 0
+    for k, a in enumerate(positionals):
+        room = max(len(args) - i - sum(least[k + 1 :]), min(least[k], len(args) - i))  # the earlier ones first
+        take = 1 if a.nargs in (None, "?") else room if a.nargs in ("*", "+") else int(a.nargs)
+        take = max(0, min(take, room))
+        if take < least[k]:
+            break  # too few: the required check names what is missing
+        if take:
+            value = args[i : i + take] if a.nargs not in (None, "?") else args[i]
+            setattr(ns, a.dest, config_value(a, a.metavar or a.dest, value, f"stage {name}"))
+            seen.add(a.dest)
+        i += take
+    if i < len(args):
+        raise InputError(f"stage {name}: unrecognized arguments: {' '.join(args[i:])}")
+    return seen
+
+
+def run_settings(name: str, settings: argparse.Namespace) -> int:
+    """Run stage ``name`` on its settings (`stage_settings`); bad input raises `InputError`."""
+    return int(stage_module(name).run(settings) or 0)
 
 
 def call_stage(name: str, argv: Sequence[str]) -> int:

@@ -9,9 +9,10 @@ import sys
 from pathlib import Path
 
 from layouts.errors import InputError
+from network.device import DistEnv, device_for
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
-from network.training.distributed import DEFAULT_TIMEOUT_MIN, DistEnv, device_for, init_process_group, shutdown
+from network.training.distributed import DEFAULT_TIMEOUT_MIN, init_process_group, shutdown
 from network.training.train_config import TrainConfig, default_model_config
 from network.training.train_data import open_data
 from network.training.trainer import Trainer

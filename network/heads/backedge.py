@@ -12,7 +12,7 @@ it; a board above shows its underside (one board thickness lower). So each board
 and front row give the rack depth, and a sequence gives many boards.
 
 `BackEdgeHead` finds back-edge rows: a 1-D network like the row head's, on the same column-pooled
-pyramid features, trained with the rest of the network frozen (`network.training.fit_backedge`).
+pyramid features, trained with the rest of the network frozen (`network.training.fit_back_edges`).
 `DepthReader` turns its probabilities into a depth: it scores every depth hypothesis by the
 back-edge log-probability where each board's back edge would then fall, sums the scores over the
 frames seen so far, and returns the best hypothesis; `network.inference.predictor.Predictor` imposes it on the top

@@ -10,14 +10,14 @@ window (`WINDOW_ROWS` rows, every column of that map) with the decoder's front-v
 pooled to those rows, then per layout column the decoder's top-view box probabilities along depth,
 the camera's height above the board and its distance to the rack front. Per layout column it gives a
 distribution over the box's back depth behind the rack front (`BINS`) and the probability that the
-frame shows that depth (fitted to `waresynth.visibility` labels; `network.training.fit_boxdepth`), the rest
+frame shows that depth (fitted to `waresynth.visibility` labels; `network.training.fit_box_depth`), the rest
 of the network frozen.
 
 `BoxDepthReader` carries the head's readings along the row: per slot, a map over world X (cells of
 one model column) that multiplies the distributions of every frame that had the cell in view, each
 raised to its shown probability (`RowMap`), the camera's X summed from the steps the images show
 (`network.model.motion`). Each frame's ``"box_back"`` ``(R, D)`` is the fused distribution's expected depth
-(NaN where the frames have not shown it enough yet); `network.inference.predictor.frame_layouts` moves every predicted box's back
+(NaN where the frames have not shown it enough yet); `network.inference.result.frame_layouts` moves every predicted box's back
 there (`layouts.boxdepth.impose_box_backs`).
 
 A head fitted with fronts (``front``; the `fit-box-depth` stage's `--front`) also gives, per column, a

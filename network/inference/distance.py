@@ -29,8 +29,8 @@ import torch
 from layouts import Intrinsics
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from network.data import DEFAULT_DISTANCE, canonical_image, to_tensor
 from network.model.distance import DistanceReader, DistanceReaderConfig
+from network.preprocess import DEFAULT_DISTANCE, canonical_image, to_tensor
 
 FORMAT = "mvracklay-distance-reader"
 #: resample-and-read rounds per frame
@@ -45,12 +45,9 @@ DISTANCE_RANGE = (0.8, 8.0)
 DISTANCE_LIMITS = (0.05, 100.0)
 
 
-def check_distance(value: float, where: str) -> str | None:
-    """Refuse (one line) a camera-to-rack distance outside `DISTANCE_LIMITS`; one outside `DISTANCE_RANGE`
-    (the range the networks were trained for) is used, and this returns the warning to print."""
-    lo, hi = DISTANCE_LIMITS
-    if not (math.isfinite(value) and lo <= value <= hi):
-        raise InputError(f"{where}: distance {value:g} m is out of range (a rack row is filmed from {lo:g}-{hi:g} m)")
+def distance_warning(value: float, where: str) -> str | None:
+    """The warning to print for a camera-to-rack distance outside `DISTANCE_RANGE` (the range the networks were
+    trained for; such a distance is still used), else None. Check it with `check_distance` first."""
     if not DISTANCE_RANGE[0] <= value <= DISTANCE_RANGE[1]:
         return (
             f"{where}: distance {value:g} m is outside the range the model was trained for "
@@ -192,14 +189,31 @@ def read_distance(
     return DistanceReading(float(np.median(d)), "read", len(frames), spread)
 
 
+def _metres(value: Any) -> float:
+    """``value`` as a float (NaN when it is no number: a bool, text, None)."""
+    try:
+        return math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def check_distance(value: Any, option: str = "--distance") -> float | None:
+    """None, or a camera-to-rack distance in metres: a positive finite number within `DISTANCE_LIMITS` (one-line
+    error otherwise; outside them no rack row is readable in a frame)."""
+    d = _metres(value)
+    if value is not None and not (math.isfinite(d) and d > 0):
+        raise InputError(f"{option} must be a positive number of metres, got {value}")
+    lo, hi = DISTANCE_LIMITS
+    if value is not None and not lo <= d <= hi:
+        raise InputError(f"{option}: distance {d:g} m is out of range (a rack row is filmed from {lo:g}-{hi:g} m)")
+    return None if value is None else d
+
+
 def check_camera_height(value: Any, option: str = "--camera-height") -> float | None:
     """None, or a camera height above the floor in metres (one-line error otherwise)."""
-    if value is None:
-        return None
-    try:
-        h = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{option} must be a number of metres, got {value!r}") from None
-    if not (math.isfinite(h) and 0.05 <= h <= 20):
+    h = _metres(value)
+    if value is not None and math.isnan(h):
+        raise InputError(f"{option} must be a number of metres, got {value!r}")
+    if value is not None and not (math.isfinite(h) and 0.05 <= h <= 20):
         raise InputError(f"{option} must be the camera's height above the floor in metres (0.05-20), got {value!r}")
-    return h
+    return None if value is None else h

@@ -17,13 +17,20 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
-from layouts import VIEWS, Intrinsics, LayoutSpec
-from layouts.boxdepth import impose_box_backs
+from layouts import VIEWS, Intrinsics
 from layouts.errors import InputError
-from layouts.rackdepth import check_rack_depth, impose_rack_depth
-from network.data import (
+from layouts.rackdepth import check_rack_depth
+from network.heads.backedge import DepthReader
+from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
+from network.inference.decision import apply_box_offset
+from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
+from network.inference.result import FramePrediction, frame_layouts
+from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
+from network.model.decoders import board_peaks
+from network.model.motion import camera_motion, motion_signature
+from network.model.net import MVRackLay, head_outputs
+from network.preprocess import (
     DEFAULT_DISTANCE,
     canonical_image,
     frame_camera,
@@ -31,14 +38,6 @@ from network.data import (
     sequence_angles,
     to_tensor,
 )
-from network.heads.backedge import DepthReader
-from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
-from network.inference.decision import apply_box_offset
-from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
-from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
-from network.model.decoders import board_peaks
-from network.model.motion import camera_motion, motion_signature
-from network.model.net import MVRackLay, head_outputs
 
 MODES = ("stream", "window")
 #: the per-frame maps the depth heads read, dropped from outputs held for ``whole_sequence``
@@ -56,8 +55,8 @@ def fixed_camera(intrinsics: Intrinsics | None = None, distance: float = DEFAULT
 
 
 class SequenceCamera:
-    """A sequence's own intrinsics and per-frame distances (`network.data.frame_camera`), called per
-    frame like any `CameraFn`, and its recorded camera rotation ``angles`` (`network.data.sequence_angles`),
+    """A sequence's own intrinsics and per-frame distances (`network.preprocess.frame_camera`), called per
+    frame like any `CameraFn`, and its recorded camera rotation ``angles`` (`network.preprocess.sequence_angles`),
     which a `Predictor` levels unless told otherwise."""
 
     def __init__(self, seq: Any, default_distance: float = DEFAULT_DISTANCE) -> None:
@@ -245,6 +244,10 @@ class Predictor:
             return self.window(frames)
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
+    def predict(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[FramePrediction]:
+        """Each frame's prediction as a `FramePrediction` (`run`'s outputs, typed): what a caller of the model reads."""
+        return map(FramePrediction.from_outputs, self.run(frames, mode))
+
     def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
         """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
         with the box-depth head, ``"box_back"``: from the frames so far, or (``whole_sequence``) from all;
@@ -412,18 +415,6 @@ def _depth_tensor(depth: float | None) -> torch.Tensor:
     return torch.tensor(float("nan") if depth is None else depth, dtype=torch.float64)
 
 
-def resize_logits(logits: torch.Tensor, size: int | None = None) -> torch.Tensor:
-    """``(R, 3, D, D)`` logits at ``size x size`` (bilinear; unchanged when ``size`` is None or D)."""
-    if size is not None and size != logits.shape[-1]:
-        return F.interpolate(logits.float(), size=(size, size), mode="bilinear", align_corners=False)
-    return logits
-
-
-def logits_to_layout(logits: torch.Tensor, size: int | None = None) -> np.ndarray:
-    """``(R, 3, D, D)`` logits -> ``(R, size, size)`` uint8 class ids (bilinear on logits when resizing)."""
-    return resize_logits(logits, size).argmax(1).to(torch.uint8).cpu().numpy()
-
-
 def _put_box_depths(out: dict[str, torch.Tensor], boxes: BoxDepthReader, camera_x: float, valid: np.ndarray) -> None:
     """``out["box_back"]`` ``(R, D)`` from the maps of ``boxes`` with the camera at ``camera_x`` and, for a head
     that reads fronts, ``out["box_front"]``."""
@@ -431,25 +422,6 @@ def _put_box_depths(out: dict[str, torch.Tensor], boxes: BoxDepthReader, camera_
     fronts = boxes.fronts(camera_x, valid)
     if fronts is not None:
         out["box_front"] = torch.from_numpy(fronts)
-
-
-def frame_layouts(out: dict[str, torch.Tensor], spec: LayoutSpec) -> dict[str, Any]:
-    """Both views' class-id stacks at ``spec.size`` from one frame's outputs, the top view redrawn
-    at the output's ``"rack_depth"`` when it has one (`Predictor`; `layouts.rackdepth.impose_rack_depth`)
-    and then, with ``"box_back"``, every box's back moved there (`layouts.boxdepth.impose_box_backs`; with
-    ``"box_front"`` its front too)."""
-    lay = {v: logits_to_layout(out[v], spec.size) for v in VIEWS}
-    depth = out.get("rack_depth")
-    if depth is not None and bool(torch.isfinite(torch.as_tensor(depth))):
-        lay["top"] = impose_rack_depth(lay["top"], spec, float(depth))  # checks it fits the top view
-        backs = out.get("box_back")
-        if backs is not None:
-            fronts = out.get("box_front")
-            fronts = None if fronts is None else np.asarray(fronts)
-            lay["top"] = impose_box_backs(
-                lay["top"], lay["front"], spec, float(depth), np.asarray(backs), fronts=fronts
-            )
-    return lay
 
 
 def predict_layouts(

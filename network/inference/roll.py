@@ -175,7 +175,7 @@ def resolve_angles(
     roll: object, pitch: object, yaw: object, recorded: tuple[float, float, float] | None, prefix: str = "--"
 ) -> tuple[float | str, float | str, float | str]:
     """The (roll, pitch, yaw) to use: each as given, else the ``recorded`` one for a source whose camera
-    rotation is known (a generated sequence's, `network.data.sequence_angles`; 0 for a level camera), else
+    rotation is known (a generated sequence's, `network.preprocess.sequence_angles`; 0 for a level camera), else
     ``"auto"`` (read from the frames). ``recorded`` None: footage, whose camera nothing records."""
     out = []
     for k, (name, angle) in enumerate(zip(ANGLES, (roll, pitch, yaw))):

@@ -114,7 +114,7 @@ class DistanceReader(nn.Module):
         return 4 * self.cfg.x_extent / self.cfg.size
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``x`` in [0, 1] (`network.data.to_tensor`) -> ``(B, 2 + R)``: log ratio, floor logit, R row logits."""
+        """``x`` in [0, 1] (`network.preprocess.to_tensor`) -> ``(B, 2 + R)``: log ratio, floor logit, R row logits."""
         f = self.stem((x - 0.45) / 0.25)
         f = self.blocks[0](f)
         rows = self.row_head(f.mean(dim=3)).squeeze(1)

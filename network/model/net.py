@@ -79,7 +79,7 @@ class MVRackLay(nn.Module):
         self.rows = RowHead(fine, coarse, cfg.input_height)
         self.back = BackEdgeHead(2 * (fine + coarse), cfg.input_height) if cfg.back_edges else None
         self.uprights = UprightHead(2 * (fine + coarse), cfg.input_width) if cfg.uprights else None
-        #: fitted on the frozen network (`network.training.fit_boxdepth`); inputs: `network.heads.boxdepth.head_inputs`
+        #: fitted on the frozen network (`network.training.fit_box_depth`); inputs: `network.heads.boxdepth.head_inputs`
         c2d = fine + NUM_CLASSES + (BOX_PARALLAX_CHANNELS if cfg.box_parallax else 0)
         self.box_depth = (
             BoxDepthHead(

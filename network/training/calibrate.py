@@ -32,9 +32,10 @@ from layouts import VIEWS
 from layouts.errors import InputError
 from layouts.metrics import METRIC_CLASSES, LayoutMetrics
 from network.inference.decision import LIMIT, apply_box_offset, check_depth_offset
-from network.inference.predictor import Predictor, logits_to_layout, resize_logits, sequence_camera
+from network.inference.predictor import Predictor, sequence_camera
+from network.inference.result import logits_to_layout, resize_logits
 from network.model.net import MVRackLay
-from network.training.fit_backedge import rack_row
+from network.training.fit_back_edges import rack_row
 
 #: offsets tried by `fit_box_offsets` (logit units)
 GRID: tuple[float, ...] = tuple(round(0.25 * k, 2) for k in range(11))  # 0 .. 2.5

@@ -1,17 +1,16 @@
 """Learning curves as a PNG (validation mIoU against training minutes), drawn with Pillow alone.
 
 `plot_curves` reads runs' ``metrics.jsonl`` (warm-started runs shifted by their source's minutes) and draws one panel per view x class (top/front x
-rack/box), one line per run. ``python -m network.training.curves [--from X] [--x {cpu-minutes,wall-minutes,steps}] OUT.png LABEL=RUN_DIR ...``
-does it from the shell (``--from`` keeps the points from that x on).
+rack/box), one line per run. The recipe stage ``curves`` (`mvracklay.training.small_stages`) draws them from
+the shell: ``python -m mvracklay.training.stages curves [--from X] [--x {cpu-minutes,wall-minutes,steps}] OUT.png
+LABEL=RUN_DIR ...`` (``--from`` keeps the points from that x on).
 """
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import math
-import sys
 from pathlib import Path
 
 from PIL import Image, ImageDraw
@@ -141,36 +140,5 @@ def plot_curves(
     atomic_write_bytes(out, buf.getvalue())
 
 
+#: the x axes the curves are drawn against: name -> the metrics' key
 X_AXES = {"cpu-minutes": "train_cpu_minutes", "wall-minutes": "train_wall_minutes", "steps": "step"}
-
-
-def main(argv: list[str]) -> int:
-    ap = argparse.ArgumentParser(
-        prog="python -m network.training.curves",
-        description="Draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG.",
-    )
-    ap.add_argument("out", metavar="OUT.png", help="PNG to write")
-    ap.add_argument("runs", nargs="+", metavar="LABEL=RUN_DIR", help="a run directory (or metrics.jsonl) and its label")
-    ap.add_argument("--from", dest="x_from", type=float, default=0.0, metavar="X", help="draw points from this x on")
-    ap.add_argument(
-        "--x",
-        choices=sorted(X_AXES),
-        default="cpu-minutes",
-        help="x axis: training CPU-minutes (default), wall-clock minutes, or optimiser steps",
-    )
-    args = ap.parse_args(argv)
-    bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
-    if bad:
-        ap.error(f"not LABEL=RUN_DIR: {bad[0]!r}")
-    runs = dict(a.split("=", 1) for a in args.runs)
-    try:
-        plot_curves(runs, args.out, x_key=X_AXES[args.x], x_from=args.x_from)
-    except InputError as e:
-        print(f"network.training.curves: error: {e}", file=sys.stderr)
-        return 2
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

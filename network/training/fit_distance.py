@@ -22,9 +22,10 @@ import torch
 import torch.nn.functional as F
 
 from layouts.errors import InputError
-from network.data import canonical_image, colour_jitter, jpeg_round_trip, to_tensor
+from network.data import colour_jitter, jpeg_round_trip
 from network.inference.distance import read_distances, save_reader
 from network.model.distance import DistanceReader, DistanceReaderConfig
+from network.preprocess import canonical_image, to_tensor
 
 #: half of the samples' log-ratio targets: uniform over +-T_WIDE; the other half normal with sd T_NARROW
 T_WIDE = 0.35
@@ -33,11 +34,11 @@ T_NARROW = 0.05
 
 def load_frames(datasets: list[Path], splits: tuple[str, ...]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, list]:
     """Every frame of ``splits``: RGB, distance, camera height above the floor, and the intrinsics."""
-    from waresynth.dataset import open_dataset
+    from network.training.train_data import open_generated
 
     rgb, dist, height, intr = [], [], [], []
     for data, split in ((d, sp) for d in datasets for sp in splits):
-        for seq in open_dataset(data).sequences(split):
+        for seq in open_generated(data).sequences(split):
             for i in range(len(seq)):
                 rec = seq.frame(i)
                 rgb.append(seq.rgb(i))

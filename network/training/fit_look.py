@@ -36,9 +36,9 @@ from layouts.canonical import CanonicalView
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from network.checkpoint import load_checkpoint, model_from, save_updated
-from network.data import canonical_image, frame_camera, sequence_angles, to_tensor
 from network.model.decoders import anchors_from_rows
 from network.model.frozen import PARTS, trunk_maps
+from network.preprocess import canonical_image, frame_camera, sequence_angles, to_tensor
 
 #: ``restyle(rgb, rng, intrinsics, step_px, labels) -> rgb``: a frame in another look, the scene unmoved
 #: (``labels``: its semantic and instance images, or None)

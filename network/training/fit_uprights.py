@@ -20,12 +20,12 @@ from tqdm import tqdm
 
 from layouts.canonical import CanonicalView
 from layouts.errors import InputError
-from network.data import frame_camera
 from network.heads.uprights import UprightHead, pool_columns
 from network.inference.predictor import Predictor, sequence_camera
 from network.model.net import MVRackLay
-from network.training.fit_backedge import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
-from waresynth.dataset import require_level_camera
+from network.preprocess import frame_camera
+from network.training.fit_back_edges import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
+from network.training.train_data import require_level_camera, upright_faces
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
 UPRIGHT_ROWS = 0.15
@@ -49,8 +49,6 @@ class Cached:
 def upright_targets(seq: Any, i: int, view: CanonicalView, rack_depth: float) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``i``'s targets ``(2, W)``: does canonical column j show a front (0) / rear (1) upright (at
     least `UPRIGHT_ROWS` of its rows inside the image), and ``(W,)`` which columns lie inside the image."""
-    from waresynth.visibility import upright_faces
-
     require_level_camera(seq, "fitting the upright head")  # its masks are sampled as a level camera's
     intr, distance = frame_camera(seq, i)
     if intr is None:
@@ -76,7 +74,7 @@ def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progr
     total = sum(len(range(0, s.num_frames, every)) for s in sequences)
     if not total:
         raise InputError("no frames to fit the upright head on")
-    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_backedge)
+    pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_back_edges)
     target = np.zeros((total, 2, view.width), np.float32)
     inside = np.zeros((total, view.width), bool)
     seq_ids, dists, depths = np.zeros(total, np.int64), np.zeros(total), np.zeros(total)

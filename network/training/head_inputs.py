@@ -1,4 +1,4 @@
-"""A `Predictor` that gives the box-depth head's inputs to the fit (`network.training.fit_boxdepth`).
+"""A `Predictor` that gives the box-depth head's inputs to the fit (`network.training.fit_box_depth`).
 
 Inference reads box depths with a fitted head; the fit needs the same per-frame inputs from a model whose head
 is not fitted yet (so it does not read), and can skip work on the frames whose slots it does not keep. These

@@ -1,4 +1,6 @@
-"""The training data: a dataset folder opened (`open_data`), and what a run's record says of its cameras."""
+"""The training data: a dataset folder opened (`open_data`, `open_generated`), what a generated frame's
+images show that a fit needs (`require_level_camera`, `upright_faces`), and what a run's record says of its
+cameras. The one module of `network` that imports `waresynth` (DESIGN.md; tests/test_arrows.py)."""
 
 from __future__ import annotations
 
@@ -34,6 +36,29 @@ def open_data(root: str | Path):
         print(f"note: {data.note}", file=sys.stderr)
         return data
     return open_dataset(root)
+
+
+def open_generated(root: str | Path):
+    """A WareSynth dataset folder (`waresynth.dataset.open_dataset`): a fit that reads the generator's records
+    (distances, camera positions) beside the images."""
+    from waresynth.dataset import open_dataset
+
+    return open_dataset(root)
+
+
+def require_level_camera(seq: Any, what: str) -> None:
+    """A one-line refusal when ``what`` reads a generated frame's depth or semantic images as a level camera's
+    and the sequence's camera was turned (`waresynth.dataset.require_level_camera`)."""
+    from waresynth.dataset import require_level_camera as require
+
+    require(seq, what)
+
+
+def upright_faces(semantic: np.ndarray, depth: np.ndarray, distance: float, rack_depth: float):
+    """The columns of a generated frame that show front and rear uprights (`waresynth.visibility.upright_faces`)."""
+    from waresynth.visibility import upright_faces as faces
+
+    return faces(semantic, depth, distance, rack_depth)
 
 
 def hfov_range(seqs: list[Any]) -> list[float] | None:

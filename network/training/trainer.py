@@ -37,20 +37,14 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_text
 from network.checkpoint import init_weights_from, load_checkpoint, save_checkpoint
 from network.data import WindowDataset
-from network.inference.evaluate import evaluate_sequences, score
+from network.device import DistEnv, device_for
+from network.inference.layout_eval import evaluate_sequences, score
 from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.model.net import MVRackLay
 from network.model.resnet import load_imagenet_weights
 from network.precision import forward_autocast
-from network.training.distributed import (
-    DistEnv,
-    ListSampler,
-    all_reduce,
-    device_for,
-    gather_fingerprints,
-    rank_indices,
-)
+from network.training.distributed import ListSampler, all_reduce, gather_fingerprints, rank_indices
 from network.training.losses import (
     consistency_loss,
     lsgan_discriminator_loss,

@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 
 from layouts.errors import InputError
 from stitching.geometry import Cuboid, footprint_intersection, iou_matrix
-from stitching.warehouse_map import WarehouseMap
+from stitching.warehouse_map import WarehouseMap, origin_from_record
 
 
 @dataclass
@@ -58,17 +58,6 @@ class EvalResult:
         d["count_accuracy"] = self.count_accuracy
         d["per_shelf"] = self.per_shelf
         return d
-
-
-def origin_from_record(first: dict) -> tuple[float, float, float]:
-    """World position of the map origin from the first frame's record only."""
-    try:
-        cam_x = float(first["camera_position"][0])
-        board = float(first["slots"][0]["board_top_y"])
-        mid = float(first["rack_mid_z"])
-    except (KeyError, IndexError, TypeError) as e:
-        raise InputError(f"first frame record lacks camera_position/slots/rack_mid_z ({e})") from None
-    return cam_x, board, mid
 
 
 def stacks_of(shelf: dict) -> list[Cuboid]:

@@ -18,9 +18,10 @@ from tqdm import tqdm
 
 from layouts import VIEWS
 from layouts.metrics import METRIC_CLASSES, FrameScorer, ReferenceMetrics, reference_weights
-from network.data import SequenceLike, board_rows, check_spec_compatible, sequence_angles
-from network.inference.predictor import Predictor, frame_layouts, rack_depth_source, sequence_camera
+from network.data import SequenceLike, board_rows, check_spec_compatible
+from network.inference.predictor import Predictor, rack_depth_source, sequence_camera
 from network.model.net import MVRackLay
+from network.preprocess import sequence_angles
 
 
 def evaluate_sequences(
@@ -130,14 +131,14 @@ def _score_sequence(
     scorer, ref = scorers
     weights = reference_weights(n)
     frames = slots_right = 0
-    for i, out in enumerate(pred.run((seq.rgb(i) for i in range(n)), mode)):
+    for i, out in enumerate(pred.predict((seq.rgb(i) for i in range(n)), mode)):
         gt = seq.layouts(i)
-        lay = frame_layouts(out, seq.spec)
+        lay = out.layouts(seq.spec)
         scorer.update(lay, gt)
         if ref is not None:
             for view in VIEWS:
                 ref.update(lay[view], getattr(gt, view), view, weights[i])
-        found = int(torch.isfinite(out["anchors"]).sum())
+        found = int(torch.isfinite(out.anchors).sum())
         slots_right += int(found == int((gt.top.reshape(gt.top.shape[0], -1) > 0).any(1).sum()))
         frames += 1
         bar.update(1)
@@ -155,3 +156,49 @@ def score(result: dict[str, Any], part: str = "visible") -> float:
     """One number for choosing the best checkpoint: mean mIoU over views x classes (NaN -> 0)."""
     vals = [result[part][v][c]["miou"] for v in VIEWS for c in METRIC_CLASSES]
     return float(np.mean([0.0 if math.isnan(x) else x for x in vals]))
+
+
+def table_title(
+    variant: str | None,
+    data: str,
+    mode: str,
+    model: MVRackLay,
+    res: dict[str, Any],
+    sequences: int,
+    settings: Any,
+    true_anchors: bool = False,
+) -> str:
+    """The tables' title: model, data, frames and every setting (``settings``: flip, depth reading, whole
+    sequence, fusion, the angles as checked, e.g. `mvracklay.settings.InferenceSettings`) that changes what
+    `evaluate_sequences` scored."""
+    from network.inference.roll import ANGLES
+    from network.model.frozen import trunk_precision
+
+    angles = (settings.roll, settings.pitch, settings.yaw)
+    title = f"{variant} on {data}, {res['frames']} frames of {sequences} sequences, {mode} mode"
+    if settings.flip:
+        title += ", flip-averaged"
+    if trunk_precision(model) != "fp32":
+        title += f", the trunk in {trunk_precision(model)}"
+    if model.back is not None or model.uprights is not None:
+        title += f", rack depth {res['rack_depth']}"
+    if model.box_depth is not None:
+        title += f", box depths {res['box_depth']}"
+    heads = (model.back, model.uprights, model.box_depth) != (None,) * 3
+    if settings.whole_sequence and settings.read_depth and heads:
+        title += ", depths from the whole sequence"
+    if settings.fuse_tau > 0:
+        title += f", neighbouring frames fused (tau {settings.fuse_tau:g})"
+    recorded = np.asarray(res["recorded_angles"], float).reshape(-1, 3)
+    for k, (what, given) in enumerate(zip(ANGLES, angles)):
+        if given is None and recorded[:, k].any():
+            lo, hi = recorded[:, k].min(), recorded[:, k].max()
+            span = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g}"
+            title += f", camera {what} levelled as recorded ({span} deg)"
+        elif given == 0 and recorded[:, k].any():
+            title += f", camera {what} taken as level (recorded {np.abs(recorded[:, k]).max():g} deg)"
+        elif given not in (None, 0):
+            title += f", camera {what} " + ("read from the frames" if given == "auto" else f"{given:g} deg levelled")
+    if true_anchors:
+        title += ", ground-truth shelf boards"
+    return title

@@ -1,0 +1,195 @@
+"""The one inference path of `mvracklay run` and `predict`: a source's frames streamed through a `Predictor` set
+up from `InferenceSettings` (`make_predictor`), each frame's layouts with its visible columns (`predict_frames`).
+
+`predict_folder` writes them to a layout folder (``mvracklay predict``); `mvracklay.pipeline` feeds the same
+frames to a `stitching.pipeline.Stitcher` (``mvracklay run``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from layouts.codecs import FrameLayouts, LayoutFolder
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_text, load_json
+from mvracklay.settings import InferenceSettings
+
+if TYPE_CHECKING:
+    from layouts import Intrinsics, LayoutSpec
+    from layouts.lens import Lens
+    from mvracklay.distance import FrameDistances
+    from mvracklay.frames import FrameSource
+    from network.inference.predictor import Predictor
+    from network.inference.result import FramePrediction
+    from network.model.net import MVRackLay
+
+#: beside a predicted layout folder's frames: each frame's camera step along the row as the images read it
+CAMERA_STEPS = "camera_steps.json"
+
+
+@dataclass(frozen=True)
+class PredictedFrame:
+    """One frame of the stream: its layouts (with the columns in view), the distance used and the prediction."""
+
+    index: int
+    layouts: FrameLayouts
+    distance: float
+    prediction: FramePrediction
+
+
+def make_predictor(
+    model: MVRackLay,
+    settings: InferenceSettings,
+    intr: Intrinsics,
+    distances: FrameDistances,
+    recorded_angles: tuple[float, float, float] | None,
+) -> Predictor:
+    """A `Predictor` for frames of camera ``intr`` at ``distances``; an angle not set is a generated sequence's
+    ``recorded_angles``, else read from the frames (`network.inference.roll.resolve_angles`)."""
+    from network.inference.predictor import Predictor
+    from network.inference.roll import resolve_angles
+
+    roll, pitch, yaw = resolve_angles(settings.roll, settings.pitch, settings.yaw, recorded_angles)
+    kwargs = {**settings.predictor_kwargs(), "roll": roll, "pitch": pitch, "yaw": yaw}
+    return Predictor(model, lambda i: (intr, distances(i)), **kwargs)
+
+
+def predict_frames(
+    pred: Predictor,
+    source: FrameSource,
+    spec: LayoutSpec,
+    intr: Intrinsics,
+    lens: Lens | None,
+    distances: FrameDistances,
+    mode: str = "stream",
+    max_frames: int | None = None,
+    on_read: Callable[[np.ndarray], None] | None = None,
+) -> Iterator[PredictedFrame]:
+    """Each frame of ``source`` (undistorted through ``lens`` first, if any; footage's distance read from its
+    first frames before the first is predicted) predicted, its layouts at ``spec``; ``on_read`` sees every
+    frame as it is read (all of them before the first prediction with ``whole_sequence``)."""
+
+    def read() -> Iterator[np.ndarray]:
+        raw = source.frames(max_frames, (intr, lens) if lens is not None else None)
+        for rgb in distances.lead(raw):
+            if on_read is not None:
+                on_read(rgb)
+            yield rgb
+
+    for i, out in enumerate(pred.predict(read(), mode)):
+        lay = out.layouts(spec)
+        dist = distances(i)
+        visible = np.asarray(intr.visible_columns(spec, dist), bool)
+        yield PredictedFrame(i, FrameLayouts(lay["top"], lay["front"], visible), dist, out)
+
+
+def predict_folder(
+    model: MVRackLay,
+    record: dict[str, Any],
+    seq_dir: Path,
+    out: Path,
+    settings: InferenceSettings | None = None,
+    *,
+    mode: str = "stream",
+    layout_size: int = 0,
+    intrinsics: str | None = None,
+    distance: float | None = None,
+    progress: bool = True,
+    source: str = "checkpoint",
+    every: int = 1,
+    prog: str = "mvracklay predict",
+) -> int:
+    """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
+
+    ``seq_dir`` is any input of `mvracklay.frames.open_source` (a sequence, an image folder, an image, a
+    video); ``every``: every N-th frame. The canonical warp and the visible columns use ``intrinsics`` (``--camera``)
+    / ``distance`` when given, else the sequence's intrinsics and per-frame distance from ``meta.json``, else
+    the checkpoint ``record``'s camera and the distance read from the first frames (`mvracklay.distance`).
+    ``settings``: what the prediction does (`InferenceSettings`: flip, rack depth, depth reading, whole
+    sequence, fusion, the camera's angles).
+    """
+    from tqdm import tqdm
+
+    from layouts.publish import check_writable, refuse_overlap
+    from layouts.rackdepth import check_rack_depth
+    from mvracklay.camera import camera_warning, frames_camera
+    from mvracklay.distance import FrameDistances, default_distance
+    from mvracklay.every import every_nth
+    from mvracklay.frames import open_source
+
+    settings = settings or InferenceSettings()
+    frames = every_nth(open_source(seq_dir, prog=prog), every)
+    refuse_overlap([out], {"INPUT": seq_dir})  # the layouts never land in (or over) the input
+    check_writable(out)
+    intr, lens = frames_camera(intrinsics, frames, record, source)
+    differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
+    if differs:
+        print(f"{prog}: warning: camera {differs}", file=sys.stderr)
+    dist_of = FrameDistances(frames, intr, distance, None, default_distance(record), prog=prog)
+    spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
+    if settings.rack_depth is not None:
+        check_rack_depth(settings.rack_depth, spec)
+    pred = make_predictor(model, settings, intr, dist_of, frames.camera_angles)
+    folder = LayoutFolder.create(out, spec)
+    bar = tqdm(total=frames.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
+    depth, n = float("nan"), 0
+    steps: list[float] = []
+    confidence: list[float] = []
+    for frame in predict_frames(pred, frames, spec, intr, lens, dist_of, mode, on_read=lambda _: bar.update(1)):
+        folder.write(frame.index, frame.layouts)
+        depth, n = frame.prediction.rack_depth, frame.index + 1
+        if frame.prediction.camera_step is not None:
+            steps.append(round(frame.prediction.camera_step, 6))
+            confidence.append(round(float(frame.prediction.camera_step_confidence), 4))
+    bar.close()
+    if n == 0:
+        raise InputError(f"{frames.path}: no frames to process")
+    if len(steps) == n:
+        write_camera_steps(folder.root, steps, confidence)
+    report_readings(pred, depth, intr, progress, prog)
+    if progress and dist_of.reading is not None and not dist_of.recorded:
+        print(f"distance to the racks: {dist_of.reading.describe()}")
+    return n
+
+
+def write_camera_steps(root: Path, steps: list[float], confidence: list[float]) -> None:
+    """Store the image-read camera steps (metres, frame i-1 -> i; ``steps[0]`` is 0) and their confidences."""
+    doc = {"frames": len(steps), "step_m": steps, "confidence": confidence}
+    atomic_write_text(Path(root) / CAMERA_STEPS, json.dumps(doc) + "\n")
+
+
+def read_camera_steps(root: Path) -> tuple[list[float], list[float]] | None:
+    """The steps `write_camera_steps` stored in ``root`` (None when there are none), checked."""
+    path = Path(root) / CAMERA_STEPS
+    if not path.is_file():
+        return None
+    doc = load_json(path)
+    steps, conf = (doc.get(k) if isinstance(doc, dict) else None for k in ("step_m", "confidence"))
+    ok = isinstance(steps, list) and isinstance(conf, list) and len(steps) == len(conf)
+    ok = ok and all(isinstance(v, (int, float)) and math.isfinite(v) for v in steps + conf)
+    if not ok:
+        raise InputError(f"{path}: expected step_m and confidence, two lists of finite numbers of one length")
+    return [float(v) for v in steps], [float(v) for v in conf]
+
+
+def report_readings(pred: Predictor, depth: float, intr: Intrinsics, progress: bool, prog: str) -> None:
+    """Say what the prediction read from the frames: the rack depth (with the back-edge head) and the camera's
+    angles, and warn about angles that look wrong."""
+    from network.inference.roll import angle_warnings, describe_angles
+
+    if pred.reads_depth and progress:
+        said = f"{depth:.3f} m" if math.isfinite(depth) else "none (no board showed its back edge)"
+        print(f"rack depth read from the boards' back edges: {said}")
+    read = pred.leveller.read_angles() if pred.leveller is not None else {}
+    for line in describe_angles(read) if progress else []:
+        print(line)
+    for said in angle_warnings(read, width=intr.width):
+        print(f"{prog}: warning: {said}", file=sys.stderr)

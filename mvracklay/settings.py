@@ -1,0 +1,247 @@
+"""Settings as data: each field of a settings dataclass carries its option's name, help, range and argparse
+details in its metadata, and the command-line options are made from them (`add_options`, `from_args`).
+
+`InferenceSettings` holds what a model's prediction is asked to do (test-time flip, rack depth, whole
+sequence, fusion, the camera's roll / pitch / yaw), the one list `mvracklay run`, `predict`, `evaluate` and
+the Python API share; `RunConfig` is one run of `mvracklay run` (the input, the model, the stitching, the
+outputs), composing it. Like `mvracklay.options`, this module imports no torch (``--help`` stays fast); the
+checks that need the libraries import them when they run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import MISSING, asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from layouts.errors import InputError
+from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
+from mvracklay.options import (
+    CAMERA_HEIGHT_HELP,
+    CAMERA_JSON_HELP,
+    DISTANCE_HELP,
+    FLIP_HELP,
+    FUSE_HELP,
+    FUSE_TAU,
+    NO_DEPTH_READ_HELP,
+    PITCH_HELP,
+    RACK_DEPTH_HELP,
+    ROLL_HELP,
+    WHOLE_SEQUENCE_HELP,
+    YAW_HELP,
+    add,
+)
+
+
+def option(name: str, help: str, *, invert: bool = False, range: tuple[float | None, float | None] | None = None,
+           **argparse_kwargs: Any) -> dict[str, Any]:  # fmt: skip
+    """A field's metadata: its option ``name`` (``--flip-average``), ``help``, ``invert`` (a switch that turns the
+    field off, as ``--no-depth-read`` turns ``read_depth`` off), the numeric ``range`` it takes (None = open)
+    and any other `argparse.ArgumentParser.add_argument` keyword."""
+    return {"option": name, "help": help, "invert": invert, "range": range, "argparse": argparse_kwargs}
+
+
+def _angle(name: str, text: str) -> Any:
+    return field(default=None, metadata=option(f"--{name}", text, metavar="auto|DEG", range=(-45.0, 45.0)))
+
+
+@dataclass(frozen=True)
+class InferenceSettings:
+    """What a model's prediction is asked to do, frame by frame (`network.inference.predictor.Predictor`)."""
+
+    #: average each frame with its mirror image (test-time flip)
+    flip: bool = field(default=False, metadata=option("--flip-average", FLIP_HELP, boolean=True))
+    #: a known rack depth, metres (`layouts.rackdepth`); None = read, or as the decoder draws it
+    rack_depth: float | None = field(
+        default=None, metadata=option("--rack-depth", RACK_DEPTH_HELP, type=float, metavar="M", range=(0.0, None))
+    )
+    #: without a known depth, read the rack depth and box depths with the model's heads
+    read_depth: bool = field(default=True, metadata=option("--no-depth-read", NO_DEPTH_READ_HELP, invert=True))
+    #: the depths from every frame, not only the frames so far (offline)
+    whole_sequence: bool = field(default=False, metadata=option("--whole-sequence", WHOLE_SEQUENCE_HELP, boolean=True))
+    #: neighbouring frames' layouts fused, weights exp(-frames apart / tau); 0 = off
+    fuse_tau: float = field(
+        default=0.0,
+        metadata=option(
+            "--fuse-frames", FUSE_HELP, type=float, nargs="?", const=FUSE_TAU, metavar="TAU", range=(0.0, None)
+        ),
+    )
+    #: the camera's roll, pitch (optical axis up > 0) and yaw (turned right > 0), levelled (`network.inference.roll`):
+    #: degrees or "auto"; None = a generated sequence's recorded angle, else "auto"
+    roll: float | str | None = _angle("roll", ROLL_HELP)
+    pitch: float | str | None = _angle("pitch", PITCH_HELP)
+    yaw: float | str | None = _angle("yaw", YAW_HELP)
+
+    def validate(self) -> None:
+        """One line naming the option when a setting is out of its range (its type first)."""
+        from mvracklay.argtypes import check_dataclass
+
+        check_dataclass(self)  # each field's type: one line, not a TypeError further on
+        from layouts.rackdepth import check_rack_depth
+        from network.inference.fusion import check_tau
+        from network.inference.roll import check_angle
+
+        if self.rack_depth is not None:
+            check_rack_depth(self.rack_depth)
+        check_tau(self.fuse_tau, "--fuse-frames")
+        for name in ("roll", "pitch", "yaw"):
+            check_angle(getattr(self, name), f"--{name}")
+        check_range(InferenceSettings, self)
+
+    def predictor_kwargs(self) -> dict[str, Any]:
+        """The `Predictor`'s keywords (the angles as given: `network.inference.roll.resolve_angles` settles them)."""
+        return asdict(self)
+
+
+def dest(f: Any) -> str | None:
+    """The argparse ``dest`` of a settings field (its option's name: ``--no-depth-read`` -> ``no_depth_read``);
+    None for a field without an option of its own."""
+    return f.metadata["option"][2:].replace("-", "_") if "option" in f.metadata else None
+
+
+def add_options(
+    p: argparse.ArgumentParser, cls: type, *, hidden: bool = False, prefix: str = "", only: tuple[str, ...] = ()
+) -> None:
+    """An option on ``p`` for every field of the settings dataclass ``cls`` (``only``: these fields), its name,
+    help, default and argparse details from the field's metadata; ``hidden``: out of ``--help`` (config-file
+    keys, `mvracklay.options.add`); ``prefix``: put before each help text."""
+    for f in fields(cls):
+        if (only and f.name not in only) or dest(f) is None:
+            continue
+        meta = dict(f.metadata["argparse"])
+        default = None if f.default is MISSING else f.default
+        if f.metadata["invert"]:
+            meta.update(action="store_true")
+            default = False
+        elif meta.pop("boolean", False):
+            meta.update(action=argparse.BooleanOptionalAction)
+        add(p, f.metadata["option"], default=default, help=prefix + f.metadata["help"], hidden=hidden, **meta)
+
+
+def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
+    """The settings dataclass ``cls`` from parsed options (`add_options`); ``given``: fields set otherwise."""
+    values = {}
+    for f in fields(cls):
+        if f.name in given or dest(f) is None or not hasattr(args, dest(f)):
+            continue
+        value = getattr(args, dest(f))
+        values[f.name] = not value if f.metadata["invert"] else value
+    return cls(**values, **given)
+
+
+def check_range(cls: type, settings: Any) -> None:
+    """One line naming the option when a numeric field lies outside its metadata's range."""
+    for f in fields(cls):
+        lo, hi = f.metadata.get("range") or (None, None)
+        if lo is None and hi is None:
+            continue
+        value = getattr(settings, f.name)
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            continue
+        if not math.isfinite(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
+            said = f"in [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+            raise InputError(f"{f.metadata['option']} must be {said}, got {value!r}")
+
+
+def _run(name: str, help: str, **kwargs: Any) -> Any:
+    """A `RunConfig` field with its ``mvracklay run`` option (``default`` among ``kwargs``)."""
+    default = kwargs.pop("default", None)
+    invert, rng = kwargs.pop("invert", False), kwargs.pop("range", None)
+    return field(default=default, metadata=option(name, help, invert=invert, range=rng, **kwargs))
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Settings of one run (see `mvracklay run --help`): the input and model, what the prediction does
+    (``inference``, `InferenceSettings`), the stitching and the outputs. Each field with an option carries it
+    (`add_options`); ``threads``, ``precision``, ``device`` and ``progress`` take the options all commands
+    running a model share (`mvracklay.options`)."""
+
+    checkpoint: Path | None = _run(
+        "--checkpoint", f"{CHECKPOINT_HELP}; default: the shipped {DEFAULT_MODEL}", type=checkpoint_arg
+    )
+    camera: Path | None = _run("--camera", CAMERA_JSON_HELP, type=Path)
+    mode: str = _run("--mode", "network inference mode", default="stream", choices=["stream", "window"])
+    max_frames: int = _run("--max-frames", "process at most N frames (0 = all)", default=0, type=int, range=(0, None))
+    #: process every N-th frame of the input (`mvracklay.every`)
+    every: int = _run(
+        "--every",
+        "process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept",
+        default=1, type=int, metavar="N", range=(1, None),
+    )  # fmt: skip
+    layout_size: int = _run(
+        "--layout-size", "resolution D of the written layouts (0 = the model's)", default=0, type=int
+    )
+    #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
+    distance: float | None = _run("--distance", DISTANCE_HELP, type=float, metavar="M")
+    #: the camera's height above the floor, metres: the distance from the floor line
+    camera_height: float | None = _run("--camera-height", CAMERA_HEIGHT_HELP, type=float, metavar="M")
+    distance_reader: Path | None = _run(
+        "--distance-reader", "the distance reader to read footage's distance with (default: the shipped one)",
+        type=Path, metavar="FILE",
+    )  # fmt: skip
+    #: what the prediction does: flip, rack depth, depth reading, whole sequence, fusion, the camera's angles
+    inference: InferenceSettings = field(default_factory=InferenceSettings)
+    rrd: bool = _run("--no-rrd", "do not write warehouse.rrd", default=True, invert=True)
+    rgb: bool = _run("--no-rgb", "do not log the RGB frames to Rerun", default=True, invert=True)
+    map_every: int = _run(
+        "--map-every", "log the growing map to Rerun every N frames", default=1, type=int, range=(1, None)
+    )
+    opening: bool = _run(
+        "--no-opening",
+        "stitch with the ground-truth settings instead of the clean-up for network output (StitchConfig.noisy)",
+        default=True, invert=True,
+    )  # fmt: skip
+    board_thickness: float = _run(
+        "--board-thickness", "assumed shelf board thickness (metres)", default=0.06, type=float, range=(0.0, 1.0)
+    )
+    threads: int = 2
+    precision: str = "fp32"  #: the trunk graph's arithmetic, fp32 or bf16 (`network.model.frozen.set_precision`)
+    device: str = "auto"  #: auto (the GPU when CUDA is present), cpu or cuda
+    progress: bool = True
+
+    @classmethod
+    def build(cls, **values: Any) -> RunConfig:
+        """A RunConfig from field names, `InferenceSettings`' among them (``rack_depth=1.0``); one line naming
+        the unknown ones."""
+        inner = {f.name for f in fields(InferenceSettings)}
+        outer = {f.name for f in fields(cls)} - {"inference"}
+        unknown = sorted(set(values) - inner - outer)
+        if unknown:
+            known = ", ".join(sorted(inner | outer))
+            raise InputError(f"unknown option(s) {', '.join(unknown)}: RunConfig takes {known}")
+        settings = InferenceSettings(**{k: v for k, v in values.items() if k in inner})
+        return cls(**{k: v for k, v in values.items() if k in outer}, inference=settings)
+
+    def validate(self) -> None:
+        """One line naming the option when a setting is out of its range (its type first)."""
+        from mvracklay.argtypes import check_dataclass
+
+        check_dataclass(self)  # each field's type: one line, not a TypeError further on
+        from network.inference.distance import check_camera_height, check_distance
+        from network.inference.predictor import MODES
+        from network.precision import check_precision
+
+        if self.mode not in MODES:
+            raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.max_frames < 0:
+            raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
+        if not isinstance(self.every, int) or self.every < 1:
+            raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
+        if self.layout_size and not 8 <= self.layout_size <= 1024:
+            raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
+        check_distance(self.distance)
+        check_camera_height(self.camera_height)
+        self.inference.validate()
+        if self.map_every < 1:
+            raise InputError(f"--map-every must be >= 1, got {self.map_every}")
+        if not 0 <= self.board_thickness < 1:
+            raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
+        if self.threads < 1:
+            raise InputError(f"--threads must be >= 1, got {self.threads}")
+        check_precision(self.precision)
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
+        check_range(RunConfig, self)
