@@ -49,3 +49,50 @@ def test_a_good_camera_file_is_read(tmp_path: Path):
     intr = load_camera(cam, 128, 128)
     assert (intr.fx, intr.cx, intr.width) == (pytest.approx(110.85), 64.0, 128)
     assert load_lens(cam).k1 == -0.1
+
+
+# --- run --config files (mvracklay.config_schema, typed from RunConfig / InferenceSettings) ---------------------
+
+CONFIG_FAULTS = {
+    "NaN": ({"rack-depth": float("nan")}, "rack-depth: Input should be a finite number"),
+    "negative": ({"rack-depth": -1.0}, "rack-depth: Input should be greater than or equal to 0"),
+    "out of range": ({"board-thickness": 5}, "board-thickness: Input should be less than or equal to 1"),
+    "angle": ({"roll": 90}, "roll: Input should be less than or equal to 45"),
+    "size 0": ({"every": 0}, "every: Input should be greater than or equal to 1"),
+    "wrong type": ({"camera": 5}, "camera: Input should be a valid string"),
+    "unknown": ({"rack_depth": 1.0}, "unknown option 'rack_depth' (did you mean 'rack-depth'?)"),
+}
+
+
+@pytest.mark.parametrize("fault", list(CONFIG_FAULTS))
+def test_a_run_config_breaking_its_schema_is_one_line(fault, tmp_path: Path, capsys):
+    from mvracklay.cli import main
+
+    content, needle = CONFIG_FAULTS[fault]
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(content))
+    assert main(["run", str(tmp_path), "--out", str(tmp_path / "out"), "--config", str(path)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"--config {path}: {needle}" in lines[0], lines
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_config_schema_comes_from_the_settings_and_a_good_file_is_read(tmp_path: Path):
+    import argparse
+
+    from mvracklay import cli
+    from mvracklay.config_schema import config_schema
+    from mvracklay.options import read_config
+    from mvracklay.settings import InferenceSettings, RunConfig
+
+    parser = cli.build_parser()
+    (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    run = sub.choices["run"]
+    actions = tuple(sorted((s[2:], a) for a in run._actions for s in a.option_strings if s.startswith("--")))
+    schema = config_schema(actions, (RunConfig, InferenceSettings)).model_json_schema()["properties"]
+    assert schema["rack-depth"]["anyOf"][0] == {"minimum": 0.0, "type": "number"}  # RunConfig's range, one place
+    assert schema["every"]["anyOf"][0] == {"minimum": 1, "type": "integer"}
+    path = tmp_path / "good.toml"
+    path.write_text('quality = "offline"\nrack-depth = 1.1\nroll = "auto"\nfuse-frames = true\nno-rrd = true\n')
+    got = read_config(path, run, settings=(RunConfig, InferenceSettings))
+    assert (got["rack_depth"], got["roll"], got["no_rrd"], got["quality"]) == (1.1, "auto", True, "offline")
