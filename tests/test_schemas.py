@@ -96,3 +96,50 @@ def test_the_config_schema_comes_from_the_settings_and_a_good_file_is_read(tmp_p
     path.write_text('quality = "offline"\nrack-depth = 1.1\nroll = "auto"\nfuse-frames = true\nno-rrd = true\n')
     got = read_config(path, run, settings=(RunConfig, InferenceSettings))
     assert (got["rack_depth"], got["roll"], got["no_rrd"], got["quality"]) == (1.1, "auto", True, "offline")
+
+
+# --- training recipes (mvracklay.training.recipe_schema) --------------------------------------------------------
+
+RECIPE_FAULTS = {
+    "inf minutes": (("total = 30", "total = inf"), "not readable TOML (number inf is out of range"),  # the reader's
+    "size 0": (("sequences = 4", "sequences = 0"), "data 'train': key 'sequences': Input should be greater than"),
+    "negative seed": (("seed = 7", "seed = -7"), "data 'train': key 'seed': Input should be greater than or equal"),
+    "wrong type": (("frames = 8", 'frames = "8"'), "data 'train': key 'frames': Input should be a valid integer"),
+    "unknown": (("margin = 0.5", "margin = 0.5\nslack = 1"), "[budget]: unknown key 'slack' (known: total,"),
+    "missing": (('folder = "{out}/data/train"\n', ""), "data 'train': missing key 'folder'"),
+    "stage": (('[[stages]]\nstage = "train"', '[[stages]]\nstage = "train"\nlane = "x"'), "stage 1 (train): key 'lane'"),
+}
+
+
+@pytest.mark.parametrize("fault", list(RECIPE_FAULTS))
+def test_a_recipe_breaking_its_schema_is_one_line(fault, tmp_path: Path):
+    from mvracklay.training.recipe import find_recipe, load_recipe
+
+    (old, new), needle = RECIPE_FAULTS[fault]
+    text = find_recipe("smoke").read_text()
+    assert old in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(old, new, 1))
+    with pytest.raises(InputError) as e:
+        load_recipe(str(path))
+    said = str(e.value)
+    assert "\n" not in said and said.startswith(f"{path}: ") and needle in said, said
+
+
+def test_a_nan_set_on_the_command_line_meets_the_schema():
+    from mvracklay.training.recipe import load_recipe
+
+    for item, needle in (
+        ("budget.total=nan", "[budget]: key 'total': Input should be a finite number"),
+        ("stage.train.minutes=-1", "stage 1 (train): key 'minutes': Input should be greater than or equal to 0"),
+    ):
+        with pytest.raises(InputError) as e:
+            load_recipe("smoke", [item])
+        assert "\n" not in str(e.value) and "smoke.toml: " in str(e.value) and needle in str(e.value), str(e.value)
+
+
+def test_the_shipped_recipes_keep_their_schema():
+    from mvracklay.training.recipe import load_recipe, shipped_recipes
+
+    for name in shipped_recipes():
+        assert load_recipe(name).stages
