@@ -107,7 +107,10 @@ RECIPE_FAULTS = {
     "wrong type": (("frames = 8", 'frames = "8"'), "data 'train': key 'frames': Input should be a valid integer"),
     "unknown": (("margin = 0.5", "margin = 0.5\nslack = 1"), "[budget]: unknown key 'slack' (known: total,"),
     "missing": (('folder = "{out}/data/train"\n', ""), "data 'train': missing key 'folder'"),
-    "stage": (('[[stages]]\nstage = "train"', '[[stages]]\nstage = "train"\nlane = "x"'), "stage 1 (train): key 'lane'"),
+    "stage": (
+        ('[[stages]]\nstage = "train"', '[[stages]]\nstage = "train"\nlane = "x"'),
+        "stage 1 (train): key 'lane'",
+    ),
 }
 
 
