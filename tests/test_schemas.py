@@ -146,3 +146,48 @@ def test_the_shipped_recipes_keep_their_schema():
 
     for name in shipped_recipes():
         assert load_recipe(name).stages
+
+
+# --- generator configs (waresynth.config_schema, from the defaults and waresynth.config's ranges) ---------------
+
+GENERATOR_FAULTS = {
+    "NaN": (("camera", "hfov_deg"), float("nan"), "camera.hfov_deg: Input should be a finite number"),
+    "reversed": (("camera", "distance"), [3.0, 2.0], "camera.distance: [low, high] with low <= high"),
+    "out of range": (("camera", "height"), [1.0, 500.0], "camera.height[1]: Input should be less than or equal to 50"),
+    "not an integer": (("rack", "levels"), [2.5, 4], "rack.levels[0]: Input should be a multiple of 1"),
+    "wrong type": (("rack", "levels"), True, "rack.levels: Input should be a valid tuple"),
+    "unknown": (("camera", "fov"), 60, "camera.fov: Extra inputs are not permitted"),
+    "missing": (("camera", None), "distance", "camera.distance: Field required"),
+    "colour": (("floor", "colours"), [[300, 0, 0]], "floor.colours[0][0]: Input should be less than or equal to 255"),
+}
+
+
+@pytest.mark.parametrize("fault", list(GENERATOR_FAULTS))
+def test_a_generator_config_breaking_its_schema_is_one_line(fault):
+    from waresynth.config import load_config
+    from waresynth.config_schema import check_config
+
+    (section, key), value, needle = GENERATOR_FAULTS[fault]
+    cfg = load_config()
+    if key is None:
+        del cfg[section][value]
+    else:
+        cfg[section][key] = value
+    with pytest.raises(InputError) as e:
+        check_config(cfg, "gen.json")
+    assert "\n" not in str(e.value) and str(e.value).startswith(f"gen.json: {needle}"), str(e.value)
+
+
+def test_the_generator_schema_holds_the_ranges_and_every_shipped_config_keeps_it(tmp_path: Path):
+    from waresynth.config import _BOUNDS, load_config, shipped_configs
+    from waresynth.config_schema import config_model
+
+    schema = config_model().model_json_schema()
+    camera = schema["$defs"]["GeneratorConfig_camera"]["properties"]
+    lo, hi, _ = _BOUNDS["camera.distance"]
+    assert camera["distance"]["prefixItems"][0] == {"maximum": hi, "minimum": lo, "type": "number"}
+    for name in shipped_configs():
+        load_config(name)
+    good = tmp_path / "gen.json"
+    good.write_text(json.dumps({"camera": {"hfov_deg": [50, 70], "distance": [2.0, 3.0]}}))
+    assert load_config(good)["camera"]["hfov_deg"] == [50, 70]
