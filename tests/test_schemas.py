@@ -191,3 +191,61 @@ def test_the_generator_schema_holds_the_ranges_and_every_shipped_config_keeps_it
     good = tmp_path / "gen.json"
     good.write_text(json.dumps({"camera": {"hfov_deg": [50, 70], "distance": [2.0, 3.0]}}))
     assert load_config(good)["camera"]["hfov_deg"] == [50, 70]
+
+
+# --- checkpoint records (network.checkpoint_schema) -------------------------------------------------------------
+
+RECORD_FAULTS = {
+    "NaN": (("nominal_distance",), float("nan"), "nominal_distance: Input should be a finite number"),
+    "negative": (("train_wall_minutes",), -3.0, "train_wall_minutes: Input should be greater than or equal to 0"),
+    "size 0": (("intrinsics", "width"), 0, "intrinsics.width: Input should be greater than or equal to 1"),
+    "wrong type": (("step",), "many", "step: Input should be a valid integer"),
+    "offset": (("box_logit_offset", "top"), 50.0, "box_logit_offset.top: Input should be less than or equal to 5"),
+    "unknown view": (("box_logit_offset", "side"), 0.5, "box_logit_offset.side: Extra inputs are not permitted"),
+    "missing": (("intrinsics", "fx"), None, "intrinsics.fx: Field required"),
+    "reversed": (("hfov_range_deg",), [90.0, 40.0], "hfov_range_deg [90.0, 40.0] is reversed"),
+}
+
+
+def _with_record(src: Path, dst: Path, keys: tuple[str, ...], value) -> Path:
+    import torch
+
+    payload = torch.load(src, map_location="cpu", weights_only=True)
+    record = json.loads(payload["record_json"])
+    record.setdefault("intrinsics", dict(INTR))
+    record.setdefault("box_logit_offset", {"top": 0.0, "front": 0.0})
+    inner = record
+    for k in keys[:-1]:
+        inner = inner[k]
+    if value is None:
+        del inner[keys[-1]]
+    else:
+        inner[keys[-1]] = value
+    payload["record_json"] = json.dumps(record)
+    torch.save(payload, dst)
+    return dst
+
+
+@pytest.mark.parametrize("fault", list(RECORD_FAULTS))
+def test_a_checkpoint_record_breaking_its_schema_is_one_line(fault, tiny_checkpoint: Path, tmp_path: Path):
+    from network.checkpoint import load_checkpoint
+
+    keys, value, needle = RECORD_FAULTS[fault]
+    bad = _with_record(tiny_checkpoint, tmp_path / "bad.pt", keys, value)
+    with pytest.raises(InputError) as e:
+        load_checkpoint(bad)
+    assert "\n" not in str(e.value) and str(e.value).startswith(f"{bad}: checkpoint record: {needle}"), str(e.value)
+
+
+def test_commands_refuse_a_bad_record_in_one_line_and_take_a_good_one(tiny_checkpoint, tiny_dataset, tmp_path, capsys):
+    from mvracklay.cli import main
+    from network.checkpoint import load_checkpoint
+
+    bad = _with_record(tiny_checkpoint, tmp_path / "bad.pt", ("rack_depth_offset",), float("inf"))
+    seq = tiny_dataset / "seq_00000"
+    assert main(["predict", str(seq), "--out", str(tmp_path / "lay"), "--checkpoint", str(bad), "--quiet"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "bad.pt: checkpoint record: rack_depth_offset: Input should be a finite" in lines[0]
+    assert not (tmp_path / "lay").exists()
+    good = _with_record(tiny_checkpoint, tmp_path / "good.pt", ("step",), 7)
+    assert load_checkpoint(good)[1]["step"] == 7
