@@ -2,7 +2,8 @@
 ``--camera`` file, an export's ``cameras.json`` entry) into its rotation angles and lens distortion.
 
 The generator writes these records, the network's data readers and the pipeline read them; each reads
-them through here so a record means the same thing everywhere.
+them through here so a record means the same thing everywhere. A ``--camera`` file's own schema (its keys,
+types and ranges) is `mvracklay.camera_schema`'s.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Any
 from layouts.camera import Intrinsics
 from layouts.canonical import MAX_ROLL_DEG
 from layouts.errors import InputError, LayoutError
-from layouts.lens import LENS_KEYS, Lens
+from layouts.lens import Lens
 
 #: the camera rotation's keys (``camera.*`` ranges of a generator config, and each sequence's camera record)
 CAMERA_ANGLE_KEYS = ("roll_deg", "pitch_deg", "yaw_deg")
@@ -41,40 +42,8 @@ def lens_from_record(d: dict[str, Any], where: str) -> Lens | None:
     return None if lens is None or lens.is_pinhole else lens
 
 
-#: the keys a ``--camera`` file may hold (at its top level, or nested under ``"intrinsics"``)
-INTRINSICS_KEYS = ("fx", "fy", "cx", "cy", "width", "height")
-CAMERA_FILE_KEYS = INTRINSICS_KEYS + LENS_KEYS
 _ASPECT_TOL = 0.01
 """Relative difference of width / height ratios still taken as the same aspect (rounding of scaled sizes)."""
-
-
-def _unknown_keys(d: dict[str, Any], allowed: tuple[str, ...], where: str) -> None:
-    unknown = [k for k in d if k not in allowed]
-    if unknown:
-        raise InputError(
-            f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(repr(k) for k in unknown)} "
-            f'(known: {", ".join(CAMERA_FILE_KEYS)}, and "intrinsics" nesting them)'
-        )
-
-
-def camera_file_record(d: Any, where: str) -> dict[str, Any]:
-    """A camera file's JSON as one flat record of `CAMERA_FILE_KEYS`: the keys at the top level, or nested
-    under ``"intrinsics"`` with any of them (the lens's k1.. typically) beside it. Unknown keys, and a key
-    given both inside and beside ``"intrinsics"``: `InputError` naming ``where``."""
-    if not isinstance(d, dict):
-        raise InputError(f"{where}: want a JSON object with fx, fy, cx, cy (and width, height)")
-    flat = {k: v for k, v in d.items() if k != "intrinsics"}
-    _unknown_keys(flat, CAMERA_FILE_KEYS, where)
-    if "intrinsics" not in d:
-        return flat
-    nested = d["intrinsics"]
-    if not isinstance(nested, dict):
-        raise InputError(f'{where}: "intrinsics" must be a JSON object with fx, fy, cx, cy (and width, height)')
-    _unknown_keys(nested, CAMERA_FILE_KEYS, f'{where} "intrinsics"')
-    both = [k for k in nested if k in flat]
-    if both:
-        raise InputError(f'{where}: {", ".join(both)} given both inside "intrinsics" and beside it; give each once')
-    return {**nested, **flat}
 
 
 def check_camera_fits(intr: Intrinsics, width: int, height: int, where: str) -> None:

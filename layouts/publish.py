@@ -11,13 +11,16 @@ them in:
   its earlier outputs whole; the old ones are deleted only once every new one is in.
 
 `check_writable` probes OUT (or the folder it will be made in) before any work, so a read-only or
-missing place is one line, not a traceback after the work. `refuse_overlap` refuses an output that is,
+missing place is one line, not a traceback after the work; a write that fails later, while the outputs
+are being staged (a full disk, a quota, a filesystem turned read-only), is one line too (`write_failed`),
+the stage removed and OUT as it was. `refuse_overlap` refuses an output that is,
 lies inside or holds an input. Stale stages of processes no longer alive are removed when the next
 stage is made.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import shutil
@@ -173,6 +176,30 @@ def publish(
         raise _cannot(what, out, e, kept or "; the earlier outputs are kept") from None
     shutil.rmtree(aside, ignore_errors=True)
     shutil.rmtree(st, ignore_errors=True)
+
+
+#: errors of a write whatever the file: no room, over a quota, too large, the filesystem read-only
+WRITE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS})
+
+
+def is_write_failure(e: BaseException, where: str | os.PathLike) -> bool:
+    """Whether ``e`` is a failed write into the folder ``where``: an `OSError` about a file under it, or one
+    that only a write gives (`WRITE_ERRNOS`). A missing or unreadable input is not."""
+    if not isinstance(e, OSError):
+        return False
+    if e.errno in WRITE_ERRNOS:
+        return True
+    if e.filename is None or not isinstance(e.filename, (str, os.PathLike)):
+        return False
+    path, folder = Path(os.path.abspath(e.filename)), Path(os.path.abspath(where))
+    return path == folder or folder in path.parents
+
+
+def write_failed(e: OSError, out: str | os.PathLike, what: str = "--out", tail: str = "") -> InputError:
+    """The one line for a write that failed while a command's outputs were staged (`is_write_failure`),
+    ``--out OUT: cannot write there (No space left on device); the earlier outputs are kept``; the caller
+    removes its stage, so that OUT keeps them whole. ``tail``: other words on what is kept."""
+    return _cannot(what, Path(out), e, tail or "; the earlier outputs are kept")
 
 
 def discard(st: str | os.PathLike) -> None:

@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from layouts import Intrinsics
-from layouts.camera_record import camera_file_record, check_camera_fits, lens_from_record
+from layouts.camera_record import check_camera_fits, lens_from_record
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.lens import Lens
+from mvracklay.camera_schema import camera_file_record
 
 if TYPE_CHECKING:
     from mvracklay.frames import FrameSource
@@ -32,7 +33,7 @@ def default_intrinsics(width: int, height: int) -> Intrinsics:
 
 
 def _camera_record(path: str | os.PathLike) -> dict[str, Any]:
-    """A ``--camera`` file's keys, flat and checked (`layouts.camera_record.camera_file_record`)."""
+    """A ``--camera`` file's keys, flat and checked against its schema (`mvracklay.camera_schema`)."""
     p = Path(path)
     if not p.is_file():
         raise InputError(f"--camera {p}: file not found")

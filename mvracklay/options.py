@@ -218,11 +218,18 @@ def config_value(action: argparse.Action, key: str, value: object, where: str) -
     return out if items is value else out[0]
 
 
-def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tuple[str, ...] = ("config",)) -> dict:
+def read_config(
+    path: str | Path,
+    parser: argparse.ArgumentParser,
+    exclude: tuple[str, ...] = ("config",),
+    settings: tuple[type, ...] = (),
+) -> dict:
     """A ``--config`` FILE (JSON, or TOML by its ``.toml`` suffix) of options by their long names
     (``"flip-average": true``, ``rack-depth = 1.1``), as ``{dest: value}`` for ``parser.set_defaults``.
 
-    Unknown keys, and values the option would refuse, fail with one line naming the file and the key.
+    Unknown keys, values the option would refuse, and values outside the declared schema
+    (`mvracklay.config_schema`, typed from the settings dataclasses ``settings``: not finite, out of a
+    field's range) fail with one line naming the file and the key.
     """
     path = Path(path)
     where = f"--config {path}"
@@ -262,4 +269,7 @@ def read_config(path: str | Path, parser: argparse.ArgumentParser, exclude: tupl
             hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(sorted(by_name))}"
             raise InputError(f"{where}: unknown option {key!r}{hint}")
         out[action.dest] = config_value(action, key, value, where)
+    from mvracklay.config_schema import check_config
+
+    check_config(data, by_name, settings, where)
     return out

@@ -26,6 +26,7 @@ from tqdm import tqdm
 from layouts import Intrinsics, LayoutSpec
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
+from layouts.publish import is_write_failure, write_failed
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.camera import run_camera
@@ -144,10 +145,12 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         recording = None
         publish(stage, out)
         seconds["export"] = time.perf_counter() - t1
-    except BaseException:
+    except BaseException as e:
         if recording is not None:
             recording.abort()
         shutil.rmtree(stage, ignore_errors=True)
+        if is_write_failure(e, stage):  # a full disk while staging: one line, the earlier outputs whole
+            raise write_failed(e, out) from None
         raise
     warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
     path_said = registration_warning(wmap.meta.get("registration"), n)

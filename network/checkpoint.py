@@ -5,7 +5,8 @@ state, optionally discriminator and optimiser states, step counters) plus its re
 string; ``NAME.json`` beside it repeats the record for people (model config with the
 `LayoutSpec`, training config, camera intrinsics, metrics). Loading uses
 ``torch.load(weights_only=True)``: a pickled object or a truncated file is one `InputError`
-naming the file, and no pickled code runs.
+naming the file, and no pickled code runs; the record is checked against its declared schema
+(`network.checkpoint_schema`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes, atomic_write_json, loads_json
+from network.checkpoint_schema import check_record
 from network.inference.decision import check_depth_offset, check_offsets
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
@@ -109,6 +111,7 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, 
         raise InputError(f"{path}: not an MVRackLay checkpoint (format {record.get('format')!r})")
     if record.get("format_version") != FORMAT_VERSION:
         raise InputError(f"{path}: checkpoint format version {record.get('format_version')!r} is not supported")
+    check_record(record, str(path))  # the declared schema of the keys the loaders read (`network.checkpoint_schema`)
     return payload, record
 
 

@@ -676,3 +676,67 @@ def test_free_space_options_must_be_finite(option, map_doc, tmp_path, capsys):
     path.write_text(json.dumps(map_doc))
     argv = ["free-space", str(path), *(["--box", "0.4x0.3x0.3"] if option[0] != "--box" else []), *option]
     one_line(capsys, main(argv), "free-space", option[0])
+
+
+# --- a write failing while the outputs are staged (a full disk) -------------------------------------------------
+
+
+def _disk_fills(monkeypatch, after: int) -> list[str]:
+    """Writes through `layouts.fileio` into a stage or a sequence being generated fail with ENOSPC once
+    ``after`` of them went through (every file the commands write goes through it)."""
+    import tempfile as real
+
+    from layouts import fileio
+
+    written: list[str] = []
+
+    class Full:
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        @staticmethod
+        def mkstemp(*a, dir=None, **k):
+            if dir is not None and (".partial-" in str(dir) or ".tmp" in str(dir)):
+                written.append(str(dir))
+                if len(written) > after:
+                    raise OSError(errno.ENOSPC, "No space left on device")
+            return real.mkstemp(*a, dir=dir, **k)
+
+    monkeypatch.setattr(fileio, "tempfile", Full())
+    return written
+
+
+@pytest.mark.parametrize("command", ["run", "reconstruct", "export"])
+def test_a_full_disk_while_staging_is_one_line_and_keeps_the_earlier_outputs(
+    command, seq, earlier, tiny_dataset, tiny_checkpoint, tmp_path, monkeypatch, capsys
+):
+    prev = tmp_path / "prev"
+    argv = {
+        "run": ["run", str(seq), "--checkpoint", str(tiny_checkpoint), "--max-frames", "4", *QUIET],
+        "reconstruct": ["reconstruct", str(seq), *QUIET],
+        "export": ["export", str(tiny_dataset), "--format", "yolo", "--overwrite", "--quiet"],
+    }[command] + ["--out", str(prev)]
+    if command == "export":
+        assert main(["export", str(tiny_dataset), "--format", "yolo", "--out", str(prev), "--quiet"]) == 0
+    else:
+        copy_of(earlier, prev)
+    before = snapshot(prev)
+    written = _disk_fills(monkeypatch, after=1)
+    rc = main(argv)
+    one_line(capsys, rc, command, f"--out {prev}" if command != "export" else str(prev), "cannot write there",
+             "(No space left on device); the earlier outputs are kept")  # fmt: skip
+    assert len(written) > 1 and snapshot(prev) == before
+    no_stage_left(prev, tmp_path)
+
+
+def test_a_full_disk_while_generating_is_one_line_and_resumes(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "data"
+    argv = ["generate", str(out), "--sequences", "2", "--frames", "1", "--size", "64", "--layout-size", "16", "--quiet"]
+    written = _disk_fills(monkeypatch, after=12)  # the first sequence is written whole, then the disk is full
+    said = one_line(capsys, main(argv), "generate", str(out), "cannot write there (No space left on device)")
+    assert "the sequences finished so far are kept: run the same command again to resume" in said
+    assert len(written) > 12 and (out / "seq_00000" / "meta.json").is_file()
+    kept = (out / "seq_00000" / "meta.json").read_bytes()
+    monkeypatch.undo()
+    assert main(argv) == 0 and (out / "seq_00001" / "meta.json").is_file()
+    assert (out / "seq_00000" / "meta.json").read_bytes() == kept and not list(out.glob(".seq_*"))

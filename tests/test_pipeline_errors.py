@@ -111,7 +111,7 @@ def test_corrupt_checkpoint(tmp_path: Path, capsys):
     [
         ("{not json", "cam.json"),
         (json.dumps({"fx": 100.0, "fy": 100.0, "cx": 32.0}), "cy"),
-        (json.dumps({"fx": -1.0, "fy": 100.0, "cx": 32.0, "cy": 24.0}), "positive"),
+        (json.dumps({"fx": -1.0, "fy": 100.0, "cx": 32.0, "cy": 24.0}), "fx: Input should be greater than 0"),
         (json.dumps([1, 2, 3]), "cam.json"),
     ],
 )

@@ -3,7 +3,9 @@
 A config is a nested JSON object (see ``default_config.json`` and docs/waresynth.md). A user
 config overrides any subset of keys; keys starting with ``_`` are comments. Unknown keys and
 bad values are refused with one line naming the key, e.g.
-``config.json: camera.distance must be [low, high] with low <= high, got [3, 2]``.
+``config.json: camera.distance must be [low, high] with low <= high, got [3, 2]``. The merged config
+is then checked against the declared schema made from the defaults and `_BOUNDS`
+(`waresynth.config_schema`).
 """
 
 from __future__ import annotations
@@ -261,4 +263,7 @@ def load_config(config: dict[str, Any] | str | os.PathLike | None = None) -> dic
         raise InputError(f"{src}: config must be a JSON object, got {type(user).__name__}")
     _merge(src, cfg, copy.deepcopy(user))
     _check_whole(src, cfg)
+    from waresynth.config_schema import check_config
+
+    check_config(cfg, src)  # the declared schema of the whole config (`waresynth.config_schema`)
     return cfg

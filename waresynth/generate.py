@@ -28,6 +28,7 @@ from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
+from layouts.publish import is_write_failure, write_failed
 from layouts.spec import LayoutSpec
 from waresynth.config import draw_hfov, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
@@ -379,8 +380,18 @@ def generate_dataset(
         shutil.rmtree(stale)
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
     if todo:
-        _write_sequences(root, todo, spec, cfg, (w, h), workers, progress, stats)
+        try:
+            _write_sequences(root, todo, spec, cfg, (w, h), workers, progress, stats)
+        except OSError as e:
+            if not is_write_failure(e, root):
+                raise
+            # a full disk: the finished sequences stay, the same command resumes once there is room
+            raise write_failed(e, root, "output folder", RESUMABLE) from None
     return root
+
+
+#: what is kept when writing the sequences fails (`write_failed`)
+RESUMABLE = "; the sequences finished so far are kept: run the same command again to resume"
 
 
 def _write_sequences(

@@ -68,6 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from layouts.publish import is_write_failure, write_failed
     from mvracklay.outputs import check_apart, check_out, publish, spawn_viewer, staging_dir
     from stitching.path_record import registration_warning
 
@@ -110,8 +111,10 @@ def run(args: argparse.Namespace) -> int:
             f"{len(indices)} frames -> {len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes "
             f"(stitching {fps:.0f} frames/s)"
         )
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(out, ignore_errors=True)
+        if is_write_failure(e, out):  # a full disk while staging: one line, the earlier outputs whole
+            raise write_failed(e, final_out) from None
         raise
     publish(out, final_out, managed=MAP_OUTPUTS)
     print(

@@ -84,7 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict[str, object]:
     """The defaults ``--quality`` and ``--config`` give (the command line is parsed again over them)."""
-    from_file = read_config(args.config, parser) if args.config is not None else {}
+    from_file = read_config(args.config, parser, settings=(RunConfig, InferenceSettings)) if args.config else {}
     quality = args.quality or from_file.pop("quality", None) or "default"
     from_file.pop("quality", None)
     return {**PRESETS[quality], **from_file, "quality": quality}

@@ -2,7 +2,7 @@
 
 A recipe is read with `tomllib`, changed by ``--set PATH=VALUE`` overrides, and checked whole before
 anything runs: every problem is one line naming the file, the stage and the key (unknown keys are
-refused). Values may hold placeholders, ``{out}`` (the run folder), ``{repo}`` (the project folder),
+refused); its structure, types and ranges are the declared schema's (`mvracklay.training.recipe_schema`). Values may hold placeholders, ``{out}`` (the run folder), ``{repo}`` (the project folder),
 ``{recipe_dir}``, ``{precision}``, ``{data.NAME}`` (a data folder) and ``{NAME}`` (a ``[vars]`` entry).
 docs/training.md describes the format.
 """
@@ -18,23 +18,11 @@ from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import loads_toml
+from mvracklay.training.recipe_schema import StageDoc, recipe_problems
 
-TOP_KEYS = ("description", "precision", "workers", "requires", "vars", "data", "budget", "defaults", "stages")
-DATA_KEYS = {
-    "folder": str,
-    "sequences": int,
-    "frames": int,
-    "size": int,
-    "seed": int,
-    "config": str,
-    "layout_size": int,
-}
-DATA_REQUIRED = ("folder", "sequences", "frames", "size", "seed")
-BUDGET_KEYS = ("total", "margin", "fit_ratio", "prior", "count")
-STAGE_KEYS = ("stage", "id", "minutes", "group", "lane", "skip", "unless_exists", "log", "args", "options")
+STAGE_KEYS = tuple(StageDoc.model_fields)
 #: the option a stage's ``minutes`` sets
 MINUTES_OPTION = {"train": "minutes", "fit-box-depth": "pass-minutes"}
-PRECISIONS = ("auto", "bf16", "fp32")
 PLACEHOLDER = re.compile(r"\{([A-Za-z_][A-Za-z0-9_.\-]*)\}")
 REPO = Path(__file__).resolve().parents[2]
 
@@ -166,26 +154,13 @@ def load_recipe(name_or_file: str, overrides: list[str] | None = None) -> Recipe
         raise InputError(f"{path}: not TOML: {e}") from None
     raw = loads_toml(text, str(path))
     apply_overrides(raw, list(overrides or []), path)
-    problems: list[str] = []
-    for key in raw:
-        if key not in TOP_KEYS:
-            problems.append(f"{path}: unknown key {key!r} (known: {', '.join(TOP_KEYS)})")
-    precision = raw.get("precision", "auto")
-    if precision not in PRECISIONS:
-        problems.append(f"{path}: key 'precision': one of {', '.join(PRECISIONS)}, got {precision!r}")
-    workers = raw.get("workers", 1)
-    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
-        problems.append(f"{path}: key 'workers': a whole number >= 1, got {workers!r}")
-    variables = raw.get("vars", {})
-    if not isinstance(variables, dict):
-        problems.append(f"{path}: key 'vars': a table")
-        variables = {}
-    requires = raw.get("requires", [])
-    if not isinstance(requires, list) or not all(isinstance(r, str) for r in requires):
-        problems.append(f"{path}: key 'requires': a list of paths that must exist before the recipe runs")
-        requires = []
-    data = _data_specs(raw.get("data", {}), path, problems)
-    stages = _stages(raw.get("stages", []), path, problems)
+    problems = recipe_problems(raw, path)  # the declared schema: structure, types, ranges, all at once
+    if problems:
+        raise InputError("\n".join(problems))
+    precision, workers = raw.get("precision", "auto"), raw.get("workers", 1)
+    variables, requires = raw.get("vars", {}), raw.get("requires", [])
+    data = {name: DataSpec(name, **spec) for name, spec in raw.get("data", {}).items()}
+    stages = _stages(raw["stages"], path, problems)
     _merge_defaults(raw.get("defaults", {}), stages, path, problems)
     budget = raw.get("budget")
     if budget is not None:
@@ -196,71 +171,22 @@ def load_recipe(name_or_file: str, overrides: list[str] | None = None) -> Recipe
     return Recipe(path, description, precision, workers, variables, requires, data, budget, stages)
 
 
-def _data_specs(raw: Any, path: Path, problems: list[str]) -> dict[str, DataSpec]:
-    if not isinstance(raw, dict):
-        problems.append(f"{path}: key 'data': a table of [data.NAME] tables")
-        return {}
-    out = {}
-    for name, spec in raw.items():
-        where = f"{path}: data {name!r}"
-        if not isinstance(spec, dict):
-            problems.append(f"{where}: a table with {', '.join(DATA_REQUIRED)}")
-            continue
-        bad = False
-        for key, value in spec.items():
-            kind = DATA_KEYS.get(key)
-            if kind is None:
-                problems.append(f"{where}: unknown key {key!r} (known: {', '.join(DATA_KEYS)})")
-                bad = True
-            elif not isinstance(value, kind) or isinstance(value, bool):
-                problems.append(f"{where}: key {key!r}: {kind.__name__} expected, got {value!r}")
-                bad = True
-            elif kind is int and value < (0 if key == "seed" else 1):
-                problems.append(f"{where}: key {key!r}: must be >= {0 if key == 'seed' else 1}, got {value}")
-                bad = True
-        missing = [k for k in DATA_REQUIRED if k not in spec]
-        if missing:
-            problems.append(f"{where}: missing key(s) {', '.join(missing)}")
-        elif not bad:
-            out[name] = DataSpec(name, **spec)
-    return out
-
-
-def _stages(raw: Any, path: Path, problems: list[str]) -> list[Stage]:
-    if not isinstance(raw, list) or not raw:
-        problems.append(f"{path}: no [[stages]]")
-        return []
+def _stages(raw: list[dict[str, Any]], path: Path, problems: list[str]) -> list[Stage]:
+    """The stages of a recipe its schema accepted; what needs them all (ids unique, minutes) to ``problems``."""
     out: list[Stage] = []
     ids: dict[str, int] = {}
     for n, entry in enumerate(raw, 1):
-        if not isinstance(entry, dict) or not isinstance(entry.get("stage"), str):
-            problems.append(f"{path}: stage {n}: key 'stage' (the stage's name) missing")
-            continue
         sid = entry.get("id", entry["stage"])
         where = f"{path}: stage {n} ({sid})"
-        for key in entry:
-            if key not in STAGE_KEYS:
-                problems.append(f"{where}: unknown key {key!r} (known: {', '.join(STAGE_KEYS)})")
-        if not isinstance(sid, str) or not sid or "." in sid:
+        if not sid or "." in sid:
             problems.append(f"{where}: key 'id': a name without dots")
         elif sid in ids:
             problems.append(f"{where}: id {sid!r} is stage {ids[sid]}'s too; give the stage an 'id' of its own")
         ids[sid] = n
-        stage = Stage(n, entry["stage"], str(sid), options=entry.get("options", {}))
-        for key, kinds in (("group", str), ("lane", int), ("skip", bool), ("unless_exists", str), ("log", str)):
+        stage = Stage(n, entry["stage"], str(sid), options=entry.get("options", {}), args=entry.get("args", []))
+        for key in ("group", "lane", "skip", "unless_exists", "log"):
             if key in entry:
-                if not isinstance(entry[key], kinds) or (kinds is int and isinstance(entry[key], bool)):
-                    problems.append(f"{where}: key {key!r}: {kinds.__name__} expected, got {entry[key]!r}")
-                else:
-                    setattr(stage, key, entry[key])
-        if not isinstance(stage.options, dict):
-            problems.append(f"{where}: key 'options': a table")
-            stage.options = {}
-        args = entry.get("args", [])
-        if not isinstance(args, list):
-            problems.append(f"{where}: key 'args': a list")
-        else:
-            stage.args = args
+                setattr(stage, key, entry[key])
         if "minutes" in entry:
             stage.minutes = entry["minutes"]
             _check_minutes(stage, where, problems)
@@ -292,47 +218,23 @@ def _merge_defaults(defaults: Any, stages: list[Stage], path: Path, problems: li
 
 
 def _check_minutes(stage: Stage, where: str, problems: list[str]) -> None:
+    """Which stages take ``minutes`` (their values are the schema's: a number >= 0, a table, "budget")."""
     option = MINUTES_OPTION.get(stage.name)
     if option is None:
         problems.append(f"{where}: key 'minutes': only the {' and '.join(MINUTES_OPTION)} stages take minutes")
         return
     if option in stage.options:
         problems.append(f"{where}: key 'minutes' and option {option!r} both given")
-    values = stage.minutes.values() if isinstance(stage.minutes, dict) else [stage.minutes]
-    if isinstance(stage.minutes, dict) and set(stage.minutes) - {"bf16", "fp32"}:
-        problems.append(f"{where}: key 'minutes': a table takes bf16 and fp32, got {', '.join(stage.minutes)}")
-    for v in values:
-        budget = v == "budget" and stage.name == "fit-box-depth"
-        if not budget and (not isinstance(v, int | float) or isinstance(v, bool) or v < 0):
-            problems.append(
-                f"{where}: key 'minutes': a number >= 0, a {{bf16 = .., fp32 = ..}} table"
-                + (' or "budget"' if stage.name == "fit-box-depth" else "")
-                + f", got {v!r}"
-            )
+    if stage.minutes == "budget" and stage.name != "fit-box-depth":
+        problems.append(f"{where}: key 'minutes': \"budget\" is for the fit-box-depth stage, got {stage.minutes!r}")
 
 
-def _check_budget(budget: Any, stages: list[Stage], path: Path, problems: list[str]) -> None:
-    where = f"{path}: [budget]"
-    if not isinstance(budget, dict):
-        problems.append(f"{where}: a table")
-        return
-    for key in budget:
-        if key not in BUDGET_KEYS:
-            problems.append(f"{where}: unknown key {key!r} (known: {', '.join(BUDGET_KEYS)})")
-    for key in ("total", "margin"):
-        v = budget.get(key, 0.0 if key == "margin" else None)
-        if not isinstance(v, int | float) or isinstance(v, bool) or v < 0:
-            problems.append(f"{where}: key {key!r}: a number of minutes >= 0, got {v!r}")
-    ratio = budget.get("fit_ratio", 0.0)
-    for v in ratio.values() if isinstance(ratio, dict) else [ratio]:
-        if not isinstance(v, int | float) or isinstance(v, bool) or v < 0:
-            problems.append(f"{where}: key 'fit_ratio': a number >= 0 or a {{bf16, fp32}} table, got {v!r}")
+def _check_budget(budget: dict[str, Any], stages: list[Stage], path: Path, problems: list[str]) -> None:
+    """``[budget]`` ``count`` names stages of the recipe (its values are the schema's)."""
     names = {s.id for s in stages} | {s.group for s in stages if s.group}
     for name in budget.get("count", []):
         if name not in names:
-            problems.append(f"{where}: key 'count': {name!r} is no stage id or group of the recipe")
-    if not isinstance(budget.get("prior", []), list):
-        problems.append(f"{where}: key 'prior': a list of checkpoints whose training minutes count")
+            problems.append(f"{path}: [budget]: key 'count': {name!r} is no stage id or group of the recipe")
 
 
 class Context:

@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from layouts.publish import check_writable, discard, is_stage_name, publish, stage
+from layouts.publish import check_writable, discard, is_stage_name, is_write_failure, publish, stage, write_failed
 
 #: version of the COCO and YOLO exports (`export.json`)
 EXPORT_VERSION = 1
@@ -114,8 +114,10 @@ def run_staged(
     stage = Staging(out, overwrite)
     try:
         build(dataset, stage.tmp, progress)
-    except BaseException:
+    except BaseException as e:
         stage.abort()
+        if is_write_failure(e, stage.tmp):  # a full disk while staging: one line, the earlier export whole
+            raise write_failed(e, out, "output folder") from None
         raise
     return stage.commit()
 
