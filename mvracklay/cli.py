@@ -230,6 +230,16 @@ def _main(argv: Sequence[str] | None = None) -> int:
     except InputError as e:
         print(f"mvracklay {name}: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        from layouts.publish import WRITE_ERRNOS
+
+        if e.errno not in WRITE_ERRNOS:
+            raise
+        # a full disk, a quota or a read-only filesystem under a command that stages nothing: one line, not a
+        # traceback (the commands that publish outputs say what they kept themselves)
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"mvracklay {name}: error: {where}cannot write ({e.strerror})", file=sys.stderr)
+        return 2
     except KeyboardInterrupt as e:
         note = getattr(mod, "RESUME", None) or getattr(mod, "INTERRUPTED", None)
         _close_progress_bars()

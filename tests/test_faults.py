@@ -740,3 +740,20 @@ def test_a_full_disk_while_generating_is_one_line_and_resumes(tmp_path, monkeypa
     monkeypatch.undo()
     assert main(argv) == 0 and (out / "seq_00001" / "meta.json").is_file()
     assert (out / "seq_00000" / "meta.json").read_bytes() == kept and not list(out.glob(".seq_*"))
+
+
+def test_a_full_disk_under_any_command_is_one_line(tiny_dataset, tmp_path, capsys, monkeypatch):
+    """A command that stages nothing (inspect) meeting a full disk: one line naming the file, exit 2."""
+    import errno
+
+    import layouts.fileio
+
+    def full(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "sheet.png"))
+
+    monkeypatch.setattr(layouts.fileio, "atomic_write_bytes", full)
+    monkeypatch.setattr("waresynth.imageio.atomic_write_bytes", full, raising=False)
+    rc = main(["inspect", str(tiny_dataset), "--out", str(tmp_path / "sheet.png")])
+    err = capsys.readouterr().err
+    said = [line for line in err.splitlines() if line.startswith("mvracklay inspect")]
+    assert rc == 2 and len(said) == 1 and "No space left on device" in said[0] and "Traceback" not in err
