@@ -746,13 +746,18 @@ def test_a_full_disk_under_any_command_is_one_line(tiny_dataset, tmp_path, capsy
     """A command that stages nothing (inspect) meeting a full disk: one line naming the file, exit 2."""
     import errno
 
-    import layouts.fileio
+    import tempfile as real
 
-    def full(*_a, **_k):
-        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "sheet.png"))
+    from layouts import fileio
 
-    monkeypatch.setattr(layouts.fileio, "atomic_write_bytes", full)
-    monkeypatch.setattr("waresynth.imageio.atomic_write_bytes", full, raising=False)
+    class Full:  # every file the commands write goes through layouts.fileio's temporary file
+        def __getattr__(self, name):
+            return getattr(real, name)
+
+        def mkstemp(self, *a, **k):
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "sheet.png"))
+
+    monkeypatch.setattr(fileio, "tempfile", Full())
     rc = main(["inspect", str(tiny_dataset), "--out", str(tmp_path / "sheet.png")])
     err = capsys.readouterr().err
     said = [line for line in err.splitlines() if line.startswith("mvracklay inspect")]
