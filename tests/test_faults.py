@@ -745,7 +745,6 @@ def test_a_full_disk_while_generating_is_one_line_and_resumes(tmp_path, monkeypa
 def test_a_full_disk_under_any_command_is_one_line(tiny_dataset, tmp_path, capsys, monkeypatch):
     """A command that stages nothing (inspect) meeting a full disk: one line naming the file, exit 2."""
     import errno
-
     import tempfile as real
 
     from layouts import fileio
