@@ -36,15 +36,23 @@ from mvracklay.options import (
 
 
 def option(name: str, help: str, *, invert: bool = False, range: tuple[float | None, float | None] | None = None,
-           group: str | None = None, old: tuple[str, ...] = (), **argparse_kwargs: Any) -> dict[str, Any]:  # fmt: skip
+           group: str | None = None, old: tuple[str, ...] = (), aliases: tuple[str, ...] = (),
+           **argparse_kwargs: Any) -> dict[str, Any]:  # fmt: skip
     """A field's metadata: its option ``name`` (``--flip-average``; a name without dashes is a positional
     argument), ``help``, ``invert`` (a switch that turns the field off, as ``--no-depth-read`` turns
     ``read_depth`` off), the numeric ``range`` it takes (None = open), the help ``group`` it is listed under,
-    ``old`` names still taken with a warning naming ``name`` (``--json`` for ``--json-out``) and any other
+    ``old`` names still taken with a warning naming ``name`` (``--json`` for ``--json-out``), ``aliases`` taken
+    silently and kept out of ``--help`` (``--no-progress`` for ``--quiet``) and any other
     `argparse.ArgumentParser.add_argument` keyword (``type``, ``choices``, ``nargs``, ``required``,
     ``action="store_true"``, ``dest``, ...; ``boolean=True``: ``--x`` / ``--no-x``)."""
     return {"option": name, "help": help, "invert": invert, "range": range, "group": group, "old": old,
-            "argparse": argparse_kwargs}  # fmt: skip
+            "aliases": aliases, "argparse": argparse_kwargs}  # fmt: skip
+
+
+def nested(cls: type, *, only: tuple[str, ...] = (), prefix: str = "") -> Any:
+    """A field holding settings of their own (``cls``, e.g. `InferenceSettings`), their options listed where the
+    field stands (``only``: these fields' options; ``prefix`` put before each help text)."""
+    return field(default_factory=cls, metadata={"settings": cls, "only": only, "prefix": prefix})
 
 
 def setting(name: str, help: str, default: Any = None, **kwargs: Any) -> Any:
@@ -132,7 +140,13 @@ def add_options(
 
     groups: dict[str, Any] = {}
     for f in fields(cls):
-        if (only and f.name not in only) or dest(f) is None:
+        if only and f.name not in only:
+            continue
+        if "settings" in f.metadata:  # settings of their own: their options here
+            inner = f.metadata
+            add_options(p, inner["settings"], hidden=hidden, prefix=prefix + inner["prefix"], only=inner["only"])
+            continue
+        if dest(f) is None:
             continue
         meta = dict(f.metadata["argparse"])
         default = field_default(f)
@@ -151,12 +165,17 @@ def add_options(
             kept = {k: v for k, v in meta.items() if k in ("type", "metavar", "nargs")}
             where.add_argument(old, dest=dest(f), action=DeprecatedAlias, use=name, default=argparse.SUPPRESS,
                                help=argparse.SUPPRESS, **kept)  # fmt: skip
+        for alias in f.metadata.get("aliases", ()):
+            where.add_argument(alias, dest=dest(f), default=argparse.SUPPRESS, help=argparse.SUPPRESS, **meta)
 
 
 def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
     """The settings dataclass ``cls`` from parsed options (`add_options`); ``given``: fields set otherwise."""
     values = {}
     for f in fields(cls):
+        if f.name not in given and "settings" in f.metadata:
+            values[f.name] = from_args(f.metadata["settings"], args)
+            continue
         if f.name in given or dest(f) is None or not hasattr(args, dest(f)):
             continue
         value = getattr(args, dest(f))
@@ -286,9 +305,9 @@ def json_out_setting(help: str) -> Any:
     return setting("--json-out", help, type=Path, metavar="PATH", old=("--json",))
 
 
-def quiet_setting(help: str = "hide the progress bar") -> Any:
-    """``--quiet``: no progress bars."""
-    return setting("--quiet", help, False, action="store_true")
+def quiet_setting(help: str = "hide the progress bar", alias: bool = False) -> Any:
+    """``--quiet``: no progress bars (``alias``: ``--no-progress`` also taken, out of ``--help``)."""
+    return setting("--quiet", help, False, action="store_true", aliases=("--no-progress",) if alias else ())
 
 
 def precision_setting(more: str = "") -> Any:

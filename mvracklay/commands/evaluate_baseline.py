@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_json_out_option, add_quiet_option
+from mvracklay.command_settings import EvaluateBaselineSettings
+from mvracklay.settings import add_options
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -19,12 +19,11 @@ GROUP = "models"
 ORDER = 32
 
 
+SETTINGS = EvaluateBaselineSettings
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", type=Path, required=True, help="dataset folder written by 'mvracklay generate'")
-    p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
-    p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
-    add_json_out_option(p, "also write the result as JSON here")
-    add_quiet_option(p, "no progress bar")
+    add_options(p, EvaluateBaselineSettings)
 
 
 def evaluate_depth_projection(sequences, max_frames: int | None = None, progress: bool = True) -> dict:
@@ -53,7 +52,7 @@ def evaluate_depth_projection(sequences, max_frames: int | None = None, progress
     return {**scorer.result(), "frames": frames}
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: EvaluateBaselineSettings) -> int:
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_table
     from layouts.publish import refuse_overlap
