@@ -34,19 +34,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_options(p, EvalReconstructionSettings)
 
 
-def _rack_depth_option(text: str | None) -> float | str | None:
-    """``--rack-depth``: None, ``'scene'``, or a positive number of metres (one-line error otherwise)."""
-    from layouts.rackdepth import check_rack_depth
-
-    if text is None or text == "scene":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
-    return check_rack_depth(value)
-
-
 def run(args: EvalReconstructionSettings) -> int:
     from dataclasses import replace
 
@@ -60,6 +47,7 @@ def run(args: EvalReconstructionSettings) -> int:
         handheld_sequence,
         open_sequences,
         predicted_layouts,
+        rack_depth_option,
         scale_factor,
         summarise,
     )
@@ -84,7 +72,7 @@ def run(args: EvalReconstructionSettings) -> int:
         raise InputError("--handheld walks the sequence's own frames: drop --layouts / --map")
     if args.rack_depth is not None and not args.checkpoint:
         raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
-    rack_depth = _rack_depth_option(args.rack_depth)
+    rack_depth = rack_depth_option(args.rack_depth)
     config = stitch_settings(args.board_thickness, args.noisy)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
     settings = replace(args.inference, rack_depth=None)
