@@ -226,6 +226,11 @@ def _main(argv: Sequence[str] | None = None) -> int:
             if defaults:  # the command line still wins: parsed again over these defaults
                 subparsers[name].set_defaults(**defaults)
                 args = parser.parse_args(argv)
+        settings = getattr(mod, "SETTINGS", None)  # a command whose options a settings dataclass makes runs on it
+        if settings is not None:
+            from mvracklay.settings import from_args
+
+            args = from_args(settings, args)
         return int(mod.run(args) or 0)
     except InputError as e:
         print(f"mvracklay {name}: error: {e}", file=sys.stderr)

@@ -193,11 +193,12 @@ def add_json_out_option(p: argparse.ArgumentParser, help_text: str) -> None:
 
 def config_value(action: argparse.Action, key: str, value: object, where: str) -> object:
     """A config file's ``value`` for ``action`` as the command line would give it (one line when it cannot be)."""
+    where = f"{where}: " if where else ""  # none: ``key`` says it all
     if value is None:
         return action.default
     if action.nargs == 0 or (action.nargs == "?" and isinstance(value, bool)):
         if not isinstance(value, bool):
-            raise InputError(f"{where}: {key} is a switch: want true or false, got {value!r}")
+            raise InputError(f"{where}{key} is a switch: want true or false, got {value!r}")
         if isinstance(action.const, bool):  # store_true / store_false
             return value if action.const else not value
         if action.nargs == "?":  # e.g. fuse-frames: true = given bare, false = off
@@ -207,13 +208,13 @@ def config_value(action: argparse.Action, key: str, value: object, where: str) -
     out = []
     for item in items:
         if isinstance(item, (bool, list, dict)):
-            raise InputError(f"{where}: {key} wants a value like its option's, got {item!r}")
+            raise InputError(f"{where}{key} wants a value like its option's, got {item!r}")
         try:
             got = action.type(str(item)) if callable(action.type) else str(item)
         except (TypeError, ValueError, argparse.ArgumentTypeError):
-            raise InputError(f"{where}: {key}: not a valid value: {item!r}") from None
+            raise InputError(f"{where}{key}: not a valid value: {item!r}") from None
         if action.choices is not None and got not in action.choices:
-            raise InputError(f"{where}: {key} must be one of {', '.join(map(str, action.choices))}, got {item!r}")
+            raise InputError(f"{where}{key} must be one of {', '.join(map(str, action.choices))}, got {item!r}")
         out.append(got)
     return out if items is value else out[0]
 

@@ -180,3 +180,16 @@ def handheld_sequence(seq: Sequence, out: Path, seed: int) -> Sequence:
     walk = HandheldWalk()
     resample_sequence(seq.root, out, handheld_indices(seq.num_frames, seed, walk), walk_note(walk, seed))
     return open_sequence(out)
+
+
+def rack_depth_option(text: str | None) -> float | str | None:
+    """``--rack-depth``: None, ``'scene'``, or a positive number of metres (one-line error otherwise)."""
+    from layouts.rackdepth import check_rack_depth
+
+    if text is None or text == "scene":
+        return text
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
+    return check_rack_depth(value)

@@ -36,11 +36,30 @@ from mvracklay.options import (
 
 
 def option(name: str, help: str, *, invert: bool = False, range: tuple[float | None, float | None] | None = None,
+           group: str | None = None, old: tuple[str, ...] = (), aliases: tuple[str, ...] = (),
            **argparse_kwargs: Any) -> dict[str, Any]:  # fmt: skip
-    """A field's metadata: its option ``name`` (``--flip-average``), ``help``, ``invert`` (a switch that turns the
-    field off, as ``--no-depth-read`` turns ``read_depth`` off), the numeric ``range`` it takes (None = open)
-    and any other `argparse.ArgumentParser.add_argument` keyword."""
-    return {"option": name, "help": help, "invert": invert, "range": range, "argparse": argparse_kwargs}
+    """A field's metadata: its option ``name`` (``--flip-average``; a name without dashes is a positional
+    argument), ``help``, ``invert`` (a switch that turns the field off, as ``--no-depth-read`` turns
+    ``read_depth`` off), the numeric ``range`` it takes (None = open), the help ``group`` it is listed under,
+    ``old`` names still taken with a warning naming ``name`` (``--json`` for ``--json-out``), ``aliases`` taken
+    silently and kept out of ``--help`` (``--no-progress`` for ``--quiet``) and any other
+    `argparse.ArgumentParser.add_argument` keyword (``type``, ``choices``, ``nargs``, ``required``,
+    ``action="store_true"``, ``dest``, ...; ``boolean=True``: ``--x`` / ``--no-x``)."""
+    return {"option": name, "help": help, "invert": invert, "range": range, "group": group, "old": old,
+            "aliases": aliases, "argparse": argparse_kwargs}  # fmt: skip
+
+
+def nested(cls: type, *, only: tuple[str, ...] = (), prefix: str = "") -> Any:
+    """A field holding settings of their own (``cls``, e.g. `InferenceSettings`), their options listed where the
+    field stands (``only``: these fields' options; ``prefix`` put before each help text)."""
+    return field(default_factory=cls, metadata={"settings": cls, "only": only, "prefix": prefix})
+
+
+def setting(name: str, help: str, default: Any = None, **kwargs: Any) -> Any:
+    """A settings field with its option (`option`); a list ``default`` is copied for each instance."""
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata=option(name, help, **kwargs))
+    return field(default=default, metadata=option(name, help, **kwargs))
 
 
 def _angle(name: str, text: str) -> Any:
@@ -96,9 +115,18 @@ class InferenceSettings:
 
 
 def dest(f: Any) -> str | None:
-    """The argparse ``dest`` of a settings field (its option's name: ``--no-depth-read`` -> ``no_depth_read``);
-    None for a field without an option of its own."""
-    return f.metadata["option"][2:].replace("-", "_") if "option" in f.metadata else None
+    """The argparse ``dest`` of a settings field (its option's name: ``--no-depth-read`` -> ``no_depth_read``,
+    or the ``dest`` its metadata names); None for a field without an option of its own."""
+    if "option" not in f.metadata:
+        return None
+    return f.metadata["argparse"].get("dest") or f.metadata["option"].lstrip("-").replace("-", "_")
+
+
+def field_default(f: Any) -> Any:
+    """A field's default (a fresh one from its factory); None when it has none."""
+    if f.default is not MISSING:
+        return f.default
+    return f.default_factory() if f.default_factory is not MISSING else None
 
 
 def add_options(
@@ -106,24 +134,48 @@ def add_options(
 ) -> None:
     """An option on ``p`` for every field of the settings dataclass ``cls`` (``only``: these fields), its name,
     help, default and argparse details from the field's metadata; ``hidden``: out of ``--help`` (config-file
-    keys, `mvracklay.options.add`); ``prefix``: put before each help text."""
+    keys, `mvracklay.options.add`); ``prefix``: put before each help text. Fields with a ``group`` go under
+    that heading (made on first use, in field order)."""
+    from mvracklay.options import DeprecatedAlias
+
+    groups: dict[str, Any] = {}
     for f in fields(cls):
-        if (only and f.name not in only) or dest(f) is None:
+        if only and f.name not in only:
+            continue
+        if "settings" in f.metadata:  # settings of their own: their options here
+            inner = f.metadata
+            add_options(p, inner["settings"], hidden=hidden, prefix=prefix + inner["prefix"], only=inner["only"])
+            continue
+        if dest(f) is None:
             continue
         meta = dict(f.metadata["argparse"])
-        default = None if f.default is MISSING else f.default
+        default = field_default(f)
         if f.metadata["invert"]:
             meta.update(action="store_true")
             default = False
         elif meta.pop("boolean", False):
             meta.update(action=argparse.BooleanOptionalAction)
-        add(p, f.metadata["option"], default=default, help=prefix + f.metadata["help"], hidden=hidden, **meta)
+        group = f.metadata.get("group")
+        where = p if group is None else groups.get(group) or groups.setdefault(group, p.add_argument_group(group))
+        name = f.metadata["option"]
+        if not name.startswith("-"):  # a positional argument: argparse names its dest after it
+            meta.pop("dest", None)
+        add(where, name, default=default, help=prefix + f.metadata["help"], hidden=hidden, **meta)
+        for old in f.metadata.get("old", ()):
+            kept = {k: v for k, v in meta.items() if k in ("type", "metavar", "nargs")}
+            where.add_argument(old, dest=dest(f), action=DeprecatedAlias, use=name, default=argparse.SUPPRESS,
+                               help=argparse.SUPPRESS, **kept)  # fmt: skip
+        for alias in f.metadata.get("aliases", ()):
+            where.add_argument(alias, dest=dest(f), default=argparse.SUPPRESS, help=argparse.SUPPRESS, **meta)
 
 
 def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
     """The settings dataclass ``cls`` from parsed options (`add_options`); ``given``: fields set otherwise."""
     values = {}
     for f in fields(cls):
+        if f.name not in given and "settings" in f.metadata:
+            values[f.name] = from_args(f.metadata["settings"], args)
+            continue
         if f.name in given or dest(f) is None or not hasattr(args, dest(f)):
             continue
         value = getattr(args, dest(f))
@@ -245,3 +297,21 @@ class RunConfig:
         if self.device not in ("auto", "cpu", "cuda"):
             raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
         check_range(RunConfig, self)
+
+
+def json_out_setting(help: str) -> Any:
+    """``--json-out PATH``: also write the result as JSON to PATH (the older ``--json PATH`` still taken, with a
+    warning: elsewhere ``--json`` prints JSON instead of a table)."""
+    return setting("--json-out", help, type=Path, metavar="PATH", old=("--json",))
+
+
+def quiet_setting(help: str = "hide the progress bar", alias: bool = False) -> Any:
+    """``--quiet``: no progress bars (``alias``: ``--no-progress`` also taken, out of ``--help``)."""
+    return setting("--quiet", help, False, action="store_true", aliases=("--no-progress",) if alias else ())
+
+
+def precision_setting(more: str = "") -> Any:
+    """``--precision`` (`network.model.frozen.set_precision`) of a stage that runs a trained network."""
+    from mvracklay.options import PRECISION_HELP, PRECISIONS
+
+    return setting("--precision", PRECISION_HELP + more, "fp32", choices=PRECISIONS)

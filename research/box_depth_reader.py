@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,6 @@ from layouts.boxdepth import box_parts  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.heads.boxdepth import BoxDepthReader, decode, frame_head_inputs, reading  # noqa: E402
 from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
-from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
@@ -57,20 +57,20 @@ def run(model, seqs, every: int) -> list[dict]:
             seen.add(i)
             dist = camera(i)[1]
             with torch.no_grad():
-                win, extra = frame_head_inputs(out, view, dist)
+                win, extra = frame_head_inputs(out.head_inputs(), view, dist)
                 logits = model.box_logits(win, extra)
                 z, p = decode(logits)
-            valid = torch.isfinite(out["anchors"]).numpy()
+            valid = torch.isfinite(out.anchors).numpy()
             by_pose = poses.add(*reading(logits), valid, xs[i] - xs[i - 1] if i else 0.0)
             if i % every:
                 continue
-            read = float(out["rack_depth"])
+            read = out.rack_depth
             spec = seq.spec
-            frames.append({"pred": frame_layouts({**out, "box_back": None}, spec), "truth": seq.layouts(i),
-                           "anchors": out["anchors"].numpy(), "spec": spec,
+            frames.append({"pred": replace(out, box_back=None).layouts(spec), "truth": seq.layouts(i),
+                           "anchors": out.anchors.numpy(), "spec": spec,
                            "depth": read if np.isfinite(read) else true_depth, "distance": dist,
                            "seen": seen.labels(i), "z": z, "p": p, "carry_pose": by_pose,
-                           "carry_image": out["box_back"].numpy()})  # fmt: skip
+                           "carry_image": out.box_back})  # fmt: skip
     bar.close()
     return frames
 

@@ -167,11 +167,11 @@ def main() -> int:
         pred = Keeping(model, sequence_camera(seq))
         for i, out in enumerate(pred.run((seq.rgb(j) for j in range(seq.num_frames)), args.mode)):
             gt = seq.layouts(i)
-            log_q, p = reading(out["head_logits"])
+            log_q, p = reading(out.maps["head_logits"])
             frames.append({
-                "top": logits_to_layout(out["top"], seq.spec.size), "front": logits_to_layout(out["front"], seq.spec.size),
-                "depth": float(out["rack_depth"]), "log_q": log_q, "p": p, "front_q": front_reading(out["head_logits"]),
-                "step": out["step"], "valid": torch.isfinite(out["anchors"]).numpy(), "gt": gt,
+                "top": logits_to_layout(out.top, seq.spec.size), "front": logits_to_layout(out.front, seq.spec.size),
+                "depth": out.rack_depth, "log_q": log_q, "p": p, "front_q": front_reading(out.maps["head_logits"]),
+                "step": out.maps["step"], "valid": torch.isfinite(out.anchors).numpy(), "gt": gt,
             })  # fmt: skip
         runs.append((seq.spec, frames))
     print(

@@ -54,7 +54,6 @@ from layouts.canonical import CanonicalView  # noqa: E402
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
-from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
@@ -244,11 +243,11 @@ def main() -> int:
             seen.add(i)
             if i % args.every:
                 continue
-            read = float(out["rack_depth"])
-            anchors = out["anchors"].float().cpu().numpy()
+            read = out.rack_depth
+            anchors = out.anchors.float().cpu().numpy()
             back, front = top_face_edges(scene, seq.frame(i), anchors, view, spec)
             frames.append(
-                {"pred": frame_layouts(out, spec), "truth": seq.layouts(i), "anchors": anchors, "spec": spec,
+                {"pred": out.layouts(spec), "truth": seq.layouts(i), "anchors": anchors, "spec": spec,
                  "edges": edge_maps(back, front, spec.size), "depth": read if np.isfinite(read) else true_depth,
                  "distance": camera(i)[1], "seen": seen.labels(i)}
             )  # fmt: skip

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns  # noqa: E402
 from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
-from network.inference.result import frame_layouts, resize_logits  # noqa: E402
+from network.inference.result import resize_logits  # noqa: E402
 from network.model.motion import camera_shift, motion_signature  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 
@@ -86,7 +87,7 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
         else:  # what the Predictor reads
             steps = [0.0] + [float(camera_shift(a, b, model.cfg.view)[0]) for a, b in zip(sig, sig[1:])]
         outs = list(pred.run(frames, "window"))
-        raw = [{v: o[v] for v in VIEWS} for o in outs]
+        raw = [{v: getattr(o, v) for v in VIEWS} for o in outs]
         seen = [seen_columns(s, raw[0]["top"].shape[-1]) for s in sig]
         for t in args.tau:
             if t == 0:
@@ -97,7 +98,7 @@ def shipped_fusion(model: torch.nn.Module, seqs: list, args: argparse.Namespace)
                 fusion = LayoutFusion(t, x_extent)
                 fused = [fusion.add(r, st, sn) for r, st, sn in zip(raw, steps, seen)]
             for o, f, gt in zip(outs, fused, truths):
-                scorers[t].update(frame_layouts({**o, **f}, seq.spec), gt)
+                scorers[t].update(replace(o, **f).layouts(seq.spec), gt)
         bar.update(seq.num_frames)
     bar.close()
     title = f"network.inference.fusion (motion: {args.motion}{', whole sequence' if args.whole_sequence else ''})"
@@ -139,7 +140,7 @@ def main() -> int:
         for i, out in enumerate(pred.run(frames, "stream")):
             bar.update(1)
             gt = seq.layouts(i)
-            probs = {v: resize_logits(out[v].float(), d).softmax(1) for v in VIEWS}
+            probs = {v: resize_logits(getattr(out, v).float(), d).softmax(1) for v in VIEWS}
             seen = gt.visible if gt.visible is not None else np.ones(d, bool)
             hist = [*hist[-max(args.k) + 1 :], (float(xs[i]), probs, seen)]
             if i % args.every:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.metrics import FrameScorer  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.predictor import Predictor, rack_depth_source, sequence_camera  # noqa: E402
-from network.inference.result import frame_layouts  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
 
 
@@ -53,7 +53,6 @@ def main() -> int:
     model.eval()
     seqs = open_dataset(args.data).sequences()
     frames = []  # (outputs, ground truth, scene rack depth, spec, depth read, frame index)
-    keep = ("top", "front", "box_back", "box_front")
     bar = tqdm(total=sum(s.num_frames for s in seqs), desc="predict", unit="frame", leave=False)
     for seq in seqs:
         depth = float(seq.scene()["row"]["depth"])
@@ -61,8 +60,8 @@ def main() -> int:
         for i, out in enumerate(pred.run((seq.rgb(i) for i in range(seq.num_frames)), "stream")):
             bar.update(1)
             if i % args.every == 0:
-                kept = {k: out[k] for k in keep if k in out}
-                frames.append((kept, seq.layouts(i), depth, seq.spec, float(out["rack_depth"]), i))
+                kept = replace(out, maps={}, rows=None)  # what the layouts need
+                frames.append((kept, seq.layouts(i), depth, seq.spec, out.rack_depth, i))
     bar.close()
     # each case: name, and the depth it imposes from (true depth, depth read, frame index); NaN imposes none
     cases = [("as decoded", lambda d, r, i: float("nan"))]
@@ -89,7 +88,7 @@ def main() -> int:
             new = depth_of(depth, read, i)
             if np.isfinite(new):
                 errors.append(abs(new - depth))
-            scorer.update(frame_layouts({**out, "rack_depth": torch.tensor(new)}, spec), gt)
+            scorer.update(replace(out, rack_depth=float(new)).layouts(spec), gt)
         v = scorer.result()["visible"]
         cells = [v[view][c]["miou"] * 100 for view in ("top", "front") for c in ("rack", "box")]
         err = f"{100 * np.mean(errors):9.1f}" if errors else f"{'':9s}"

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -58,7 +59,6 @@ from layouts.metrics import FrameScorer  # noqa: E402
 from layouts.rackdepth import front_rows, shift_rows  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.predictor import Predictor, sequence_camera  # noqa: E402
-from network.inference.result import frame_layouts  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
 
@@ -183,10 +183,10 @@ def main() -> int:
             if i % args.every:
                 continue
             gt = seq.layouts(i)
-            p = frame_layouts(out, seq.spec)
-            if "box_front" in out:
+            p = out.layouts(seq.spec)
+            if out.box_front is not None:
                 has_fronts = True
-                own = frame_layouts({k: v for k, v in out.items() if k != "box_front"}, seq.spec)
+                own = replace(out, box_front=None).layouts(seq.spec)
                 scorers[OWN_FRONTS].update(own, gt)
             vis = gt.visible if gt.visible is not None else np.ones(seq.spec.size, bool)
             rec = seq.frame(i)

@@ -127,16 +127,16 @@ def test_inference_reads_gives_or_skips_the_depth(mode, monkeypatch):
     monkeypatch.setattr(model.back, "forward", lambda pooled: logits.expand(pooled.shape[0], -1))
     frames = [np.random.default_rng(i).integers(0, 255, (96, 128, 3), np.uint8) for i in range(3)]
     read = list(Predictor(model).run(frames, mode))
-    assert [float(o["rack_depth"]) for o in read] == pytest.approx([1.05] * 3, abs=2 * DEPTH_STEP)
+    assert [o.rack_depth for o in read] == pytest.approx([1.05] * 3, abs=2 * DEPTH_STEP)
     spec = model.cfg.spec
-    filled = [(t > 0).any(1) for t in frame_layouts(read[-1], spec)["top"]]
-    assert all(np.array_equal(f, depth_rows(spec, float(read[-1]["rack_depth"]))) for f in filled if f.any())
+    filled = [(t > 0).any(1) for t in read[-1].layouts(spec)["top"]]
+    assert all(np.array_equal(f, depth_rows(spec, read[-1].rack_depth)) for f in filled if f.any())
     off = list(Predictor(model, read_depth=False).run(frames, mode))
-    assert all(math.isnan(float(o["rack_depth"])) for o in off)
-    plain = {**read[-1], "rack_depth": torch.tensor(float("nan"))}
-    assert np.array_equal(frame_layouts(off[-1], spec)["top"], frame_layouts(plain, spec)["top"])
+    assert all(math.isnan(o.rack_depth) for o in off)
+    plain = replace(read[-1], rack_depth=float("nan"))
+    assert np.array_equal(off[-1].layouts(spec)["top"], plain.layouts(spec)["top"])
     given = list(Predictor(model, rack_depth=0.9).run(frames, mode))
-    assert all(float(o["rack_depth"]) == 0.9 for o in given)
+    assert all(o.rack_depth == 0.9 for o in given)
     assert not Predictor(_model(False)).reads_depth
 
 

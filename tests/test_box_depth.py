@@ -175,7 +175,7 @@ def test_the_head_is_part_of_the_model_and_inference_only_when_asked():
     torch.nn.init.constant_(plain.rows.net[-1].bias, 2.0)
     seq = ToySequence(SPEC, num_frames=4, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(4)]
-    assert "box_back" not in next(iter(Predictor(plain).run(frames)))
+    assert next(iter(Predictor(plain).run(frames))).box_back is None
     model = with_box_head(plain)
     assert model.box_depth is not None and plain.box_depth is None
     a, b = plain.state_dict(), model.state_dict()
@@ -183,23 +183,23 @@ def test_the_head_is_part_of_the_model_and_inference_only_when_asked():
     for mode in ("stream", "window"):
         for flip in (False, True):
             outs = list(Predictor(model, flip=flip, rack_depth=0.8).run(frames, mode))
-            assert all(tuple(o["box_back"].shape) == (SPEC.num_slots, SPEC.size) for o in outs)
+            assert all(o.box_back.shape == (SPEC.num_slots, SPEC.size) for o in outs)
             ref = list(Predictor(plain, flip=flip, rack_depth=0.8).run(frames, mode))
-            assert all(torch.equal(o["top"], r["top"]) for o, r in zip(outs, ref))  # the logits are the plain model's
+            assert all(torch.equal(o.top, r.top) for o, r in zip(outs, ref))  # the logits are the plain model's
     naive = list(Predictor(model, rack_depth=0.8).window(frames, recompute=True))  # the whole window re-run
     cached = list(Predictor(model, rack_depth=0.8).window(frames))
-    assert all(np.allclose(n["box_back"], c["box_back"], atol=1e-4, equal_nan=True) for n, c in zip(naive, cached))
+    assert all(np.allclose(n.box_back, c.box_back, atol=1e-4, equal_nan=True) for n, c in zip(naive, cached))
     off = list(Predictor(model, rack_depth=0.8, read_depth=False).run(frames))
-    assert "box_back" not in off[-1]
+    assert off[-1].box_back is None
     with torch.no_grad():  # a head that says every column is shown at 0.3 m: every box gets that back
         model.box_depth.out.weight.zero_()
         model.box_depth.out.bias.fill_(-20.0)
         model.box_depth.out.bias[int(np.argmin(np.abs(BINS - 0.3)))] = 20.0
         model.box_depth.out.bias[-1] = 20.0
     outs = list(Predictor(model, rack_depth=0.8).run(frames))
-    valid = np.isfinite(outs[-1]["anchors"].numpy())
-    assert valid.any() and np.allclose(outs[-1]["box_back"].numpy()[valid], 0.3, atol=1e-3)
-    assert np.isnan(outs[-1]["box_back"].numpy()[~valid]).all()
+    valid = np.isfinite(outs[-1].anchors.numpy())
+    assert valid.any() and np.allclose(outs[-1].box_back[valid], 0.3, atol=1e-3)
+    assert np.isnan(outs[-1].box_back[~valid]).all()
 
 
 def test_frame_layouts_move_every_box_to_the_carried_back():
@@ -363,9 +363,9 @@ def test_a_head_reading_parallax_fits_round_trips_and_needs_the_head(tiny_checkp
     frames = [seq.rgb(i) for i in range(seq.num_frames)]
     for mode in ("stream", "window"):
         outs = list(Predictor(loaded, rack_depth=0.8).run(frames, mode))
-        assert all(tuple(o["box_back"].shape) == (SPEC.num_slots, loaded.cfg.spec.size) for o in outs)
-        assert all(o["box_parallax"].shape[1] == PARALLAX_CHANNELS for o in outs)
-    assert "box_parallax" not in next(iter(Predictor(loaded, rack_depth=0.8, read_depth=False).run(frames)))
+        assert all(o.box_back.shape == (SPEC.num_slots, loaded.cfg.spec.size) for o in outs)
+        assert all(o.maps["box_parallax"].shape[1] == PARALLAX_CHANNELS for o in outs)
+    assert "box_parallax" not in next(iter(Predictor(loaded, rack_depth=0.8, read_depth=False).run(frames))).maps
 
 
 def test_a_kept_cache_is_reused_and_refused_for_another_model(tiny_checkpoint, tiny_dataset, tmp_path, capsys):

@@ -137,8 +137,8 @@ def test_fit_box_depth_front_round_trips_and_moves_the_fronts(tiny_checkpoint, t
     frames = [seq.rgb(i) for i in range(seq.num_frames)]
     for whole in (False, True):
         outs = list(Predictor(model, rack_depth=0.8, whole_sequence=whole).run(frames))
-        assert all(tuple(o["box_front"].shape) == tuple(o["box_back"].shape) for o in outs)
-    assert "box_front" not in next(iter(Predictor(load_model(tiny_checkpoint)[0], rack_depth=0.8).run(frames)))
+        assert all(o.box_front.shape == o.box_back.shape for o in outs)
+    assert next(iter(Predictor(load_model(tiny_checkpoint)[0], rack_depth=0.8).run(frames))).box_front is None
     with torch.no_grad():  # a head sure of every front at 0.10 m: every box's front is moved there
         model.box_depth.out.weight.zero_()
         model.box_depth.out.bias.fill_(-20.0)
@@ -146,8 +146,8 @@ def test_fit_box_depth_front_round_trips_and_moves_the_fronts(tiny_checkpoint, t
         model.box_depth.out.bias[int(np.argmin(np.abs(BINS - 0.5)))] = 20.0
         model.box_depth.out.bias[len(BINS) + 1 + int(np.argmin(np.abs(FRONT_BINS - 0.10)))] = 20.0
     last = list(Predictor(model, rack_depth=0.8).run(frames))[-1]
-    valid = np.isfinite(last["anchors"].numpy())
-    assert np.allclose(last["box_front"].numpy()[valid], 0.10, atol=1e-3)
+    valid = np.isfinite(last.anchors.numpy())
+    assert np.allclose(last.box_front[valid], 0.10, atol=1e-3)
     # frame_layouts moves the fronts of a frame's boxes there (here: a drawn box, its logits one-hot)
     top, front = (np.repeat(v, SPEC.num_slots, 0) for v in slot_with_box(SPEC, slice(6, 15), slice(3, 7)))
     hot = {v: 10.0 * torch.nn.functional.one_hot(torch.from_numpy(a).long(), 3).permute(0, 3, 1, 2).float()

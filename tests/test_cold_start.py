@@ -38,14 +38,14 @@ def test_frames_before_trunk_from_skip_the_network_and_the_memory_starts_there(p
                     .stream(frames))  # fmt: skip
     finally:
         del model.step
-    assert len(calls) == len(frames) - k and cold[:k] == [{}] * k
+    assert len(calls) == len(frames) - k and cold[:k] == [None] * k
     fresh = list(Predictor(model, lambda i: camera(i + k), read_depth=False).stream(frames[k:]))
     for a, b in zip(cold[k:], fresh):  # the network's outputs: a stream begun at frame k
         for v in VIEWS:
-            torch.testing.assert_close(a[v], b[v], rtol=0, atol=0)
+            torch.testing.assert_close(getattr(a, v), getattr(b, v), rtol=0, atol=0)
     warm = list(HeadInputPredictor(model, camera, read_depth=False, box_inputs_from=k).stream(frames))
     for a, b in zip(cold[k:], warm[k:]):  # the parallax history holds the skipped frames all the same
-        torch.testing.assert_close(a["box_parallax"], b["box_parallax"], rtol=0, atol=0)
+        torch.testing.assert_close(a.maps["box_parallax"], b.maps["box_parallax"], rtol=0, atol=0)
 
 
 def test_trunk_from_is_refused_where_it_cannot_hold(parallax_model, tiny_dataset):

@@ -42,11 +42,11 @@ def test_streamed_flip_average_is_the_mean_of_a_direct_and_a_mirrored_pass():
             b, mirrored = model.step(x.flip(-1), mirrored, a["anchors"])  # the mirrored pass fills the same slots
             for v in VIEWS:
                 want = apply_box_offset(0.5 * (a[v][0] + b[v][0].flip(-1)), OFFSETS[v])
-                torch.testing.assert_close(got[i][v], want, rtol=1e-5, atol=1e-6)
-            torch.testing.assert_close(got[i]["anchors"], a["anchors"][0])
+                torch.testing.assert_close(getattr(got[i], v), want, rtol=1e-5, atol=1e-6)
+            torch.testing.assert_close(got[i].anchors, a["anchors"][0])
             assert torch.isfinite(a["anchors"]).any()
     # and it is not the plain prediction
-    assert not torch.allclose(got[-1]["top"], list(plain.stream(frames))[-1]["top"], atol=1e-4)
+    assert not torch.allclose(got[-1].top, list(plain.stream(frames))[-1].top, atol=1e-4)
 
 
 def test_windowed_flip_average_cached_equals_re_encoded():
@@ -56,7 +56,7 @@ def test_windowed_flip_average_cached_equals_re_encoded():
     assert len(cached) == len(naive) == 6
     for c, n in zip(cached, naive):
         for k in (*VIEWS, "anchors"):
-            torch.testing.assert_close(c[k], n[k], rtol=1e-4, atol=1e-5)
+            torch.testing.assert_close(getattr(c, k), getattr(n, k), rtol=1e-4, atol=1e-5)
 
 
 @pytest.mark.parametrize("mode", ["stream", "window"])
@@ -71,6 +71,6 @@ def test_flip_average_of_mirror_symmetric_frames_is_mirror_symmetric(mode):
     torch.testing.assert_close(x, x.flip(-1))  # the canonical warp keeps the symmetry
     for out in flipped.run(frames, mode):
         for v in VIEWS:
-            torch.testing.assert_close(out[v], out[v].flip(-1), rtol=1e-5, atol=1e-5)
+            torch.testing.assert_close(getattr(out, v), getattr(out, v).flip(-1), rtol=1e-5, atol=1e-5)
     last = list(plain.run(frames, mode))[-1]
-    assert not torch.allclose(last["top"], last["top"].flip(-1), atol=1e-3)  # the model alone is not symmetric
+    assert not torch.allclose(last.top, last.top.flip(-1), atol=1e-3)  # the model alone is not symmetric

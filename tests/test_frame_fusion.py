@@ -135,7 +135,7 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
     steps = [0.0] + [step] * 3
     for mode in ("stream", "window"):
         plain = list(plain_pred.run(frames, mode))
-        raw = [{v: p[v] for v in VIEWS} for p in plain]
+        raw = [{v: getattr(p, v) for v in VIEWS} for p in plain]
         fusion = LayoutFusion(1.0, spec.x_extent)
         want = [fusion.add(lg, st, sn) for lg, st, sn in zip(raw, steps, seen)]
         got = list(Predictor(model, rack_depth=0.8, fuse_tau=1.0).run(frames, mode))
@@ -143,10 +143,10 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
         whole = list(Predictor(model, rack_depth=0.8, fuse_tau=1.0, whole_sequence=True).run(frames, mode))
         for p, g, w, gw, ww in zip(plain, got, want, whole, want_whole):
             for v in VIEWS:
-                torch.testing.assert_close(g[v], w[v])
-                torch.testing.assert_close(gw[v], ww[v])
-            assert np.array_equal(g["box_back"].numpy(), p["box_back"].numpy(), equal_nan=True)
-        assert not torch.allclose(got[1]["top"], plain[1]["top"])  # fusion did something
+                torch.testing.assert_close(getattr(g, v), w[v])
+                torch.testing.assert_close(getattr(gw, v), ww[v])
+            assert np.array_equal(g.box_back, p.box_back, equal_nan=True)
+        assert not torch.allclose(got[1].top, plain[1].top)  # fusion did something
 
 
 @pytest.mark.parametrize("command", ["evaluate", "predict", "run", "eval-reconstruction"])

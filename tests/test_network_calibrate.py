@@ -18,6 +18,7 @@ from network.checkpoint import load_checkpoint, load_model, save_checkpoint
 from network.inference.decision import apply_box_offset, check_offsets
 from network.inference.layout_eval import evaluate_sequences
 from network.inference.predictor import Predictor, sequence_camera
+from network.inference.result import FramePrediction
 from waresynth.dataset import open_dataset
 
 
@@ -99,8 +100,8 @@ def test_predictor_applies_the_recorded_offset(tiny_checkpoint: Path, tiny_datas
         shifted = list(Predictor(load_model(path)[0], sequence_camera(seq)).run(frames, mode))
         for p, s in zip(plain, shifted):
             for v, off in record["box_logit_offset"].items():
-                torch.testing.assert_close(s[v][:, :BOX], p[v][:, :BOX])
-                torch.testing.assert_close(s[v][:, BOX], p[v][:, BOX] - off)
+                torch.testing.assert_close(getattr(s, v)[:, :BOX], getattr(p, v)[:, :BOX])
+                torch.testing.assert_close(getattr(s, v)[:, BOX], getattr(p, v)[:, BOX] - off)
 
 
 def test_calibrate_bad_input_is_one_line(tiny_checkpoint: Path, tmp_path: Path, capsys) -> None:
@@ -133,7 +134,7 @@ def test_a_model_that_reads_no_rack_depth_gets_offset_zero_not_a_failure(tiny_da
 
     def outputs(model, seqs, *a):
         for k, _ in enumerate(seqs):
-            yield k, 0, {"top": None}
+            yield k, 0, FramePrediction(top=None, front=None)  # no rack depth read
 
     monkeypatch.setattr(calibrate, "_tuning_outputs", outputs)
     model = Reads()

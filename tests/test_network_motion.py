@@ -240,7 +240,7 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
     assert calls == {"infer": 4, "model": 0}
     for g, w in zip(got, want):
         for v in VIEWS:
-            assert torch.equal(g[v], w[v][0])
+            assert torch.equal(getattr(g, v), w[v][0])
     calls.update(infer=0, model=0)
     list(Predictor(model, read_depth=False, flip=True).stream(frames))
     assert calls == {"infer": 4, "model": 4}

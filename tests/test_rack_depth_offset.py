@@ -34,7 +34,7 @@ def readings(path: Path, data: Path) -> list[tuple[float, float]]:
     for seq in open_dataset(data).sequences():
         truth = float(seq.scene()["row"]["depth"])
         pred = Predictor(model, sequence_camera(seq))
-        out += [(float(o["rack_depth"]), truth) for o in pred.run(seq.rgb(i) for i in range(seq.num_frames))]
+        out += [(o.rack_depth, truth) for o in pred.run(seq.rgb(i) for i in range(seq.num_frames))]
     return out
 
 

@@ -119,7 +119,7 @@ def test_a_bad_recipe_is_refused_with_one_line_per_problem(tmp_path, capsys) -> 
         (("minutes = 0.5", 'minutes = "lots"'), "key 'minutes'"),
         (('count = ["train"]', 'count = ["training"]'), "'training' is no stage id or group"),
         (('[[stages]]\nstage = "fit-box-depth"', '[[stages]]\nstage = "fit-box-depth"\nid = "train"'), "id 'train'"),
-        (('epochs = "{epochs}"', 'epochs = "many"'), "argument --epochs: invalid int value"),
+        (('epochs = "{epochs}"', 'epochs = "many"'), "option 'epochs': not a valid value: 'many'"),
     ],
 )
 def test_each_kind_of_problem_names_its_key(tmp_path, change, words) -> None:

@@ -102,7 +102,7 @@ def test_the_head_is_in_the_model_and_its_reading_in_inference():
     assert pred.reads_depth and not Predictor(model, read_depth=False).reads_depth
     for mode in ("stream", "window"):
         outs = list(Predictor(model).run(frames, mode))
-        assert all("rack_depth" in o and o["uprights"].shape == (2, 64) for o in outs)
+        assert all(o.maps["uprights"].shape == (2, 64) for o in outs)
 
 
 def test_upright_faces_split_the_rack_by_depth():

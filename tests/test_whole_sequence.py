@@ -14,7 +14,6 @@ from network.data import row_target
 from network.heads.backedge import DEPTH_STEP, back_edge_rows
 from network.heads.boxdepth import BINS
 from network.inference.predictor import HEAD_INPUTS, Predictor
-from network.inference.result import frame_layouts
 from network.model.net import MVRackLay
 from network.preprocess import DEFAULT_DISTANCE
 from network.training.fit_box_depth import with_box_head
@@ -72,25 +71,25 @@ def test_every_frame_gets_what_the_last_frame_showed(mode, monkeypatch):
     whole = list(Predictor(model, whole_sequence=True, fuse_tau=0).run(frames, mode))
     assert len(whole) == FRAMES
     # so far: only the last frame knows the depths
-    last = float(causal[-1]["rack_depth"])
+    last = causal[-1].rack_depth
     assert last == pytest.approx(1.05, abs=0.1)  # a 64-pixel-high canonical view reads it to a few centimetres
     # before it the depth is unknown (NaN: flat scores peak on the hypotheses' edge) or far from it
-    assert all(not abs(float(o["rack_depth"]) - last) <= 10 * DEPTH_STEP for o in causal[:-1])
-    assert all(np.isnan(o["box_back"].numpy()[0]).all() for o in causal[:-1])
+    assert all(not abs(o.rack_depth - last) <= 10 * DEPTH_STEP for o in causal[:-1])
+    assert all(np.isnan(o.box_back[0]).all() for o in causal[:-1])
     # whole sequence: every frame has the last frame's rack depth, and its box backs where the last frame's view
     # overlaps its own (frame i sees the last frame's column j at its column j + (FRAMES - 1 - i))
-    assert [float(o["rack_depth"]) for o in whole] == [float(causal[-1]["rack_depth"])] * FRAMES
-    valid = torch.isfinite(whole[0]["anchors"]).numpy()
+    assert [o.rack_depth for o in whole] == [causal[-1].rack_depth] * FRAMES
+    valid = torch.isfinite(whole[0].anchors).numpy()
     assert valid.any()
     for i, o in enumerate(whole):
-        backs = o["box_back"].numpy()
+        backs = o.box_back
         lag = FRAMES - 1 - i
         for r in np.nonzero(valid)[0]:
             assert np.isnan(backs[r, :lag]).all()
             assert backs[r, lag:] == pytest.approx(BINS[int(np.argmin(np.abs(BINS - 0.3)))], abs=1e-3)
-        assert torch.equal(o["top"], causal[i]["top"]) and torch.equal(o["front"], causal[i]["front"])
-        assert not set(HEAD_INPUTS) & set(o)  # the heads' inputs are not held
-    lay = frame_layouts(whole[0], SPEC)["top"]
+        assert torch.equal(o.top, causal[i].top) and torch.equal(o.front, causal[i].front)
+        assert not set(HEAD_INPUTS) & set(o.maps)  # the heads' inputs are not held
+    lay = whole[0].layouts(SPEC)["top"]
     assert lay.shape == (SPEC.num_slots, SPEC.size, SPEC.size)
 
 
@@ -98,7 +97,7 @@ def test_a_given_depth_or_no_reading_is_kept_whole(monkeypatch):
     frames = [np.random.default_rng(i).integers(0, 255, (96, 128, 3), np.uint8) for i in range(FRAMES)]
     model = _heads_shown_last(monkeypatch)
     given = list(Predictor(model, rack_depth=0.9, whole_sequence=True).run(frames))
-    assert [float(o["rack_depth"]) for o in given] == [0.9] * FRAMES
-    assert all("box_back" in o for o in given)
+    assert [o.rack_depth for o in given] == [0.9] * FRAMES
+    assert all(o.box_back is not None for o in given)
     off = list(Predictor(model, read_depth=False, whole_sequence=True).run(frames))
-    assert all(math.isnan(float(o["rack_depth"])) and "box_back" not in o for o in off)
+    assert all(math.isnan(o.rack_depth) and o.box_back is None for o in off)

@@ -124,3 +124,28 @@ def depth_projection_layouts(
         front[r][box & in_window[:, None]] = BOX
     vis = k.visible_columns(spec, dz)
     return FrameLayouts(top, front, vis)
+
+
+def evaluate_depth_projection(sequences: list, max_frames: int | None = None, progress: bool = True) -> dict:
+    """``{"all": table, "visible": table, "frames": n}`` of the baseline over ``sequences``."""
+    from tqdm import tqdm
+
+    from layouts.metrics import FrameScorer
+    from waresynth.dataset import require_level_camera
+
+    scorer = FrameScorer()
+    total = sum(s.num_frames if not max_frames else min(s.num_frames, max_frames) for s in sequences)
+    frames = 0
+    with tqdm(total=total, desc="depth projection", unit="frame", disable=not progress, leave=False) as bar:
+        for seq in sequences:
+            require_level_camera(seq, "the depth-projection baseline")  # it back-projects a level camera's depth
+            z_front = float(seq.scene()["row"]["z_front"])
+            n = seq.num_frames if not max_frames else min(seq.num_frames, max_frames)
+            for i in range(n):
+                got = depth_projection_layouts(
+                    seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec
+                )
+                scorer.update({"top": got.top, "front": got.front}, seq.layouts(i))
+                frames += 1
+                bar.update(1)
+    return {**scorer.result(), "frames": frames}

@@ -9,9 +9,8 @@ import tempfile
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from mvracklay.options import add_device_option, add_quiet_option
-from mvracklay.settings import InferenceSettings, add_options, from_args
+from mvracklay.command_settings import EvalReconstructionSettings
+from mvracklay.settings import add_options
 
 NAME = "eval-reconstruction"
 HELP = "reconstruct sequences and score them against the generator's ground-truth cuboids"
@@ -28,67 +27,14 @@ GROUP = "models"
 ORDER = 33
 
 
+SETTINGS = EvalReconstructionSettings
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", metavar="PATH", help="WareSynth dataset or sequence folder")
-    p.add_argument("--layouts", default="gt", help="'gt' or a layout folder (single sequence only)")
-    p.add_argument(
-        "--checkpoint",
-        type=checkpoint_arg,
-        help=f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those",
-    )
-    p.add_argument("--mode", choices=["stream", "window"], default="stream", help="with --checkpoint: inference mode")
-    p.add_argument("--threads", type=int, default=2, help="with --checkpoint: torch CPU threads")
-    add_device_option(p, "with --checkpoint: auto = the GPU when CUDA is present")
-    p.add_argument(
-        "--rack-depth",
-        metavar="M|scene",
-        help="with --checkpoint: impose a known rack depth on the predicted top views (as 'mvracklay predict "
-        "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
-    )
-    add_options(
-        p, InferenceSettings, prefix="with --checkpoint: ", only=("read_depth", "fuse_tau", "roll", "pitch", "yaw")
-    )
-    p.add_argument("--map", help="score this warehouse.json instead of reconstructing (single sequence only)")
-    p.add_argument(
-        "--scale-corrected",
-        action="store_true",
-        help="with --map: also score the map with its scale corrected (every length times the sequence's recorded "
-        "distance over the distance the map was made at, from its meta): what a wrong distance costs beyond scale",
-    )
-    p.add_argument("--split", choices=("train", "val", "test"), help="only this split of a dataset")
-    p.add_argument("--limit", type=int, default=0, help="at most this many sequences (0 = all)")
-    p.add_argument("--iou", type=float, default=0.5, help="3D IoU threshold for a true positive")
-    p.add_argument("--board-thickness", type=float, default=0.06, help="assumed board thickness (metres)")
-    p.add_argument("--noisy", action="store_true", help="clean-up settings for network output")
-    p.add_argument("--morph", type=int, default=0, help="degrade: grow (>0) / shrink (<0) boxes by N pixels")
-    p.add_argument("--flip", type=float, default=0.0, help="degrade: fraction of pixels flipped to a random class")
-    p.add_argument("--drop-frame", type=int, default=-1, help="degrade: leave this frame index out")
-    p.add_argument(
-        "--handheld",
-        action="store_true",
-        help="walk each sequence as a hand-held camera would (stops of 3-6 frames, uneven steps up to twice the "
-        "usual, a step back: waresynth.handheld) before stitching, seeded by --seed; meant for fine-step sequences "
-        "(the walk's usual step is 2 of their frames), e.g. generated with a config whose camera.step is halved",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the degradation and of --handheld's walks")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    add_quiet_option(p, "no progress bar")
+    add_options(p, EvalReconstructionSettings)
 
 
-def _rack_depth_option(text: str | None) -> float | str | None:
-    """``--rack-depth``: None, ``'scene'``, or a positive number of metres (one-line error otherwise)."""
-    from layouts.rackdepth import check_rack_depth
-
-    if text is None or text == "scene":
-        return text
-    try:
-        value = float(text)
-    except ValueError:
-        raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
-    return check_rack_depth(value)
-
-
-def run(args: argparse.Namespace) -> int:
+def run(args: EvalReconstructionSettings) -> int:
     from dataclasses import replace
 
     from tqdm import tqdm
@@ -101,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         handheld_sequence,
         open_sequences,
         predicted_layouts,
+        rack_depth_option,
         scale_factor,
         summarise,
     )
@@ -125,10 +72,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--handheld walks the sequence's own frames: drop --layouts / --map")
     if args.rack_depth is not None and not args.checkpoint:
         raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
-    rack_depth = _rack_depth_option(args.rack_depth)
+    rack_depth = rack_depth_option(args.rack_depth)
     config = stitch_settings(args.board_thickness, args.noisy)
     deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
-    settings = from_args(InferenceSettings, args, rack_depth=None)
+    settings = replace(args.inference, rack_depth=None)
     settings.validate()  # checked before anything runs
     model, record = None, None
     if args.checkpoint:

@@ -3,21 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-from typing import TYPE_CHECKING
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from mvracklay.options import (
-    add_device_option,
-    add_json_out_option,
-    add_precision_option,
-    add_quiet_option,
-)
-from mvracklay.settings import InferenceSettings, add_options, from_args
-
-if TYPE_CHECKING:
-    pass
+from mvracklay.command_settings import EvaluateSettings
+from mvracklay.settings import add_options
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -30,44 +19,16 @@ DESCRIPTION = (
 )
 GROUP = "models"
 ORDER = 31
-#: the inference settings scoring takes (a rack depth is each sequence's own to read)
-INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll", "pitch", "yaw")
+
+
+SETTINGS = EvaluateSettings
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=checkpoint_arg, required=True, help=CHECKPOINT_HELP)
-    p.add_argument(
-        "--data",
-        type=Path,
-        required=True,
-        help="dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')",
-    )
-    p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
-    p.add_argument("--mode", choices=["window", "stream"], default="window", help="windowed (paper) or streaming")
-    add_options(p, InferenceSettings, only=INFERENCE)  # --flip-average, --no-depth-read, ... (mvracklay.settings)
-    p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    add_precision_option(p)
-    add_device_option(p)
-    p.add_argument(
-        "--true-anchors",
-        action="store_true",
-        help="analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
-    )
-    p.add_argument(
-        "--metric",
-        choices=["ours", "reference", "both"],
-        default="ours",
-        help="ours (default: empty pairs skipped, in view and all cells, pooled), reference (the authors' "
-        "eval_vracklay.py: all cells, an empty (frame, slot) pair scores 1, precision over the classes in the "
-        "ground truth, / frames x slots, targets f0, f0, f1 .. f[N-2] of each sequence), or both",
-    )
-    add_json_out_option(p, "also write the full result as JSON here")
-    add_quiet_option(p, "hide the progress bar")
+    add_options(p, EvaluateSettings)
 
 
-def run(args: argparse.Namespace) -> int:
-
+def run(args: EvaluateSettings) -> int:
     from dataclasses import replace
 
     from layouts.fileio import atomic_write_json, nan_to_null
@@ -84,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
-    settings = from_args(InferenceSettings, args)
+    settings = args.inference
     settings.validate()
     fuse_tau = settings.fuse_tau
     # an angle not given is each sequence's recorded one (0 for a level camera)

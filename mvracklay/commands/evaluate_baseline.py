@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_json_out_option, add_quiet_option
+from mvracklay.command_settings import EvaluateBaselineSettings
+from mvracklay.settings import add_options
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -19,44 +19,18 @@ GROUP = "models"
 ORDER = 32
 
 
+SETTINGS = EvaluateBaselineSettings
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data", type=Path, required=True, help="dataset folder written by 'mvracklay generate'")
-    p.add_argument("--split", default="test", help="which split to score (train, val, test, or all)")
-    p.add_argument("--max-frames", type=int, default=0, help="frames per sequence (0 = all)")
-    add_json_out_option(p, "also write the result as JSON here")
-    add_quiet_option(p, "no progress bar")
+    add_options(p, EvaluateBaselineSettings)
 
 
-def evaluate_depth_projection(sequences, max_frames: int | None = None, progress: bool = True) -> dict:
-    """``{"all": table, "visible": table, "frames": n}`` of the baseline over ``sequences``."""
-    from tqdm import tqdm
-
-    from layouts.metrics import FrameScorer
-    from mvracklay.baselines.depth_projection import depth_projection_layouts
-    from waresynth.dataset import require_level_camera
-
-    scorer = FrameScorer()
-    total = sum(s.num_frames if not max_frames else min(s.num_frames, max_frames) for s in sequences)
-    frames = 0
-    with tqdm(total=total, desc="depth projection", unit="frame", disable=not progress, leave=False) as bar:
-        for seq in sequences:
-            require_level_camera(seq, "the depth-projection baseline")  # it back-projects a level camera's depth
-            z_front = float(seq.scene()["row"]["z_front"])
-            n = seq.num_frames if not max_frames else min(seq.num_frames, max_frames)
-            for i in range(n):
-                got = depth_projection_layouts(
-                    seq.depth(i), seq.semantic(i), seq.intrinsics, seq.frame(i), z_front, seq.spec
-                )
-                scorer.update({"top": got.top, "front": got.front}, seq.layouts(i))
-                frames += 1
-                bar.update(1)
-    return {**scorer.result(), "frames": frames}
-
-
-def run(args: argparse.Namespace) -> int:
+def run(args: EvaluateBaselineSettings) -> int:
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_table
     from layouts.publish import refuse_overlap
+    from mvracklay.baselines.depth_projection import evaluate_depth_projection
     from waresynth.dataset import open_dataset
 
     refuse_overlap([args.json_out] if args.json_out else [], {"--data": args.data}, "--json-out")

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_quiet_option
+from mvracklay.command_settings import GenerateSettings
+from mvracklay.settings import add_options, check_range
 
 NAME = "generate"
 GROUP = "data"
@@ -22,72 +23,19 @@ DESCRIPTION = (
 )
 
 
+SETTINGS = GenerateSettings
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from waresynth.exporters import EXPORT_FORMATS
-
-    p.add_argument("out", metavar="OUT", type=Path, help="output dataset folder")
-    p.add_argument("--sequences", metavar="N", type=int, default=10, help="sequences (one scene + camera path each)")
-    p.add_argument("--frames", metavar="F", type=int, default=50, help="frames per sequence")
-    p.add_argument("--size", metavar="S", type=int, default=256, help="image width and height in pixels")
-    p.add_argument("--layout-size", metavar="D", type=int, default=128, help="layout resolution (pixels per side)")
-    p.add_argument("--slots", metavar="R", type=int, default=3, help="shelf slots per layout")
-    p.add_argument("--seed", type=int, default=0, help="dataset seed (same seed + config -> same bytes)")
-    p.add_argument(
-        "--config",
-        metavar="FILE",
-        type=Path,
-        default=None,
-        help="JSON config overriding waresynth/default_config.json, or a shipped one by name (wide_look: the wider camera and building look meant for training; shifted_look: a look outside it, for held-out tests)",
-    )
-    p.add_argument(
-        "--supersample",
-        metavar="S",
-        type=int,
-        choices=(1, 2, 3, 4),
-        default=None,
-        help="each pixel's colour the mean of S x S rays over its area, as a camera's sensor integrates light "
-        "(S^2 the rendering cost; depth and labels stay sampled at pixel centres); sets the config's "
-        "sensor.supersample (default: the config's, 1)",
-    )
-    p.add_argument("--workers", metavar="W", type=int, default=1, help="worker processes (one sequence at a time each)")
-    p.add_argument(
-        "--format",
-        choices=("native", *EXPORT_FORMATS),
-        default="native",
-        help="also export the dataset in this format (as `mvracklay export` does) to --export-out",
-    )
-    p.add_argument(
-        "--export-out", metavar="DIR", type=Path, default=None, help="export folder (default: OUT_<format> beside OUT)"
-    )
-    p.add_argument(
-        "--overwrite", action="store_true", help="delete a non-empty OUT (or export folder) that is not this dataset"
-    )
-    p.add_argument(
-        "--shard",
-        metavar="I/N",
-        default=None,
-        help="write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
-        "join the shards with `mvracklay merge-shards`",
-    )
-    add_quiet_option(p, "hide the progress bar")
+    add_options(p, GenerateSettings)
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: GenerateSettings) -> int:
     from layouts.spec import LayoutSpec
     from waresynth.dataset import open_dataset
     from waresynth.generate import generate_dataset
 
-    for flag, value, lo, hi in (
-        ("--sequences", args.sequences, 1, 100000),
-        ("--frames", args.frames, 1, 100000),
-        ("--size", args.size, 16, 8192),
-        ("--layout-size", args.layout_size, 1, 4096),
-        ("--slots", args.slots, 1, 16),
-        ("--workers", args.workers, 1, 256),
-        ("--seed", args.seed, 0, 2**63 - 1),
-    ):
-        if not lo <= value <= hi:
-            raise InputError(f"{flag} must be in [{lo}, {hi}], got {value}")
+    check_range(GenerateSettings, args)  # --sequences, --frames, --size, ... within their ranges
     from layouts.publish import refuse_overlap
 
     if args.config is not None and Path(args.config).exists():

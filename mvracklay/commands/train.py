@@ -36,9 +36,10 @@ RECIPE_OPTIONS = ("recipe", "set", "dry_run", "out", "quiet")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from mvracklay.training.train_network import add_arguments as add_training_arguments
+    from mvracklay.settings import add_options
+    from mvracklay.training.train_network import TrainSettings
 
-    add_training_arguments(p)
+    add_options(p, TrainSettings)
     g = p.add_argument_group("recipe")
     g.add_argument(
         "--recipe",
@@ -61,9 +62,11 @@ def run(args: argparse.Namespace) -> int:
     if args.recipe is None:
         if args.set or args.dry_run:
             raise InputError("--set and --dry-run go with --recipe")
+        from mvracklay.settings import from_args
+        from mvracklay.training.train_network import TrainSettings
         from mvracklay.training.train_network import run as train
 
-        return train(args)
+        return train(from_args(TrainSettings, args))
     _refuse_training_options(args)
     from mvracklay.training.runner import run_recipe
 

@@ -11,23 +11,30 @@ minute of pass (measured per precision), so a faster machine fits the head on mo
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json
+from mvracklay.settings import setting
 
 NAME = "budget"
 HELP = "add up the minutes the recipe's budget counts, write them, and refuse a run over the total"
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, help="write the minutes per counted stage and their total as JSON here")
+@dataclass(frozen=True)
+class BudgetSettings:
+    """The options of stage ``budget``."""
+
+    out: Path | None = setting("--out", "write the minutes per counted stage and their total as JSON here", type=Path)
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = BudgetSettings
+
+
+def run(args: BudgetSettings) -> int:
     raise InputError("the budget stage adds up a recipe's minutes: it runs inside `mvracklay train --recipe` only")
 
 

@@ -3,15 +3,16 @@ rack-depth offset, on a tuning set."""
 
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import FLIP_HELP, add_json_out_option
+from mvracklay.options import FLIP_HELP
+from mvracklay.settings import json_out_setting, quiet_setting, setting
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.training.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
 
@@ -28,27 +29,40 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="a .pt checkpoint (its .json beside)")
-    p.add_argument("--data", type=Path, required=True, help="tuning data with ground truth (dataset or RackLay export)")
-    p.add_argument("--split", default="all", help="which split of --data to use (train, val, test, or all)")
-    p.add_argument(
-        "--target", choices=["box", "rack-depth"], default="box",
-        help="what to calibrate: the box decision offsets (default) or the offset of the rack depth the model reads",
+@dataclass(frozen=True)
+class CalibrateSettings:
+    """The options of stage ``calibrate`` (each field's option, default and help in its metadata)."""
+
+    checkpoint: Path | None = setting("--checkpoint", "a .pt checkpoint (its .json beside)", type=Path, required=True)
+    data: Path | None = setting(
+        "--data", "tuning data with ground truth (dataset or RackLay export)", type=Path, required=True
+    )
+    split: str = setting("--split", "which split of --data to use (train, val, test, or all)", "all")
+    target: str = setting(
+        "--target",
+        "what to calibrate: the box decision offsets (default) or the offset of the rack depth the model reads",
+        "box", choices=["box", "rack-depth"],
     )  # fmt: skip
-    p.add_argument("--out", type=Path, help="write the calibrated checkpoint here (unset: CKPT is updated in place)")
-    p.add_argument("--every", type=int, default=2, help="score every N-th frame (every frame is run)")
-    p.add_argument(
-        "--mode", choices=["window", "stream"], default="stream",
-        help="streaming (memory carried frame to frame) or windowed (the paper)",
+    out: Path | None = setting(
+        "--out", "write the calibrated checkpoint here (unset: CKPT is updated in place)", type=Path
+    )
+    every: int = setting("--every", "score every N-th frame (every frame is run)", 2, type=int)
+    mode: str = setting(
+        "--mode", "streaming (memory carried frame to frame) or windowed (the paper)", "stream",
+        choices=["window", "stream"],
     )  # fmt: skip
-    p.add_argument("--flip-average", action="store_true", help=FLIP_HELP)
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    add_json_out_option(p, "also write the scores (every box offset's, or the depth errors) as JSON here")
-    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
+    flip_average: bool = setting("--flip-average", FLIP_HELP, False, action="store_true")
+    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    json_out: Path | None = json_out_setting(
+        "also write the scores (every box offset's, or the depth errors) as JSON here"
+    )
+    quiet: bool = quiet_setting()
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = CalibrateSettings
+
+
+def run(args: CalibrateSettings) -> int:
     from network.training.train_data import open_data
 
     if args.threads < 1:

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -12,44 +11,63 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import add_json_out_option, add_precision_option
+from mvracklay.settings import json_out_setting, precision_setting, quiet_setting, setting
 from network.model.frozen import trunk_precision, use_precision
 
 
-def add_fit_arguments(p: argparse.ArgumentParser, sequences: int, epochs: int) -> None:
-    """The options of a command that fits a depth head to a trained checkpoint (the trunk frozen)."""
-    p.add_argument("--checkpoint", type=Path, required=True, help="a trained .pt checkpoint (its .json beside)")
-    p.add_argument(
-        "--data", type=Path, nargs="+", required=True, help="generated dataset(s) with ground truth to fit on"
-    )
-    p.add_argument("--sequences", type=int, default=sequences, help="training sequences to use (the first N of --data)")
-    p.add_argument("--val", type=Path, help="generated dataset to measure the depth read on (never trained on)")
-    p.add_argument("--epochs", type=int, default=epochs, help="passes over the training frames")
-    p.add_argument("--every", type=int, default=1, help="use every N-th frame")
-    p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
-    p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    add_json_out_option(p, "also write the fit's summary as JSON here")
-    p.add_argument("--quiet", action="store_true", help="hide the progress bars")
-    add_precision_option(p)
-    add_jpeg_arguments(p)
-
-
-def add_jpeg_arguments(p: argparse.ArgumentParser) -> None:
-    """``--jpeg P --jpeg-quality LOW HIGH``: fit a head on frames as a compressing camera delivers them."""
-    p.add_argument(
-        "--jpeg", type=float, default=0.0, metavar="P",
-        help="share of the training sequences whose frames go through JPEG, one quality per sequence drawn from "
+def jpeg_share_setting() -> Any:
+    """``--jpeg P``: the share of training sequences a fit sees JPEG-compressed."""
+    return setting(
+        "--jpeg",
+        "share of the training sequences whose frames go through JPEG, one quality per sequence drawn from "
         "--jpeg-quality with --seed, as a compressing camera or a video file delivers them (--val stays as it is; "
         "0 = off, default %(default)s)",
-    )  # fmt: skip
-    p.add_argument(
-        "--jpeg-quality", type=int, nargs=2, default=[30, 95], metavar=("LOW", "HIGH"),
-        help="the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
+        0.0, type=float, metavar="P",
     )  # fmt: skip
 
 
-def training_sequences(args: argparse.Namespace) -> list[Any]:
+def jpeg_quality_setting() -> Any:
+    """``--jpeg-quality LOW HIGH``: the JPEG quality range of ``--jpeg``."""
+    return setting(
+        "--jpeg-quality", "the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)", [30, 95],
+        type=int, nargs=2, metavar=("LOW", "HIGH"),
+    )  # fmt: skip
+
+
+def sequences_setting(default: int) -> Any:
+    return setting("--sequences", "training sequences to use (the first N of --data)", default, type=int)
+
+
+def epochs_setting(default: int) -> Any:
+    return setting("--epochs", "passes over the training frames", default, type=int)
+
+
+@dataclass(frozen=True)
+class DepthFitSettings:
+    """The options of a stage that fits a depth head to a trained checkpoint (the trunk frozen); each stage
+    sets its own ``sequences`` and ``epochs`` defaults."""
+
+    checkpoint: Path | None = setting(
+        "--checkpoint", "a trained .pt checkpoint (its .json beside)", type=Path, required=True
+    )
+    data: list[Path] | None = setting(
+        "--data", "generated dataset(s) with ground truth to fit on", type=Path, nargs="+", required=True
+    )
+    sequences: int = sequences_setting(1000)
+    val: Path | None = setting("--val", "generated dataset to measure the depth read on (never trained on)", type=Path)
+    epochs: int = epochs_setting(20)
+    every: int = setting("--every", "use every N-th frame", 1, type=int)
+    seed: int = setting("--seed", "seed of the head's initial weights and batch order", 0, type=int)
+    out: Path | None = setting("--out", "write the new checkpoint here (unset: CKPT is updated in place)", type=Path)
+    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    json_out: Path | None = json_out_setting("also write the fit's summary as JSON here")
+    quiet: bool = quiet_setting("hide the progress bars")
+    precision: str = precision_setting()
+    jpeg: float = jpeg_share_setting()
+    jpeg_quality: list[int] = jpeg_quality_setting()
+
+
+def training_sequences(args: Any) -> list[Any]:
     """The first ``--sequences`` of ``--data``, a ``--jpeg`` share of them compressed; one line if none."""
     from network.data import check_jpeg, compress_share
     from network.training.train_data import open_data
@@ -62,12 +80,12 @@ def training_sequences(args: argparse.Namespace) -> list[Any]:
     return compress_share(train, args.jpeg, quality, args.seed)
 
 
-def jpeg_record(args: argparse.Namespace) -> dict[str, Any]:
+def jpeg_record(args: Any) -> dict[str, Any]:
     """What the checkpoint's record notes of ``--jpeg`` (nothing when off)."""
     return {"jpeg": args.jpeg, "jpeg_quality": list(args.jpeg_quality)} if args.jpeg > 0 else {}
 
 
-def run_fit(args: argparse.Namespace, cfg: Any, fit: Callable[..., Any], source: str, flag: str, name: str) -> int:
+def run_fit(args: Any, cfg: Any, fit: Callable[..., Any], source: str, flag: str, name: str) -> int:
     """Fit a depth head with ``fit(model, train, val, cfg, progress)`` and write the checkpoint with it:
     its weights under ``name.``, the model config's ``flag`` set, the fit's summary in the record under
     ``flag``; prints the depth errors ``source`` gives."""

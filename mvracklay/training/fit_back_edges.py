@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 
-from mvracklay.training.depth_heads import add_fit_arguments, run_fit
+from mvracklay.training.depth_heads import DepthFitSettings, epochs_setting, run_fit, sequences_setting
 
 NAME = "fit-back-edges"
 HELP = "fit the back-edge head (reads the rack depth from the shelf boards' back edges) to a trained checkpoint"
@@ -17,11 +17,18 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_fit_arguments(p, sequences=1200, epochs=20)
+@dataclass(frozen=True)
+class FitBackEdgesSettings(DepthFitSettings):
+    """The options of stage ``fit-back-edges``: a depth head's fit (`DepthFitSettings`), with its own defaults."""
+
+    sequences: int = sequences_setting(1200)
+    epochs: int = epochs_setting(20)
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = FitBackEdgesSettings
+
+
+def run(args: FitBackEdgesSettings) -> int:
     from network.training.fit_back_edges import FitConfig, fit_back_edges
 
     return run_fit(args, FitConfig(), fit_back_edges, "the back edges", "back_edges", "back")

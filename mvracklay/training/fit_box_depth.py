@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import add_json_out_option, add_precision_option
-from mvracklay.training.depth_heads import add_jpeg_arguments, jpeg_record, training_sequences
+from mvracklay.settings import json_out_setting, precision_setting, quiet_setting, setting
+from mvracklay.training.depth_heads import jpeg_quality_setting, jpeg_record, jpeg_share_setting, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
 from network.model.frozen import use_precision
 from network.training.fit_box_depth import FitConfig
@@ -33,87 +33,105 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", type=Path, required=True, help="a trained .pt checkpoint (its .json beside)")
-    p.add_argument(
-        "--data", type=Path, nargs="+", required=True,
-        help="generated dataset(s) with depth, instance and scene files to fit on",
+@dataclass(frozen=True)
+class FitBoxDepthSettings:
+    """The options of stage ``fit-box-depth`` (each field's option, default and help in its metadata)."""
+
+    checkpoint: Path | None = setting(
+        "--checkpoint", "a trained .pt checkpoint (its .json beside)", type=Path, required=True
+    )
+    data: list[Path] | None = setting(
+        "--data", "generated dataset(s) with depth, instance and scene files to fit on", type=Path, nargs="+",
+        required=True,
     )  # fmt: skip
-    p.add_argument("--sequences", type=int, default=1000, help="training sequences to use (the first N of --data)")
-    p.add_argument("--epochs", type=int, default=FitConfig.epochs, help="passes over the cached inputs")
-    p.add_argument("--seed", type=int, default=0, help="seed of the head's initial weights and batch order")
-    p.add_argument(
-        "--lr", type=float, default=FitConfig.lr,
-        help="peak learning rate of the fit's one-cycle schedule (AdamW)",
+    sequences: int = setting("--sequences", "training sequences to use (the first N of --data)", 1000, type=int)
+    epochs: int = setting("--epochs", "passes over the cached inputs", FitConfig.epochs, type=int)
+    seed: int = setting("--seed", "seed of the head's initial weights and batch order", 0, type=int)
+    lr: float = setting("--lr", "peak learning rate of the fit's one-cycle schedule (AdamW)", FitConfig.lr, type=float)
+    weight_decay: float = setting(
+        "--weight-decay", "AdamW's decoupled weight decay, on all the head's parameters", FitConfig.weight_decay,
+        type=float,
     )  # fmt: skip
-    p.add_argument(
-        "--weight-decay", type=float, default=FitConfig.weight_decay,
-        help="AdamW's decoupled weight decay, on all the head's parameters",
-    )  # fmt: skip
-    p.add_argument(
-        "--parallax", action="store_true",
-        help="the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
+    parallax: bool = setting(
+        "--parallax",
+        "the head also reads the plane-sweep parallax against the frames 1 and 3 back (a box's faces behind "
         "the rack front move less than the front as the camera moves); a cache ~2.4x as large, slower inference",
+        False, action="store_true",
     )  # fmt: skip
-    p.add_argument(
-        "--front", action="store_true",
-        help="the head also reads each box's front behind the rack front (its setback, 0-30 cm in 2 cm bins), "
+    front: bool = setting(
+        "--front",
+        "the head also reads each box's front behind the rack front (its setback, 0-30 cm in 2 cm bins), "
         "carried along the row like the backs; predict, run and evaluate then move every box's front there too",
+        False, action="store_true",
     )  # fmt: skip
-    p.add_argument(
-        "--head-width", type=int, default=BOX_WIDTH, metavar="C",
-        help="the head's channels (its 1-D block has twice as many); the inputs cached are the same for any width",
+    head_width: int = setting(
+        "--head-width",
+        "the head's channels (its 1-D block has twice as many); the inputs cached are the same for any width",
+        BOX_WIDTH, type=int, metavar="C",
     )  # fmt: skip
-    p.add_argument(
-        "--frames", type=int, metavar="N",
-        help="stream only the first N frames of each sequence (default: all): with fewer frames per scene the "
+    frames: int | None = setting(
+        "--frames",
+        "stream only the first N frames of each sequence (default: all): with fewer frames per scene the "
         "same minutes cover more scenes, and the head is short of scenes rather than of frames",
+        type=int, metavar="N",
     )  # fmt: skip
-    p.add_argument(
-        "--from-frame", type=int, default=0, metavar="K",
-        help="keep the slots of frame K on (0-based); the earlier frames are streamed only to build the "
+    from_frame: int = setting(
+        "--from-frame",
+        "keep the slots of frame K on (0-based); the earlier frames are streamed only to build the "
         "model's memory and the parallax history (default %(default)s: every frame)",
+        0, type=int, metavar="K",
     )  # fmt: skip
-    p.add_argument(
-        "--cold-start", action="store_true",
-        help="the frames before --from-frame skip the network: they enter only the motion estimate and the "
+    cold_start: bool = setting(
+        "--cold-start",
+        "the frames before --from-frame skip the network: they enter only the motion estimate and the "
         "parallax history, and the memory starts at frame K (measured 1.5x the scenes per minute at --frames 6 "
         "--from-frame 3; the network's memory changes few cells)",
+        False, action="store_true",
     )  # fmt: skip
-    p.add_argument("--out", type=Path, help="write the new checkpoint here (unset: CKPT is updated in place)")
-    p.add_argument("--cache-dir", type=Path, help="folder for the temporary input cache (default: the system's)")
-    p.add_argument(
-        "--keep-cache", type=Path, metavar="DIR",
-        help="keep the input cache in DIR (created if missing), one part per data folder, and reuse a part when "
+    out: Path | None = setting("--out", "write the new checkpoint here (unset: CKPT is updated in place)", type=Path)
+    cache_dir: Path | None = setting(
+        "--cache-dir", "folder for the temporary input cache (default: the system's)", type=Path
+    )
+    keep_cache: Path | None = setting(
+        "--keep-cache",
+        "keep the input cache in DIR (created if missing), one part per data folder, and reuse a part when "
         "it holds this checkpoint's inputs for that folder's sequences; refused when it holds another's",
+        type=Path, metavar="DIR",
     )  # fmt: skip
-    p.add_argument(
-        "--cache-workers", type=int, default=1, metavar="N",
-        help="split the streamed pass over N processes of one torch thread each (contiguous shares of the "
+    cache_workers: int = setting(
+        "--cache-workers",
+        "split the streamed pass over N processes of one torch thread each (contiguous shares of the "
         "sequences; the same inputs as one pass); --threads then applies to the fit",
+        1, type=int, metavar="N",
     )  # fmt: skip
-    p.add_argument(
-        "--cache-only", action="store_true",
-        help="make (or find) the input cache in --keep-cache DIR and stop: no head is fitted, no checkpoint "
+    cache_only: bool = setting(
+        "--cache-only",
+        "make (or find) the input cache in --keep-cache DIR and stop: no head is fitted, no checkpoint "
         "written; a later fit with the same --keep-cache DIR and data reuses it",
+        False, action="store_true",
     )  # fmt: skip
-    p.add_argument(
-        "--pass-minutes", type=float, metavar="M",
-        help="start no sequence M minutes after the streamed pass began (each process streams at least one) and "
+    pass_minutes: float | None = setting(
+        "--pass-minutes",
+        "start no sequence M minutes after the streamed pass began (each process streams at least one) and "
         "fit on the sequences streamed by then: a fit inside a time budget takes as many scenes as the machine "
         "streams (the record says how many); not with --keep-cache or --cache-only",
+        type=float, metavar="M",
     )  # fmt: skip
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch (the fit's, and a one-process pass's)")
-    add_json_out_option(p, "also write the fit's (or the cache's) summary as JSON here")
-    p.add_argument("--quiet", action="store_true", help="hide the progress bars")
-    add_precision_option(
-        p, "; bf16 also runs the head's forward passes in the fit under bf16 autocast (about half the time with "
-        "native bf16) and makes a cache of its own (--keep-cache)",
-    )  # fmt: skip
-    add_jpeg_arguments(p)
+    threads: int = setting("--threads", "CPU threads for torch (the fit's, and a one-process pass's)", 2, type=int)
+    json_out: Path | None = json_out_setting("also write the fit's (or the cache's) summary as JSON here")
+    quiet: bool = quiet_setting("hide the progress bars")
+    precision: str = precision_setting(
+        "; bf16 also runs the head's forward passes in the fit under bf16 autocast (about half the time with "
+        "native bf16) and makes a cache of its own (--keep-cache)"
+    )
+    jpeg: float = jpeg_share_setting()
+    jpeg_quality: list[int] = jpeg_quality_setting()
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = FitBoxDepthSettings
+
+
+def run(args: FitBoxDepthSettings) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.training.box_cache import FrameChoice
     from network.training.fit_box_depth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs

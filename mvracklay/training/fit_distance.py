@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
+
+from mvracklay.settings import setting
 
 NAME = "fit-distance"
 HELP = "train the distance reader (the camera-to-rack distance and the floor line, from one frame)"
@@ -16,16 +18,22 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("data", nargs="+", type=Path, help="generated datasets")
-    p.add_argument("--out", type=Path, required=True, help="the reader file to write (.pt)")
-    p.add_argument("--steps", type=int, default=2400, help="training steps")
-    p.add_argument("--batch", type=int, default=32, help="frames per step")
-    p.add_argument("--seed", type=int, default=0, help="seed of the samples and the initial weights")
-    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+@dataclass(frozen=True)
+class FitDistanceSettings:
+    """The options of stage ``fit-distance`` (each field's option, default and help in its metadata)."""
+
+    data: list[Path] | None = setting("data", "generated datasets", nargs="+", type=Path)
+    out: Path | None = setting("--out", "the reader file to write (.pt)", type=Path, required=True)
+    steps: int = setting("--steps", "training steps", 2400, type=int)
+    batch: int = setting("--batch", "frames per step", 32, type=int)
+    seed: int = setting("--seed", "seed of the samples and the initial weights", 0, type=int)
+    threads: int = setting("--threads", "torch CPU threads", 2, type=int)
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = FitDistanceSettings
+
+
+def run(args: FitDistanceSettings) -> int:
     from network.training.fit_distance import fit
 
     figures = fit(args.data, args.out, args.steps, args.batch, args.seed, args.threads)

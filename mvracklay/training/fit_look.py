@@ -3,11 +3,11 @@ the generator's default one (the trunk tuned, everything after it as trained).""
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_json_out_option
+from mvracklay.settings import json_out_setting, quiet_setting, setting
 
 NAME = "fit-look"
 HELP = "tune a trained checkpoint's trunk so dim, tinted, noisy, blurred, compressed frames give its usual features"
@@ -21,33 +21,44 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--checkpoint", required=True, help="a trained .pt checkpoint or a shipped model's name")
-    p.add_argument("--data", type=Path, nargs="+", required=True, help="generated dataset(s) in the default look")
-    p.add_argument("--sequences", type=int, default=600, help="training sequences to use (the first N of --data)")
-    p.add_argument("--out", type=Path, required=True, help="the checkpoint to write (.pt)")
-    p.add_argument(
-        "--look", default="wide_look",
-        help="the config whose lighting and sensor ranges the copies are drawn from (a file or a shipped name)",
+@dataclass(frozen=True)
+class FitLookSettings:
+    """The options of stage ``fit-look`` (each field's option, default and help in its metadata)."""
+
+    checkpoint: str | None = setting(
+        "--checkpoint", "a trained .pt checkpoint or a shipped model's name", required=True
+    )
+    data: list[Path] | None = setting(
+        "--data", "generated dataset(s) in the default look", type=Path, nargs="+", required=True
+    )
+    sequences: int = setting("--sequences", "training sequences to use (the first N of --data)", 600, type=int)
+    out: Path | None = setting("--out", "the checkpoint to write (.pt)", type=Path, required=True)
+    look: str = setting(
+        "--look", "the config whose lighting and sensor ranges the copies are drawn from (a file or a shipped name)",
+        "wide_look",
     )  # fmt: skip
-    p.add_argument("--steps", type=int, default=1500, help="optimiser steps (the learning rate's cosine spans them)")
-    p.add_argument("--minutes", type=float, help="stop at this wall time even if steps remain")
-    p.add_argument("--batch", type=int, default=12, help="frames per step")
-    p.add_argument("--lr", type=float, default=1e-4, help="peak learning rate")
-    p.add_argument(
-        "--clean-share", type=float, default=0.25, help="share of samples the student sees unaltered (keeps the default look)"
+    steps: int = setting("--steps", "optimiser steps (the learning rate's cosine spans them)", 1500, type=int)
+    minutes: float | None = setting("--minutes", "stop at this wall time even if steps remain", type=float)
+    batch: int = setting("--batch", "frames per step", 12, type=int)
+    lr: float = setting("--lr", "peak learning rate", 1e-4, type=float)
+    clean_share: float = setting(
+        "--clean-share", "share of samples the student sees unaltered (keeps the default look)", 0.25, type=float
+    )
+    layout_weight: float = setting(
+        "--layout-weight",
+        "weight of the single-frame layouts' divergence from the untouched model's (0: the maps and rows only)",
+        1.0, type=float,
     )  # fmt: skip
-    p.add_argument(
-        "--layout-weight", type=float, default=1.0,
-        help="weight of the single-frame layouts' divergence from the untouched model's (0: the maps and rows only)",
-    )  # fmt: skip
-    p.add_argument("--seed", type=int, default=0, help="seed of the samples and their looks")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads for torch")
-    add_json_out_option(p, "also write the fit's summary as JSON here")
-    p.add_argument("--quiet", action="store_true", help="hide the progress bar")
+    seed: int = setting("--seed", "seed of the samples and their looks", 0, type=int)
+    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    json_out: Path | None = json_out_setting("also write the fit's summary as JSON here")
+    quiet: bool = quiet_setting()
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = FitLookSettings
+
+
+def run(args: FitLookSettings) -> int:
     from layouts.fileio import atomic_write_json
     from mvracklay.models import resolve_checkpoint
     from network.training.fit_look import fit_look

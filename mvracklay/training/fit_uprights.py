@@ -3,9 +3,10 @@ from its uprights."""
 
 from __future__ import annotations
 
-import argparse
+from dataclasses import dataclass
 
-from mvracklay.training.depth_heads import add_fit_arguments, run_fit
+from mvracklay.training.depth_heads import DepthFitSettings, epochs_setting, run_fit, sequences_setting
+from network.training.fit_uprights import DEFAULT_FIT
 
 NAME = "fit-uprights"
 HELP = "fit the upright head (reads the rack depth from the racks' front and rear uprights) to a trained checkpoint"
@@ -19,13 +20,18 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    from network.training.fit_uprights import DEFAULT_FIT
+@dataclass(frozen=True)
+class FitUprightsSettings(DepthFitSettings):
+    """The options of stage ``fit-uprights``: a depth head's fit (`DepthFitSettings`), with its own defaults."""
 
-    add_fit_arguments(p, sequences=1000, epochs=DEFAULT_FIT.epochs)
+    sequences: int = sequences_setting(1000)
+    epochs: int = epochs_setting(DEFAULT_FIT.epochs)
 
 
-def run(args: argparse.Namespace) -> int:
-    from network.training.fit_uprights import DEFAULT_FIT, fit_uprights
+SETTINGS = FitUprightsSettings
+
+
+def run(args: FitUprightsSettings) -> int:
+    from network.training.fit_uprights import fit_uprights
 
     return run_fit(args, DEFAULT_FIT, fit_uprights, "the uprights", "uprights", "uprights")

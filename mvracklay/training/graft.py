@@ -11,12 +11,12 @@ copies some of the heads and leaves NET its own others.
 
 from __future__ import annotations
 
-import argparse
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from layouts.errors import InputError
+from mvracklay.settings import setting
 from network.checkpoint import RACK_DEPTH_HEADS, load_checkpoint, save_checkpoint
 from network.model.config import ModelConfig
 
@@ -86,17 +86,25 @@ HELP = "copy the depth heads of one checkpoint onto another network (e.g. fine-t
 DESCRIPTION = __doc__.split("\n\n")[0]
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--heads", type=Path, required=True, help="checkpoint with fitted depth heads")
-    p.add_argument("--net", type=Path, required=True, help="the network to give them (e.g. train --init-from HEADS)")
-    p.add_argument("--out", type=Path, required=True, help="checkpoint to write")
-    p.add_argument(
-        "--only", nargs="+", choices=[h[0] for h in HEADS], default=[],
-        help="copy only these heads; NET keeps its own others (to measure which head a difference comes from)",
+@dataclass(frozen=True)
+class GraftSettings:
+    """The options of stage ``graft`` (each field's option, default and help in its metadata)."""
+
+    heads: Path | None = setting("--heads", "checkpoint with fitted depth heads", type=Path, required=True)
+    net: Path | None = setting(
+        "--net", "the network to give them (e.g. train --init-from HEADS)", type=Path, required=True
+    )
+    out: Path | None = setting("--out", "checkpoint to write", type=Path, required=True)
+    only: list[str] = setting(
+        "--only", "copy only these heads; NET keeps its own others (to measure which head a difference comes from)",
+        [], nargs="+", choices=[h[0] for h in HEADS],
     )  # fmt: skip
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = GraftSettings
+
+
+def run(args: GraftSettings) -> int:
     copied = graft(args.heads, args.net, args.out, tuple(args.only))
     print(f"wrote {args.out}: {args.net.name}'s network with {', '.join(copied)} from {args.heads}")
     return 0

@@ -33,11 +33,13 @@ class Step:
     options: dict[str, Any] = field(default_factory=dict)
     args: list[str] = field(default_factory=list)
 
-    def settings(self) -> argparse.Namespace:
-        """The stage's settings, built from its values (no command line in between)."""
-        if self.budget_minutes:
+    def settings(self, placeholder: Any = None) -> Any:
+        """The stage's settings, built from its values (no command line in between); ``placeholder``: the
+        minutes to check with while they wait for the budget."""
+        if self.budget_minutes and placeholder is None:
             raise InputError(f"stage {self.stage.id}: its minutes wait for the budget")
-        return stage_settings(self.stage.name, self.options, self.args)
+        options = {k: (placeholder if v == BUDGET_PLACEHOLDER else v) for k, v in self.options.items()}
+        return stage_settings(self.stage.name, options, self.args, where="")
 
     @property
     def budget_minutes(self) -> bool:
@@ -141,8 +143,10 @@ def check_steps(ctx: Context, out: Path, quiet: bool) -> list[Step]:
     for stage in ctx.recipe.stages:
         try:
             step = stage_step(ctx, stage, out, quiet)
-            parse = [("1" if a == BUDGET_PLACEHOLDER else a) for a in step.argv]
-            stage_parser(stage.name).parse_args(parse)
+            if stage.name not in RUNNER_STAGES:
+                step.settings(placeholder=1)  # each value converted and checked by its option, as it will run
+            else:
+                stage_parser(stage.name).parse_args(step.argv)
             steps.append(step)
         except InputError as e:
             msg = str(e)

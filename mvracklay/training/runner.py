@@ -205,8 +205,8 @@ class Runner:
     def spent(self) -> dict[str, float]:
         runs = {}
         for s in self.steps:
-            if s.stage.name == "train" and "--out" in s.argv:
-                runs[s.stage.id] = s.argv[s.argv.index("--out") + 1]
+            if s.stage.name == "train" and s.options.get("out"):
+                runs[s.stage.id] = str(s.options["out"])
         resolve = lambda v: self.ctx.resolve(v, "[budget] prior")  # noqa: E731
         return budget_mod.spent(self.recipe.budget or {}, resolve, runs, self.state.wall_minutes())
 
@@ -221,7 +221,7 @@ class Runner:
         t0 = time.monotonic()
         if s.name == "budget":
             self.say(f"[{n}/{self.count}] budget ({s.id})")
-            out = Path(step.argv[step.argv.index("--out") + 1]) if "--out" in step.argv else None
+            out = step.settings().out
             try:
                 line = budget_mod.write_record(self.recipe.budget or {}, self.spent(), out)
             except InputError as e:

@@ -1,44 +1,84 @@
 """The small stages of a recipe: copy a checkpoint, export fp16 weights, check the held-out seeds, draw learning
-curves, run a Python module or script (benchmarks, tables)."""
+curves, run a Python module or script (benchmarks, tables). Each stage's options come from its settings
+dataclass (``SETTINGS``, `mvracklay.settings.add_options`)."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
+from mvracklay.settings import setting
+from network.training.curves import X_AXES
 
 
 class _Stage:
-    """A stage as a command module has it: ``NAME``, ``HELP``, ``add_arguments``, ``run``."""
+    """A stage as a command module has it: ``NAME``, ``HELP``, ``SETTINGS`` (its options), ``run``."""
 
     NAME = ""
     HELP = ""
+    SETTINGS: type = object
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:  # pragma: no cover - overridden
+    def run(args: Any) -> int:  # pragma: no cover - overridden
         raise NotImplementedError
 
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:  # pragma: no cover - overridden
-        raise NotImplementedError
+
+@dataclass(frozen=True)
+class CopySettings:
+    src: Path | None = setting("--from", "the .pt checkpoint to copy", type=Path, required=True, dest="src")
+    dst: Path | None = setting("--to", "where to write the copy", type=Path, required=True, dest="dst")
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    checkpoint: Path | None = setting("--checkpoint", "the .pt checkpoint to export", type=Path, required=True)
+    out: Path | None = setting("--out", "the weights file to write (its .json beside)", type=Path, required=True)
+    note: str | None = setting("--note", "a line on how the weights were trained, kept in their JSON")
+    with_discriminators: bool = setting(
+        "--with-discriminators", "keep the discriminators too (fp16)", False, action="store_true"
+    )
+
+
+@dataclass(frozen=True)
+class CheckSeedsSettings:
+    heldout: Path | None = setting("--heldout", "the held-out dataset folder", type=Path, required=True)
+    tune: Path | None = setting("--tune", "the tuning dataset folder", type=Path, required=True)
+    train: list[Path] | None = setting("--train", "the training dataset folders", type=Path, nargs="+", required=True)
+
+
+@dataclass(frozen=True)
+class CurvesSettings:
+    out: str | None = setting("out", "PNG to write", metavar="OUT.png")
+    runs: list[str] | None = setting(
+        "runs", "a run directory (or metrics.jsonl) and its label", nargs="+", metavar="LABEL=RUN_DIR"
+    )
+    x_from: float = setting("--from", "draw points from this x on", 0.0, type=float, metavar="X", dest="x_from")
+    x: str = setting(
+        "--x", "x axis: training CPU-minutes (default), wall-clock minutes, or optimiser steps", "cpu-minutes",
+        choices=sorted(X_AXES),
+    )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class PythonSettings:
+    module: str | None = setting("--module", "a module to run as python -m MODULE (e.g. a benchmark)")
+    script: Path | None = setting("--script", "a script file to run", type=Path)
+    args: list[str] | None = setting("args", "its arguments (the recipe's args = [...])", nargs="*")
 
 
 class copy(_Stage):  # noqa: N801 - named as the stage
     NAME = "copy"
     HELP = "copy a checkpoint and its .json record (e.g. a run paused at a stage, before it goes on)"
+    SETTINGS = CopySettings
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--from", dest="src", type=Path, required=True, help="the .pt checkpoint to copy")
-        p.add_argument("--to", dest="dst", type=Path, required=True, help="where to write the copy")
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
+    def run(args: CopySettings) -> int:
         if not args.src.is_file():
             raise InputError(f"--from {args.src}: no such file")
         args.dst.parent.mkdir(parents=True, exist_ok=True)
@@ -52,16 +92,10 @@ class copy(_Stage):  # noqa: N801 - named as the stage
 class export(_Stage):  # noqa: N801
     NAME = "export"
     HELP = "write a checkpoint's model weights as fp16 (as train --export does)"
+    SETTINGS = ExportSettings
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--checkpoint", type=Path, required=True, help="the .pt checkpoint to export")
-        p.add_argument("--out", type=Path, required=True, help="the weights file to write (its .json beside)")
-        p.add_argument("--note", help="a line on how the weights were trained, kept in their JSON")
-        p.add_argument("--with-discriminators", action="store_true", help="keep the discriminators too (fp16)")
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
+    def run(args: ExportSettings) -> int:
         from network.checkpoint import export_weights
 
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -73,15 +107,10 @@ class export(_Stage):  # noqa: N801
 class check_seeds(_Stage):  # noqa: N801
     NAME = "check-seeds"
     HELP = "refuse held-out sequence seeds that a training or the tuning set uses"
+    SETTINGS = CheckSeedsSettings
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--heldout", type=Path, required=True, help="the held-out dataset folder")
-        p.add_argument("--tune", type=Path, required=True, help="the tuning dataset folder")
-        p.add_argument("--train", type=Path, nargs="+", required=True, help="the training dataset folders")
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
+    def run(args: CheckSeedsSettings) -> int:
         def seeds(folder: Path) -> set[int]:
             path = folder / "manifest.json"
             if not path.is_file():
@@ -99,22 +128,11 @@ class check_seeds(_Stage):  # noqa: N801
 class curves(_Stage):  # noqa: N801
     NAME = "curves"
     HELP = "draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG"
+    SETTINGS = CurvesSettings
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        from network.training.curves import X_AXES
-
-        p.add_argument("out", metavar="OUT.png", help="PNG to write")
-        p.add_argument(
-            "runs", nargs="+", metavar="LABEL=RUN_DIR", help="a run directory (or metrics.jsonl) and its label"
-        )
-        p.add_argument("--from", dest="x_from", type=float, default=0.0, metavar="X", help="draw points from this x on")
-        p.add_argument("--x", choices=sorted(X_AXES), default="cpu-minutes",
-                       help="x axis: training CPU-minutes (default), wall-clock minutes, or optimiser steps")  # fmt: skip
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
-        from network.training.curves import X_AXES, plot_curves
+    def run(args: CurvesSettings) -> int:
+        from network.training.curves import plot_curves
 
         bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
         if bad:
@@ -127,20 +145,16 @@ class curves(_Stage):  # noqa: N801
 class python(_Stage):  # noqa: N801
     NAME = "python"
     HELP = "run a Python module (-m) or script with arguments; its output goes to the stage's log"
+    SETTINGS = PythonSettings
 
     @staticmethod
-    def add_arguments(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--module", help="a module to run as python -m MODULE (e.g. a benchmark)")
-        p.add_argument("--script", type=Path, help="a script file to run")
-        p.add_argument("args", nargs="*", help="its arguments (the recipe's args = [...])")
-
-    @staticmethod
-    def run(args: argparse.Namespace) -> int:
+    def run(args: PythonSettings) -> int:
         if (args.module is None) == (args.script is None):
             raise InputError("give one of --module and --script")
         if args.script is not None and not args.script.is_file():
             raise InputError(f"--script {args.script}: no such file")
-        rest = args.args[1:] if args.args[:1] == ["--"] else args.args
+        given = list(args.args or [])
+        rest = given[1:] if given[:1] == ["--"] else given
         cmd = [sys.executable, *(["-m", args.module] if args.module else [str(args.script)]), *rest]
         sys.stdout.flush()
         done = subprocess.run(cmd, capture_output=True, text=True)

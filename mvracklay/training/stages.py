@@ -1,12 +1,14 @@
 """The stages a recipe of ``mvracklay train`` names, each with its own option parser.
 
-Every stage is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args)``, as a
+Every stage is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(settings)``, as a
 command of the CLI has; the fitting and calibration stages were commands of their own once, and take
-the same options. `run_stage` runs one stage from an argument list as the CLI ran it (one line and
+the same options. A stage with ``SETTINGS`` (a settings dataclass in the style of `mvracklay.settings`: each
+field's option name, default, range and help in its metadata) makes its options from it and runs on an
+instance of it. `run_stage` runs one stage from an argument list as the CLI ran it (one line and
 status 2 on bad input): the tests drive the stages through it, and
 ``python -m mvracklay.training.stages NAME ARGS...`` does the same from a shell. A recipe's stage needs no
-command line: `stage_settings` builds the settings its ``run`` takes from the recipe's values by option name,
-each converted and checked by that option's own type and choices.
+command line: `stage_settings` builds the settings its ``run`` takes (its ``SETTINGS`` dataclass) from the
+recipe's values by option name, each converted and checked by that option's own type and choices.
 """
 
 from __future__ import annotations
@@ -69,7 +71,10 @@ def stage_parser(name: str) -> StageParser:
         description=getattr(mod, "DESCRIPTION", mod.HELP),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    mod.add_arguments(p)
+    from mvracklay.settings import add_options
+
+    cls = getattr(mod, "SETTINGS", None)
+    add_options(p, cls) if cls is not None else mod.add_arguments(p)
     return p
 
 
@@ -89,12 +94,30 @@ def option_actions(name: str) -> dict[str, argparse.Action]:
     return out
 
 
-def stage_settings(name: str, options: Mapping[str, Any], args: Sequence[Any] = ()) -> argparse.Namespace:
-    """Stage ``name``'s settings as its ``run`` takes them: ``options`` by long option name (``pass-minutes``;
-    a switch ``true`` / ``false``, a list for several values), ``args`` its positional arguments; the parser's
-    defaults for the rest. Each value is converted and checked as its option converts it
-    (`mvracklay.options.config_value`); an unknown or missing one is one line (`InputError`)."""
+def stage_config(name: str) -> type | None:
+    """Stage ``name``'s settings dataclass (``SETTINGS``); None for a stage that runs on parsed options."""
+    return getattr(stage_module(name), "SETTINGS", None)
+
+
+def settings_of(name: str, parsed: argparse.Namespace) -> Any:
+    """What stage ``name``'s ``run`` takes from its parsed options: its ``SETTINGS`` dataclass, else them."""
+    from mvracklay.settings import from_args
+
+    cls = stage_config(name)
+    return parsed if cls is None else from_args(cls, parsed)
+
+
+def stage_settings(name: str, options: Mapping[str, Any], args: Sequence[Any] = (), where: str | None = None) -> Any:
+    """Stage ``name``'s settings as its ``run`` takes them (its ``SETTINGS`` dataclass): ``options`` by long
+    option name (``pass-minutes``; a switch ``true`` / ``false``, a list for several values), ``args`` its
+    positional arguments; the fields' defaults for the rest. Each value is converted and checked as its option
+    converts it (`mvracklay.options.config_value`); an unknown or missing one is one line (`InputError`),
+    beginning with ``where`` (default: the stage's name; "": a recipe's, which names its file and stage).
+    """
     from mvracklay.options import config_value
+
+    label = (lambda key: key) if where != "" else (lambda key: f"option {key!r}")
+    where = f"stage {name}" if where is None else where
 
     parser = stage_parser(name)
     by_name = option_actions(name)
@@ -111,17 +134,17 @@ def stage_settings(name: str, options: Mapping[str, Any], args: Sequence[Any] = 
             raise InputError(f"unknown option {key!r} (the {name} stage takes: {', '.join(sorted(by_name))})")
         if getattr(action, "deprecated_for", None):
             print(f"warning: --{key} is deprecated here: use {action.deprecated_for} (same value)", file=sys.stderr)
-        setattr(ns, action.dest, config_value(action, key, value, f"stage {name}"))
+        setattr(ns, action.dest, config_value(action, label(key), value, where))
         seen.add(action.dest)
-    seen |= _positionals(parser, ns, [str(a) for a in args], name)
+    seen |= _positionals(parser, ns, [str(a) for a in args], where)
     missing = [a for a in parser._actions if a.required and a.dest not in seen]
     if missing:
         said = ", ".join("/".join(a.option_strings) or a.metavar or a.dest for a in missing)
         raise InputError(f"the following arguments are required: {said}")
-    return ns
+    return settings_of(name, ns)
 
 
-def _positionals(parser: argparse.ArgumentParser, ns: argparse.Namespace, args: list[str], name: str) -> set[str]:
+def _positionals(parser: argparse.ArgumentParser, ns: argparse.Namespace, args: list[str], where: str) -> set[str]:
     """``args`` shared out over the parser's positional arguments in order, each taking what its ``nargs``
     allows while leaving the later ones their least; returns the dests set."""
     from mvracklay.options import config_value
@@ -137,15 +160,15 @@ def _positionals(parser: argparse.ArgumentParser, ns: argparse.Namespace, args: 
             break  # too few: the required check names what is missing
         if take:
             value = args[i : i + take] if a.nargs not in (None, "?") else args[i]
-            setattr(ns, a.dest, config_value(a, a.metavar or a.dest, value, f"stage {name}"))
+            setattr(ns, a.dest, config_value(a, a.metavar or a.dest, value, where))
             seen.add(a.dest)
         i += take
     if i < len(args):
-        raise InputError(f"stage {name}: unrecognized arguments: {' '.join(args[i:])}")
+        raise InputError(f"{where + ': ' if where else ''}unrecognized arguments: {' '.join(args[i:])}")
     return seen
 
 
-def run_settings(name: str, settings: argparse.Namespace) -> int:
+def run_settings(name: str, settings: Any) -> int:
     """Run stage ``name`` on its settings (`stage_settings`); bad input raises `InputError`."""
     return int(stage_module(name).run(settings) or 0)
 
@@ -154,7 +177,7 @@ def call_stage(name: str, argv: Sequence[str]) -> int:
     """Parse ``argv`` with stage ``name``'s parser and run it; bad input raises `InputError`."""
     mod = stage_module(name)
     args = stage_parser(name).parse_args(list(argv))
-    return int(mod.run(args) or 0)
+    return int(mod.run(settings_of(name, args)) or 0)
 
 
 def run_stage(name: str, argv: Sequence[str]) -> int:

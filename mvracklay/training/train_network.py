@@ -3,12 +3,13 @@ MVRackLay variant (or the RackLay baseline) on a generated dataset, or export a 
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.settings import setting
 from network.device import DistEnv, device_for
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
@@ -30,146 +31,146 @@ DESCRIPTION = (
 )
 
 
+_M, _T = ModelConfig(), TrainConfig()  # the defaults the options show
+
+
+def _model(name: str, help: str, default: object = None, **kwargs: object) -> object:
+    return setting(name, help, default, group="model", **kwargs)
+
+
+def _opt(name: str, help: str, default: object = None, **kwargs: object) -> object:
+    return setting(name, help, default, group="optimisation", **kwargs)
+
+
+def _val(name: str, help: str, default: object = None, **kwargs: object) -> object:
+    return setting(name, help, default, group="validation", **kwargs)
+
+
 # long on purpose: a flat list of every training option reads best in one place
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
+@dataclass(frozen=True)
+class TrainSettings:
+    """The options of stage ``train`` and of ``mvracklay train`` without ``--recipe`` (each field's option,
+    default, help and help group in its metadata); `_train_config` turns them into a `TrainConfig`."""
+
+    data: list[Path] | None = setting(
         "--data",
-        type=Path,
-        nargs="+",
-        help="dataset folder(s) written by 'mvracklay generate', or RackLay/MVRackLay exports written by "
+        "dataset folder(s) written by 'mvracklay generate', or RackLay/MVRackLay exports written by "
         "'mvracklay export --format racklay' (several are joined; same layout spec)",
-    )
-    p.add_argument("--out", type=Path, required=True, help="run folder (or the weights file with --export)")
-    p.add_argument(
-        "--variant", choices=sorted(VARIANTS), default=DEFAULT_VARIANT,
-        help="racklay: one frame, no memory (the baseline); mvracklay-T: windows of T frames through the slot memory; "
-        "-disc-: with the LSGAN discriminators",
+        type=Path, nargs="+",
     )  # fmt: skip
-    p.add_argument("--resume", action="store_true", help="continue from RUN/last.pt when it exists (else start)")
-    p.add_argument("--export", type=Path, metavar="CKPT", help="write CKPT's model weights as fp16 to --out, then stop")
-    m = ModelConfig()
-    g = p.add_argument_group("model")
-    g.add_argument("--input-size", type=int, nargs=2, default=[m.input_width, m.input_height], metavar=("W", "H"),
-                   help="network input in pixels (frames are resized to it)")  # fmt: skip
-    g.add_argument("--layout-size", type=int, default=m.spec.size, help="D of the predicted layouts")
-    g.add_argument("--encoder-width", type=int, default=m.encoder_width, help="ResNet-18 base width (64 = standard)")
-    g.add_argument("--hidden", type=int, default=m.hidden, help="channels of the reduced 1/32 map")
-    g.add_argument("--memory-hidden", type=int, default=m.memory_hidden, help="ConvLSTM channels of the slot memory")
-    g.add_argument("--decoder-width", type=int, default=m.decoder_width, help="channels of the layout decoders")
-    g.add_argument("--imagenet-weights", type=Path, help="local torchvision resnet18 state dict (needs width 64)")
-    g.add_argument(
+    out: Path | None = setting("--out", "run folder (or the weights file with --export)", type=Path, required=True)
+    variant: str = setting(
+        "--variant",
+        "racklay: one frame, no memory (the baseline); mvracklay-T: windows of T frames through the slot memory; "
+        "-disc-: with the LSGAN discriminators",
+        DEFAULT_VARIANT, choices=sorted(VARIANTS),
+    )  # fmt: skip
+    resume: bool = setting(
+        "--resume", "continue from RUN/last.pt when it exists (else start)", False, action="store_true"
+    )
+    export: Path | None = setting(
+        "--export", "write CKPT's model weights as fp16 to --out, then stop", type=Path, metavar="CKPT"
+    )
+    input_size: list[int] = _model(
+        "--input-size", "network input in pixels (frames are resized to it)", [_M.input_width, _M.input_height],
+        type=int, nargs=2, metavar=("W", "H"),
+    )  # fmt: skip
+    layout_size: int = _model("--layout-size", "D of the predicted layouts", _M.spec.size, type=int)
+    encoder_width: int = _model("--encoder-width", "ResNet-18 base width (64 = standard)", _M.encoder_width, type=int)
+    hidden: int = _model("--hidden", "channels of the reduced 1/32 map", _M.hidden, type=int)
+    memory_hidden: int = _model("--memory-hidden", "ConvLSTM channels of the slot memory", _M.memory_hidden, type=int)
+    decoder_width: int = _model("--decoder-width", "channels of the layout decoders", _M.decoder_width, type=int)
+    imagenet_weights: Path | None = _model(
+        "--imagenet-weights", "local torchvision resnet18 state dict (needs width 64)", type=Path
+    )
+    init_from: Path | None = _model(
         "--init-from",
-        type=Path,
-        metavar="CKPT",
-        help="warm start from a trained checkpoint (e.g. a racklay run's best.pt; same sizes and widths)",
-    )
-    t = TrainConfig()
-    g = p.add_argument_group("optimisation")
-    g.add_argument("--epochs", type=int, default=t.epochs, help="epochs (validation and checkpoints after each)")
-    g.add_argument("--steps-per-epoch", type=int, default=t.steps_per_epoch, help="optimiser steps per epoch")
-    g.add_argument(
+        "warm start from a trained checkpoint (e.g. a racklay run's best.pt; same sizes and widths)",
+        type=Path, metavar="CKPT",
+    )  # fmt: skip
+    epochs: int = _opt("--epochs", "epochs (validation and checkpoints after each)", _T.epochs, type=int)
+    steps_per_epoch: int = _opt("--steps-per-epoch", "optimiser steps per epoch", _T.steps_per_epoch, type=int)
+    minutes: float = _opt(
         "--minutes",
-        type=float,
-        default=t.minutes,
-        help="budget: wall-clock minutes spent in optimiser steps (data loading and validation not counted; 0 = none)",
-    )
-    g.add_argument(
+        "budget: wall-clock minutes spent in optimiser steps (data loading and validation not counted; 0 = none)",
+        _T.minutes, type=float,
+    )  # fmt: skip
+    stop_at: float = _opt(
         "--stop-at",
-        type=float,
-        default=t.stop_minutes,
-        metavar="MIN",
-        help="pause (saving last.pt) after MIN step-minutes while the learning-rate schedule still spans --minutes; "
+        "pause (saving last.pt) after MIN step-minutes while the learning-rate schedule still spans --minutes; "
         "--resume continues it (0 = no pause)",
-    )
-    g.add_argument("--frames-per-step", type=int, default=t.frames_per_step, help="frames per batch (all variants)")
-    g.add_argument("--lr", type=float, default=t.lr, help="peak learning rate (one-cycle schedule)")
-    g.add_argument(
-        "--class-weights",
-        type=float,
-        nargs=3,
-        default=list(t.class_weights),
-        metavar=("BG", "SHELF", "BOX"),
-        help="per-class weights of the cross entropy (the rare box class weighted up)",
-    )
-    g.add_argument("--dice-weight", type=float, default=t.dice_weight, help="soft Dice on the box class")
-    g.add_argument("--row-weight", type=float, default=t.row_weight, help="the row head's board-finding loss")
-    g.add_argument("--adv-weight", type=float, default=t.adv_weight, help="LSGAN weight (0 drops the discriminators)")
-    g.add_argument("--short-weight", type=float, default=t.short_weight, help="consistency j vs j+1")
-    g.add_argument("--long-weight", type=float, default=t.long_weight, help="consistency j vs k >= j+2")
-    g.add_argument("--no-augment", action="store_true", help="no colour jitter or horizontal flips")
-    g.add_argument(
+        _T.stop_minutes, type=float, metavar="MIN",
+    )  # fmt: skip
+    frames_per_step: int = _opt("--frames-per-step", "frames per batch (all variants)", _T.frames_per_step, type=int)
+    lr: float = _opt("--lr", "peak learning rate (one-cycle schedule)", _T.lr, type=float)
+    class_weights: list[float] = _opt(
+        "--class-weights", "per-class weights of the cross entropy (the rare box class weighted up)",
+        list(_T.class_weights), type=float, nargs=3, metavar=("BG", "SHELF", "BOX"),
+    )  # fmt: skip
+    dice_weight: float = _opt("--dice-weight", "soft Dice on the box class", _T.dice_weight, type=float)
+    row_weight: float = _opt("--row-weight", "the row head's board-finding loss", _T.row_weight, type=float)
+    adv_weight: float = _opt("--adv-weight", "LSGAN weight (0 drops the discriminators)", _T.adv_weight, type=float)
+    short_weight: float = _opt("--short-weight", "consistency j vs j+1", _T.short_weight, type=float)
+    long_weight: float = _opt("--long-weight", "consistency j vs k >= j+2", _T.long_weight, type=float)
+    augment: bool = _opt("--no-augment", "no colour jitter or horizontal flips", True, invert=True)
+    max_stride: int = _opt(
         "--max-stride",
-        type=int,
-        default=t.max_stride,
-        help="training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
+        "training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
         "learns from viewpoints further apart (default %(default)s; 1 = consecutive frames)",
-    )
-    g.add_argument(
+        _T.max_stride, type=int,
+    )  # fmt: skip
+    jpeg: float = _opt(
         "--jpeg",
-        type=float,
-        default=t.jpeg,
-        metavar="P",
-        help="share of training windows whose frames go through JPEG before the canonical warp, one quality per "
+        "share of training windows whose frames go through JPEG before the canonical warp, one quality per "
         "window drawn from --jpeg-quality, as a compressing camera or a video file delivers them; drawn from a "
         "stream of its own, so the windows, jitter and flips are those of the same run without it "
         "(0 = off, default %(default)s)",
-    )
-    g.add_argument(
-        "--jpeg-quality",
-        type=int,
-        nargs=2,
-        default=list(t.jpeg_quality),
-        metavar=("LOW", "HIGH"),
-        help="the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
-    )
-    g.add_argument(
+        _T.jpeg, type=float, metavar="P",
+    )  # fmt: skip
+    jpeg_quality: list[int] = _opt(
+        "--jpeg-quality", "the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
+        list(_T.jpeg_quality), type=int, nargs=2, metavar=("LOW", "HIGH"),
+    )  # fmt: skip
+    precision: str = _opt(
         "--precision",
-        choices=list(PRECISIONS),
-        default=t.precision,
-        help="bf16 runs the training forward passes under bf16 autocast (weights, optimiser, validation and "
+        "bf16 runs the training forward passes under bf16 autocast (weights, optimiser, validation and "
         "the saved checkpoints stay fp32): ~1.6x the steps per minute on CPUs with native bf16 (AVX512-BF16, "
         "AMX) and on recent GPUs; elsewhere it is emulated, 18-24x slower (a warning says so) (default %(default)s)",
-    )
-    g.add_argument("--seed", type=int, default=t.seed, help="seed of the weights, the data order and augmentation")
-    g.add_argument("--threads", type=int, default=t.threads, help="torch CPU threads")
-    g.add_argument("--workers", type=int, default=t.workers, help="data-loader worker processes")
-    g.add_argument(
-        "--checkpoint-every",
-        type=int,
-        default=t.checkpoint_every,
-        metavar="STEPS",
-        help="also write last.pt every STEPS optimiser steps (0 = at epoch ends only); bounds the work a crash loses",
-    )
-    g.add_argument(
-        "--device",
-        choices=["auto", "cpu", "cuda"],
-        default="auto",
-        help="auto = cuda:LOCAL_RANK when CUDA is present, else CPU",
-    )
-    g.add_argument(
-        "--dist-timeout",
-        type=float,
-        default=DEFAULT_TIMEOUT_MIN,
-        metavar="MIN",
-        help="under torchrun: minutes a rank may wait for the others (rank 0 validates while they wait)",
-    )
-    g = p.add_argument_group("validation")
-    g.add_argument("--val-sequences", type=int, default=t.val_sequences, help="0 = all 'val' sequences")
-    g.add_argument("--val-frames", type=int, default=t.val_frames, help="frames per sequence (0 = all)")
-    g.add_argument(
-        "--val-mode", choices=["window", "stream"], default=t.val_mode,
-        help="validate on windows (the paper) or streaming",
+        _T.precision, choices=list(PRECISIONS),
     )  # fmt: skip
-    p.add_argument("--note", help="with --export: a line on how the weights were trained, kept in their JSON")
-    p.add_argument(
-        "--with-discriminators",
-        action="store_true",
-        help="with --export: keep the discriminators too (fp16), for a warm start (--init-from) from the copy",
+    seed: int = _opt("--seed", "seed of the weights, the data order and augmentation", _T.seed, type=int)
+    threads: int = _opt("--threads", "torch CPU threads", _T.threads, type=int)
+    workers: int = _opt("--workers", "data-loader worker processes", _T.workers, type=int)
+    checkpoint_every: int = _opt(
+        "--checkpoint-every",
+        "also write last.pt every STEPS optimiser steps (0 = at epoch ends only); bounds the work a crash loses",
+        _T.checkpoint_every, type=int, metavar="STEPS",
+    )  # fmt: skip
+    device: str = _opt(
+        "--device", "auto = cuda:LOCAL_RANK when CUDA is present, else CPU", "auto", choices=["auto", "cpu", "cuda"]
     )
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    dist_timeout: float = _opt(
+        "--dist-timeout", "under torchrun: minutes a rank may wait for the others (rank 0 validates while they wait)",
+        DEFAULT_TIMEOUT_MIN, type=float, metavar="MIN",
+    )  # fmt: skip
+    val_sequences: int = _val("--val-sequences", "0 = all 'val' sequences", _T.val_sequences, type=int)
+    val_frames: int = _val("--val-frames", "frames per sequence (0 = all)", _T.val_frames, type=int)
+    val_mode: str = _val(
+        "--val-mode", "validate on windows (the paper) or streaming", _T.val_mode, choices=["window", "stream"]
+    )
+    note: str | None = setting("--note", "with --export: a line on how the weights were trained, kept in their JSON")
+    with_discriminators: bool = setting(
+        "--with-discriminators",
+        "with --export: keep the discriminators too (fp16), for a warm start (--init-from) from the copy",
+        False, action="store_true",
+    )  # fmt: skip
+    quiet: bool = setting("--quiet", "no progress bars", False, action="store_true")
 
 
-def run(args: argparse.Namespace) -> int:
+SETTINGS = TrainSettings
+
+
+def run(args: TrainSettings) -> int:
     env = DistEnv.from_env()
     if args.export:
         return _export(args, env)
@@ -242,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export(args: argparse.Namespace, env: DistEnv) -> int:
+def _export(args: TrainSettings, env: DistEnv) -> int:
     """``--export CKPT``: write its fp16 weights-only copy to ``--out`` (the main process only)."""
     from network.checkpoint import export_weights
 
@@ -254,7 +255,7 @@ def _export(args: argparse.Namespace, env: DistEnv) -> int:
     return 0
 
 
-def _check_arguments(args: argparse.Namespace) -> None:
+def _check_arguments(args: TrainSettings) -> None:
     """The options training needs, checked before any data is opened (one-line errors)."""
     if args.data is None:
         raise InputError("--data is required for training")
@@ -281,7 +282,7 @@ def _open_datasets(paths: list[Path]) -> tuple[list, list, list]:
     return datasets, train_seqs, val_seqs
 
 
-def _train_config(args: argparse.Namespace, adv: float) -> TrainConfig:
+def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
     """The options as a `TrainConfig` (``adv``: the adversarial weight, 0 for a variant without discriminators)."""
     return TrainConfig(
         frames_per_step=args.frames_per_step,
@@ -296,7 +297,7 @@ def _train_config(args: argparse.Namespace, adv: float) -> TrainConfig:
         adv_weight=adv,
         short_weight=args.short_weight,
         long_weight=args.long_weight,
-        augment=not args.no_augment,
+        augment=args.augment,
         max_stride=args.max_stride,
         jpeg=args.jpeg,
         jpeg_quality=tuple(args.jpeg_quality),

@@ -25,7 +25,7 @@ from network.heads.backedge import DepthReader
 from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
 from network.inference.decision import apply_box_offset
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
-from network.inference.result import FramePrediction, frame_layouts
+from network.inference.result import FramePrediction
 from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
 from network.model.decoders import board_peaks
 from network.model.motion import camera_motion, motion_signature
@@ -227,26 +227,27 @@ class Predictor:
                     self._motion.append((float(step[0]), sig, x, float(conf[0])))
             yield x, self._anchors(i), step
 
-    def stream(self, frames: Iterable[np.ndarray]) -> Iterator[dict[str, torch.Tensor]]:
-        """Outputs per frame (``{view: (R, 3, D, D)}`` logits, box-offset applied; ``rows``, ``anchors``), carrying the memory."""
-        return self._outputs(frames, self._stream, streaming=True)
+    def stream(self, frames: Iterable[np.ndarray]) -> Iterator[FramePrediction]:
+        """Each frame's `FramePrediction` (logits with the box offset applied, slots, depths), carrying the memory;
+        None for a frame the network skipped (``trunk_from``, `network.training.head_inputs.HeadInputPredictor`)."""
+        return _typed(self._outputs(frames, self._stream, streaming=True))
 
-    def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
-        """Outputs per frame from the window of ``seq_len`` frames ending there (fresh memory each)."""
+    def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[FramePrediction]:
+        """Each frame's `FramePrediction` from the window of ``seq_len`` frames ending there (fresh memory each)."""
         if self.trunk_from:
             raise InputError("trunk_from skips frames of a stream; the windowed mode runs every frame")
-        return self._outputs(frames, lambda inputs: self._window(inputs, recompute), streaming=False)
+        return _typed(self._outputs(frames, lambda inputs: self._window(inputs, recompute), streaming=False))
 
-    def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[dict[str, torch.Tensor]]:
+    def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[FramePrediction]:
+        """Each frame's `FramePrediction`, streaming or windowed (``mode``)."""
         if mode == "stream":
             return self.stream(frames)
         if mode == "window":
             return self.window(frames)
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
 
-    def predict(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[FramePrediction]:
-        """Each frame's prediction as a `FramePrediction` (`run`'s outputs, typed): what a caller of the model reads."""
-        return map(FramePrediction.from_outputs, self.run(frames, mode))
+    #: the same as `run` (what a caller of the model reads)
+    predict = run
 
     def _depths(self, outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[dict[str, torch.Tensor]]:
         """Each frame's outputs with ``"rack_depth"`` (0-d tensor, metres; NaN: none known or read yet) and,
@@ -401,6 +402,12 @@ class Predictor:
             yield {k: o[0] for k, o in out.items()}
 
 
+def _typed(outs: Iterator[dict[str, torch.Tensor]]) -> Iterator[FramePrediction]:
+    """Each frame's raw outputs as a `FramePrediction` (None for a frame the network skipped)."""
+    for out in outs:
+        yield FramePrediction.from_outputs(out) if out else None  # type: ignore[misc]
+
+
 def rack_depth_source(model: MVRackLay) -> str:
     """How ``model`` reads the rack depth, in words (records and tables)."""
     cues = [name for name, head in (("uprights", model.uprights), ("back edges", model.back)) if head is not None]
@@ -435,4 +442,4 @@ def predict_layouts(
     """``{"top", "front"}`` uint8 ``(R, size, size)`` class ids per frame of uint8 RGB images (any size)."""
     spec = model.cfg.spec if size is None else replace(model.cfg.spec, size=size)
     for out in Predictor(model, camera, flip=flip).run(frames, mode):
-        yield frame_layouts(out, spec)
+        yield out.layouts(spec)

@@ -1,13 +1,15 @@
 """One frame's prediction, typed (`FramePrediction`), and the layouts it gives (`frame_layouts`).
 
-`network.inference.predictor.Predictor.predict` yields a `FramePrediction` per frame; its ``run`` / ``stream`` /
-``window`` give the model's raw outputs (a dict of the heads' tensors) to the fits and studies that read them.
+`network.inference.predictor.Predictor`'s ``run`` / ``stream`` / ``window`` / ``predict`` yield a
+`FramePrediction` per frame: the layouts' logits, the shelf slots, the depths read, the camera's step and, in
+``maps``, the heads' maps the fits and studies read.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -17,6 +19,10 @@ import torch.nn.functional as F
 from layouts import VIEWS, LayoutSpec
 from layouts.boxdepth import impose_box_backs
 from layouts.rackdepth import impose_rack_depth
+
+#: the outputs `FramePrediction` names; any other is one of its ``maps``
+NAMED = ("top", "front", "anchors", "rows", "rack_depth", "box_back", "box_front", "camera_step",
+         "camera_step_confidence")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -31,10 +37,14 @@ class FramePrediction:
     box_front: np.ndarray | None = None  #: ``(R, D)`` box fronts, for a head that reads them
     camera_step: float | None = None  #: metres the camera moved along the row since the frame before (images)
     camera_step_confidence: float | None = None  #: how far that step can be trusted, 0..1
+    rows: torch.Tensor | None = None  #: the row head's board logits per canonical image row
+    #: the other outputs by name: the maps the depth heads read (``back``, ``uprights``, ``box_window``,
+    #: ``box_parallax``) and any a `Predictor` subclass adds
+    maps: Mapping[str, torch.Tensor] = field(default_factory=dict)
 
     @classmethod
     def from_outputs(cls, out: dict[str, Any]) -> FramePrediction:
-        """The typed form of one of `Predictor.run`'s raw outputs."""
+        """The typed form of one frame's raw outputs (`Predictor`'s passes)."""
 
         def num(key: str) -> float | None:
             return None if key not in out else float(out[key])
@@ -52,7 +62,13 @@ class FramePrediction:
             box_front=arr("box_front"),
             camera_step=num("camera_step"),
             camera_step_confidence=num("camera_step_confidence"),
+            rows=out.get("rows"),
+            maps={k: v for k, v in out.items() if k not in NAMED},
         )
+
+    def head_inputs(self) -> dict[str, Any]:
+        """What the box-depth head reads of this frame, by name (`network.heads.boxdepth.frame_head_inputs`)."""
+        return {"top": self.top, "front": self.front, "anchors": self.anchors, **self.maps}
 
     def layouts(self, spec: LayoutSpec) -> dict[str, np.ndarray]:
         """Both views' class-id stacks at ``spec.size`` (`frame_layouts`)."""

@@ -226,9 +226,9 @@ def stream_slots(
             seen.add(i)
             if i < choice.from_frame:
                 continue
-            win, extra = frame_head_inputs(out, model.cfg.view, camera(i)[1])
+            win, extra = frame_head_inputs(out.head_inputs(), model.cfg.view, camera(i)[1])
             back, shown, front = column_targets(seq.layouts(i).top, seen.labels(i), seq.spec, depth, d)
-            v = torch.isfinite(out["anchors"]).cpu().numpy()
+            v = torch.isfinite(out.anchors).cpu().numpy()
             parts = {"win": win[v].half().numpy(), "extra": extra[v].half().numpy(),
                      "back": back[v].astype(np.float32), "shown": shown[v], "front": front[v].astype(np.float32)}  # fmt: skip
             if not arrays:

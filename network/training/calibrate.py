@@ -25,7 +25,6 @@ from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
 from layouts import VIEWS
@@ -33,7 +32,7 @@ from layouts.errors import InputError
 from layouts.metrics import METRIC_CLASSES, LayoutMetrics
 from network.inference.decision import LIMIT, apply_box_offset, check_depth_offset
 from network.inference.predictor import Predictor, sequence_camera
-from network.inference.result import logits_to_layout, resize_logits
+from network.inference.result import FramePrediction, logits_to_layout, resize_logits
 from network.model.net import MVRackLay
 from network.training.fit_back_edges import rack_row
 
@@ -43,7 +42,7 @@ GRID: tuple[float, ...] = tuple(round(0.25 * k, 2) for k in range(11))  # 0 .. 2
 
 def _tuning_outputs(
     model: MVRackLay, sequences: list[Any], every: int, mode: str, flip: bool, progress: bool, desc: str
-) -> Iterator[tuple[int, int, dict[str, torch.Tensor]]]:
+) -> Iterator[tuple[int, int, FramePrediction]]:
     """``(sequence index, frame index, outputs)`` of every ``every``-th frame of ``sequences``, each run whole by
     `network.inference.predictor.Predictor` (``mode``, flip-averaged with ``flip``, no fusion), with a progress bar."""
     if not sequences:
@@ -88,7 +87,7 @@ def fit_box_offsets(
             gt = sequences[k].layouts(i)
             vis = gt.visible if gt.visible is not None else np.ones(d, bool)
             for v in VIEWS:
-                logits = resize_logits(out[v].float(), d)  # offsets commute with the bilinear resize
+                logits = resize_logits(getattr(out, v).float(), d)  # offsets commute with the bilinear resize
                 for g in grid:
                     pred = logits_to_layout(apply_box_offset(logits, g))
                     scorers[g].update(pred, getattr(gt, v), v, valid=vis)
@@ -141,7 +140,7 @@ def fit_rack_depth_offset(
     errors: list[float] = []
     try:
         for k, _, out in _tuning_outputs(model, sequences, every, mode, flip, progress, "rack depth"):
-            read = float(out["rack_depth"]) if "rack_depth" in out else float("nan")
+            read = out.rack_depth
             if math.isfinite(read):
                 errors.append(read - truths[k])
     finally:

@@ -21,7 +21,7 @@ class HeadInputPredictor(Predictor):
     ``box_inputs_from``: the maps of the frames before it are skipped (they still enter the parallax history):
     a fit that keeps none of their slots need not pay for their plane sweeps. ``trunk_from`` (streaming, not
     reading) goes further: the frames before it are not run through the network at all (their outputs are
-    empty dicts), they only enter the motion estimate and the parallax history, and the memory starts at
+    None), they only enter the motion estimate and the parallax history, and the memory starts at
     that frame. Other arguments: `Predictor`'s.
     """
 

@@ -1,0 +1,178 @@
+"""The settings of the commands a training recipe also runs as stages (``generate``, ``evaluate``,
+``evaluate-baseline``, ``eval-reconstruction``): one dataclass each, every field with its option's name,
+default, range and help in its metadata (`mvracklay.settings.option`), from which the command's options are
+made (`mvracklay.settings.add_options`) and a recipe's stage is built (`mvracklay.training.stages`).
+Like `mvracklay.settings`, this module imports no torch (``--help`` stays fast).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
+from mvracklay.options import DEVICES
+from mvracklay.settings import (
+    InferenceSettings,
+    json_out_setting,
+    nested,
+    precision_setting,
+    quiet_setting,
+    setting,
+)
+from waresynth.exporters import EXPORT_FORMATS
+
+
+@dataclass(frozen=True)
+class GenerateSettings:
+    """``mvracklay generate``: a synthetic dataset."""
+
+    out: Path | None = setting("out", "output dataset folder", metavar="OUT", type=Path)
+    sequences: int = setting(
+        "--sequences", "sequences (one scene + camera path each)", 10, metavar="N", type=int, range=(1, 100000)
+    )
+    frames: int = setting("--frames", "frames per sequence", 50, metavar="F", type=int, range=(1, 100000))
+    size: int = setting("--size", "image width and height in pixels", 256, metavar="S", type=int, range=(16, 8192))
+    layout_size: int = setting(
+        "--layout-size", "layout resolution (pixels per side)", 128, metavar="D", type=int, range=(1, 4096)
+    )
+    slots: int = setting("--slots", "shelf slots per layout", 3, metavar="R", type=int, range=(1, 16))
+    seed: int = setting("--seed", "dataset seed (same seed + config -> same bytes)", 0, type=int, range=(0, 2**63 - 1))
+    config: Path | None = setting(
+        "--config",
+        "JSON config overriding waresynth/default_config.json, or a shipped one by name (wide_look: the wider camera "
+        "and building look meant for training; shifted_look: a look outside it, for held-out tests)",
+        metavar="FILE", type=Path,
+    )  # fmt: skip
+    supersample: int | None = setting(
+        "--supersample",
+        "each pixel's colour the mean of S x S rays over its area, as a camera's sensor integrates light "
+        "(S^2 the rendering cost; depth and labels stay sampled at pixel centres); sets the config's "
+        "sensor.supersample (default: the config's, 1)",
+        metavar="S", type=int, choices=(1, 2, 3, 4),
+    )  # fmt: skip
+    workers: int = setting(
+        "--workers", "worker processes (one sequence at a time each)", 1, metavar="W", type=int, range=(1, 256)
+    )
+    format: str = setting(
+        "--format", "also export the dataset in this format (as `mvracklay export` does) to --export-out",
+        "native", choices=("native", *EXPORT_FORMATS),
+    )  # fmt: skip
+    export_out: Path | None = setting(
+        "--export-out", "export folder (default: OUT_<format> beside OUT)", metavar="DIR", type=Path
+    )
+    overwrite: bool = setting(
+        "--overwrite", "delete a non-empty OUT (or export folder) that is not this dataset", False,
+        action="store_true",
+    )  # fmt: skip
+    shard: str | None = setting(
+        "--shard",
+        "write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
+        "join the shards with `mvracklay merge-shards`",
+        metavar="I/N",
+    )  # fmt: skip
+    quiet: bool = quiet_setting("hide the progress bar", alias=True)
+
+
+@dataclass(frozen=True)
+class EvaluateBaselineSettings:
+    """``mvracklay evaluate-baseline``: Table I of the depth-projection baseline."""
+
+    data: Path | None = setting("--data", "dataset folder written by 'mvracklay generate'", type=Path, required=True)
+    split: str = setting("--split", "which split to score (train, val, test, or all)", "test")
+    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
+    json_out: Path | None = json_out_setting("also write the result as JSON here")
+    quiet: bool = quiet_setting("no progress bar", alias=True)
+
+
+#: the inference settings `evaluate` takes (a rack depth is each sequence's own to read)
+EVALUATE_INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """``mvracklay evaluate``: Table I of a checkpoint on a dataset split."""
+
+    checkpoint: Path | None = setting("--checkpoint", CHECKPOINT_HELP, type=checkpoint_arg, required=True)
+    data: Path | None = setting(
+        "--data",
+        "dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')",
+        type=Path, required=True,
+    )  # fmt: skip
+    split: str = setting("--split", "which split to score (train, val, test, or all)", "test")
+    mode: str = setting("--mode", "windowed (paper) or streaming", "window", choices=["window", "stream"])
+    #: --flip-average, --no-depth-read, --whole-sequence, --fuse-frames, --roll, --pitch, --yaw
+    inference: InferenceSettings = nested(InferenceSettings, only=EVALUATE_INFERENCE)
+    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
+    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    precision: str = precision_setting()
+    device: str = setting("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    true_anchors: bool = setting(
+        "--true-anchors",
+        "analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
+        False, action="store_true",
+    )  # fmt: skip
+    metric: str = setting(
+        "--metric",
+        "ours (default: empty pairs skipped, in view and all cells, pooled), reference (the authors' "
+        "eval_vracklay.py: all cells, an empty (frame, slot) pair scores 1, precision over the classes in the "
+        "ground truth, / frames x slots, targets f0, f0, f1 .. f[N-2] of each sequence), or both",
+        "ours", choices=["ours", "reference", "both"],
+    )  # fmt: skip
+    json_out: Path | None = json_out_setting("also write the full result as JSON here")
+    quiet: bool = quiet_setting("hide the progress bar", alias=True)
+
+
+def _with_checkpoint(name: str, help: str, default: object = None, **kwargs: object) -> object:
+    return setting(name, f"with --checkpoint: {help}", default, **kwargs)
+
+
+@dataclass(frozen=True)
+class EvalReconstructionSettings:
+    """``mvracklay eval-reconstruction``: stitch sequences and score the maps against ground-truth cuboids."""
+
+    path: str | None = setting("path", "WareSynth dataset or sequence folder", metavar="PATH")
+    layouts: str = setting("--layouts", "'gt' or a layout folder (single sequence only)", "gt")
+    checkpoint: Path | None = setting(
+        "--checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those",
+        type=checkpoint_arg,
+    )  # fmt: skip
+    mode: str = _with_checkpoint("--mode", "inference mode", "stream", choices=["stream", "window"])
+    threads: int = _with_checkpoint("--threads", "torch CPU threads", 2, type=int)
+    device: str = _with_checkpoint("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    #: metres, 'scene' (each sequence's own, from its scene.json) or None (`mvracklay.reconstruction_eval`)
+    rack_depth: str | None = _with_checkpoint(
+        "--rack-depth",
+        "impose a known rack depth on the predicted top views (as 'mvracklay predict "
+        "--rack-depth'): metres, or 'scene' for each sequence's own from its scene.json",
+        metavar="M|scene",
+    )  # fmt: skip
+    #: --no-depth-read, --fuse-frames, --roll, --pitch, --yaw (the rack depth is the option above)
+    inference: InferenceSettings = nested(
+        InferenceSettings, only=("read_depth", "fuse_tau", "roll", "pitch", "yaw"), prefix="with --checkpoint: "
+    )
+    map: str | None = setting("--map", "score this warehouse.json instead of reconstructing (single sequence only)")
+    scale_corrected: bool = setting(
+        "--scale-corrected",
+        "with --map: also score the map with its scale corrected (every length times the sequence's recorded "
+        "distance over the distance the map was made at, from its meta): what a wrong distance costs beyond scale",
+        False, action="store_true",
+    )  # fmt: skip
+    split: str | None = setting("--split", "only this split of a dataset", choices=("train", "val", "test"))
+    limit: int = setting("--limit", "at most this many sequences (0 = all)", 0, type=int)
+    iou: float = setting("--iou", "3D IoU threshold for a true positive", 0.5, type=float)
+    board_thickness: float = setting("--board-thickness", "assumed board thickness (metres)", 0.06, type=float)
+    noisy: bool = setting("--noisy", "clean-up settings for network output", False, action="store_true")
+    morph: int = setting("--morph", "degrade: grow (>0) / shrink (<0) boxes by N pixels", 0, type=int)
+    flip: float = setting("--flip", "degrade: fraction of pixels flipped to a random class", 0.0, type=float)
+    drop_frame: int = setting("--drop-frame", "degrade: leave this frame index out", -1, type=int)
+    handheld: bool = setting(
+        "--handheld",
+        "walk each sequence as a hand-held camera would (stops of 3-6 frames, uneven steps up to twice the "
+        "usual, a step back: waresynth.handheld) before stitching, seeded by --seed; meant for fine-step sequences "
+        "(the walk's usual step is 2 of their frames), e.g. generated with a config whose camera.step is halved",
+        False, action="store_true",
+    )  # fmt: skip
+    seed: int = setting("--seed", "seed of the degradation and of --handheld's walks", 0, type=int)
+    json: bool = setting("--json", "print JSON instead of a table", False, action="store_true")
+    quiet: bool = quiet_setting("no progress bar", alias=True)
