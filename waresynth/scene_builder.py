@@ -97,26 +97,34 @@ def _clear_heights(levels: list[float], thickness: float, top: float) -> list[fl
     return out
 
 
-def _place_boxes(
+@dataclass
+class StackPlan:
+    """One stack on a board as planned: its footprint's centre (x, z), one box's size (width, height,
+    depth), yaw, how many boxes high and the stack's material."""
+
+    x: float
+    z: float
+    size: tuple[float, float, float]
+    yaw: float
+    count: int
+    material: Material
+
+
+def sample_stacks(
     rng: np.random.Generator,
-    b: _Builder,
     cfg: dict[str, Any],
     preset: dict[str, Any],
-    shelf: Shelf,
+    clear_height: float,
     x_lo: float,
     x_hi: float,
     z_front: float,
     depth: float,
-    level: float,
-    semantic: int,
-    record: bool,
-    shared_instance: int,
-) -> None:
+) -> list[StackPlan]:
     """Fill one board left to right with stacks whose yawed footprints stay on the board."""
     bc = cfg["boxes"]
     cursor = x_lo + _u(rng, preset["gap"])
-    n_stack = 0
-    limit = shelf.clear_height - bc["head_room"]
+    out: list[StackPlan] = []
+    limit = clear_height - bc["head_room"]
     while True:
         w, d, h = _u(rng, bc["width"]), _u(rng, bc["depth"]), _u(rng, bc["height"])
         yaw = math.radians(_u(rng, [-bc["yaw_deg"], bc["yaw_deg"]])) if rng.random() < bc["yaw_probability"] else 0.0
@@ -138,28 +146,61 @@ def _place_boxes(
             h = limit
         count = max(1, min(count, int(limit // h))) if h > 0 else 0
         if not empty and d >= 0.05 and h >= 0.05:
-            cx, cz = cursor + hx, z_front + setback + hz
-            stack_id = f"{shelf.id}/stack_{n_stack:03d}"
             colour = _colour(rng, bc["colours"], bc["colour_jitter"])
             pattern = PATTERNS[_choice(rng, bc["textures"])]
             refl = _u(rng, bc["reflectance"])
-            mat = b.material(Material(colour, pattern, refl, w))
-            for k in range(count):
-                bid = f"{shelf.id}/box_{len(shelf.boxes):03d}"
-                center = (cx, -(level + (k + 0.5) * h), cz)
-                iid = b.instance(bid, semantic) if record else shared_instance
-                b.cuboid(center, (w, h, d), semantic, iid, mat, yaw)
-                if record:
-                    shelf.boxes.append(Box(bid, center, (w, h, d), yaw, stack_id, k, iid))
-            n_stack += 1
+            out.append(
+                StackPlan(
+                    cursor + hx, z_front + setback + hz, (w, h, d), yaw, count, Material(colour, pattern, refl, w)
+                )
+            )
         cursor += 2 * hx + _u(rng, preset["gap"])
+    return out
+
+
+def _add_stacks(
+    b: _Builder, shelf: Shelf, stacks: list[StackPlan], level: float, semantic: int, record: bool, shared_instance: int
+) -> None:
+    """The boxes of a board's planned stacks (recorded on ``shelf`` for the mapped row)."""
+    for n_stack, st in enumerate(stacks):
+        w, h, d = st.size
+        stack_id = f"{shelf.id}/stack_{n_stack:03d}"
+        mat = b.material(st.material)
+        for k in range(st.count):
+            bid = f"{shelf.id}/box_{len(shelf.boxes):03d}"
+            center = (st.x, -(level + (k + 0.5) * h), st.z)
+            iid = b.instance(bid, semantic) if record else shared_instance
+            b.cuboid(center, (w, h, d), semantic, iid, mat, st.yaw)
+            if record:
+                shelf.boxes.append(Box(bid, center, (w, h, d), st.yaw, stack_id, k, iid))
+
+
+def board_span(x_min: float, x_max: float, upright_width: float) -> tuple[float, float]:
+    """The X range of a rack's boards that boxes may stand on (between the uprights)."""
+    return x_min + upright_width + 0.03, x_max - upright_width - 0.03
+
+
+def sample_rack_stacks(
+    rng: np.random.Generator,
+    cfg: dict[str, Any],
+    preset: dict[str, Any],
+    x_min: float,
+    x_max: float,
+    z_front: float,
+    depth: float,
+    levels: list[float],
+    thickness: float,
+    top: float,
+    uw: float,
+) -> list[list[StackPlan]]:
+    """The stacks of every board of one rack, lowest first."""
+    lo, hi = board_span(x_min, x_max, uw)
+    clears = _clear_heights(levels, thickness, top)
+    return [sample_stacks(rng, cfg, preset, ch, lo, hi, z_front, depth) for ch in clears]
 
 
 def _build_rack_parts(
-    rng: np.random.Generator,
     b: _Builder,
-    cfg: dict[str, Any],
-    preset: dict[str, Any],
     rack: Rack,
     levels: list[float],
     thickness: float,
@@ -169,9 +210,10 @@ def _build_rack_parts(
     board_mat: int,
     semantics: tuple[int, int, int],
     record: bool,
+    stacks: list[list[StackPlan]],
     shared_instance: int = 0,
 ) -> None:
-    """Uprights, top beams, boards and boxes of one rack (the mapped row or a background rack)."""
+    """Uprights, top beams, boards and the planned boxes of one rack (the mapped row or a background rack)."""
     rack_sem, shelf_sem, box_sem = semantics
     x0, x1, zf, dp = rack.x_min, rack.x_max, rack.z_front, rack.depth
     beam = 0.08
@@ -193,12 +235,49 @@ def _build_rack_parts(
         b.cuboid(
             ((x0 + x1) / 2, -(lv - thickness / 2), zf + dp / 2), (x1 - x0, thickness, dp), shelf_sem, iid, board_mat
         )
-        _place_boxes(
-            rng, b, cfg, preset, shelf, x0 + uw + 0.03, x1 - uw - 0.03, zf, dp, lv, box_sem,
-            record, shared_instance,
-        )  # fmt: skip
+        _add_stacks(b, shelf, stacks[k], lv, box_sem, record, shared_instance)
         if record:
             rack.shelves.append(shelf)
+
+
+@dataclass
+class RackPlan:
+    """One rack of a row as planned: its id, X range and the stacks of each board (lowest first)."""
+
+    id: str
+    x_min: float
+    x_max: float
+    stacks: list[list[StackPlan]]
+
+
+@dataclass
+class RowPlan:
+    """A rack row as planned (row frame: X along it, front at Z = 0): shared shelf heights, depth and
+    uprights, the box-density preset, the materials of racks and boards, and the racks in X order. The
+    random sampler (`build_scene`) draws one per sequence; `waresynth.building` plans one per rack face, so
+    every pass along a face builds the same racks and boxes from it."""
+
+    levels: list[float]
+    thickness: float
+    top: float
+    depth: float
+    upright_width: float
+    density: str
+    preset: dict[str, Any]
+    rack_material: Material
+    board_material: Material
+    racks: list[RackPlan] = field(default_factory=list)
+    gaps: list[tuple[float, float]] = field(default_factory=list)  #: X ranges between neighbouring racks
+
+
+@dataclass
+class CameraPlan:
+    """A pass's camera as planned: distance to the rack front, height, signed step and the first frame's X."""
+
+    distance: float
+    height: float
+    step: float
+    x0: float
 
 
 @dataclass
@@ -240,7 +319,7 @@ def _sample_row_camera(
     return _Row(levels, thickness, top, depth), Camera(intrinsics, cam_h, distance, step, positions), visible
 
 
-def _build_row(rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: _Row, camera: Camera) -> None:
+def _sample_row_plan(rng: np.random.Generator, cfg: dict[str, Any], row: _Row, camera: Camera) -> RowPlan:
     """Racks along X covering the view of every frame (the row end may show at either end)."""
     rc = cfg["rack"]
     xs, intrinsics = camera.positions[:, 0], camera.intrinsics
@@ -248,33 +327,46 @@ def _build_row(rng: np.random.Generator, b: _Builder, cfg: dict[str, Any], row: 
     x_start = float(xs.min()) - half_view - _u(rng, [-0.8, 2.0])
     x_end = float(xs.max()) + half_view + _u(rng, [-0.8, 2.0])
     weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in sorted(cfg["boxes"]["density"])], np.float64)
-    row.density = sorted(cfg["boxes"]["density"])[int(rng.choice(len(weights), p=weights / weights.sum()))]
-    row.preset = cfg["boxes"]["density"][row.density]
-    rack_colour = _colour(rng, rc["colours"], rc["colour_jitter"])
-    rack_mat = b.material(Material(rack_colour, PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05))
-    row.board_mat = b.material(
-        Material(
-            _colour(rng, rc["board_colours"], rc["colour_jitter"]),
-            PATTERNS[_choice(rng, rc["board_textures"])],
-            0.05,
-            1.0,
-        )
+    density = sorted(cfg["boxes"]["density"])[int(rng.choice(len(weights), p=weights / weights.sum()))]
+    preset = cfg["boxes"]["density"][density]
+    rack_material = Material(
+        _colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05
     )
-    row.upright_width = _u(rng, rc["upright_width"])
+    board_material = Material(
+        _colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["board_textures"])], 0.05, 1.0
+    )
+    plan = RowPlan(
+        row.levels, row.thickness, row.top, row.depth, _u(rng, rc["upright_width"]), density, preset,
+        rack_material, board_material,
+    )  # fmt: skip
     x = x_start
     while x < x_end:
         width = _u(rng, rc["width"])
-        rid = f"rack_{len(row.racks):02d}"
-        rack = Rack(rid, x, x + width, Z_FRONT, row.depth, b.instance(rid, sem.RACK))
+        stacks = sample_rack_stacks(
+            rng, cfg, preset, x, x + width, Z_FRONT, row.depth, row.levels, row.thickness, row.top, plan.upright_width
+        )
+        plan.racks.append(RackPlan(f"rack_{len(plan.racks):02d}", x, x + width, stacks))
+        gap = _u(rng, rc["wide_gap"]) if rng.random() < rc["wide_gap_probability"] else _u(rng, rc["gap"])
+        plan.gaps.append((x + width, x + width + gap))
+        x += width + gap
+    plan.gaps.pop()
+    return plan
+
+
+def _build_row(b: _Builder, plan: RowPlan) -> _Row:
+    """The row's racks, boards and boxes as planned (no random draws: a plan builds the same row every time)."""
+    row = _Row(plan.levels, plan.thickness, plan.top, plan.depth, plan.upright_width, plan.preset, plan.density)
+    rack_mat = b.material(plan.rack_material)
+    row.board_mat = b.material(plan.board_material)
+    for rp in plan.racks:
+        rack = Rack(rp.id, rp.x_min, rp.x_max, Z_FRONT, plan.depth, b.instance(rp.id, sem.RACK))
         _build_rack_parts(
-            rng, b, cfg, row.preset, rack, row.levels, row.thickness, row.top, row.upright_width, rack_mat,
-            row.board_mat, (sem.RACK, sem.SHELF, sem.BOX), True,
+            b, rack, plan.levels, plan.thickness, plan.top, plan.upright_width, rack_mat, row.board_mat,
+            (sem.RACK, sem.SHELF, sem.BOX), True, rp.stacks,
         )  # fmt: skip
         row.racks.append(rack)
-        gap = _u(rng, rc["wide_gap"]) if rng.random() < rc["wide_gap_probability"] else _u(rng, rc["gap"])
-        row.gaps.append((x + width, x + width + gap))
-        x += width + gap
-    row.gaps.pop()
+    row.gaps = list(plan.gaps)
+    return row
 
 
 def _build_background(
@@ -311,9 +403,12 @@ def _build_background(
             cid = f"clutter_{len(clutter):03d}"
             iid = b.instance(cid, sem.CLUTTER)
             brack = Rack(cid, bx, bx + width, bz, bdepth, iid)
+            bstacks = sample_rack_stacks(
+                rng, cfg, row.preset, bx, bx + width, bz, bdepth, blevels, bthick, btop, row.upright_width
+            )
             _build_rack_parts(
-                rng, b, cfg, row.preset, brack, blevels, bthick, btop, row.upright_width, bmat, row.board_mat,
-                (sem.CLUTTER, sem.CLUTTER, sem.CLUTTER), False, iid,
+                b, brack, blevels, bthick, btop, row.upright_width, bmat, row.board_mat,
+                (sem.CLUTTER, sem.CLUTTER, sem.CLUTTER), False, bstacks, iid,
             )  # fmt: skip
             clutter.append(
                 {"id": cid, "kind": "background_rack", "center": [bx + width / 2, -(btop + 0.08) / 2, bz + bdepth / 2],
@@ -377,12 +472,59 @@ def _build_floor_wall(
     return walls
 
 
-def build_scene(rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intrinsics, frames: int) -> Scene:
-    """Sample a whole scene and camera path for one sequence from ``rng`` and the effective config."""
+def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels: list[float], thickness: float,
+                   top: float) -> list[int]:  # fmt: skip
+    """The levels a camera at this height and distance sees (`level_visible`), lowest first."""
+    clears = _clear_heights(levels, thickness, top)
+    return [k for k in range(len(levels)) if level_visible(intr, cam_height, distance, levels[k], clears[k])]
+
+
+def sample_pass_camera(
+    rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, plan: RowPlan
+) -> tuple[float, float]:
+    """A (distance, height) from the config's ranges from which a camera sees one of the planned row's levels."""
+    cc = cfg["camera"]
+    for _ in range(200):
+        distance, height = _u(rng, cc["distance"]), _u(rng, cc["height"])
+        if visible_levels(intr, height, distance, plan.levels, plan.thickness, plan.top):
+            return distance, height
+    raise InputError("config: camera.height/distance never make a shelf of a planned row visible; widen the ranges")
+
+
+def _planned_camera(intr: Intrinsics, plan: RowPlan, cam: CameraPlan, frames: int) -> tuple[_Row, Camera, list[int]]:
+    visible = visible_levels(intr, cam.height, cam.distance, plan.levels, plan.thickness, plan.top)
+    xs = cam.x0 + np.arange(frames, dtype=np.float64) * cam.step + 0.0  # no -0.0
+    positions = np.stack([xs, np.full(frames, -cam.height), np.full(frames, Z_FRONT - cam.distance)], axis=1)
+    return (
+        _Row(plan.levels, plan.thickness, plan.top, plan.depth),
+        Camera(intr, cam.height, cam.distance, cam.step, positions),
+        visible,
+    )
+
+
+def build_scene(
+    rng: np.random.Generator,
+    cfg: dict[str, Any],
+    intrinsics: Intrinsics,
+    frames: int,
+    planned: tuple[RowPlan, CameraPlan] | None = None,
+) -> Scene:
+    """Sample a whole scene and camera path for one sequence from ``rng`` and the effective config.
+
+    ``planned``: the row and the camera's path given (a pass along a planned rack face); the rest of the
+    scene (background, floor, wall, light, sensor, look) is drawn from ``rng`` as for a sampled row.
+    """
     cc = cfg["camera"]
     b = _Builder()
-    row, camera, visible = _sample_row_camera(rng, cfg, intrinsics, frames)
-    _build_row(rng, b, cfg, row, camera)
+    if planned is None:
+        row, camera, visible = _sample_row_camera(rng, cfg, intrinsics, frames)
+        plan = _sample_row_plan(rng, cfg, row, camera)
+    else:
+        plan = planned[0]
+        row, camera, visible = _planned_camera(intrinsics, plan, planned[1], frames)
+        if not visible:
+            raise InputError("a planned pass's camera sees no shelf level; widen camera.height/distance")
+    row = _build_row(b, plan)
     busy, clutter, wall_z = _build_background(rng, b, cfg, row)
     walls = _build_floor_wall(rng, b, cfg, row, camera, wall_z)
 
