@@ -37,7 +37,7 @@ from waresynth.imageio import write_png
 from waresynth.look import NEUTRAL, lens_of
 from waresynth.render import Renderer
 from waresynth.scene import Scene
-from waresynth.scene_builder import build_scene
+from waresynth.scene_builder import CameraPlan, RowPlan, build_scene
 
 SPLITS = ("train", "val", "test")
 MANIFEST = "manifest.json"
@@ -125,9 +125,11 @@ def write_sequence(
     image_size: tuple[int, int],
     nthreads: int = 1,
     on_frame: Callable[[], None] | None = None,
+    planned: tuple[RowPlan, CameraPlan] | None = None,
 ) -> dict[str, Any]:
     """Render one sequence into ``root/.NAME.tmp`` and rename it to ``root/NAME`` when complete.
 
+    ``planned``: its row and camera path as planned (a pass of `waresynth.building`), else sampled.
     Returns what it cost in the process that wrote it: name, frames, cpu_seconds, max_rss_mib.
     """
     cpu0 = time.process_time()
@@ -139,7 +141,7 @@ def write_sequence(
     intr = Intrinsics.from_fov(image_size[0], image_size[1], hfov)
     scene_rng = np.random.default_rng(np.random.SeedSequence([seed, 0]))
     noise_rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
-    scene = build_scene(scene_rng, cfg, intr, frames)
+    scene = build_scene(scene_rng, cfg, intr, frames, planned)
     renderer = Renderer(
         scene,
         intr,
@@ -179,8 +181,9 @@ def write_sequence(
 
 
 def _worker(args: tuple) -> dict[str, Any]:
-    root, entry, spec_d, cfg, image_size, nthreads = args
-    return write_sequence(Path(root), entry, LayoutSpec.from_dict(spec_d), cfg, tuple(image_size), nthreads)
+    root, entry, spec_d, cfg, image_size, nthreads, planned = args
+    spec = LayoutSpec.from_dict(spec_d)
+    return write_sequence(Path(root), entry, spec, cfg, tuple(image_size), nthreads, planned=planned)
 
 
 def _pool_context() -> mp.context.BaseContext:
@@ -403,8 +406,11 @@ def _write_sequences(
     workers: int,
     progress: bool,
     stats: list[dict[str, Any]] | None,
+    plans: dict[str, tuple[RowPlan, CameraPlan]] | None = None,
 ) -> None:
-    """Write the sequences ``todo`` in this process (all cores to the renderer) or in a pool of ``workers``."""
+    """Write the sequences ``todo`` in this process (all cores to the renderer) or in a pool of ``workers``;
+    ``plans``: the planned row and camera of sequences by name (`write_sequence`)."""
+    plans = plans or {}
     cores = os.cpu_count() or 1
     workers = min(workers, len(todo))
     frames = sum(int(e["frames"]) for e in todo)
@@ -412,12 +418,14 @@ def _write_sequences(
     try:
         if workers == 1:
             for e in todo:
-                st = write_sequence(root, e, spec, cfg, image_size, nthreads=cores, on_frame=lambda: bar.update(1))
+                st = write_sequence(
+                    root, e, spec, cfg, image_size, cores, lambda: bar.update(1), planned=plans.get(e["name"])
+                )
                 if stats is not None:
                     stats.append(st)
         else:
             nthreads = max(1, cores // workers)
-            jobs = [(str(root), e, spec.to_dict(), cfg, image_size, nthreads) for e in todo]
+            jobs = [(str(root), e, spec.to_dict(), cfg, image_size, nthreads, plans.get(e["name"])) for e in todo]
             # An executor, not `with Pool()`: leaving a Pool's block terminates it, which can deadlock when a
             # worker is stopped while it holds the task queue's lock; the executor shuts down by joining.
             with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as ex:

@@ -1,0 +1,119 @@
+"""The building config of ``mvracklay generate --building [FILE]``: its defaults and declared schema.
+
+A building file is a JSON object overriding any subset of `BUILDING_DEFAULTS` (keys starting with ``_`` are
+comments). Ranges are ``[low, high]`` drawn per face or per bay by the building's seed; lengths in metres.
+`load_building` refuses, in one line naming the file and the key, unknown keys, values of the wrong type,
+numbers outside their range and ``[low, high]`` with low > high.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator, model_validator
+
+from layouts.errors import InputError, first_problem
+from layouts.fileio import load_json
+
+#: the default building: what each key means is in docs/waresynth.md ("Buildings")
+BUILDING_DEFAULTS: dict[str, Any] = {
+    "aisles": 4,
+    "bays": [6, 10],
+    "bay_width": [1.6, 3.0],
+    "bay_gap": [0.1, 0.3],
+    "levels": [2, 5],
+    "depth": [0.8, 1.2],
+    "aisle_width": [3.0, 3.6],
+    "back_gap": [0.1, 0.3],
+    "cross_aisle": 3.0,
+    "pass_length": 12.0,
+    "overlap": [1.5, 3.0],
+    "twice_share": 0.25,
+    "positions": 1,
+    "code": "{aisle:02d}-{side}-{bay:02d}-{level:02d}",
+}
+
+Length = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=1000)]
+Count = Annotated[StrictInt, Field(ge=1, le=99)]
+
+
+def _ordered(v: Any) -> Any:
+    if v[0] > v[1]:
+        raise ValueError(f"[low, high] with low <= high, got {list(v)}")
+    return v
+
+
+class BuildingDoc(BaseModel):
+    """A whole (merged) building config."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    aisles: Count
+    bays: tuple[Count, Count]
+    bay_width: tuple[
+        Annotated[float, Field(strict=True, ge=0.5, le=10)], Annotated[float, Field(strict=True, ge=0.5, le=10)]
+    ]
+    bay_gap: tuple[Annotated[float, Field(strict=True, ge=0, le=5)], Annotated[float, Field(strict=True, ge=0, le=5)]]
+    levels: tuple[Annotated[StrictInt, Field(ge=1, le=12)], Annotated[StrictInt, Field(ge=1, le=12)]]
+    depth: tuple[Annotated[float, Field(strict=True, ge=0.3, le=3)], Annotated[float, Field(strict=True, ge=0.3, le=3)]]
+    aisle_width: tuple[Length, Length]
+    back_gap: tuple[Annotated[float, Field(strict=True, ge=0, le=5)], Annotated[float, Field(strict=True, ge=0, le=5)]]
+    cross_aisle: Annotated[float, Field(strict=True, ge=0, le=100)]
+    pass_length: Length
+    overlap: tuple[
+        Annotated[float, Field(strict=True, ge=0, le=100)], Annotated[float, Field(strict=True, ge=0, le=100)]
+    ]
+    twice_share: Annotated[float, Field(strict=True, ge=0, le=1)]
+    positions: Annotated[StrictInt, Field(ge=1, le=20)]
+    code: str
+
+    _pairs = field_validator("bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "overlap")(
+        _ordered
+    )
+
+    @field_validator("code")
+    @classmethod
+    def _code(cls, v: str) -> str:
+        try:
+            v.format(aisle=1, side="L", bay=1, level=1, position=1)
+        except (KeyError, IndexError, ValueError) as e:
+            raise ValueError(f"a format string of aisle, side, bay, level and position, got {v!r} ({e})") from None
+        return v
+
+    @model_validator(mode="after")
+    def _whole(self) -> BuildingDoc:
+        if self.overlap[1] >= self.pass_length:
+            raise ValueError(f"overlap must stay below pass_length ({self.pass_length:g} m), got {list(self.overlap)}")
+        if self.positions > 1 and "{position" not in self.code:
+            raise ValueError("code must hold {position} when a level has more than one position")
+        return self
+
+
+def load_building(building: dict[str, Any] | str | os.PathLike | None) -> dict[str, Any]:
+    """The effective building config: `BUILDING_DEFAULTS` overridden by ``building`` (a dict, a JSON file or
+    None); one `InputError` line naming the source and the key when it breaks the schema."""
+    cfg = copy.deepcopy(BUILDING_DEFAULTS)
+    if building is None:
+        return cfg
+    src = "building"
+    if isinstance(building, (str, os.PathLike)):
+        src = str(building)
+        if not Path(building).is_file():
+            raise InputError(f"{src}: building file not found")
+        building = load_json(building)
+    if not isinstance(building, dict):
+        raise InputError(f"{src}: a building config must be a JSON object, got {type(building).__name__}")
+    cfg.update({k: v for k, v in building.items() if not (isinstance(k, str) and k.startswith("_"))})
+    try:
+        BuildingDoc.model_validate(cfg)
+    except ValidationError as e:
+        errors = e.errors()
+        if errors[0]["type"] == "extra_forbidden":
+            raise InputError(
+                f"{src}: unknown key {errors[0]['loc'][0]!r} (known: {', '.join(BUILDING_DEFAULTS)})"
+            ) from None
+        raise InputError(f"{src}: {first_problem(errors)}") from None
+    return cfg

@@ -1,0 +1,146 @@
+"""A building's ground truth: every rack, shelf and box in the building frame with its location code
+(``building.json``), and one inventory row per location (``inventory.csv``).
+
+A location is one position of one level of one bay of one face: its code is the building config's ``code``
+format (default ``{aisle:02d}-{side}-{bay:02d}-{level:02d}``, e.g. ``01-L-03-02``), levels counted from 1 at
+the floor, positions from 1 along +X (a level's usable length cut in ``positions`` equal parts; a box belongs
+to the position holding its stack's centre). Codes come from the rack positions alone, never from what a pass
+saw, so they are the same in every scan.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from typing import Any
+
+from waresynth.building import Building, Face
+from waresynth.scene_builder import RackPlan, _clear_heights, board_span
+
+INVENTORY_COLUMNS = (
+    "location", "aisle", "side", "bay", "level", "position", "boxes", "occupancy", "free_length_m", "free_area_m2",
+    "free_volume_m3", "partial", "confidence", "last_seen", "pass",
+)  # fmt: skip
+
+
+def location_code(code: str, aisle: int, side: str, bay: int, level: int, position: int = 1) -> str:
+    """A location's code from the config's format (levels and positions counted from 1)."""
+    return code.format(aisle=aisle, side=side, bay=bay, level=level, position=position)
+
+
+def _r(v: float) -> float:
+    return round(float(v), 6) + 0.0
+
+
+def _seen_by(building: Building, k: int) -> dict[tuple[int, int], list[str]]:
+    """(bay, level from 0) of face ``k`` -> the passes whose layouts hold it, in route order."""
+    seen: dict[tuple[int, int], list[str]] = {}
+    for p in building.passes:
+        if p.face == k:
+            for b in p.bays:
+                for lv in p.levels:
+                    seen.setdefault((b, lv), []).append(p.name)
+    return seen
+
+
+def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k: int, seen: dict) -> dict[str, Any]:
+    """One level of one bay: its board, positions (each a location) and boxes, in the building frame."""
+    cfg, row = building.config, face.row
+    clear = _clear_heights(row.levels, row.thickness, row.top)[k]
+    lo, hi = board_span(rack.x_min, rack.x_max, row.upright_width)
+    b0, b1 = sorted((face.sign * lo, face.sign * hi))
+    n = cfg["positions"]
+    cut = (b1 - b0) / n
+    passes = seen.get((bay, k), [])
+    positions = []
+    for j in range(n):
+        code = location_code(cfg["code"], face.aisle, face.side, bay, k + 1, j + 1)
+        positions.append({"location": code, "position": j + 1, "x_min": _r(b0 + j * cut), "x_max": _r(b0 + (j + 1) * cut),
+                          "boxes": [], "_stacks": []})  # fmt: skip
+    level_y = row.levels[k]
+    for s, st in enumerate(rack.stacks[k]):
+        x, _, z = face.to_building(st.x, 0.0, st.z)
+        j = min(n - 1, max(0, int((x - b0) // cut)))
+        w, h, d = st.size
+        c, sn = abs(math.cos(st.yaw)), abs(math.sin(st.yaw))
+        positions[j]["_stacks"].append(
+            (x - 0.5 * (c * w + sn * d), x + 0.5 * (c * w + sn * d), w * d, w * d * h * st.count)
+        )
+        for lvl in range(st.count):
+            positions[j]["boxes"].append({
+                "id": f"{positions[j]['location']}/stack_{s:03d}/box_{lvl}",
+                "scene_id": f"{rack.id}/shelf_{k:02d}/box_{sum(t.count for t in rack.stacks[k][:s]) + lvl:03d}",
+                "center": [_r(x), _r(-(level_y + (lvl + 0.5) * h)), _r(z)],
+                "size": [_r(w), _r(h), _r(d)],
+                "yaw": _r(st.yaw),
+                "stack": s,
+                "stack_level": lvl,
+            })  # fmt: skip
+    for pos in positions:
+        pos["_row"] = {"length": pos["x_max"] - pos["x_min"], "depth": row.depth, "clear": clear, "passes": passes}
+    return {"level": k + 1, "board_top_y": _r(-level_y), "clear_height": _r(clear), "positions": positions}
+
+
+def _covered(intervals: list[tuple[float, float]], lo: float, hi: float) -> float:
+    """Length of [lo, hi] under the union of ``intervals``."""
+    total, end = 0.0, lo
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals):
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
+
+
+def ground_truth(building: Building) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """(``building.json``'s content, the inventory rows): racks -> levels -> positions -> boxes."""
+    racks, rows = [], []
+    for k, face in enumerate(building.faces):
+        seen = _seen_by(building, k)
+        by_id = {r.id: r for r in face.row.racks}
+        for bay, (x0, x1) in enumerate(face.bays, start=1):
+            rack = by_id[f"rack_{bay:02d}"]
+            z0, z1 = sorted((face.front_z, face.front_z + face.sign * face.row.depth))
+            levels = [_shelf_locations(building, face, bay, rack, lv, seen) for lv in range(len(face.row.levels))]
+            for level in levels:
+                for pos in level["positions"]:
+                    rows.append(_inventory_row(face, bay, level["level"], pos))
+            racks.append({
+                "id": f"{face.aisle:02d}-{face.side}-{bay:02d}",
+                "aisle": face.aisle, "side": face.side, "bay": bay, "x_min": _r(x0), "x_max": _r(x1),
+                "z_min": _r(z0), "z_max": _r(z1), "height": _r(face.row.top + 0.08), "scene_id": rack.id,
+                "levels": levels,
+            })  # fmt: skip
+    doc = {
+        "frame": "building: metres, X along the aisles, Y down (floor 0), Z across",
+        "code": building.config["code"],
+        "aisles": building.aisles,
+        "racks": racks,
+    }
+    return doc, rows
+
+
+def _inventory_row(face: Face, bay: int, level: int, pos: dict[str, Any]) -> dict[str, Any]:
+    """One location's inventory row (ground truth: confidence 1, never partial); drops the working keys."""
+    stacks, facts = pos.pop("_stacks"), pos.pop("_row")
+    length, depth, clear = facts["length"], facts["depth"], facts["clear"]
+    covered = _covered([(a, b) for a, b, _, _ in stacks], pos["x_min"], pos["x_max"])
+    passes = facts["passes"]
+    return {
+        "location": pos["location"], "aisle": face.aisle, "side": face.side, "bay": bay, "level": level,
+        "position": pos["position"], "boxes": len(pos["boxes"]),
+        "occupancy": round(covered / length, 4) if length > 0 else 0.0,
+        "free_length_m": round(max(length - covered, 0.0), 4),
+        "free_area_m2": round(max(length * depth - sum(s[2] for s in stacks), 0.0), 4),
+        "free_volume_m3": round(max(length * depth * clear - sum(s[3] for s in stacks), 0.0), 4),
+        "partial": "false", "confidence": 1, "last_seen": passes[-1] if passes else "", "pass": ";".join(passes),
+    }  # fmt: skip
+
+
+def inventory_csv(rows: list[dict[str, Any]]) -> str:
+    """The inventory as CSV text (a header, then one row per location in building order)."""
+    out = io.StringIO()
+    w = csv.DictWriter(out, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return out.getvalue()
