@@ -71,6 +71,13 @@ class GenerateSettings:
         "join the shards with `mvracklay merge-shards`",
         metavar="I/N",
     )  # fmt: skip
+    building: str | None = setting(
+        "--building",
+        "a whole building instead of --sequences rows: its aisles' rack faces scanned in passes (one sequence each, "
+        "long faces in overlapping passes, some twice), with OUT/route.json and OUT/ground_truth/ (building.json, "
+        "inventory.csv); FILE: a JSON building config overriding the defaults (docs/waresynth.md, Buildings)",
+        metavar="FILE", nargs="?", const="",
+    )  # fmt: skip
     quiet: bool = quiet_setting("hide the progress bar", alias=True)
 
 

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from layouts.errors import InputError
 from mvracklay.command_settings import GenerateSettings
 from mvracklay.settings import add_options, check_range
+
+if TYPE_CHECKING:
+    from layouts.spec import LayoutSpec
 
 NAME = "generate"
 GROUP = "data"
@@ -49,6 +53,8 @@ def run(args: GenerateSettings) -> int:
         shard = parse_shard(args.shard)
         if args.format != "native":
             raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
+    if args.building is not None and (shard is not None or args.format != "native"):
+        raise InputError("--building writes a whole building in one folder: without --shard and --format")
     config = args.config
     if args.supersample is not None:
         from waresynth.config import load_config
@@ -56,6 +62,8 @@ def run(args: GenerateSettings) -> int:
         config = load_config(config)  # the file checked under its own name first
         config["sensor"]["supersample"] = args.supersample
     spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
+    if args.building is not None:
+        return _building(args, spec, config)
     root = generate_dataset(
         args.out,
         num_sequences=args.sequences,
@@ -87,4 +95,35 @@ def run(args: GenerateSettings) -> int:
             return 0
         out = export_dataset(root, dest, args.format, overwrite=args.overwrite, progress=not args.quiet)
         print(f"{out}: {args.format} export")
+    return 0
+
+
+def _building(args: GenerateSettings, spec: LayoutSpec, config: object) -> int:
+    """``--building [FILE]``: every pass of a building (`waresynth.building_generate`)."""
+    from waresynth.building_generate import generate_building
+
+    if args.building:
+        from layouts.publish import refuse_overlap
+
+        if Path(args.building).exists():
+            refuse_overlap([args.out], {"--building": args.building}, "OUT")
+    root = generate_building(
+        args.out,
+        building=args.building or None,
+        image_size=(args.size, args.size),
+        spec=spec,
+        seed=args.seed,
+        config=config,
+        workers=args.workers,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
+    from waresynth.dataset import open_dataset
+
+    passes = open_dataset(root).sequences()
+    frames = sum(s.num_frames for s in passes)
+    print(
+        f"{root}: a building of {len(passes)} passes ({frames} frames), images {args.size}x{args.size}, "
+        f"layouts {spec.shape}; route.json, ground_truth/building.json and inventory.csv beside them"
+    )
     return 0
