@@ -23,22 +23,26 @@ import numpy as np
 from layouts.camera import Intrinsics
 from waresynth.config import draw_hfov
 from waresynth.generate import sequence_seeds
-from waresynth.scene import PATTERNS, Material
 from waresynth.scene_builder import (
     CameraPlan,
     RackPlan,
     RowPlan,
-    _choice,
-    _colour,
-    _i,
-    _sample_levels,
-    _u,
+    sample_levels,
     sample_pass_camera,
     sample_rack_stacks,
+    sample_row_look,
     visible_levels,
 )
 
 SIDES = ("L", "R")
+
+
+def _u(rng: np.random.Generator, r: list[float]) -> float:
+    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
+
+
+def _i(rng: np.random.Generator, r: list[int]) -> int:
+    return int(rng.integers(int(r[0]), int(r[1]) + 1))
 
 
 @dataclass
@@ -86,19 +90,8 @@ class Building:
 def _face_row(rng: np.random.Generator, cfg: dict[str, Any], bcfg: dict[str, Any], side: str,
               bays: list[tuple[float, float]], depth: float) -> RowPlan:  # fmt: skip
     """The face's row: levels, uprights, density, materials and every bay's stacks, drawn in bay order."""
-    rc = cfg["rack"]
-    levels, thickness, top = _sample_levels(rng, {**cfg, "rack": {**rc, "levels": bcfg["levels"]}})
-    names = sorted(cfg["boxes"]["density"])
-    weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in names], np.float64)
-    density = names[int(rng.choice(len(names), p=weights / weights.sum()))]
-    preset = cfg["boxes"]["density"][density]
-    rack_mat = Material(
-        _colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05
-    )
-    board_mat = Material(
-        _colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["board_textures"])], 0.05, 1.0
-    )
-    uw = _u(rng, rc["upright_width"])
+    levels, thickness, top = sample_levels(rng, {**cfg, "rack": {**cfg["rack"], "levels": bcfg["levels"]}})
+    density, preset, rack_mat, board_mat, uw = sample_row_look(rng, cfg)
     row = RowPlan(levels, thickness, top, depth, uw, density, preset, rack_mat, board_mat)
     sign = 1.0 if side == "R" else -1.0
     for b, (x0, x1) in enumerate(bays, start=1):

@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 from waresynth.building import Building, Face
-from waresynth.scene_builder import RackPlan, _clear_heights, board_span
+from waresynth.scene_builder import RackPlan, board_span, clear_heights
 
 INVENTORY_COLUMNS = (
     "location", "aisle", "side", "bay", "level", "position", "boxes", "occupancy", "free_length_m", "free_area_m2",
@@ -47,7 +47,7 @@ def _seen_by(building: Building, k: int) -> dict[tuple[int, int], list[str]]:
 def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k: int, seen: dict) -> dict[str, Any]:
     """One level of one bay: its board, positions (each a location) and boxes, in the building frame."""
     cfg, row = building.config, face.row
-    clear = _clear_heights(row.levels, row.thickness, row.top)[k]
+    clear = clear_heights(row.levels, row.thickness, row.top)[k]
     lo, hi = board_span(rack.x_min, rack.x_max, row.upright_width)
     b0, b1 = sorted((face.sign * lo, face.sign * hi))
     n = cfg["positions"]

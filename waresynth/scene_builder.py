@@ -78,7 +78,7 @@ class _Builder:
 
 
 # ----------------------------------------------------------------------------- row
-def _sample_levels(rng: np.random.Generator, cfg: dict[str, Any]) -> tuple[list[float], float, float]:
+def sample_levels(rng: np.random.Generator, cfg: dict[str, Any]) -> tuple[list[float], float, float]:
     rc = cfg["rack"]
     n = _i(rng, rc["levels"])
     thickness = _u(rng, rc["board_thickness"])
@@ -89,7 +89,7 @@ def _sample_levels(rng: np.random.Generator, cfg: dict[str, Any]) -> tuple[list[
     return levels, thickness, top
 
 
-def _clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
+def clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
     out = []
     for k, lv in enumerate(levels):
         nxt = levels[k + 1] - thickness if k + 1 < len(levels) else top
@@ -195,7 +195,7 @@ def sample_rack_stacks(
 ) -> list[list[StackPlan]]:
     """The stacks of every board of one rack, lowest first."""
     lo, hi = board_span(x_min, x_max, uw)
-    clears = _clear_heights(levels, thickness, top)
+    clears = clear_heights(levels, thickness, top)
     return [sample_stacks(rng, cfg, preset, ch, lo, hi, z_front, depth) for ch in clears]
 
 
@@ -227,7 +227,7 @@ def _build_rack_parts(
             b.cuboid((x, -height / 2, z), (uw + 2 * proud, height, uw + 2 * proud), rack_sem, rid, rack_mat)
     for z in (zf + uw / 2, zf + dp - uw / 2):
         b.cuboid(((x0 + x1) / 2, -(top + beam / 2), z), (x1 - x0 - 2 * uw, beam, uw * 0.8), rack_sem, rid, rack_mat)
-    clears = _clear_heights(levels, thickness, top)
+    clears = clear_heights(levels, thickness, top)
     for k, (lv, ch) in enumerate(zip(levels, clears)):
         sid = f"{rack.id}/shelf_{k:02d}"
         iid = b.instance(sid, shelf_sem) if record else shared_instance
@@ -302,8 +302,8 @@ def _sample_row_camera(
     """Row heights (shared by every rack of the row), a camera that sees 1..R of them, and its path."""
     cc, rc = cfg["camera"], cfg["rack"]
     for _ in range(200):
-        levels, thickness, top = _sample_levels(rng, cfg)
-        clears = _clear_heights(levels, thickness, top)
+        levels, thickness, top = sample_levels(rng, cfg)
+        clears = clear_heights(levels, thickness, top)
         distance = _u(rng, cc["distance"])
         cam_h = _u(rng, cc["height"])
         visible = [k for k in range(len(levels)) if level_visible(intrinsics, cam_h, distance, levels[k], clears[k])]
@@ -319,6 +319,23 @@ def _sample_row_camera(
     return _Row(levels, thickness, top, depth), Camera(intrinsics, cam_h, distance, step, positions), visible
 
 
+def sample_row_look(
+    rng: np.random.Generator, cfg: dict[str, Any]
+) -> tuple[str, dict[str, Any], Material, Material, float]:
+    """A row's box-density preset (name and keys), rack and board materials and upright width."""
+    rc = cfg["rack"]
+    names = sorted(cfg["boxes"]["density"])
+    weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in names], np.float64)
+    density = names[int(rng.choice(len(weights), p=weights / weights.sum()))]
+    rack_material = Material(
+        _colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05
+    )
+    board_material = Material(
+        _colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["board_textures"])], 0.05, 1.0
+    )
+    return density, cfg["boxes"]["density"][density], rack_material, board_material, _u(rng, rc["upright_width"])
+
+
 def _sample_row_plan(rng: np.random.Generator, cfg: dict[str, Any], row: _Row, camera: Camera) -> RowPlan:
     """Racks along X covering the view of every frame (the row end may show at either end)."""
     rc = cfg["rack"]
@@ -326,19 +343,10 @@ def _sample_row_plan(rng: np.random.Generator, cfg: dict[str, Any], row: _Row, c
     half_view = (camera.distance + row.depth) * intrinsics.width / (2 * intrinsics.fx)
     x_start = float(xs.min()) - half_view - _u(rng, [-0.8, 2.0])
     x_end = float(xs.max()) + half_view + _u(rng, [-0.8, 2.0])
-    weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in sorted(cfg["boxes"]["density"])], np.float64)
-    density = sorted(cfg["boxes"]["density"])[int(rng.choice(len(weights), p=weights / weights.sum()))]
-    preset = cfg["boxes"]["density"][density]
-    rack_material = Material(
-        _colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05
-    )
-    board_material = Material(
-        _colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["board_textures"])], 0.05, 1.0
-    )
+    density, preset, rack_material, board_material, upright_width = sample_row_look(rng, cfg)
     plan = RowPlan(
-        row.levels, row.thickness, row.top, row.depth, _u(rng, rc["upright_width"]), density, preset,
-        rack_material, board_material,
-    )  # fmt: skip
+        row.levels, row.thickness, row.top, row.depth, upright_width, density, preset, rack_material, board_material
+    )
     x = x_start
     while x < x_end:
         width = _u(rng, rc["width"])
@@ -395,7 +403,7 @@ def _build_background(
     if busy:
         bz = back + _u(rng, bgc["background_rack_distance"])
         bdepth = min(_u(rng, rc["depth"]), max(wall_z - bz - 0.2, 0.3))
-        blevels, bthick, btop = _sample_levels(rng, cfg)
+        blevels, bthick, btop = sample_levels(rng, cfg)
         bmat = b.material(Material(_colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS["plain"], 0.3, 0.05))
         bx = row_x0 - _u(rng, [0.0, 2.0])
         while bx < row_x1 + 2.0:
@@ -475,7 +483,7 @@ def _build_floor_wall(
 def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels: list[float], thickness: float,
                    top: float) -> list[int]:  # fmt: skip
     """The levels a camera at this height and distance sees (`level_visible`), lowest first."""
-    clears = _clear_heights(levels, thickness, top)
+    clears = clear_heights(levels, thickness, top)
     return [k for k in range(len(levels)) if level_visible(intr, cam_height, distance, levels[k], clears[k])]
 
 
