@@ -23,10 +23,8 @@ import numpy as np
 from layouts.camera import Intrinsics
 from waresynth.config import draw_hfov
 from waresynth.generate import sequence_seeds
+from waresynth.row_plan import CameraPlan, RackPlan, RowPlan
 from waresynth.scene_builder import (
-    CameraPlan,
-    RackPlan,
-    RowPlan,
     sample_levels,
     sample_pass_camera,
     sample_rack_stacks,

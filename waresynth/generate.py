@@ -36,8 +36,9 @@ from waresynth.groundtruth import frame_layouts, frame_slots
 from waresynth.imageio import write_png
 from waresynth.look import NEUTRAL, lens_of
 from waresynth.render import Renderer
+from waresynth.row_plan import CameraPlan, RowPlan
 from waresynth.scene import Scene
-from waresynth.scene_builder import CameraPlan, RowPlan, build_scene
+from waresynth.scene_builder import build_scene
 
 SPLITS = ("train", "val", "test")
 MANIFEST = "manifest.json"

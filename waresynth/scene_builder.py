@@ -20,6 +20,7 @@ from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.errors import InputError
 from waresynth import semantics as sem
 from waresynth.look import draw_look, draw_motion_blur
+from waresynth.row_plan import CameraPlan, RackPlan, RowPlan, StackPlan
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
 
 
@@ -95,19 +96,6 @@ def clear_heights(levels: list[float], thickness: float, top: float) -> list[flo
         nxt = levels[k + 1] - thickness if k + 1 < len(levels) else top
         out.append(nxt - lv)
     return out
-
-
-@dataclass
-class StackPlan:
-    """One stack on a board as planned: its footprint's centre (x, z), one box's size (width, height,
-    depth), yaw, how many boxes high and the stack's material."""
-
-    x: float
-    z: float
-    size: tuple[float, float, float]
-    yaw: float
-    count: int
-    material: Material
 
 
 def sample_stacks(
@@ -238,46 +226,6 @@ def _build_rack_parts(
         _add_stacks(b, shelf, stacks[k], lv, box_sem, record, shared_instance)
         if record:
             rack.shelves.append(shelf)
-
-
-@dataclass
-class RackPlan:
-    """One rack of a row as planned: its id, X range and the stacks of each board (lowest first)."""
-
-    id: str
-    x_min: float
-    x_max: float
-    stacks: list[list[StackPlan]]
-
-
-@dataclass
-class RowPlan:
-    """A rack row as planned (row frame: X along it, front at Z = 0): shared shelf heights, depth and
-    uprights, the box-density preset, the materials of racks and boards, and the racks in X order. The
-    random sampler (`build_scene`) draws one per sequence; `waresynth.building` plans one per rack face, so
-    every pass along a face builds the same racks and boxes from it."""
-
-    levels: list[float]
-    thickness: float
-    top: float
-    depth: float
-    upright_width: float
-    density: str
-    preset: dict[str, Any]
-    rack_material: Material
-    board_material: Material
-    racks: list[RackPlan] = field(default_factory=list)
-    gaps: list[tuple[float, float]] = field(default_factory=list)  #: X ranges between neighbouring racks
-
-
-@dataclass
-class CameraPlan:
-    """A pass's camera as planned: distance to the rack front, height, signed step and the first frame's X."""
-
-    distance: float
-    height: float
-    step: float
-    x0: float
 
 
 @dataclass
