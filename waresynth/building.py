@@ -161,7 +161,7 @@ def _plan_passes(building: Building, layout: np.random.Generator, cfg: dict[str,
         face = building.faces[k]
         intr = Intrinsics.from_fov(image_size[0], image_size[1], draw_hfov(cfg, pseed))
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA, p]))
-        distance, height = sample_pass_camera(rng, cfg, intr, face.row)
+        distance, height = sample_pass_camera(rng, cfg, intr, face.row, min(num_slots, len(face.row.levels)))
         step = _u(rng, cfg["camera"]["step"])
         frames = max(1, math.ceil((x1 - x0) / step - 1e-9) + 1) if x1 > x0 else 1
         step = (x1 - x0) / (frames - 1) if frames > 1 else step

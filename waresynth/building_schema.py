@@ -24,7 +24,7 @@ BUILDING_DEFAULTS: dict[str, Any] = {
     "bays": [6, 10],
     "bay_width": [1.6, 3.0],
     "bay_gap": [0.1, 0.3],
-    "levels": [2, 5],
+    "levels": [2, 3],
     "depth": [0.8, 1.2],
     "aisle_width": [3.0, 3.6],
     "back_gap": [0.1, 0.3],

@@ -436,15 +436,22 @@ def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels:
 
 
 def sample_pass_camera(
-    rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, plan: RowPlan
+    rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, plan: RowPlan, want: int
 ) -> tuple[float, float]:
-    """A (distance, height) from the config's ranges from which a camera sees one of the planned row's levels."""
+    """A (distance, height) from the config's ranges from which a camera sees ``want`` of the planned row's
+    levels (the first of 200 draws that does; else the draw that sees the most, at least one)."""
     cc = cfg["camera"]
+    best, seen = None, 0
     for _ in range(200):
         distance, height = _u(rng, cc["distance"]), _u(rng, cc["height"])
-        if visible_levels(intr, height, distance, plan.levels, plan.thickness, plan.top):
-            return distance, height
-    raise InputError("config: camera.height/distance never make a shelf of a planned row visible; widen the ranges")
+        n = len(visible_levels(intr, height, distance, plan.levels, plan.thickness, plan.top))
+        if n > seen:
+            best, seen = (distance, height), n
+        if n >= want:
+            break
+    if best is None:
+        raise InputError("config: camera.height/distance never make a shelf of a planned row visible; widen the ranges")
+    return best
 
 
 def _planned_camera(intr: Intrinsics, plan: RowPlan, cam: CameraPlan, frames: int) -> tuple[_Row, Camera, list[int]]:
