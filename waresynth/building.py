@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -31,8 +31,6 @@ from waresynth.scene_builder import (
     sample_row_look,
     visible_levels,
 )
-
-SIDES = ("L", "R")
 
 
 def _u(rng: np.random.Generator, r: list[float]) -> float:
@@ -75,6 +73,7 @@ class Pass:
     bays: list[int]
     levels: list[int]  #: levels (from 0, lowest) the pass's layouts hold
     scan: int  #: 1, or 2 for the second scan of a face scanned twice
+    direction: str  #: "+X" or "-X": the way the camera travels in the building frame
 
 
 @dataclass
@@ -173,7 +172,8 @@ def _plan_passes(building: Building, layout: np.random.Generator, cfg: dict[str,
         bays = [b for b, (bx0, bx1) in enumerate(face.bays, start=1) if bx1 > x0 - hv and bx0 < x1 + hv]
         row = face.row
         levels = visible_levels(intr, height, distance, row.levels, row.thickness, row.top)[:num_slots]
-        building.passes.append(Pass(f"pass_{p:03d}", pseed, k, frames, camera, bays, levels, scan))
+        way = "+X" if direction > 0 else "-X"
+        building.passes.append(Pass(f"pass_{p:03d}", pseed, k, frames, camera, bays, levels, scan, way))
 
 
 def pass_row(building: Building, p: Pass) -> RowPlan:
@@ -182,7 +182,7 @@ def pass_row(building: Building, p: Pass) -> RowPlan:
     keep = {f"rack_{b:02d}" for b in range(min(p.bays) - 1, max(p.bays) + 2)}
     racks = [r for r in face.row.racks if r.id in keep]
     gaps = [(a.x_max, b.x_min) for a, b in zip(racks, racks[1:])]
-    return RowPlan(**{**face.row.__dict__, "racks": racks, "gaps": gaps})
+    return replace(face.row, racks=racks, gaps=gaps)
 
 
 def route(building: Building) -> dict[str, Any]:
@@ -192,7 +192,6 @@ def route(building: Building) -> dict[str, Any]:
         face = building.faces[p.face]
         cam = p.camera
         x, _, z = face.to_building(cam.x0, -cam.height, -cam.distance)
-        direction = "+X" if face.sign * cam.step > 0 or (cam.step == 0 and face.sign > 0) else "-X"
         passes.append({
             "sequence": p.name,
             "aisle": face.aisle,
@@ -200,7 +199,7 @@ def route(building: Building) -> dict[str, Any]:
             "scan": p.scan,
             "start": {"x": round(x, 6), "z": round(z, 6), "heading_deg": 90.0 if face.side == "R" else -90.0},
             "height": round(cam.height, 6),
-            "direction": direction,
+            "direction": p.direction,
             "step": round(abs(cam.step), 6),
             "frames": p.frames,
             "bays": p.bays,
