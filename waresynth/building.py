@@ -1,7 +1,7 @@
 """A building's plan: aisles between rack rows, one planned row (`RowPlan`) per rack face, and the passes
 that scan the faces (long faces in overlapping passes, some faces twice).
 
-Building frame (docs/conventions.md): metres, X along the aisles, Y down (floor Y = 0), Z across them.
+Building frame (docs/waresynth.md, "Buildings"): metres, X along the aisles, Y down (floor Y = 0), Z across them.
 Aisle ``a`` (from 1) has a face on each side: ``L`` at its lower Z, ``R`` at its higher Z; rows of two
 aisles stand back to back. Bays are numbered from 1 along +X on both sides, from the rack positions alone, so
 a bay's number (and location code, `waresynth.building_truth`) is the same in every scan. A face's row is
