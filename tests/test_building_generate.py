@@ -171,3 +171,11 @@ def test_cli_building(tmp_path, capsys):
     assert "a building of" in capsys.readouterr().out
     assert (tmp_path / "o" / "ground_truth" / "inventory.csv").is_file()
     assert main([*args, "--shard", "0/2"]) == 2
+
+
+@pytest.mark.parametrize("option", [["--frames", "20"], ["--sequences", "3"], ["--shard", "0/2"]])
+def test_options_a_building_does_not_take_are_refused(tmp_path, capsys, option):
+    assert main(["generate", str(tmp_path / "out"), "--building", *option, "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--building" in err[0]
+    assert not (tmp_path / "out").exists()

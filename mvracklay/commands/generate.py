@@ -55,6 +55,11 @@ def run(args: GenerateSettings) -> int:
             raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
     if args.building is not None and (shard is not None or args.format != "native"):
         raise InputError("--building writes a whole building in one folder: without --shard and --format")
+    defaults = type(args)()
+    if args.building is not None and (args.sequences, args.frames) != (defaults.sequences, defaults.frames):
+        raise InputError(
+            "--building: the passes and their frames come from the building config, not --sequences / --frames"
+        )
     config = args.config
     if args.supersample is not None:
         from waresynth.config import load_config
