@@ -12,7 +12,8 @@ from layouts.camera import Intrinsics
 from waresynth import semantics
 from waresynth.config import _BOUNDS, default_config, load_config
 from waresynth.render import Renderer
-from waresynth.scene_builder import build_scene, level_visible
+from waresynth.row_plan import level_visible
+from waresynth.scene_builder import build_scene
 
 
 def _scene(seed: int, size=(96, 64), frames: int = 6, config=None):

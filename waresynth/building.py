@@ -21,24 +21,35 @@ from typing import Any
 import numpy as np
 
 from layouts.camera import Intrinsics
+from layouts.errors import InputError
 from waresynth.config import draw_hfov
+from waresynth.draws import integer, uniform
 from waresynth.generate import sequence_seeds
-from waresynth.row_plan import CameraPlan, RackPlan, RowPlan
+from waresynth.row_plan import CameraPlan, RackPlan, RowPlan, visible_levels
 from waresynth.scene_builder import (
     sample_levels,
-    sample_pass_camera,
     sample_rack_stacks,
     sample_row_look,
-    visible_levels,
 )
 
 
-def _u(rng: np.random.Generator, r: list[float]) -> float:
-    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
-
-
-def _i(rng: np.random.Generator, r: list[int]) -> int:
-    return int(rng.integers(int(r[0]), int(r[1]) + 1))
+def sample_pass_camera(
+    rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, plan: RowPlan, want: int
+) -> tuple[float, float]:
+    """A (distance, height) from the config's ranges from which a camera sees ``want`` of the planned row's
+    levels (the first of 200 draws that does; else the draw that sees the most, at least one)."""
+    cc = cfg["camera"]
+    best, seen = None, 0
+    for _ in range(200):
+        distance, height = uniform(rng, cc["distance"]), uniform(rng, cc["height"])
+        n = len(visible_levels(intr, height, distance, plan.levels, plan.thickness, plan.top))
+        if n > seen:
+            best, seen = (distance, height), n
+        if n >= want:
+            break
+    if best is None:
+        raise InputError("config: camera.height/distance never make a shelf of a planned row visible; widen the ranges")
+    return best
 
 
 @dataclass
@@ -122,8 +133,12 @@ def plan_building(bcfg: dict[str, Any], cfg: dict[str, Any], seed: int, image_si
     face_specs = []
     for a in range(1, bcfg["aisles"] + 1):
         if a > 1:
-            z += _u(layout, bcfg["back_gap"])
-        depth_l, width, depth_r = _u(layout, bcfg["depth"]), _u(layout, bcfg["aisle_width"]), _u(layout, bcfg["depth"])
+            z += uniform(layout, bcfg["back_gap"])
+        depth_l, width, depth_r = (
+            uniform(layout, bcfg["depth"]),
+            uniform(layout, bcfg["aisle_width"]),
+            uniform(layout, bcfg["depth"]),
+        )
         front_l = z + depth_l
         front_r = front_l + width
         building.aisles.append({"aisle": a, "z_min": front_l, "z_max": front_r})
@@ -132,10 +147,10 @@ def plan_building(bcfg: dict[str, Any], cfg: dict[str, Any], seed: int, image_si
     for k, (a, side, front, depth) in enumerate(face_specs):
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xFACE, k]))
         x, bays = float(bcfg["cross_aisle"]), []
-        for _ in range(_i(rng, bcfg["bays"])):
-            w = _u(rng, bcfg["bay_width"])
+        for _ in range(integer(rng, bcfg["bays"])):
+            w = uniform(rng, bcfg["bay_width"])
             bays.append((x, x + w))
-            x += w + _u(rng, bcfg["bay_gap"])
+            x += w + uniform(rng, bcfg["bay_gap"])
         building.faces.append(Face(a, side, front, bays, _face_row(rng, cfg, bcfg, side, bays, depth)))
     _plan_passes(building, layout, cfg, seed, image_size, num_slots)
     return building
@@ -148,7 +163,7 @@ def _plan_passes(building: Building, layout: np.random.Generator, cfg: dict[str,
     todo: list[tuple[int, tuple[float, float], float, int]] = []
     for k, face in enumerate(building.faces):
         lo, hi = face.bays[0][0], face.bays[-1][1]
-        spans = _spans(lo, hi, bcfg["pass_length"], _u(layout, bcfg["overlap"]))
+        spans = _spans(lo, hi, bcfg["pass_length"], uniform(layout, bcfg["overlap"]))
         forward = 1.0 if layout.random() < 0.5 else -1.0
         scans = 2 if layout.random() < bcfg["twice_share"] else 1
         for scan in range(1, scans + 1):
@@ -161,7 +176,7 @@ def _plan_passes(building: Building, layout: np.random.Generator, cfg: dict[str,
         intr = Intrinsics.from_fov(image_size[0], image_size[1], draw_hfov(cfg, pseed))
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xCA, p]))
         distance, height = sample_pass_camera(rng, cfg, intr, face.row, min(num_slots, len(face.row.levels)))
-        step = _u(rng, cfg["camera"]["step"])
+        step = uniform(rng, cfg["camera"]["step"])
         frames = max(1, math.ceil((x1 - x0) / step - 1e-9) + 1) if x1 > x0 else 1
         step = (x1 - x0) / (frames - 1) if frames > 1 else step
         start = x0 if direction > 0 else x1

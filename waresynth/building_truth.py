@@ -16,8 +16,7 @@ import math
 from typing import Any
 
 from waresynth.building import Building, Face
-from waresynth.row_plan import RackPlan
-from waresynth.scene_builder import board_span, clear_heights
+from waresynth.row_plan import RackPlan, board_span, clear_heights
 
 INVENTORY_COLUMNS = (
     "location", "aisle", "side", "bay", "level", "position", "boxes", "occupancy", "free_length_m", "free_area_m2",

@@ -20,6 +20,7 @@ from PIL import Image, ImageFilter
 from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from layouts.lens import Lens
+from waresynth.draws import uniform
 
 #: the colour temperature (K) the camera is balanced for: lights at it render untinted
 BALANCED_K = 6500.0
@@ -55,10 +56,6 @@ NEUTRAL: dict[str, dict[str, Any]] = {
 }
 
 
-def _u(rng: np.random.Generator, r: list[float]) -> float:
-    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
-
-
 def _pick(rng: np.random.Generator, items: list[str]) -> str:
     return items[int(rng.integers(len(items)))] if len(items) > 1 else items[0]
 
@@ -68,7 +65,7 @@ def draw_motion_blur(rng: np.random.Generator, sensor: dict[str, Any]) -> float:
     the chance of any blur drawn only below a probability of 1 (so a sharp config draws nothing)."""
     p = sensor["motion_blur_probability"]
     blurred = p >= 1.0 or rng.random() < p
-    return _u(rng, sensor["motion_blur"]) if blurred else 0.0
+    return uniform(rng, sensor["motion_blur"]) if blurred else 0.0
 
 
 def temperature_gains(kelvin: float) -> tuple[float, float, float]:
@@ -105,11 +102,11 @@ def draw_look(rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, x
     """
     lc, sc = cfg["lighting"], cfg["sensor"]
     look: dict[str, Any] = {
-        "level": _u(rng, lc["level"]),
-        "falloff": _u(rng, lc["falloff"]),
-        "temperature": _u(rng, lc["colour_temperature"]),
-        "ev": _u(rng, sc["exposure_ev"]),
-        "auto_exposure": _u(rng, sc["auto_exposure"]),
+        "level": uniform(rng, lc["level"]),
+        "falloff": uniform(rng, lc["falloff"]),
+        "temperature": uniform(rng, lc["colour_temperature"]),
+        "ev": uniform(rng, sc["exposure_ev"]),
+        "auto_exposure": uniform(rng, sc["auto_exposure"]),
     }
     lights = []
     n_extra = int(rng.integers(int(lc["extra_lights"][0]), int(lc["extra_lights"][1]) + 1))
@@ -117,8 +114,8 @@ def draw_look(rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, x
         x0, x1 = float(xs.min()) - 3.0, float(xs.max()) + 3.0
         for k in range(n_extra):
             x = x0 + (x1 - x0) * (k + rng.uniform(0.2, 0.8)) / n_extra
-            y, z = -_u(rng, lc["light_height"]), -_u(rng, lc["light_offset_z"])
-            lights.append({"position": [x, y, z], "intensity": _u(rng, lc["extra_intensity"])})
+            y, z = -uniform(rng, lc["light_height"]), -uniform(rng, lc["light_offset_z"])
+            lights.append({"position": [x, y, z], "intensity": uniform(rng, lc["extra_intensity"])})
     look["extra_lights"] = lights
     j = float(sc["white_balance_jitter"])
     wb = np.asarray(temperature_gains(look["temperature"]), np.float64)
@@ -126,13 +123,13 @@ def draw_look(rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, x
         wb = wb * (1.0 + rng.uniform(-j, j, 3))
     look["white_balance"] = [float(g) for g in wb]
     for key in ("shot_noise", "read_noise", "gamma", "vignetting", "lens_k1", "lens_k2"):
-        look[key] = _u(rng, sc[key])
+        look[key] = uniform(rng, sc[key])
     look["compression"] = _pick(rng, sc["compression"])
     if look["compression"] == "jpeg":
         look["jpeg_subsampling"] = _pick(rng, sc["jpeg_subsampling"])
         look["quality"] = [int(q) for q in sc["jpeg_quality"]]
     elif look["compression"] == "h264":
-        look["h264_blur"] = _u(rng, sc["h264_blur"])
+        look["h264_blur"] = uniform(rng, sc["h264_blur"])
         look["quality"] = [int(q) for q in sc["h264_quality"]]
     if look["lens_k1"] or look["lens_k2"]:
         _check_lens(Lens(k1=look["lens_k1"], k2=look["lens_k2"]), intr)

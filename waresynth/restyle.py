@@ -23,7 +23,8 @@ from scipy.ndimage import correlate1d
 from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from waresynth.config import load_config
-from waresynth.look import NEUTRAL, SensorLook, _u, amplification, draw_look, draw_motion_blur
+from waresynth.draws import uniform
+from waresynth.look import NEUTRAL, SensorLook, amplification, draw_look, draw_motion_blur
 
 #: the uneven field's blobs: their width (a share of the image width) and the most of them
 BLOB_WIDTH = (0.15, 0.45)
@@ -47,7 +48,7 @@ def light_field(rng: np.random.Generator, h: int, w: int, falloff: float, lights
     field = 1.0 + tilt * (np.cos(angle) * u + np.sin(angle) * v) * 2.0
     for _ in range(min(lights, MAX_BLOBS)):
         cu, cv = rng.uniform(-0.5, 0.5), rng.uniform(-0.6, 0.2)
-        s = _u(rng, list(BLOB_WIDTH))
+        s = uniform(rng, list(BLOB_WIDTH))
         field = field + strength * np.exp(-((u - cu) ** 2 + (v - cv) ** 2) / (2 * s * s))
     field = np.clip(field, 0.05, None)
     return (field / field.mean()).astype(np.float32)
@@ -102,8 +103,8 @@ class Restyler:
         extra = look.get("extra_lights", [])
         return {
             "look": look,
-            "gain": _u(rng, sc["gain"]),
-            "noise_sigma": _u(rng, sc["noise_sigma"]),
+            "gain": uniform(rng, sc["gain"]),
+            "noise_sigma": uniform(rng, sc["noise_sigma"]),
             "motion_blur": draw_motion_blur(rng, sc),
             "lights": len(extra),
             "light_strength": float(np.mean([e["intensity"] for e in extra])) if extra else 0.0,

@@ -2,6 +2,7 @@
 
 The random sampler draws a `RowPlan` for each sequence; `waresynth.building` plans one per rack face, so every
 pass along a face builds the same racks and boxes. Row frame: X along the row, Y down, the front at Z = 0.
+Beside the plan, the geometry of its levels: clear heights, the boards' usable span, which levels a camera sees.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from layouts.camera import Intrinsics
 from waresynth.scene import Material
 
 
@@ -63,3 +65,32 @@ class CameraPlan:
     height: float
     step: float
     x0: float
+
+
+def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: float, clear: float) -> bool:
+    """Generator rule: the board edge (h = 0) and half the clear height project inside the image rows."""
+    for h in (0.0, clear / 2):
+        v = intr.cy + intr.fy * (cam_height - level - h) / distance
+        if not 0.0 <= v < intr.height:
+            return False
+    return True
+
+
+def clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
+    out = []
+    for k, lv in enumerate(levels):
+        nxt = levels[k + 1] - thickness if k + 1 < len(levels) else top
+        out.append(nxt - lv)
+    return out
+
+
+def board_span(x_min: float, x_max: float, upright_width: float) -> tuple[float, float]:
+    """The X range of a rack's boards that boxes may stand on (between the uprights)."""
+    return x_min + upright_width + 0.03, x_max - upright_width - 0.03
+
+
+def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels: list[float], thickness: float,
+                   top: float) -> list[int]:  # fmt: skip
+    """The levels a camera at this height and distance sees (`level_visible`), lowest first."""
+    clears = clear_heights(levels, thickness, top)
+    return [k for k in range(len(levels)) if level_visible(intr, cam_height, distance, levels[k], clears[k])]

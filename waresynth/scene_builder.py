@@ -19,36 +19,19 @@ from layouts.camera import Intrinsics
 from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.errors import InputError
 from waresynth import semantics as sem
+from waresynth.draws import choice, colour, integer, uniform
 from waresynth.look import draw_look, draw_motion_blur
-from waresynth.row_plan import CameraPlan, RackPlan, RowPlan, StackPlan
+from waresynth.row_plan import (
+    CameraPlan,
+    RackPlan,
+    RowPlan,
+    StackPlan,
+    board_span,
+    clear_heights,
+    level_visible,
+    visible_levels,
+)
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
-
-
-def _u(rng: np.random.Generator, r: list[float]) -> float:
-    return float(rng.uniform(r[0], r[1])) if r[1] > r[0] else float(r[0])
-
-
-def _i(rng: np.random.Generator, r: list[int]) -> int:
-    return int(rng.integers(int(r[0]), int(r[1]) + 1))
-
-
-def _colour(rng: np.random.Generator, palette: list[list[float]], jitter: float) -> tuple[float, float, float]:
-    base = np.asarray(palette[int(rng.integers(len(palette)))], np.float64) / 255.0
-    c = np.clip(base * (1.0 + rng.uniform(-jitter, jitter, 3)), 0.0, 1.0)
-    return (float(c[0]), float(c[1]), float(c[2]))
-
-
-def _choice(rng: np.random.Generator, items: list[str]) -> str:
-    return items[int(rng.integers(len(items)))]
-
-
-def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: float, clear: float) -> bool:
-    """Generator rule: the board edge (h = 0) and half the clear height project inside the image rows."""
-    for h in (0.0, clear / 2):
-        v = intr.cy + intr.fy * (cam_height - level - h) / distance
-        if not 0.0 <= v < intr.height:
-            return False
-    return True
 
 
 class _Builder:
@@ -81,21 +64,13 @@ class _Builder:
 # ----------------------------------------------------------------------------- row
 def sample_levels(rng: np.random.Generator, cfg: dict[str, Any]) -> tuple[list[float], float, float]:
     rc = cfg["rack"]
-    n = _i(rng, rc["levels"])
-    thickness = _u(rng, rc["board_thickness"])
-    levels = [_u(rng, rc["first_level"])]
+    n = integer(rng, rc["levels"])
+    thickness = uniform(rng, rc["board_thickness"])
+    levels = [uniform(rng, rc["first_level"])]
     for _ in range(n - 1):
-        levels.append(levels[-1] + _u(rng, rc["spacing"]))
-    top = levels[-1] + _u(rng, rc["top_clearance"])
+        levels.append(levels[-1] + uniform(rng, rc["spacing"]))
+    top = levels[-1] + uniform(rng, rc["top_clearance"])
     return levels, thickness, top
-
-
-def clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
-    out = []
-    for k, lv in enumerate(levels):
-        nxt = levels[k + 1] - thickness if k + 1 < len(levels) else top
-        out.append(nxt - lv)
-    return out
 
 
 def sample_stacks(
@@ -110,13 +85,15 @@ def sample_stacks(
 ) -> list[StackPlan]:
     """Fill one board left to right with stacks whose yawed footprints stay on the board."""
     bc = cfg["boxes"]
-    cursor = x_lo + _u(rng, preset["gap"])
+    cursor = x_lo + uniform(rng, preset["gap"])
     out: list[StackPlan] = []
     limit = clear_height - bc["head_room"]
     while True:
-        w, d, h = _u(rng, bc["width"]), _u(rng, bc["depth"]), _u(rng, bc["height"])
-        yaw = math.radians(_u(rng, [-bc["yaw_deg"], bc["yaw_deg"]])) if rng.random() < bc["yaw_probability"] else 0.0
-        setback = _u(rng, bc["setback"])
+        w, d, h = uniform(rng, bc["width"]), uniform(rng, bc["depth"]), uniform(rng, bc["height"])
+        yaw = (
+            math.radians(uniform(rng, [-bc["yaw_deg"], bc["yaw_deg"]])) if rng.random() < bc["yaw_probability"] else 0.0
+        )
+        setback = uniform(rng, bc["setback"])
         c, s = abs(math.cos(yaw)), abs(math.sin(yaw))
         # Keep the footprint on the board: shrink the depth if needed.
         max_hz = (depth - setback - 0.02) / 2
@@ -134,15 +111,13 @@ def sample_stacks(
             h = limit
         count = max(1, min(count, int(limit // h))) if h > 0 else 0
         if not empty and d >= 0.05 and h >= 0.05:
-            colour = _colour(rng, bc["colours"], bc["colour_jitter"])
-            pattern = PATTERNS[_choice(rng, bc["textures"])]
-            refl = _u(rng, bc["reflectance"])
+            rgb = colour(rng, bc["colours"], bc["colour_jitter"])
+            pattern = PATTERNS[choice(rng, bc["textures"])]
+            refl = uniform(rng, bc["reflectance"])
             out.append(
-                StackPlan(
-                    cursor + hx, z_front + setback + hz, (w, h, d), yaw, count, Material(colour, pattern, refl, w)
-                )
+                StackPlan(cursor + hx, z_front + setback + hz, (w, h, d), yaw, count, Material(rgb, pattern, refl, w))
             )
-        cursor += 2 * hx + _u(rng, preset["gap"])
+        cursor += 2 * hx + uniform(rng, preset["gap"])
     return out
 
 
@@ -161,11 +136,6 @@ def _add_stacks(
             b.cuboid(center, (w, h, d), semantic, iid, mat, st.yaw)
             if record:
                 shelf.boxes.append(Box(bid, center, (w, h, d), st.yaw, stack_id, k, iid))
-
-
-def board_span(x_min: float, x_max: float, upright_width: float) -> tuple[float, float]:
-    """The X range of a rack's boards that boxes may stand on (between the uprights)."""
-    return x_min + upright_width + 0.03, x_max - upright_width - 0.03
 
 
 def sample_rack_stacks(
@@ -252,15 +222,15 @@ def _sample_row_camera(
     for _ in range(200):
         levels, thickness, top = sample_levels(rng, cfg)
         clears = clear_heights(levels, thickness, top)
-        distance = _u(rng, cc["distance"])
-        cam_h = _u(rng, cc["height"])
+        distance = uniform(rng, cc["distance"])
+        cam_h = uniform(rng, cc["height"])
         visible = [k for k in range(len(levels)) if level_visible(intrinsics, cam_h, distance, levels[k], clears[k])]
         if visible:
             break
     else:
         raise InputError("config: camera.height/distance and rack levels never make a shelf visible; widen the ranges")
-    depth = _u(rng, rc["depth"])
-    step = _u(rng, cc["step"]) * (-1.0 if rng.random() < cc["reverse_probability"] else 1.0)
+    depth = uniform(rng, rc["depth"])
+    step = uniform(rng, cc["step"]) * (-1.0 if rng.random() < cc["reverse_probability"] else 1.0)
     cam_z = Z_FRONT - distance
     xs = np.arange(frames, dtype=np.float64) * step + 0.0  # no -0.0
     positions = np.stack([xs, np.full(frames, -cam_h), np.full(frames, cam_z)], axis=1)
@@ -276,12 +246,12 @@ def sample_row_look(
     weights = np.array([cfg["boxes"]["density"][k]["weight"] for k in names], np.float64)
     density = names[int(rng.choice(len(weights), p=weights / weights.sum()))]
     rack_material = Material(
-        _colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["textures"])], 0.3, 0.05
+        colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS[choice(rng, rc["textures"])], 0.3, 0.05
     )
     board_material = Material(
-        _colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[_choice(rng, rc["board_textures"])], 0.05, 1.0
+        colour(rng, rc["board_colours"], rc["colour_jitter"]), PATTERNS[choice(rng, rc["board_textures"])], 0.05, 1.0
     )
-    return density, cfg["boxes"]["density"][density], rack_material, board_material, _u(rng, rc["upright_width"])
+    return density, cfg["boxes"]["density"][density], rack_material, board_material, uniform(rng, rc["upright_width"])
 
 
 def _sample_row_plan(rng: np.random.Generator, cfg: dict[str, Any], row: _Row, camera: Camera) -> RowPlan:
@@ -289,20 +259,20 @@ def _sample_row_plan(rng: np.random.Generator, cfg: dict[str, Any], row: _Row, c
     rc = cfg["rack"]
     xs, intrinsics = camera.positions[:, 0], camera.intrinsics
     half_view = (camera.distance + row.depth) * intrinsics.width / (2 * intrinsics.fx)
-    x_start = float(xs.min()) - half_view - _u(rng, [-0.8, 2.0])
-    x_end = float(xs.max()) + half_view + _u(rng, [-0.8, 2.0])
+    x_start = float(xs.min()) - half_view - uniform(rng, [-0.8, 2.0])
+    x_end = float(xs.max()) + half_view + uniform(rng, [-0.8, 2.0])
     density, preset, rack_material, board_material, upright_width = sample_row_look(rng, cfg)
     plan = RowPlan(
         row.levels, row.thickness, row.top, row.depth, upright_width, density, preset, rack_material, board_material
     )
     x = x_start
     while x < x_end:
-        width = _u(rng, rc["width"])
+        width = uniform(rng, rc["width"])
         stacks = sample_rack_stacks(
             rng, cfg, preset, x, x + width, Z_FRONT, row.depth, row.levels, row.thickness, row.top, plan.upright_width
         )
         plan.racks.append(RackPlan(f"rack_{len(plan.racks):02d}", x, x + width, stacks))
-        gap = _u(rng, rc["wide_gap"]) if rng.random() < rc["wide_gap_probability"] else _u(rng, rc["gap"])
+        gap = uniform(rng, rc["wide_gap"]) if rng.random() < rc["wide_gap_probability"] else uniform(rng, rc["gap"])
         plan.gaps.append((x + width, x + width + gap))
         x += width + gap
     plan.gaps.pop()
@@ -335,12 +305,12 @@ def _build_background(
     busy = rng.random() < bgc["busy_probability"]
     clutter: list[dict[str, Any]] = []
     back = Z_FRONT + row.depth
-    wall_z = back + _u(rng, bgc["busy_wall_distance"] if busy else bgc["wall_distance"])
+    wall_z = back + uniform(rng, bgc["busy_wall_distance"] if busy else bgc["wall_distance"])
 
     def prop(kind: str, center, size, yaw: float = 0.0) -> None:
         cid = f"clutter_{len(clutter):03d}"
         iid = b.instance(cid, sem.CLUTTER)
-        col = _colour(rng, cfg["boxes"]["colours"] + rc["board_colours"], 0.15)
+        col = colour(rng, cfg["boxes"]["colours"] + rc["board_colours"], 0.15)
         mat = b.material(Material(col, PATTERNS["noise"], 0.05, 0.3))
         b.cuboid(center, size, sem.CLUTTER, iid, mat, yaw)
         clutter.append(
@@ -349,13 +319,13 @@ def _build_background(
         )  # fmt: skip
 
     if busy:
-        bz = back + _u(rng, bgc["background_rack_distance"])
-        bdepth = min(_u(rng, rc["depth"]), max(wall_z - bz - 0.2, 0.3))
+        bz = back + uniform(rng, bgc["background_rack_distance"])
+        bdepth = min(uniform(rng, rc["depth"]), max(wall_z - bz - 0.2, 0.3))
         blevels, bthick, btop = sample_levels(rng, cfg)
-        bmat = b.material(Material(_colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS["plain"], 0.3, 0.05))
-        bx = row_x0 - _u(rng, [0.0, 2.0])
+        bmat = b.material(Material(colour(rng, rc["colours"], rc["colour_jitter"]), PATTERNS["plain"], 0.3, 0.05))
+        bx = row_x0 - uniform(rng, [0.0, 2.0])
         while bx < row_x1 + 2.0:
-            width = _u(rng, rc["width"])
+            width = uniform(rng, rc["width"])
             cid = f"clutter_{len(clutter):03d}"
             iid = b.instance(cid, sem.CLUTTER)
             brack = Rack(cid, bx, bx + width, bz, bdepth, iid)
@@ -370,18 +340,23 @@ def _build_background(
                 {"id": cid, "kind": "background_rack", "center": [bx + width / 2, -(btop + 0.08) / 2, bz + bdepth / 2],
                  "size": [width, btop + 0.08, bdepth], "yaw": 0.0, "instance_id": iid}
             )  # fmt: skip
-            bx += width + _u(rng, rc["gap"])
+            bx += width + uniform(rng, rc["gap"])
         for g0, g1 in row.gaps:
-            for _ in range(_i(rng, bgc["props_per_gap"])):
-                w, h, d = _u(rng, [0.3, 1.0]), _u(rng, [0.2, 1.2]), _u(rng, [0.3, 0.8])
-                zc = back + 0.2 + d / 2 + _u(rng, [0.0, max(bz - back - 0.4 - d, 0.0)])
-                prop("prop", ((g0 + g1) / 2 + _u(rng, [-0.5, 0.5]), -h / 2, zc), (w, h, d), _u(rng, [-0.5, 0.5]))
+            for _ in range(integer(rng, bgc["props_per_gap"])):
+                w, h, d = uniform(rng, [0.3, 1.0]), uniform(rng, [0.2, 1.2]), uniform(rng, [0.3, 0.8])
+                zc = back + 0.2 + d / 2 + uniform(rng, [0.0, max(bz - back - 0.4 - d, 0.0)])
+                prop(
+                    "prop",
+                    ((g0 + g1) / 2 + uniform(rng, [-0.5, 0.5]), -h / 2, zc),
+                    (w, h, d),
+                    uniform(rng, [-0.5, 0.5]),
+                )
     for end, sign in ((row_x0, -1.0), (row_x1, 1.0)):
-        for _ in range(_i(rng, bgc["end_props"])):
-            w, h, d = _u(rng, [0.4, 1.2]), _u(rng, [0.15, 1.5]), _u(rng, [0.4, 1.2])
-            xc = end + sign * (0.3 + w / 2 + _u(rng, [0.0, 2.5]))
-            zc = Z_FRONT + 0.2 + d / 2 + _u(rng, [0.0, max(wall_z - Z_FRONT - 0.5 - d, 0.0)])
-            prop("end_prop", (xc, -h / 2, zc), (w, h, d), _u(rng, [-0.6, 0.6]))
+        for _ in range(integer(rng, bgc["end_props"])):
+            w, h, d = uniform(rng, [0.4, 1.2]), uniform(rng, [0.15, 1.5]), uniform(rng, [0.4, 1.2])
+            xc = end + sign * (0.3 + w / 2 + uniform(rng, [0.0, 2.5]))
+            zc = Z_FRONT + 0.2 + d / 2 + uniform(rng, [0.0, max(wall_z - Z_FRONT - 0.5 - d, 0.0)])
+            prop("end_prop", (xc, -h / 2, zc), (w, h, d), uniform(rng, [-0.6, 0.6]))
     return busy, clutter, wall_z
 
 
@@ -402,10 +377,10 @@ def _build_floor_wall(
     fid = b.instance("floor", sem.FLOOR)
     fmat = b.material(
         Material(
-            _colour(rng, fc["colours"], fc["colour_jitter"]),
-            PATTERNS[_choice(rng, fc["textures"])],
+            colour(rng, fc["colours"], fc["colour_jitter"]),
+            PATTERNS[choice(rng, fc["textures"])],
             0.1,
-            _u(rng, [0.5, 1.2]),
+            uniform(rng, [0.5, 1.2]),
         )
     )
     fz0 = (Z_FRONT - camera.distance) - 5.0
@@ -414,10 +389,10 @@ def _build_floor_wall(
     wid = b.instance("wall_00", sem.WALL)
     wmat = b.material(
         Material(
-            _colour(rng, wc["colours"], wc["colour_jitter"]),
-            PATTERNS[_choice(rng, wc["textures"])],
+            colour(rng, wc["colours"], wc["colour_jitter"]),
+            PATTERNS[choice(rng, wc["textures"])],
             0.02,
-            _u(rng, [0.8, 1.5]),
+            uniform(rng, [0.8, 1.5]),
         )
     )
     wall_h = 14.0
@@ -426,32 +401,6 @@ def _build_floor_wall(
     for name, iid, c, s in (("floor", fid, fcenter, fsize), ("wall_00", wid, wcenter, wsize)):
         walls.append({"id": name, "kind": name.split("_")[0], "center": list(c), "size": list(s), "instance_id": iid})
     return walls
-
-
-def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels: list[float], thickness: float,
-                   top: float) -> list[int]:  # fmt: skip
-    """The levels a camera at this height and distance sees (`level_visible`), lowest first."""
-    clears = clear_heights(levels, thickness, top)
-    return [k for k in range(len(levels)) if level_visible(intr, cam_height, distance, levels[k], clears[k])]
-
-
-def sample_pass_camera(
-    rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, plan: RowPlan, want: int
-) -> tuple[float, float]:
-    """A (distance, height) from the config's ranges from which a camera sees ``want`` of the planned row's
-    levels (the first of 200 draws that does; else the draw that sees the most, at least one)."""
-    cc = cfg["camera"]
-    best, seen = None, 0
-    for _ in range(200):
-        distance, height = _u(rng, cc["distance"]), _u(rng, cc["height"])
-        n = len(visible_levels(intr, height, distance, plan.levels, plan.thickness, plan.top))
-        if n > seen:
-            best, seen = (distance, height), n
-        if n >= want:
-            break
-    if best is None:
-        raise InputError("config: camera.height/distance never make a shelf of a planned row visible; widen the ranges")
-    return best
 
 
 def _planned_camera(intr: Intrinsics, plan: RowPlan, cam: CameraPlan, frames: int) -> tuple[_Row, Camera, list[int]]:
@@ -495,18 +444,18 @@ def build_scene(
     lc, sc = cfg["lighting"], cfg["sensor"]
     light = {
         "position": [
-            (float(xs.min()) + float(xs.max())) / 2 + _u(rng, [-2.0, 2.0]),
-            -_u(rng, lc["light_height"]),
-            Z_FRONT - _u(rng, lc["light_offset_z"]),
+            (float(xs.min()) + float(xs.max())) / 2 + uniform(rng, [-2.0, 2.0]),
+            -uniform(rng, lc["light_height"]),
+            Z_FRONT - uniform(rng, lc["light_offset_z"]),
         ],
-        "ambient": _u(rng, lc["ambient"]),
-        "intensity": _u(rng, lc["intensity"]),
-        "shadow_strength": _u(rng, lc["shadow_strength"]),
+        "ambient": uniform(rng, lc["ambient"]),
+        "intensity": uniform(rng, lc["intensity"]),
+        "shadow_strength": uniform(rng, lc["shadow_strength"]),
     }
-    sensor = {"noise_sigma": _u(rng, sc["noise_sigma"]), "gain": _u(rng, sc["gain"])}
+    sensor = {"noise_sigma": uniform(rng, sc["noise_sigma"]), "gain": uniform(rng, sc["gain"])}
     # The camera's rotation is drawn last and only from a range that is not one value (`_u`), so a
     # level config draws nothing and a rotated one keeps the scene the same seed gives a level camera.
-    camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (_u(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
+    camera.roll_deg, camera.pitch_deg, camera.yaw_deg = (uniform(rng, cc[k]) for k in CAMERA_ANGLE_KEYS)
     # The same for the motion blur: a sharp config draws nothing (nor does a probability of 1).
     sensor["motion_blur"] = draw_motion_blur(rng, sc)
     # And the look (light level, white balance, noise, lens, codec): a neutral config draws nothing.
