@@ -345,16 +345,7 @@ def generate_dataset(
     """
     num_sequences = _check_int("num_sequences", num_sequences, 1, 100000)
     frames = _check_int("frames", frames, 1, 100000)
-    seed = _check_int("seed", seed, 0, 2**63 - 1)
-    workers = _check_int("workers", workers, 1, 256)
-    if spec is None:
-        spec = LayoutSpec()
-    if not isinstance(spec, LayoutSpec):
-        raise InputError(f"spec must be a LayoutSpec, got {type(spec).__name__}")
-    if not (isinstance(image_size, (tuple, list)) and len(image_size) == 2):
-        raise InputError(f"image_size must be (width, height), got {image_size!r}")
-    w = _check_int("image width", image_size[0], 16, 8192)
-    h = _check_int("image height", image_size[1], 16, 8192)
+    seed, workers, spec, (w, h) = check_writer_args(seed, workers, spec, image_size)
     if not (
         isinstance(splits, (tuple, list))
         and len(splits) == 3
@@ -377,19 +368,56 @@ def generate_dataset(
     )
     if shard is not None:
         manifest = shard_manifest(manifest, *shard)
-    entries = manifest["sequences"]
+    return write_dataset(root, manifest, overwrite, spec, cfg, (w, h), workers, progress, stats)
+
+
+def check_writer_args(
+    seed: Any, workers: Any, spec: Any, image_size: Any
+) -> tuple[int, int, LayoutSpec, tuple[int, int]]:
+    """The arguments every dataset writer takes, checked (one line each): seed, workers, spec (None: the
+    default), image size ``(width, height)``."""
+    seed = _check_int("seed", seed, 0, 2**63 - 1)
+    workers = _check_int("workers", workers, 1, 256)
+    spec = LayoutSpec() if spec is None else spec
+    if not isinstance(spec, LayoutSpec):
+        raise InputError(f"spec must be a LayoutSpec, got {type(spec).__name__}")
+    if not (isinstance(image_size, (tuple, list)) and len(image_size) == 2):
+        raise InputError(f"image_size must be (width, height), got {image_size!r}")
+    size = (_check_int("image width", image_size[0], 16, 8192), _check_int("image height", image_size[1], 16, 8192))
+    return seed, workers, spec, size
+
+
+def write_dataset(
+    root: Path,
+    manifest: dict[str, Any],
+    overwrite: bool,
+    spec: LayoutSpec,
+    cfg: dict[str, Any],
+    image_size: tuple[int, int],
+    workers: int,
+    progress: bool,
+    stats: list[dict[str, Any]] | None = None,
+    plans: dict[str, tuple[RowPlan, CameraPlan]] | None = None,
+    beside: Callable[[Path], None] | None = None,
+) -> Path:
+    """Write (or resume) the dataset ``manifest`` describes in ``root``: the folder checked, the manifest (and
+    what ``beside`` writes next to it), stale temporary folders removed, the sequences not yet complete written
+    (``plans``: `write_sequence`'s planned rows by name). A full disk is one line; the finished sequences stay
+    and the same command resumes."""
     _prepare_root(root, manifest, overwrite)
     atomic_write_json(root / MANIFEST, manifest)
-    for stale in root.glob(".seq_*.tmp"):
-        shutil.rmtree(stale)
+    if beside is not None:
+        beside(root)
+    entries = manifest["sequences"]
+    for e in entries:
+        shutil.rmtree(root / f".{e['name']}.tmp", ignore_errors=True)
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
     if todo:
         try:
-            _write_sequences(root, todo, spec, cfg, (w, h), workers, progress, stats)
+            _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans)
         except OSError as e:
             if not is_write_failure(e, root):
                 raise
-            # a full disk: the finished sequences stay, the same command resumes once there is room
             raise write_failed(e, root, "output folder", RESUMABLE) from None
     return root
 
