@@ -2,6 +2,7 @@
 
     .venv/bin/python scripts/readme_figures.py                    # the demo's seeded sequence, run here
     .venv/bin/python scripts/readme_figures.py --run out/demo/run --sequence out/demo/data/seq_00000
+    .venv/bin/python scripts/readme_figures.py --building MAP      # a building map's building.glb
 
 Without ``--run`` it generates the demo's sequence (`mvracklay.demo_job`: seed 2026, 50 frames,
 256x256) and runs the shipped model on it in a work folder. The ``.glb`` is loaded with trimesh
@@ -69,12 +70,14 @@ def _shade_colour(name: str, base: np.ndarray) -> np.ndarray:
     return np.clip(base * (1.0 + 0.22 * jitter), 0, 255)
 
 
-def _camera(lo: np.ndarray, hi: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Ray origins and unit directions of an oblique view (in front of the row, above it, from the
-    left), its window fitted to the row's bounding box with a small margin."""
+def _camera(
+    lo: np.ndarray, hi: np.ndarray, width: int, height: int, rise: float = 0.34
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ray origins and unit directions of an oblique view (in front of the row, above it by ``rise`` times its
+    length, from the left), its window fitted to the row's bounding box with a small margin."""
     centre = (lo + hi) / 2
     span = float(hi[0] - lo[0])
-    eye = centre + np.array([-0.3 * span, 0.34 * span + 1.2, 0.66 * span + 2.5])
+    eye = centre + np.array([-0.3 * span, rise * span + 1.2, 0.66 * span + 2.5])
     fwd = centre - eye
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, [0.0, 1.0, 0.0])
@@ -101,8 +104,9 @@ def _camera(lo: np.ndarray, hi: np.ndarray, width: int, height: int) -> tuple[np
     return np.broadcast_to(eye, d.shape).copy(), d
 
 
-def render_glb(path: Path, width: int = 720, height: int = 300) -> np.ndarray:
-    """An (H, W, 3) uint8 picture of the ``.glb`` from an oblique view above the row's front."""
+def render_glb(path: Path, width: int = 720, height: int = 300, rise: float = 0.34) -> np.ndarray:
+    """An (H, W, 3) uint8 picture of the ``.glb`` from an oblique view above the row's front (``rise``: how high,
+    as a share of the row's length)."""
     import open3d as o3d
 
     meshes = load_glb(path)
@@ -126,7 +130,7 @@ def render_glb(path: Path, width: int = 720, height: int = 300) -> np.ndarray:
     table = np.stack(colours + [BACKGROUND])
 
     w, h = width * SUPERSAMPLE, height * SUPERSAMPLE
-    origin, dirs = _camera(lo, hi, w, h)
+    origin, dirs = _camera(lo, hi, w, h, rise)
     rays = o3d.core.Tensor(np.concatenate([origin, dirs], axis=-1).astype(np.float32))
     hit = rs.cast_rays(rays)
     gid = hit["geometry_ids"].numpy().astype(np.int64)
@@ -210,8 +214,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sequence", type=Path, help="a generated sequence folder for the preview sheet")
     p.add_argument("--work", type=Path, default=ROOT / "out" / "readme_figures", help="work folder of the demo run")
     p.add_argument("--out", type=Path, default=OUT, help="where the PNGs go")
+    p.add_argument(
+        "--building", type=Path, help="a building map folder (`mvracklay map`): render only its building.glb"
+    )
     args = p.parse_args(argv)
     try:
+        if args.building is not None:
+            png = args.out / "building_glb.png"
+            atomic_write_bytes(png, png_bytes(render_glb(args.building / "building.glb", 760, 420, rise=0.9)))
+            print(f"wrote {png} ({png.stat().st_size // 1024} KB)")
+            return 0
         run, sequence = (args.run, args.sequence) if args.run else demo_run(args.work)
         args.out.mkdir(parents=True, exist_ok=True)
         glb = args.out / "warehouse_glb.png"

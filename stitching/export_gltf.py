@@ -228,7 +228,12 @@ def _empty_glb_bytes() -> bytes:
 def export_glb(wmap: WarehouseMap, path: str | os.PathLike) -> int:
     """Write ``wmap`` as a ``.glb`` (atomic; a map with no shelf or box gives a valid empty scene); returns the
     number of meshes written."""
-    parts = scene_parts(wmap)
+    return write_parts_glb(scene_parts(wmap), path, "map (x, y, z) -> glTF (x, -y, -z); metres")
+
+
+def write_parts_glb(parts: list[Part], path: str | os.PathLike, frame: str) -> int:
+    """Write scene nodes as a ``.glb`` (atomic; no mesh gives a valid empty scene); returns the meshes written.
+    ``frame``: how the cuboids' frame maps to glTF's, kept in the scene's metadata."""
     if not any(p.cuboid is not None for p in parts):
         atomic_write_bytes(path, _empty_glb_bytes())
         return 0
@@ -236,7 +241,7 @@ def export_glb(wmap: WarehouseMap, path: str | os.PathLike) -> int:
     from trimesh.visual.material import PBRMaterial
 
     scene = trimesh.Scene()
-    scene.metadata["map_frame"] = "map (x, y, z) -> glTF (x, -y, -z); metres"
+    scene.metadata["map_frame"] = frame
     count = 0
     for p in parts:
         if p.cuboid is None:

@@ -224,5 +224,23 @@ def route(building: Building) -> dict[str, Any]:
     return {
         "frame": "building: metres, X along the aisles, Y down (floor 0), Z across; heading from +X toward +Z",
         "aisles": building.aisles,
+        "faces": floor_plan(building),
         "passes": passes,
     }
+
+
+def floor_plan(building: Building) -> list[dict[str, Any]]:
+    """What a floor plan and the racks' specification tell of each face: its aisle and side, the Z of its front
+    line, the X its racks span (first to last upright) and its boards' heights above the floor (lowest first).
+    No bay or box: those the map finds."""
+    return [
+        {
+            "aisle": f.aisle,
+            "side": f.side,
+            "front_z": round(f.front_z, 6),
+            "x_min": round(f.bays[0][0], 6),
+            "x_max": round(f.bays[-1][1], 6),
+            "levels_m": [round(v, 6) for v in f.row.levels],
+        }
+        for f in building.faces
+    ]

@@ -14,10 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from layouts.fileio import atomic_write_json, atomic_write_text
+from layouts.locations import inventory_csv
 from layouts.spec import LayoutSpec
 from waresynth.building import pass_row, plan_building, route
 from waresynth.building_schema import load_building
-from waresynth.building_truth import ground_truth, inventory_csv
+from waresynth.building_truth import ground_truth
 from waresynth.config import load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.generate import check_writer_args, write_dataset

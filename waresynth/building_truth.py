@@ -10,23 +10,12 @@ saw, so they are the same in every scan.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from typing import Any
 
+from layouts.locations import location_code
 from waresynth.building import Building, Face
 from waresynth.row_plan import RackPlan, board_span, clear_heights
-
-INVENTORY_COLUMNS = (
-    "location", "aisle", "side", "bay", "level", "position", "boxes", "occupancy", "free_length_m", "free_area_m2",
-    "free_volume_m3", "partial", "confidence", "last_seen", "pass",
-)  # fmt: skip
-
-
-def location_code(code: str, aisle: int, side: str, bay: int, level: int, position: int = 1) -> str:
-    """A location's code from the config's format (levels and positions counted from 1)."""
-    return code.format(aisle=aisle, side=side, bay=bay, level=level, position=position)
 
 
 def _r(v: float) -> float:
@@ -128,19 +117,10 @@ def _inventory_row(face: Face, bay: int, level: int, pos: dict[str, Any]) -> dic
     passes = facts["passes"]
     return {
         "location": pos["location"], "aisle": face.aisle, "side": face.side, "bay": bay, "level": level,
-        "position": pos["position"], "boxes": len(pos["boxes"]),
+        "position": pos["position"], "boxes": len(stacks),
         "occupancy": round(covered / length, 4) if length > 0 else 0.0,
         "free_length_m": round(max(length - covered, 0.0), 4),
         "free_area_m2": round(max(length * depth - sum(s[2] for s in stacks), 0.0), 4),
         "free_volume_m3": round(max(length * depth * clear - sum(s[3] for s in stacks), 0.0), 4),
         "partial": "false", "confidence": 1, "last_seen": passes[-1] if passes else "", "pass": ";".join(passes),
     }  # fmt: skip
-
-
-def inventory_csv(rows: list[dict[str, Any]]) -> str:
-    """The inventory as CSV text (a header, then one row per location in building order)."""
-    out = io.StringIO()
-    w = csv.DictWriter(out, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    return out.getvalue()

@@ -9,7 +9,7 @@ from pathlib import Path
 from layouts.errors import InputError
 
 NAME = "free-space"
-HELP = "free space per shelf of a warehouse.json, and where a box of a given size fits"
+HELP = "free space per shelf of a map (a row's warehouse.json or a building), and where a box fits"
 DESCRIPTION = (
     "Reads a map written by `mvracklay run` or `reconstruct` (MAP: the warehouse.json or their output folder) "
     "and prints, per shelf, the number of boxes, the "
@@ -17,7 +17,10 @@ DESCRIPTION = (
     "occupancy and a confidence. A shelf of a rack cut by the first or last view is marked partial (start: its "
     "low-X end, end: its high-X end): its length is the seen part and the gap running to the cut end counts as "
     "unknown, not free (nor as a place for a box). With --box WxDxH (metres) it also lists the shelves and the X ranges "
-    "(map frame, metres from the first camera position) where the box's centre can go."
+    "(map frame, metres from the first camera position) where the box's centre can go. "
+    "MAP may also be a building map (`mvracklay map`: its folder or building.json): then the table has one row "
+    "per location (its code; `not scanned` where no pass saw it) and --box lists the scanned locations across the "
+    "building where the box fits, nearest to --near CODE first, with the box centre's building X ranges."
 )
 GROUP = "use"
 ORDER = 12
@@ -29,7 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--box", help="box size WxDxH in metres, e.g. 0.4x0.3x0.3")
     p.add_argument("--margin", type=float, default=0.02, help="clearance in metres on each side and above the box")
-    p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01")
+    p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01 (a row map)")
+    p.add_argument(
+        "--near", metavar="CODE", help="building map: rank the locations a --box fits by distance from this location"
+    )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument(
         "--csv",
@@ -46,8 +52,10 @@ CSV_FIT_COLUMNS = ("fits", "fit_centre_x", "fit_centre_x_turned")
 
 
 def map_path(arg: str) -> Path:
-    """The warehouse.json MAP names: the file, or OUT/warehouse.json for an output folder."""
+    """The map MAP names: the file, or OUT/warehouse.json (a run's) or OUT/building.json (`map`'s) in a folder."""
     path = Path(arg)
+    if path.is_dir() and (path / "building.json").is_file() and not (path / "warehouse.json").is_file():
+        return path / "building.json"
     if path.is_dir():
         if not (path / "warehouse.json").is_file():
             raise InputError(f"{path}: no warehouse.json in this folder (want a run's --out folder or a map file)")
@@ -87,6 +95,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--margin must be in [0, 10] metres, got {args.margin}")
     if args.json and args.csv:
         raise InputError("choose one of --json and --csv")
+    if _is_building(path):
+        return _building(path, args)
+    if args.near:
+        raise InputError("--near is for a building map (`mvracklay map`'s output)")
     wmap = WarehouseMap.load(path)
     rows = free_space(wmap)
     if args.shelf:
@@ -118,4 +130,54 @@ def run(args: argparse.Namespace) -> int:
             ranges = ", ".join(f"[{a:.2f}, {b:.2f}]" for a, b in f.centres)
             turn = " turned 90 deg" if f.rotated else ""
             print(f"fits on {f.shelf}{turn}: centre X in {ranges}")
+    return 0
+
+
+def _is_building(path: Path) -> bool:
+    if path.name == "building.json":
+        return True
+    with open(path, "rb") as f:
+        return b'"mvracklay-building-map"' in f.read(4096)
+
+
+def _building(path: Path, args: argparse.Namespace) -> int:
+    """A building map: its inventory, and with --box the locations the box fits, nearest to --near first."""
+    from stitching.building_free import building_fits, check_near, format_fits
+    from stitching.building_map import BuildingMap
+    from stitching.free_space import parse_box
+
+    if args.shelf:
+        raise InputError("--shelf is for a row map; a building map's rows are locations (use --near CODE)")
+    bmap = BuildingMap.load(path)
+    near = check_near(bmap, args.near)
+    rows = bmap.inventory()
+    found = None
+    if args.box:
+        w, d, h = parse_box(args.box)
+        found = building_fits(bmap, w, d, h, args.margin, near)
+    if args.json:
+        out: dict = {"map": str(path), "locations": rows}
+        if found is not None:
+            out["box"] = {"size": list(parse_box(args.box)), "margin": args.margin, "near": near,
+                          "fits": [f.to_dict() for f in found]}  # fmt: skip
+        print(json.dumps(out, indent=2, sort_keys=True))
+        return 0
+    if args.csv:
+        from layouts.locations import inventory_csv
+
+        print(inventory_csv(rows), end="")
+        return 0
+    if found is not None:
+        print(format_fits(found, args.box))
+        return 0
+    head = f"{'location':<16} {'boxes':>11} {'free_len':>8} {'occup':>6} {'conf':>5} {'partial':>7}"
+    print(head + "\n" + "-" * len(head))
+    for r in rows:
+        if r["boxes"] == "not scanned":
+            print(f"{r['location']:<16} {'not scanned':>11}")
+            continue
+        print(
+            f"{r['location']:<16} {r['boxes']:>11} {r['free_length_m']:>8.2f} {r['occupancy']:>6.0%} "
+            f"{r['confidence']:>5.2f} {r['partial']:>7}"
+        )
     return 0

@@ -1,0 +1,204 @@
+"""``mvracklay map``: many passes -> one building map (`stitching.building_fuse`), its inventory and scenes.
+
+Input: a folder holding ``route.json`` (a generated building, `mvracklay generate --building`) or a route file
+of one's own (`stitching.building_route`): each pass's ``sequence`` names its sequence folder, image folder or
+video, relative to the route file. Each pass is mapped as a row on its own (``--layouts gt``: its ground-truth
+layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/NAME/``, a task per pass on the
+local machine's processes or on a Ray cluster (`mvracklay.parallel`); a pass whose row map is there from an
+earlier run with the same settings is not mapped again. Then the passes are placed by the route, registered
+where they overlap and fused, and ``MAP/building.json``, ``building.glb``, ``building.rrd``, ``inventory.csv``
+and ``inventory.json`` are written, each atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from layouts.errors import InputError
+from layouts.fileio import atomic_write_json, load_json
+from layouts.locations import DEFAULT_CODE, check_code_format
+from stitching.building_map import BuildingMap, write_inventory
+from stitching.building_route import Route, load_route, perturb
+from stitching.warehouse_map import WarehouseMap
+
+ROUTE = "route.json"
+PASSES = "passes"
+OUTPUTS = ("building.json", "building.glb", "building.rrd", "inventory.csv", "inventory.json")
+
+
+@dataclass
+class PassTask:
+    """One pass to map: where its frames are, where its row map goes, how (picklable: a process or Ray task)."""
+
+    name: str
+    source: str
+    out: str
+    layouts: str  #: "gt" or "net"
+    run: dict[str, Any] = field(default_factory=dict)  #: RunConfig fields for "net"
+    key: str = ""  #: digest of what decides the row map (a stored one with another key is mapped again)
+
+
+@dataclass
+class BuildingResult:
+    out: Path
+    map: BuildingMap
+    mapped: int  #: passes mapped by this run (the rest were there from an earlier one)
+    inventory: list[dict[str, Any]]
+    written: list[str] = field(default_factory=list)  #: the outputs' file names, in MAP
+
+
+def resolve_route(path: str | os.PathLike) -> tuple[Route, Path]:
+    """The route and the folder its passes' paths are relative to, from a dataset folder or a route file."""
+    p = Path(path)
+    if p.is_dir():
+        if not (p / ROUTE).is_file():
+            raise InputError(f"{p}: no {ROUTE} (not a building dataset; give a route file for own footage)")
+        p = p / ROUTE
+    elif not p.is_file():
+        raise InputError(f"{p}: not found")
+    route = load_route(p)
+    base = p.parent
+    for pose in route.passes:
+        if not (base / pose.sequence).exists():
+            raise InputError(f"{p}: pass {pose.sequence!r}: {base / pose.sequence} not found")
+    return route, base
+
+
+def building_config(base: Path) -> dict[str, Any]:
+    """A generated building's config (manifest.json's ``building``), {} for a route of one's own."""
+    manifest = base / "manifest.json"
+    if manifest.is_file():
+        doc = load_json(manifest)
+        if isinstance(doc, dict) and isinstance(doc.get("building"), dict):
+            return doc["building"]
+    return {}
+
+
+def map_pass(task: PassTask) -> str:
+    """Map one pass as a row into ``task.out`` (``warehouse.json``, and the run's outputs for the network);
+    returns its name. Runs in a worker process or a Ray task."""
+    out = Path(task.out)
+    if task.layouts == "gt":
+        from layouts.codecs import LayoutFolder
+        from mvracklay.reconstruction import resolve_layouts
+        from stitching.pipeline import Stitcher
+
+        folder: LayoutFolder = resolve_layouts(Path(task.source), "gt")
+        stitcher = Stitcher(folder.spec)
+        for i in folder.indices():
+            stitcher.push(folder.read(i), i)
+        out.mkdir(parents=True, exist_ok=True)
+        stitcher.map(None, {"layouts": "gt", "source": task.source}).save(out / "warehouse.json")
+    else:
+        from mvracklay.frames import open_source
+        from mvracklay.pipeline import run_pipeline
+        from mvracklay.settings import RunConfig
+
+        cfg = RunConfig(**task.run)
+        run_pipeline(open_source(task.source, prog="mvracklay map"), out, cfg)
+    atomic_write_json(out / "pass.json", {"key": task.key, "source": task.source, "layouts": task.layouts})
+    return task.name
+
+
+def _done(task: PassTask) -> bool:
+    out = Path(task.out)
+    try:
+        return (out / "warehouse.json").is_file() and load_json(out / "pass.json").get("key") == task.key
+    except (InputError, AttributeError):
+        return False
+
+
+def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: dict[str, Any]) -> list[PassTask]:
+    tasks = []
+    for pose in route.passes:
+        src = str((base / pose.sequence).resolve())
+        key = hashlib.sha256(json.dumps([src, layouts, run], sort_keys=True, default=str).encode()).hexdigest()[:16]
+        tasks.append(PassTask(pose.sequence, src, str(out / PASSES / pose.sequence), layouts, run, key))
+    return tasks
+
+
+def map_building(
+    source: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    layouts: str = "net",
+    run: dict[str, Any] | None = None,
+    pose_noise: tuple[float, float] | None = None,
+    seed: int = 0,
+    code: str | None = None,
+    positions: int | None = None,
+    workers: int = 1,
+    ray: str | None = None,
+    rrd: bool = True,
+    progress: bool = True,
+) -> BuildingResult:
+    """Map every pass of the route at ``source`` into ``out`` and fuse them (see the module docstring).
+
+    ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network; ``run``:
+    `mvracklay.settings.RunConfig` fields, e.g. ``checkpoint``); ``pose_noise``: (metres, degrees) added to the
+    route's poses, seeded by ``seed``; ``code`` / ``positions``: the location code format and positions per
+    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1)."""
+    from mvracklay.parallel import run_tasks
+    from stitching.building_export import export_building_glb, write_building_rrd
+    from stitching.building_fuse import fuse_building
+    from stitching.building_register import place_pass
+
+    if layouts not in ("gt", "net"):
+        raise InputError(f"--layouts must be 'gt' or 'net', got {layouts!r}")
+    route, base = resolve_route(source)
+    bcfg = building_config(base)
+    code = code or bcfg.get("code") or DEFAULT_CODE
+    positions = int(positions or bcfg.get("positions") or 1)
+    check_code_format(code, positions)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    run = dict(run or {})
+    if layouts == "net":
+        run.setdefault("rrd", False)
+        run.setdefault("progress", False)
+    tasks = pass_tasks(route, base, out, layouts, run)
+    todo = [t for t in tasks if not _done(t)]
+    for _ in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
+                       progress="map passes" if progress else None):  # fmt: skip
+        pass
+    if pose_noise is not None:
+        route = perturb(route, pose_noise[0], pose_noise[1], seed)
+    maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
+    placed = [place_pass(pose, route.faces[pose.key], maps[pose.sequence]) for pose in route.passes]
+    meta = {
+        "source": str(source), "layouts": layouts, "passes": len(tasks),
+        "pose_noise": list(pose_noise) if pose_noise else None, "seed": seed,
+    }  # fmt: skip
+    bmap = fuse_building(route, placed, code, positions, meta=meta)
+    bmap.save(out / "building.json")
+    export_building_glb(bmap, out / "building.glb")
+    if rrd:
+        write_building_rrd(bmap, maps, out / "building.rrd")
+    rows = write_inventory(bmap, out)
+    if progress:
+        print(
+            f"mvracklay map: {len(todo)} of {len(tasks)} passes mapped, the rest kept from {out / PASSES}",
+            file=sys.stderr,
+        )
+    written = [n for n in OUTPUTS if (out / n).is_file() and (rrd or n != "building.rrd")]
+    return BuildingResult(out, bmap, len(todo), rows, written)
+
+
+def summary(res: BuildingResult) -> str:
+    """What the building holds, in a few lines."""
+    rows = res.inventory
+    scanned = [r for r in rows if r["boxes"] != "not scanned"]
+    boxes = sum(int(r["boxes"]) for r in scanned)
+    faces = len(res.map.faces)
+    racks = sum(len(f.map.racks) for f in res.map.faces)
+    return (
+        f"{len(res.map.passes)} passes -> {faces} faces, {racks} bays, {len(rows)} locations "
+        f"({len(rows) - len(scanned)} not scanned), {boxes} boxes"
+    )

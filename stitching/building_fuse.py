@@ -1,0 +1,312 @@
+"""Fuse the placed passes of a building into one `BuildingMap`: one rack per bay, one shelf per location, each
+box once.
+
+Per face (its frame, `stitching.building_map`):
+
+* **Racks**: a rack one pass saw where another saw two bays with a gap between is cut at that gap; then
+  two passes' racks whose X ranges overlap by half the shorter are one bay; its ends are where the
+  passes that saw them whole put them (median), so a rack cut at one pass's end is joined with the next pass's
+  view of it, and stays ``partial`` only where no pass saw that end. Bays are numbered from 1 along building +X.
+* **Levels**: a bay's levels are those of the floor plan (else those some pass saw); a level no pass's view held
+  is kept with no boxes and ``not scanned``.
+* **Boxes**: per level, the boxes of every pass, best seen first (observations, then confidence); a box of
+  another pass whose X extent overlaps an kept one's by half the narrower is the same box seen again.
+* **Locations**: a level cut along X into ``positions`` equal parts, each a shelf whose id is its code; the
+  passes whose view held part of it, and the share held, decide whether it was scanned.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+
+from layouts.locations import DEFAULT_CODE, check_code_format, location_code
+from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement
+from stitching.building_register import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
+from stitching.building_route import FacePlan, Route
+from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
+
+SAME_RACK = 0.5  #: overlap / shorter length above which two passes' racks are one bay
+SAME_BOX = 0.5  #: X overlap / narrower width above which two passes' boxes are one
+LONG_BAY = 1.8  #: a bay this many times the face's typical length is bays run together
+SPLIT_MARGIN = 0.4  #: metres a gap must lie inside another pass's rack to cut it there
+DEFAULT_CLEAR = 0.8  #: clear height (m) of a level nobody saw and the plan does not give
+
+
+def _clusters(items: list[tuple[PlacedPass, PlacedRack]]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+    """Racks of the face grouped into bays (union-find on overlap), ordered by face X."""
+    n = len(items)
+    parent = list(range(n))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    spans = [(r.lo + p.offset, r.hi + p.offset) for p, r in items]
+    for i in range(n):
+        for j in range(i + 1, n):
+            if items[i][0] is items[j][0]:
+                continue
+            (a0, a1), (b0, b1) = spans[i], spans[j]
+            shorter = min(a1 - a0, b1 - b0)
+            if shorter > 0 and min(a1, b1) - max(a0, b0) >= SAME_RACK * shorter:
+                parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    out = [[items[i] for i in g] for g in groups.values()]
+    return sorted(out, key=lambda g: statistics.median((r.lo + r.hi) / 2 + p.offset for p, r in g))
+
+
+def _split_joined(items: list[tuple[PlacedPass, PlacedRack]]) -> list[tuple[PlacedPass, PlacedRack]]:
+    """A rack one pass saw as one where another pass saw two (a narrow gap between bays lost in its layouts) is
+    cut at the other pass's gap: its shelves go to both parts, its boxes by their centre."""
+    gaps = []  # (gap start, gap end, pass) between two whole-seen neighbouring racks of a pass
+    for p in {id(p): p for p, _ in items}.values():
+        rs = sorted(p.racks, key=lambda r: r.lo)
+        for a, b in zip(rs, rs[1:]):
+            if not a.cut_hi and not b.cut_lo and 0 <= b.lo - a.hi < 1.0:
+                gaps.append((a.hi + p.offset, b.lo + p.offset, p))
+    out = []
+    for p, r in items:
+        parts = [r]
+        for g0, g1, other in sorted(gaps, key=lambda g: g[0]):
+            if other is p:
+                continue
+            last = parts[-1]
+            lo, hi = last.lo + p.offset, last.hi + p.offset
+            if lo + SPLIT_MARGIN < g0 and g1 < hi - SPLIT_MARGIN:
+                cut0, cut1 = g0 - p.offset, g1 - p.offset
+                left = PlacedRack(
+                    last.lo, cut0, last.cut_lo, False, last.shelves, [b for b in last.boxes if b.x < (cut0 + cut1) / 2]
+                )
+                right = PlacedRack(
+                    cut1, last.hi, False, last.cut_hi, last.shelves, [b for b in last.boxes if b.x >= (cut0 + cut1) / 2]
+                )
+                parts[-1:] = [left, right]
+        out += [(p, part) for part in parts]
+    return out
+
+
+def _split_long(groups: list[list[tuple[PlacedPass, PlacedRack]]]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+    """A bay ``LONG_BAY`` times longer than the face's typical bay is bays whose gap no pass saw: cut into as many
+    typical bays, each cut in the box-free X nearest its even share (boxes never straddle two bays)."""
+    lengths = [hi - lo for lo, hi, _, _ in map(_ends, groups)]
+    whole = sorted(n for n, g in zip(lengths, groups) if not any(r.cut_lo or r.cut_hi for _, r in g))
+    if len(whole) < 3:
+        return groups
+    typical = whole[len(whole) // 2]
+    out = []
+    for n, g in zip(lengths, groups):
+        k = round(n / typical)
+        if n < LONG_BAY * typical or k < 2:
+            out.append(g)
+            continue
+        lo, hi, _, _ = _ends(g)
+        spans = [(b.x + p.offset - b.size[0] / 2, b.x + p.offset + b.size[0] / 2) for p, r in g for b in r.boxes]
+        cuts = []
+        for j in range(1, k):
+            aim = lo + j * n / k
+            free = [
+                x
+                for x in (aim + 0.02 * i for i in range(-30, 31))
+                if not any(a - 0.05 < x < b + 0.05 for a, b in spans)
+            ]
+            cuts.append(min(free, key=lambda x: abs(x - aim)) if free else aim)
+        edges = [lo - 1.0, *cuts, hi + 1.0]
+        for a, b in zip(edges, edges[1:]):
+            part = []
+            for p, r in g:
+                r0, r1 = max(r.lo + p.offset, a), min(r.hi + p.offset, b)
+                if r1 - r0 > 0.2:
+                    mine = [bx for bx in r.boxes if a <= bx.x + p.offset < b]
+                    part.append((p, PlacedRack(r0 - p.offset, r1 - p.offset, r.cut_lo and r0 == r.lo + p.offset,
+                                               r.cut_hi and r1 == r.hi + p.offset, r.shelves, mine)))  # fmt: skip
+            if part:
+                out.append(part)
+    return out
+
+
+def _ends(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, float, bool, bool]:
+    whole_lo = [r.lo + p.offset for p, r in group if not r.cut_lo]
+    whole_hi = [r.hi + p.offset for p, r in group if not r.cut_hi]
+    lo = statistics.median(whole_lo) if whole_lo else min(r.lo + p.offset for p, r in group)
+    hi = statistics.median(whole_hi) if whole_hi else max(r.hi + p.offset for p, r in group)
+    return lo, hi, not whole_lo, not whole_hi
+
+
+def _board_heights(face: FacePlan, passes: Sequence[PlacedPass]) -> dict[int, float]:
+    """Level -> board height above the floor: the plan's, else the passes' (lowest slot's board on the floor)."""
+    if face.levels_m:
+        return {k + 1: h for k, h in enumerate(face.levels_m)}
+    seen: dict[int, list[float]] = {}
+    for p in passes:
+        for r in p.racks:
+            for s in r.shelves:
+                seen.setdefault(s.level, []).append(s.board)
+    base = min(seen) if seen else 1
+    return {lv: statistics.median(v) for lv, v in seen.items()} | ({base: 0.0} if seen else {})
+
+
+def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[PlacedBox, float, list[str]]]:
+    """Each box once: (box, face-frame X, passes that saw it)."""
+    order = sorted(candidates, key=lambda c: (-c[1].observations, -c[1].confidence, c[1].x + c[0].offset))
+    kept: list[tuple[PlacedBox, float, list[str], PlacedPass]] = []
+    for p, b in order:
+        x = b.x + p.offset
+        for k, (kb, kx, names, kp) in enumerate(kept):
+            if kp is p:
+                continue
+            overlap = min(x + b.size[0] / 2, kx + kb.size[0] / 2) - max(x - b.size[0] / 2, kx - kb.size[0] / 2)
+            if overlap >= SAME_BOX * min(b.size[0], kb.size[0]):
+                kept[k] = (kb, kx, names + [p.pose.sequence], kp)
+                break
+        else:
+            kept.append((b, x, [p.pose.sequence], p))
+    return sorted(((b, x, names) for b, x, names, _ in kept), key=lambda t: t[1])
+
+
+def _covered(intervals: list[tuple[float, float]], lo: float, hi: float) -> float:
+    total, end = 0.0, lo
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals):
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
+
+
+def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
+    items = _split_joined([(p, r) for p in passes for r in p.racks])
+    groups = _split_long(_clusters(items))
+    if face.sign < 0:
+        groups = groups[::-1]  # bays count along building +X, face X runs the other way on an L face
+    heights = _board_heights(face, passes)
+    thickness = statistics.median(p.board_thickness for p in passes) if passes else 0.06
+    views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
+    racks, locations, bays = [], {}, {}
+    for bay, group in enumerate(groups, start=1):
+        lo, hi, cut_lo, cut_hi = _ends(group)
+        rack_id = f"{face.aisle:02d}-{face.side}-{bay:02d}"
+        partial = partial_side(cut_lo, cut_hi)
+        levels = sorted(set(heights) | {s.level for _, r in group for s in r.shelves})
+        shelves = []
+        for lv in levels:
+            seen_shelves: list[tuple[PlacedPass, PlacedShelf]] = [
+                (p, s) for p, r in group for s in r.shelves if s.level == lv
+            ]
+            board = heights.get(lv)
+            if board is None:  # a level the plan does not list: where the passes put it above a known one
+                board = statistics.median(
+                    heights.get(min(p.levels), 0.0) + s.board - _lowest_board(p) for p, s in seen_shelves
+                )
+            above = [h for k, h in heights.items() if k > lv]
+            if above:
+                clear = min(above) - board - thickness
+            elif seen_shelves:
+                clear = statistics.median(s.clear for _, s in seen_shelves)
+            else:
+                clear = DEFAULT_CLEAR
+            z_range = (
+                tuple(statistics.median(s.z_range[k] for _, s in seen_shelves) for k in (0, 1))
+                if seen_shelves
+                else _face_depth(group)
+            )
+            conf = max((s.confidence for _, s in seen_shelves), default=0.0)
+            boxes = _fuse_boxes([(p, b) for p, r in group for b in r.boxes if b.level == lv])
+            cut = (hi - lo) / positions
+            for j in range(positions):
+                # position 1 at the lowest building X: the low face-X end on an R face, the high one on an L face
+                a = lo + j * cut if face.sign > 0 else hi - (j + 1) * cut
+                b = a + cut
+                pos_code = location_code(code, face.aisle, face.side, bay, lv, j + 1)
+                mine = [t for t in boxes if a <= t[1] < b or (t[1] == b and b == hi)]
+                map_boxes = [
+                    MapBox(
+                        f"{pos_code}/box_{k:02d}",
+                        (x, -(board + bx.rel), bx.z),
+                        bx.size,
+                        bx.yaw,
+                        bx.confidence,
+                        bx.observations,
+                        bx.colour,
+                    )  # fmt: skip
+                    for k, (bx, x, _) in enumerate(mine)
+                ]
+                pcut_lo = cut_lo and abs(a - lo) < 1e-9
+                pcut_hi = cut_hi and abs(b - hi) < 1e-9
+                shelves.append(
+                    MapShelf(
+                        pos_code,
+                        lv - 1,
+                        board,
+                        max(clear, 0.05),
+                        (a, b),
+                        z_range,
+                        conf,
+                        map_boxes,
+                        partial_side(pcut_lo, pcut_hi),
+                    )  # fmt: skip
+                )
+                saw = sorted(
+                    {
+                        p.pose.sequence
+                        for p in passes
+                        if lv in p.levels and _covered(views[p.pose.sequence], a, b) > 1e-6
+                    },
+                    key=order.__getitem__,
+                )
+                seen = _covered([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
+                locations[pos_code] = Location(pos_code, face.aisle, face.side, bay, lv, j + 1, saw, min(seen, 1.0))
+        racks.append(MapRack(rack_id, (lo, hi), shelves, partial))
+        bays[rack_id] = bay
+    seen_x = sorted(iv for v in views.values() for iv in v)
+    wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
+    return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
+
+
+def _lowest_board(p: PlacedPass) -> float:
+    return min((s.board for r in p.racks for s in r.shelves), default=0.0)
+
+
+def _face_depth(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, float]:
+    zs = [s.z_range for _, r in group for s in r.shelves]
+    if not zs:
+        return (0.0, 1.0)
+    return (statistics.median(z[0] for z in zs), statistics.median(z[1] for z in zs))
+
+
+def fuse_building(
+    route: Route,
+    placed: list[PlacedPass],
+    code: str = DEFAULT_CODE,
+    positions: int = 1,
+    route_sigma: float = 0.3,
+    meta: dict | None = None,
+) -> BuildingMap:
+    """Register the placed passes face by face and fuse them into one building map (faces in plan order)."""
+    check_code_format(code, positions)
+    order = {p.pose.sequence: k for k, p in enumerate(placed)}
+    faces = []
+    for key, plan in sorted(route.faces.items()):
+        mine = [p for p in placed if p.pose.key == key]
+        if not mine:
+            continue
+        register_face(mine, plan, route_sigma)
+        faces.append(_fuse_face(plan, mine, code, positions, order))
+    placements = [
+        PassPlacement(
+            p.pose.sequence,
+            p.pose.aisle,
+            p.pose.side,
+            p.x0,
+            p.shift,
+            p.levels,
+            p.edges,
+            sum(len(r.boxes) for r in p.racks),
+            p.trusted,
+        )  # fmt: skip
+        for p in placed
+    ]
+    return BuildingMap(faces, placements, code, positions, dict(meta or {}))

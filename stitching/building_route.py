@@ -1,0 +1,174 @@
+"""A building's route record: the floor plan (each rack face's front line, extent along X and boards' heights)
+and every pass's start pose, read and checked (``route.json``, as `mvracklay generate --building` writes it or a
+user writes it for own footage), and the seeded perturbation of the poses that tests a map against a poor route.
+
+Pass fields used: ``sequence`` (its folder or video, relative to the route file), ``aisle``, ``side``, ``start``
+(``x``, ``z`` of the first frame's camera and ``heading_deg``, the optical axis from +X toward +Z) and the levels
+its view holds (``levels``, from 1; or ``first_level``, the level of the lowest shelf in view, default 1);
+optional ``height``, the camera above the floor (for drawing its path). Other
+fields are kept but never read: the map finds the bays and boxes itself.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from typing import Annotated, Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
+
+from layouts.errors import InputError, first_problem
+from layouts.fileio import load_json
+
+Finite = Annotated[float, Field(allow_inf_nan=False, ge=-1e5, le=1e5)]
+
+
+class _Start(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+    x: Finite
+    z: Finite
+    heading_deg: Finite
+
+
+class _Pass(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+    sequence: str = Field(min_length=1)
+    aisle: Annotated[StrictInt, Field(ge=1, le=9999)]
+    side: str = Field(pattern="^[LR]$")
+    start: _Start
+    height: Annotated[float, Field(allow_inf_nan=False, gt=0, le=100)] | None = None
+    levels: list[Annotated[StrictInt, Field(ge=1, le=99)]] | None = None
+    first_level: Annotated[StrictInt, Field(ge=1, le=99)] = 1
+
+
+class _Face(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+    aisle: Annotated[StrictInt, Field(ge=1, le=9999)]
+    side: str = Field(pattern="^[LR]$")
+    front_z: Finite
+    x_min: Finite | None = None
+    x_max: Finite | None = None
+    levels_m: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=100)]] | None = None
+
+
+class _Route(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+    faces: list[_Face] = Field(min_length=1)
+    passes: list[_Pass] = Field(min_length=1)
+
+
+@dataclass(frozen=True)
+class FacePlan:
+    """A face as the floor plan gives it: front line, extent along building X (None: unknown), board heights."""
+
+    aisle: int
+    side: str
+    front_z: float
+    x_min: float | None = None
+    x_max: float | None = None
+    levels_m: tuple[float, ...] = ()  #: boards' top heights above the floor, lowest first; () unknown
+
+    @property
+    def key(self) -> tuple[int, str]:
+        return (self.aisle, self.side)
+
+    @property
+    def sign(self) -> float:
+        return 1.0 if self.side == "R" else -1.0
+
+
+@dataclass(frozen=True)
+class PassPose:
+    """One pass: its sequence, face, the first camera's building X and Z, heading (degrees), its slots' levels."""
+
+    sequence: str
+    aisle: int
+    side: str
+    x: float
+    z: float
+    heading_deg: float
+    levels: tuple[int, ...] | None = None  #: level (from 1) of each slot; None: from ``first_level`` up
+    first_level: int = 1
+    height: float | None = None  #: the camera above the floor, when the route gives it
+
+    @property
+    def key(self) -> tuple[int, str]:
+        return (self.aisle, self.side)
+
+    def slot_level(self, slot: int) -> int:
+        """The level (from 1) a slot of this pass's layouts holds."""
+        if self.levels is not None and slot < len(self.levels):
+            return self.levels[slot]
+        base = self.levels[-1] + 1 - len(self.levels) if self.levels else self.first_level
+        return base + slot
+
+
+@dataclass
+class Route:
+    faces: dict[tuple[int, str], FacePlan]
+    passes: list[PassPose]
+    source: str = "route"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def parse_route(doc: Any, source: str = "route") -> Route:
+    """A route record from its JSON content; one line naming the source and the first problem when wrong."""
+    try:
+        r = _Route.model_validate(doc)
+    except ValidationError as e:
+        raise InputError(f"{source}: {first_problem(e.errors())}") from None
+    faces: dict[tuple[int, str], FacePlan] = {}
+    for f in r.faces:
+        if (f.aisle, f.side) in faces:
+            raise InputError(f"{source}: face {f.aisle:02d}-{f.side} is listed twice")
+        if f.x_min is not None and f.x_max is not None and f.x_min >= f.x_max:
+            raise InputError(f"{source}: face {f.aisle:02d}-{f.side} has x_min >= x_max")
+        faces[(f.aisle, f.side)] = FacePlan(f.aisle, f.side, f.front_z, f.x_min, f.x_max, tuple(f.levels_m or ()))
+    passes, names = [], set()
+    for p in r.passes:
+        if (p.aisle, p.side) not in faces:
+            raise InputError(
+                f"{source}: pass {p.sequence!r} is on face {p.aisle:02d}-{p.side}, which faces does not list"
+            )
+        if p.sequence in names:
+            raise InputError(f"{source}: pass {p.sequence!r} is listed twice")
+        names.add(p.sequence)
+        levels = tuple(p.levels) if p.levels else None
+        passes.append(
+            PassPose(p.sequence, p.aisle, p.side, p.start.x, p.start.z, p.start.heading_deg, levels, p.first_level)
+        )
+    return Route(faces, passes, source)
+
+
+def load_route(path: str | os.PathLike) -> Route:
+    return parse_route(load_json(path), str(path))
+
+
+def parse_pose_noise(text: str) -> tuple[float, float]:
+    """``--pose-noise METRES,DEGREES`` -> (metres, degrees), both >= 0."""
+    parts = str(text).split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        metres, degrees = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise InputError(f"--pose-noise must be METRES,DEGREES (e.g. 0.3,3), got {text!r}") from None
+    if not (0 <= metres <= 5 and 0 <= degrees <= 30):
+        raise InputError(f"--pose-noise must be within 0-5 metres and 0-30 degrees, got {text!r}")
+    return metres, degrees
+
+
+def perturb(route: Route, metres: float, degrees: float, seed: int = 0) -> Route:
+    """The route with every pass's start moved ``metres`` in a random direction on the floor and its heading
+    turned by ``degrees`` either way (seeded): a robot's odometry or a hand-drawn plan that is that far off."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x905E]))
+    out = []
+    for p in route.passes:
+        a = rng.uniform(0, 2 * math.pi)
+        turn = degrees * (1.0 if rng.random() < 0.5 else -1.0)
+        out.append(
+            replace(p, x=p.x + metres * math.cos(a), z=p.z + metres * math.sin(a), heading_deg=p.heading_deg + turn)
+        )
+    return replace(route, passes=out)
