@@ -19,6 +19,7 @@ The libraries are plain functions on data; a command fans their work out through
   Ray (``ray.init`` called before, as the tests do) keeps its connection. Ray is imported only here and only
   when asked; where it is not installed, the error says how to install it.
 * ``progress``: a progress bar of finished items with this description (None: none).
+* ``retries``: how often Ray runs a task again whose worker or node was lost (default 3, as Ray's).
 
 Errors: the first task that raises ends the run and its exception is raised from the iteration as itself
 (an `InputError` stays one, and the CLI prints it as one line), with a note naming the task; the tasks not yet
@@ -81,14 +82,18 @@ def run_tasks(
     cpus_per_task: float = 1,
     progress: str | None = None,
     mp_context: mp.context.BaseContext | None = None,
+    retries: int = 3,
 ) -> Iterator[tuple[Hashable, Any]]:
     """``(key, fn(argument))`` for each ``(key, argument)`` of ``items``, as each completes (the module's
     docstring says where they run and how errors come back). ``mp_context``: how local workers start (default:
-    a forkserver that imported ``fn``'s module)."""
+    a forkserver that imported ``fn``'s module); ``retries``: how often Ray runs a task again whose worker or
+    node was lost (the task must then be safe to run twice, as a sequence written under a temporary name is)."""
     if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= 1024:
         raise InputError(f"workers must be an integer in [1, 1024], got {workers!r}")
     if isinstance(cpus_per_task, bool) or not isinstance(cpus_per_task, (int, float)) or not cpus_per_task > 0:
         raise InputError(f"cpus_per_task must be a number > 0, got {cpus_per_task!r}")
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise InputError(f"retries must be an integer >= 0, got {retries!r}")
     if not callable(fn):
         raise InputError(f"fn must be a function, got {type(fn).__name__}")
     if ray is not None:
@@ -99,7 +104,7 @@ def run_tasks(
     if ray is not None:
         if items:
             connect(ray, workers)  # a cluster not found: one line now, not at the first result
-        results = _ray_map(fn, items, cpus_per_task)
+        results = _ray_map(fn, items, cpus_per_task, retries)
     elif workers == 1 or len(items) <= 1:
         results = ((key, fn(arg)) for key, arg in items)
     else:
@@ -189,13 +194,13 @@ def shutdown() -> None:
 
 
 def _ray_map(
-    fn: Callable[[Any], Any], items: list[tuple[Hashable, Any]], cpus: float
+    fn: Callable[[Any], Any], items: list[tuple[Hashable, Any]], cpus: float, retries: int
 ) -> Iterator[tuple[Hashable, Any]]:
     """``(key, result)`` of one Ray task per item on the connected cluster, as each completes (`run_tasks`)."""
     if not items:
         return
     ray = import_ray()
-    remote = ray.remote(num_cpus=cpus)(fn)
+    remote = ray.remote(num_cpus=cpus, max_retries=retries)(fn)
     pending = {remote.remote(arg): key for key, arg in items}
     try:
         while pending:

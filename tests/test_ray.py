@@ -4,6 +4,7 @@ bad addresses and a missing Ray are one line."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pytest
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from mvracklay.parallel import check_ray_address, run_tasks, task_map
+from mvracklay.parallel import TaskFailed, check_ray_address, run_tasks, task_map
 from waresynth.building_generate import generate_building
 from waresynth.generate import generate_dataset
 
@@ -29,6 +30,8 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
 
 
 def square(x: int) -> int:
+    if x == 13:
+        os._exit(1)  # the worker dies
     if x < 0:
         raise InputError(f"item {x}: negative")
     if x == 0:
@@ -62,6 +65,9 @@ def test_results_come_back_with_their_keys_and_errors_as_themselves(ray_local):
     with pytest.raises(KeyError) as err:
         list(run_tasks(square, [("z", 0)], ray=ray_local))
     assert any("'z'" in note for note in err.value.__notes__)  # the note names the task
+    with pytest.raises(TaskFailed, match=r"^task 'dies' could not finish on the Ray cluster: \S+") as lost:
+        list(run_tasks(square, [("dies", 13)], ray=ray_local, retries=0))
+    assert "\n" not in str(lost.value)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
