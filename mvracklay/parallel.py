@@ -22,8 +22,8 @@ The libraries are plain functions on data; a command fans their work out through
 * ``retries``: how often Ray runs a task again whose worker or node was lost (default 3, as Ray's).
 
 Errors: the first task that raises ends the run and its exception is raised from the iteration as itself
-(an `InputError` stays one, and the CLI prints it as one line), with a note naming the task; the tasks not yet
-finished are cancelled. A task Ray could not run (a worker or node lost, out of memory) is `TaskFailed`, one
+(an `InputError` stays one, and the CLI prints it as one line; from Ray with a note naming the task and its
+traceback there); the tasks not yet started are cancelled. A task Ray could not run (a worker or node lost, out of memory) is `TaskFailed`, one
 line. A bad ADDRESS or a cluster that cannot be reached is an `InputError`.
 
 `task_map` gives the same as a `layouts.tasks.TaskMap`, the argument by which a library (``waresynth``'s
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 #: what ``--ray`` says in every command's help
 RAY_HELP = (
     "run the work as Ray tasks: 'auto' (the Ray cluster this machine belongs to), HOST:PORT (a cluster's head), "
-    "ray://HOST:PORT (Ray Client) or 'local' (start a Ray of W CPUs here); the output folder must be on a "
+    "ray://HOST:PORT (Ray Client) or 'local' (start a Ray of --workers CPUs here); the output folder must be on a "
     "filesystem every node sees at the same path (docs/distributed.md)"
 )
 INSTALL = "pip install 'mvracklay[ray]' (or 'ray>=2.60')"
