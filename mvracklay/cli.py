@@ -217,6 +217,7 @@ def _main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     from layouts.errors import InputError
+    from mvracklay.parallel import TaskFailed
 
     mod = sys.modules[args._module]
     try:
@@ -235,6 +236,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
     except InputError as e:
         print(f"mvracklay {name}: error: {e}", file=sys.stderr)
         return 2
+    except TaskFailed as e:  # a task the Ray cluster lost (a worker or node gone): one line, not a traceback
+        print(f"mvracklay {name}: error: {e}", file=sys.stderr)
+        return 1
     except OSError as e:
         from layouts.publish import WRITE_ERRNOS
 

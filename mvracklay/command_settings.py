@@ -12,6 +12,7 @@ from pathlib import Path
 
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from mvracklay.options import DEVICES
+from mvracklay.parallel import RAY_HELP
 from mvracklay.settings import (
     InferenceSettings,
     json_out_setting,
@@ -54,6 +55,7 @@ class GenerateSettings:
     workers: int = setting(
         "--workers", "worker processes (one sequence at a time each)", 1, metavar="W", type=int, range=(1, 256)
     )
+    ray: str | None = setting("--ray", RAY_HELP + "; one task per sequence or pass", metavar="ADDRESS")
     format: str = setting(
         "--format", "also export the dataset in this format (as `mvracklay export` does) to --export-out",
         "native", choices=("native", *EXPORT_FORMATS),

@@ -1,9 +1,13 @@
-"""Shared fixtures: a tiny WareSynth dataset generated once per test session."""
+"""Shared fixtures: a tiny WareSynth dataset generated once per test session; a local Ray per test module that asks."""
 
 from __future__ import annotations
 
 import os
+import secrets
+import shutil
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 # The suite runs on both cores at once (pytest-xdist): OpenMP threads that sleep when idle instead of spinning
@@ -49,3 +53,32 @@ def tiny_checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory
     args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "40"]
     assert main([*args, "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]) == 0
     return out / "last.pt"
+
+
+@pytest.fixture(scope="module")
+def ray_local() -> Iterator[str]:
+    """A local Ray of 2 CPUs, started once for the test module that asks for it (about 5 s) and stopped after
+    it; yields the ``ray`` address to give `mvracklay.parallel.run_tasks` / ``--ray`` (this process stays
+    connected, so any address reaches it). Token authentication stays on, its token kept in the environment
+    (nothing written to ~/.ray), its sessions' files in a temporary folder removed after it; the workers import
+    this checkout and the test modules (a task's function may be a test module's). Skipped where Ray is not
+    installed."""
+    pytest.importorskip("ray")
+    from mvracklay.parallel import connect, shutdown
+
+    # a short folder of its own: Ray's socket paths under it must stay within the 107 characters of a Unix socket
+    temp = tempfile.mkdtemp(prefix="ray-")
+    with pytest.MonkeyPatch.context() as env:
+        env.setenv("RAY_TMPDIR", temp)
+        env.delenv("RAY_AUTH_MODE", raising=False)  # Ray's default for a local cluster: token authentication
+        env.setenv("RAY_AUTH_TOKEN", secrets.token_hex(32))
+        env.setenv("RAY_USAGE_STATS_ENABLED", "0")
+        paths = (_ROOT, str(Path(__file__).parent), os.environ.get("PYTHONPATH"))
+        env.setenv("PYTHONPATH", os.pathsep.join(p for p in paths if p))
+        shutdown()
+        connect("local", num_cpus=2)
+        try:
+            yield "local"
+        finally:
+            shutdown()
+            shutil.rmtree(temp, ignore_errors=True)

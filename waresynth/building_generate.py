@@ -16,6 +16,7 @@ from typing import Any
 from layouts.fileio import atomic_write_json, atomic_write_text
 from layouts.locations import inventory_csv
 from layouts.spec import LayoutSpec
+from layouts.tasks import TaskMap
 from waresynth.building import pass_row, plan_building, route
 from waresynth.building_schema import load_building
 from waresynth.building_truth import ground_truth
@@ -39,10 +40,12 @@ def generate_building(
     overwrite: bool = False,
     progress: bool = True,
     stats: list[dict[str, Any]] | None = None,
+    tasks: TaskMap | None = None,
 ) -> Path:
     """Generate (or resume) a building's passes in ``out_dir``; returns its path. ``building``: the building
     config (a dict, a JSON file or None for `waresynth.building_schema.BUILDING_DEFAULTS`); ``config``: the
-    generator config, as for `waresynth.generate.generate_dataset`."""
+    generator config, as for `waresynth.generate.generate_dataset`; ``tasks``: where the passes are written
+    (`waresynth.generate.write_dataset`)."""
     seed, workers, spec, size = check_writer_args(seed, workers, spec, image_size)
     bcfg = load_building(building)
     cfg = load_config(config)
@@ -66,4 +69,6 @@ def generate_building(
         atomic_write_text(root / GROUND_TRUTH / "inventory.csv", inventory_csv(rows))
 
     plans = {p.name: (pass_row(plan, p), p.camera) for p in plan.passes}
-    return write_dataset(Path(out_dir), manifest, overwrite, spec, cfg, size, workers, progress, stats, plans, beside)
+    return write_dataset(
+        Path(out_dir), manifest, overwrite, spec, cfg, size, workers, progress, stats, plans, beside, tasks
+    )

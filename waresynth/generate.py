@@ -16,7 +16,7 @@ import resource
 import shutil
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.publish import is_write_failure, write_failed
 from layouts.spec import LayoutSpec
+from layouts.tasks import TaskMap, process_map
 from waresynth.config import draw_hfov, load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.groundtruth import frame_layouts, frame_slots
@@ -334,6 +335,7 @@ def generate_dataset(
     splits: tuple[float, float, float] = (0.9, 0.05, 0.05),
     stats: list[dict[str, Any]] | None = None,
     shard: tuple[int, int] | str | None = None,
+    tasks: TaskMap | None = None,
 ) -> Path:
     """Generate (or resume) a WareSynth dataset in ``out_dir``; returns its path.
 
@@ -341,7 +343,8 @@ def generate_dataset(
     dataset is refused unless ``overwrite``. ``config`` is a dict, a JSON path or None (defaults).
     ``stats``, when a list, receives one cost record per sequence written (see `write_sequence`).
     ``shard`` ``(i, n)`` or ``"i/n"`` writes only the sequences k with ``k % n == i`` (a partial
-    dataset that `waresynth.shards.merge_shards` joins with the other shards).
+    dataset that `waresynth.shards.merge_shards` joins with the other shards). ``tasks``: where the sequences
+    are written (`write_dataset`).
     """
     num_sequences = _check_int("num_sequences", num_sequences, 1, 100000)
     frames = _check_int("frames", frames, 1, 100000)
@@ -368,7 +371,7 @@ def generate_dataset(
     )
     if shard is not None:
         manifest = shard_manifest(manifest, *shard)
-    return write_dataset(root, manifest, overwrite, spec, cfg, (w, h), workers, progress, stats)
+    return write_dataset(root, manifest, overwrite, spec, cfg, (w, h), workers, progress, stats, tasks=tasks)
 
 
 def check_writer_args(
@@ -399,11 +402,19 @@ def write_dataset(
     stats: list[dict[str, Any]] | None = None,
     plans: dict[str, tuple[RowPlan, CameraPlan]] | None = None,
     beside: Callable[[Path], None] | None = None,
+    tasks: TaskMap | None = None,
 ) -> Path:
     """Write (or resume) the dataset ``manifest`` describes in ``root``: the folder checked, the manifest (and
     what ``beside`` writes next to it), stale temporary folders removed, the sequences not yet complete written
     (``plans``: `write_sequence`'s planned rows by name). A full disk is one line; the finished sequences stay
-    and the same command resumes."""
+    and the same command resumes.
+
+    ``tasks`` (a `layouts.tasks.TaskMap`): where the sequences are written, one task each rendering on one
+    thread (`mvracklay.parallel.task_map` runs them as Ray tasks); ``root`` must then be a folder every worker
+    sees at the same path. None: this process (``workers`` 1, all cores to the renderer) or ``workers`` local
+    processes. The bytes are the same either way."""
+    if tasks is not None and not callable(tasks):
+        raise InputError(f"tasks must be a function (fn, items) -> (key, result) pairs, got {type(tasks).__name__}")
     _prepare_root(root, manifest, overwrite)
     atomic_write_json(root / MANIFEST, manifest)
     if beside is not None:
@@ -414,7 +425,7 @@ def write_dataset(
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
     if todo:
         try:
-            _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans)
+            _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans, tasks)
         except OSError as e:
             if not is_write_failure(e, root):
                 raise
@@ -436,38 +447,43 @@ def _write_sequences(
     progress: bool,
     stats: list[dict[str, Any]] | None,
     plans: dict[str, tuple[RowPlan, CameraPlan]] | None = None,
+    tasks: TaskMap | None = None,
 ) -> None:
-    """Write the sequences ``todo`` in this process (all cores to the renderer) or in a pool of ``workers``;
-    ``plans``: the planned row and camera of sequences by name (`write_sequence`)."""
+    """Write the sequences ``todo`` in this process (all cores to the renderer), in a pool of ``workers`` or
+    through ``tasks`` (`write_dataset`); ``plans``: the planned row and camera of sequences by name."""
     plans = plans or {}
     cores = os.cpu_count() or 1
     workers = min(workers, len(todo))
     frames = sum(int(e["frames"]) for e in todo)
     bar = tqdm(total=frames, unit="frame", desc="generate", disable=not progress, dynamic_ncols=True)
     try:
-        if workers == 1:
+        if tasks is None and workers == 1:
             for e in todo:
                 st = write_sequence(
                     root, e, spec, cfg, image_size, cores, lambda: bar.update(1), planned=plans.get(e["name"])
                 )
                 if stats is not None:
                     stats.append(st)
-        else:
+            return
+        if tasks is None:
             nthreads = max(1, cores // workers)
-            jobs = [(str(root), e, spec.to_dict(), cfg, image_size, nthreads, plans.get(e["name"])) for e in todo]
-            # An executor, not `with Pool()`: leaving a Pool's block terminates it, which can deadlock when a
-            # worker is stopped while it holds the task queue's lock; the executor shuts down by joining.
-            with ProcessPoolExecutor(max_workers=workers, mp_context=_pool_context()) as ex:
-                futures = [ex.submit(_worker, job) for job in jobs]
-                try:
-                    for fut in as_completed(futures):
-                        st = fut.result()
-                        bar.update(int(st["frames"]))
-                        if stats is not None:
-                            stats.append(st)
-                except BaseException:
-                    for fut in futures:
-                        fut.cancel()
-                    raise
+            tasks = partial(process_map, workers=workers, mp_context=_pool_context())
+        else:
+            nthreads = 1
+        where = str(root.resolve())  # a worker's working folder may differ from this one's
+        jobs = [(e["name"], (where, e, spec.to_dict(), cfg, image_size, nthreads, plans.get(e["name"]))) for e in todo]
+        results = iter(tasks(_worker, jobs))
+        try:
+            for name, st in results:
+                if not (root / str(name) / "meta.json").is_file():
+                    raise InputError(
+                        f"{root}: sequence {name} was written where this machine does not see it; "
+                        "the output folder must be one every worker sees at the same path (a shared filesystem)"
+                    )
+                bar.update(int(st["frames"]))
+                if stats is not None:
+                    stats.append(st)
+        finally:  # stopped early: the tasks not started are cancelled, the running ones waited for
+            getattr(results, "close", lambda: None)()
     finally:
         bar.close()

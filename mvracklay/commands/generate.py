@@ -12,6 +12,7 @@ from mvracklay.settings import add_options, check_range
 
 if TYPE_CHECKING:
     from layouts.spec import LayoutSpec
+    from layouts.tasks import TaskMap
 
 NAME = "generate"
 GROUP = "data"
@@ -67,8 +68,14 @@ def run(args: GenerateSettings) -> int:
         config = load_config(config)  # the file checked under its own name first
         config["sensor"]["supersample"] = args.supersample
     spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
+    tasks = None
+    if args.ray is not None:  # one Ray task per sequence or pass (mvracklay.parallel)
+        from mvracklay.parallel import connect, task_map
+
+        connect(args.ray, args.workers)  # a cluster not found: one line before anything is written
+        tasks = task_map(workers=args.workers, ray=args.ray)
     if args.building is not None:
-        return _building(args, spec, config)
+        return _building(args, spec, config, tasks)
     root = generate_dataset(
         args.out,
         num_sequences=args.sequences,
@@ -81,6 +88,7 @@ def run(args: GenerateSettings) -> int:
         overwrite=args.overwrite,
         progress=not args.quiet,
         shard=shard,
+        tasks=tasks,
     )
     ds = open_dataset(root)
     counts = {s: len(ds.sequences(s)) for s in ("train", "val", "test")}
@@ -103,7 +111,7 @@ def run(args: GenerateSettings) -> int:
     return 0
 
 
-def _building(args: GenerateSettings, spec: LayoutSpec, config: object) -> int:
+def _building(args: GenerateSettings, spec: LayoutSpec, config: object, tasks: TaskMap | None) -> int:
     """``--building [FILE]``: every pass of a building (`waresynth.building_generate`)."""
     from waresynth.building_generate import generate_building
 
@@ -122,6 +130,7 @@ def _building(args: GenerateSettings, spec: LayoutSpec, config: object) -> int:
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.quiet,
+        tasks=tasks,
     )
     from waresynth.dataset import open_dataset
 
