@@ -100,7 +100,7 @@ def _window(building: Building, b: Board, j: int | None) -> tuple[float, float]:
         return board_span(rack.x_min, rack.x_max, face.row.upright_width)
     b0, cut = board_positions(face, rack, building.config["positions"])
     lo, hi = sorted((face.sign * (b0 + j * cut), face.sign * (b0 + (j + 1) * cut)))
-    return lo, hi - 1e-6
+    return lo + 1e-6, hi - 1e-6  # the centre strictly inside, whichever way the face runs
 
 
 def _position(building: Building, b: Board, x: float) -> int:
