@@ -155,14 +155,17 @@ def test_same_seed_same_bytes_and_a_rescan_of_a_rescan(scans, tmp_path):
 def test_rates_zero_keep_the_ground_truth(scans, tmp_path):
     before, _ = scans
     zero = {k: 0.0 for k in RATES}
-    same = generate_building(tmp_path / "same", rescan=before, building={**BUILDING, "changes": zero}, seed=3,
-                             progress=False)  # fmt: skip
+    again = {**BUILDING, "changes": zero, "twice_share": 1.0}  # the pass keys may differ
+    same = generate_building(tmp_path / "same", rescan=before, building=again, seed=3, progress=False)
     gt = "ground_truth"
     assert (same / gt / "building.json").read_bytes() == (before / gt / "building.json").read_bytes()
     assert (same / gt / "changes.csv").read_text().splitlines() == [
         "location,change,other_location,boxes,size,box_ids,old_box_ids,x,old_x,note"
     ]
     assert _counts(same) == _counts(before)
+    passes = json.loads((same / "route.json").read_text())["passes"]
+    assert {p["scan"] for p in passes} == {1, 2}
+    assert len(passes) > len(json.loads((before / "route.json").read_text())["passes"])
 
 
 def test_apply_changes_api():

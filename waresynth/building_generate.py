@@ -59,7 +59,8 @@ def generate_building(
     seed, workers, spec, size = check_writer_args(seed, workers, spec, (256, 256) if image_size is None else image_size)
     bcfg = load_building(building)
     if "changes" in bcfg:
-        raise InputError("building: changes (a rescan's change rates) apply only with --rescan OUT")
+        src = building if isinstance(building, (str, os.PathLike)) else "building"
+        raise InputError(f"{src}: changes (a rescan's change rates) apply only with --rescan OUT")
     cfg = load_config(config)
     plan = plan_building(bcfg, cfg, seed, size, spec.num_slots)
     return _write(Path(out_dir), plan, _manifest(seed, cfg, bcfg, spec, size, plan), overwrite, spec, cfg, size,

@@ -118,7 +118,10 @@ def open_rescan(
     naming what differs); OUT's stock is planned again and must match its ``ground_truth/building.json``."""
     source = Path(source)
     m = _read(source)
-    base = load_building(copy.deepcopy(m["building"]))
+    try:
+        base = load_building(copy.deepcopy(m["building"]))
+    except InputError as e:
+        raise InputError(f"{source / 'manifest.json'}: {e}") from None
     bcfg = copy.deepcopy(base) if building is None else load_building(building)
     differ = _differ(bcfg, base, RACK_KEYS)
     if differ:
