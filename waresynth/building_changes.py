@@ -2,9 +2,9 @@
 
 `apply_changes` takes a planned `Building` (its faces' racks and stacks) and returns a changed copy and the
 list of `Change` records; `changes_rows` / `changes_csv` turn them into ``ground_truth/changes.csv``
-(docs/waresynth.md, "Rescans"). Rates (`waresynth.building_schema.CHANGE_DEFAULTS`) are shares of the building's stacks before the
-changes: ``round(rate x stacks)`` stacks are removed, moved, shifted and replaced (each stack at most once),
-and as many new stacks added. A change that finds no room (a move with no location to take it, a shift with no
+(docs/waresynth.md, "Rescans"). Rates (`waresynth.building_schema.CHANGE_DEFAULTS`) are shares of the
+building's stacks before the changes: ``round(rate x stacks)`` stacks are removed, moved, shifted and replaced
+(each stack at most once), and ``round(added x stacks)`` new stacks added. A change that finds no room (a move with no location to take it, a shift with no
 free length along its position) is left out, so the counts are at most the rates'. Everything is drawn from
 one generator seeded by ``seed``: the same building, rates and seed give the same changes.
 
