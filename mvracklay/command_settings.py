@@ -80,6 +80,14 @@ class GenerateSettings:
         "inventory.csv); FILE: a JSON building config overriding the defaults (docs/waresynth.md, Buildings)",
         metavar="FILE", nargs="?", const="",
     )  # fmt: skip
+    rescan: Path | None = setting(
+        "--rescan",
+        "with --building: the building of the dataset SCAN again after a seeded set of changes (stacks removed, "
+        "added, moved, shifted, replaced at the building config's `changes` rates), scanned by passes and cameras "
+        "of its own drawn from --seed; its racks, configs, --size and layout spec are SCAN's (options given must "
+        "agree); OUT/ground_truth/changes.csv lists the changes (docs/waresynth.md, Rescans)",
+        metavar="SCAN", type=Path,
+    )  # fmt: skip
     quiet: bool = quiet_setting("hide the progress bar", alias=True)
 
 

@@ -191,6 +191,15 @@ def _plan_passes(building: Building, layout: np.random.Generator, cfg: dict[str,
         building.passes.append(Pass(f"pass_{p:03d}", pseed, k, frames, camera, bays, levels, scan, way))
 
 
+def replan_passes(building: Building, bcfg: dict[str, Any], cfg: dict[str, Any], seed: int,
+                  image_size: tuple[int, int], num_slots: int) -> Building:  # fmt: skip
+    """The same racks scanned anew: passes, their seeds and cameras drawn from ``seed`` alone (a rescan), under
+    the pass keys of ``bcfg`` (`pass_length`, `overlap`, `twice_share`); the faces are shared, not copied."""
+    out = replace(building, config=copy.deepcopy(bcfg), passes=[])
+    _plan_passes(out, np.random.default_rng(np.random.SeedSequence([seed, 0x2E5C])), cfg, seed, image_size, num_slots)
+    return out
+
+
 def pass_row(building: Building, p: Pass) -> RowPlan:
     """The racks a pass's scene holds: the bays it sees and a neighbour either side (the face's own plans)."""
     face = building.faces[p.face]

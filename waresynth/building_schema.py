@@ -3,7 +3,8 @@
 A building file is a JSON object overriding any subset of `BUILDING_DEFAULTS` (keys starting with ``_`` are
 comments). Ranges are ``[low, high]`` drawn per face or per bay by the building's seed; lengths in metres.
 `load_building` refuses, in one line naming the file and the key, unknown keys, values of the wrong type,
-numbers outside their range and ``[low, high]`` with low > high.
+numbers outside their range and ``[low, high]`` with low > high. ``changes`` (a rescan's change rates) is not
+among the defaults: a building config holds it only for ``--rescan``.
 """
 
 from __future__ import annotations
@@ -36,6 +37,14 @@ BUILDING_DEFAULTS: dict[str, Any] = {
     "code": "{aisle:02d}-{side}-{bay:02d}-{level:02d}",
 }
 
+#: a rescan's change rates (``changes``, docs/waresynth.md "Rescans"): shares of the building's stacks before the
+#: changes that are removed, added, moved to another location, shifted along their level, replaced by another size
+CHANGE_DEFAULTS: dict[str, float] = {"removed": 0.05, "added": 0.05, "moved": 0.03, "shifted": 0.05, "replaced": 0.02}
+#: the keys that fix the racks, stacks and location codes: a rescan keeps them
+RACK_KEYS = ("aisles", "bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "cross_aisle",
+             "positions", "code")  # fmt: skip
+
+Share = Annotated[float, Field(strict=True, ge=0, le=1)]
 Length = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=1000)]
 Count = Annotated[StrictInt, Field(ge=1, le=99)]
 
@@ -44,6 +53,24 @@ def _ordered(v: Any) -> Any:
     if v[0] > v[1]:
         raise ValueError(f"[low, high] with low <= high, got {list(v)}")
     return v
+
+
+class ChangesDoc(BaseModel):
+    """A rescan's change rates (any subset of `CHANGE_DEFAULTS`)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    removed: Share = CHANGE_DEFAULTS["removed"]
+    added: Share = CHANGE_DEFAULTS["added"]
+    moved: Share = CHANGE_DEFAULTS["moved"]
+    shifted: Share = CHANGE_DEFAULTS["shifted"]
+    replaced: Share = CHANGE_DEFAULTS["replaced"]
+
+    @model_validator(mode="after")
+    def _once(self) -> ChangesDoc:
+        if self.removed + self.moved + self.shifted + self.replaced > 1.0 + 1e-9:
+            raise ValueError("removed + moved + shifted + replaced must stay at most 1 (a stack changes once)")
+        return self
 
 
 class BuildingDoc(BaseModel):
@@ -69,6 +96,7 @@ class BuildingDoc(BaseModel):
     twice_share: Annotated[float, Field(strict=True, ge=0, le=1)]
     positions: Annotated[StrictInt, Field(ge=1, le=20)]
     code: str
+    changes: ChangesDoc | None = None  #: a rescan's change rates (only with --rescan)
 
     _pairs = field_validator("bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "overlap")(
         _ordered
@@ -112,8 +140,23 @@ def load_building(building: dict[str, Any] | str | os.PathLike | None) -> dict[s
     except ValidationError as e:
         errors = e.errors()
         if errors[0]["type"] == "extra_forbidden":
-            raise InputError(
-                f"{src}: unknown key {errors[0]['loc'][0]!r} (known: {', '.join(BUILDING_DEFAULTS)})"
-            ) from None
+            loc = errors[0]["loc"]
+            known = CHANGE_DEFAULTS if len(loc) > 1 else [*BUILDING_DEFAULTS, "changes"]
+            raise InputError(f"{src}: unknown key {'.'.join(map(str, loc))!r} (known: {', '.join(known)})") from None
         raise InputError(f"{src}: {first_problem(errors)}") from None
     return cfg
+
+
+def change_rates(rates: Any, source: str = "changes") -> dict[str, float]:
+    """The effective change rates: `CHANGE_DEFAULTS` overridden by ``rates`` (a dict or None); one `InputError`
+    line naming ``source`` and the key when they break `ChangesDoc`."""
+    if rates is None:
+        return dict(CHANGE_DEFAULTS)
+    if not isinstance(rates, dict):
+        raise InputError(f"{source}: an object of {', '.join(CHANGE_DEFAULTS)}, got {type(rates).__name__}")
+    try:
+        doc = ChangesDoc.model_validate(rates)
+    except ValidationError as e:
+        errors = e.errors()
+        raise InputError(f"{source}{'.' if errors[0]['loc'] else ': '}{first_problem(errors)}") from None
+    return {k: float(getattr(doc, k)) for k in CHANGE_DEFAULTS}

@@ -18,6 +18,23 @@ from waresynth.building import Building, Face
 from waresynth.row_plan import RackPlan, board_span, clear_heights
 
 
+def board_positions(face: Face, rack: RackPlan, n: int) -> tuple[float, float]:
+    """(building X where the rack's usable board starts, one position's length) for ``n`` positions."""
+    lo, hi = board_span(rack.x_min, rack.x_max, face.row.upright_width)
+    b0, b1 = sorted((face.sign * lo, face.sign * hi))
+    return b0, (b1 - b0) / n
+
+
+def position_of(b0: float, cut: float, n: int, x: float) -> int:
+    """The position (from 0) holding building X ``x`` (clamped to the board's ``n`` positions)."""
+    return min(n - 1, max(0, int((x - b0) // cut)))
+
+
+def box_id(location: str, stack: int, stack_level: int) -> str:
+    """A box's ground-truth id: its location, its stack's index on the board and its level in the stack."""
+    return f"{location}/stack_{stack:03d}/box_{stack_level}"
+
+
 def _r(v: float) -> float:
     return round(float(v), 6) + 0.0
 
@@ -37,10 +54,8 @@ def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k
     """One level of one bay: its board, positions (each a location) and boxes, in the building frame."""
     cfg, row = building.config, face.row
     clear = clear_heights(row.levels, row.thickness, row.top)[k]
-    lo, hi = board_span(rack.x_min, rack.x_max, row.upright_width)
-    b0, b1 = sorted((face.sign * lo, face.sign * hi))
     n = cfg["positions"]
-    cut = (b1 - b0) / n
+    b0, cut = board_positions(face, rack, n)
     passes = seen.get((bay, k), [])
     positions = []
     for j in range(n):
@@ -50,7 +65,7 @@ def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k
     level_y = row.levels[k]
     for s, st in enumerate(rack.stacks[k]):
         x, _, z = face.to_building(st.x, 0.0, st.z)
-        j = min(n - 1, max(0, int((x - b0) // cut)))
+        j = position_of(b0, cut, n, x)
         w, h, d = st.size
         c, sn = abs(math.cos(st.yaw)), abs(math.sin(st.yaw))
         positions[j]["_stacks"].append(
@@ -58,7 +73,7 @@ def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k
         )
         for lvl in range(st.count):
             positions[j]["boxes"].append({
-                "id": f"{positions[j]['location']}/stack_{s:03d}/box_{lvl}",
+                "id": box_id(positions[j]["location"], s, lvl),
                 "scene_id": f"{rack.id}/shelf_{k:02d}/box_{sum(t.count for t in rack.stacks[k][:s]) + lvl:03d}",
                 "center": [_r(x), _r(-(level_y + (lvl + 0.5) * h)), _r(z)],
                 "size": [_r(w), _r(h), _r(d)],

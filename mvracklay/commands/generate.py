@@ -54,6 +54,10 @@ def run(args: GenerateSettings) -> int:
         shard = parse_shard(args.shard)
         if args.format != "native":
             raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
+    if args.rescan is not None and args.building is None:
+        raise InputError(
+            "--rescan SCAN: a rescan is of a building; add --building (generate OUT --building --rescan SCAN)"
+        )
     if args.building is not None and (shard is not None or args.format != "native"):
         raise InputError("--building writes a whole building in one folder: without --shard and --format")
     defaults = type(args)()
@@ -65,6 +69,10 @@ def run(args: GenerateSettings) -> int:
     if args.supersample is not None:
         from waresynth.config import load_config
 
+        if config is None and args.rescan is not None:  # SCAN's config with the new supersampling
+            from waresynth.dataset import read_manifest
+
+            config = read_manifest(args.rescan)[1].get("config")
         config = load_config(config)  # the file checked under its own name first
         config["sensor"]["supersample"] = args.supersample
     spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
@@ -120,11 +128,18 @@ def _building(args: GenerateSettings, spec: LayoutSpec, config: object, tasks: T
 
         if Path(args.building).exists():
             refuse_overlap([args.out], {"--building": args.building}, "OUT")
+    size, given_spec = (args.size, args.size), spec
+    if args.rescan is not None:  # the options left at their defaults take SCAN's values
+        defaults = type(args)()
+        size = None if args.size == defaults.size else size
+        if (args.slots, args.layout_size) == (defaults.slots, defaults.layout_size):
+            given_spec = None
     root = generate_building(
         args.out,
         building=args.building or None,
-        image_size=(args.size, args.size),
-        spec=spec,
+        image_size=size,
+        spec=given_spec,
+        rescan=args.rescan,
         seed=args.seed,
         config=config,
         workers=args.workers,
@@ -134,10 +149,13 @@ def _building(args: GenerateSettings, spec: LayoutSpec, config: object, tasks: T
     )
     from waresynth.dataset import open_dataset
 
-    passes = open_dataset(root).sequences()
+    ds = open_dataset(root)
+    passes = ds.sequences()
     frames = sum(s.num_frames for s in passes)
+    what = "" if args.rescan is None else f" (a rescan of {args.rescan}: ground_truth/changes.csv)"
     print(
-        f"{root}: a building of {len(passes)} passes ({frames} frames), images {args.size}x{args.size}, "
-        f"layouts {spec.shape}; route.json, ground_truth/building.json and inventory.csv beside them"
+        f"{root}: a building of {len(passes)} passes ({frames} frames){what}, images "
+        f"{ds.image_size[0]}x{ds.image_size[1]}, layouts {ds.spec.shape}; route.json, ground_truth/building.json "
+        "and inventory.csv beside them"
     )
     return 0
