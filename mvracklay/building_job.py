@@ -46,6 +46,7 @@ class PassTask:
 
 @dataclass
 class BuildingResult:
+    source: Path  #: the folder the route's passes are relative to
     out: Path
     map: BuildingMap
     mapped: int  #: passes mapped by this run (the rest were there from an earlier one)
@@ -188,7 +189,7 @@ def map_building(
             file=sys.stderr,
         )
     written = [n for n in OUTPUTS if (out / n).is_file() and (rrd or n != "building.rrd")]
-    return BuildingResult(out, bmap, len(todo), rows, written)
+    return BuildingResult(base, out, bmap, len(todo), rows, written)
 
 
 def summary(res: BuildingResult) -> str:
@@ -202,3 +203,15 @@ def summary(res: BuildingResult) -> str:
         f"{len(res.map.passes)} passes -> {faces} faces, {racks} bays, {len(rows)} locations "
         f"({len(rows) - len(scanned)} not scanned), {boxes} boxes"
     )
+
+
+def evaluate_against_truth(res: BuildingResult) -> dict[str, Any]:
+    """The map's figures against a generated building's ``ground_truth/`` (`stitching.building_eval`)."""
+    from layouts.locations import read_inventory
+    from stitching.building_eval import evaluate_building
+
+    truth = res.source / "ground_truth"
+    if not (truth / "building.json").is_file() or not (truth / "inventory.csv").is_file():
+        raise InputError(f"--evaluate: {truth} lacks building.json / inventory.csv (not a generated building)")
+    rows = read_inventory((truth / "inventory.csv").read_text(), str(truth / "inventory.csv"))
+    return evaluate_building(res.map, load_json(truth / "building.json"), rows).to_dict()

@@ -127,7 +127,9 @@ def test_unseen_levels_are_not_scanned_never_empty(building, mapped):
     top = len(plan.levels_m) + 1
     rows = [r for r in fuse_building(route, placed).inventory() if (r["aisle"], r["side"]) == key]
     unseen = [r for r in rows if r["level"] == top]
-    assert unseen and all(r["boxes"] == NOT_SCANNED and r["confidence"] == 0 and r["free_length_m"] == "" for r in unseen)
+    assert unseen and all(
+        r["boxes"] == NOT_SCANNED and r["confidence"] == 0 and r["free_length_m"] == "" for r in unseen
+    )
     assert all(r["boxes"] != NOT_SCANNED for r in rows if r["level"] < top)
 
 

@@ -81,14 +81,14 @@ def test_every_change_appears_and_matches_both_inventories(scans):
         n = int(r["boxes"])
         if r["change"] == "added":
             assert len(ids) == n and not old_ids and not r["old_x"]
-            delta[r["location"]] += n
+            delta[r["location"]] += 1  # the inventory counts stacks
         elif r["change"] == "removed":
             assert len(old_ids) == n and not ids and not r["x"]
-            delta[r["location"]] -= n
+            delta[r["location"]] -= 1
         elif r["change"] == "moved":
             assert r["other_location"] and r["other_location"] != r["location"] and len(ids) == len(old_ids) == n
-            delta[r["location"]] += n
-            delta[r["other_location"]] -= n
+            delta[r["location"]] += 1
+            delta[r["other_location"]] -= 1
         else:  # shifted: the same location, another x, by at least MIN_SHIFT
             assert not r["other_location"] and len(ids) == len(old_ids) == n
             assert abs(float(r["x"]) - float(r["old_x"])) >= MIN_SHIFT - 1e-4

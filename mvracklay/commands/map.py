@@ -60,6 +60,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=1, metavar="W", help="passes mapped at once (local processes)")
     p.add_argument("--ray", metavar="ADDRESS", help=_ray_help())
     p.add_argument("--no-rrd", action="store_true", help="do not write building.rrd")
+    p.add_argument(
+        "--evaluate",
+        action="store_true",
+        help="a generated building: score the map against its ground_truth/ (locations with the right code and "
+        "box count, box recall and precision at 3D IoU 0.5; docs/buildings.md) and add the figures to --json-out",
+    )
     add_options(p, RunConfig, only=("checkpoint", "distance", "camera_height"))
     add_device_option(p)
     add_threads_option(p)
@@ -76,8 +82,8 @@ def _ray_help() -> str:
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.building_job import map_building, summary
-    from mvracklay.threads import resolve_threads
     from mvracklay.outputs import spawn_viewer
+    from mvracklay.threads import resolve_threads
     from stitching.building_route import parse_pose_noise
 
     if args.workers < 1:
@@ -106,6 +112,16 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     print(summary(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))
+    scores = None
+    if args.evaluate:
+        from mvracklay.building_job import evaluate_against_truth
+
+        scores = evaluate_against_truth(res)
+        print(
+            f"against the ground truth: {scores['exact']} of {scores['locations']} locations with the right code "
+            f"and box count ({scores['exact_share']:.1%}), {scores['invented']} invented, {scores['missed']} missed; "
+            f"boxes recall {scores['recall']:.3f}, precision {scores['precision']:.3f} at 3D IoU 0.5"
+        )
     if args.json_out:
         from layouts.fileio import atomic_write_json
 
@@ -113,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         atomic_write_json(args.json_out, {
             "out": str(args.out), "passes": len(res.map.passes), "mapped": res.mapped,
             "locations": len(res.inventory), "not_scanned": len(res.inventory) - len(scanned),
-            "boxes": sum(int(r["boxes"]) for r in scanned),
+            "boxes": sum(int(r["boxes"]) for r in scanned), **({"evaluation": scores} if scores else {}),
         })  # fmt: skip
     if args.spawn:
         spawn_viewer(args.out / "building.rrd")
