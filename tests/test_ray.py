@@ -1,5 +1,6 @@
 """Work as Ray tasks (`mvracklay.parallel`, ``--ray``): one local Ray of 2 CPUs for the module; a dataset and a
-building generated through it hold the same bytes as from local processes; a task's error comes back as itself;
+building generated through it hold the same bytes as from local processes, and the building's passes mapped
+through it give the same building map; a task's error comes back as itself;
 bad addresses and a missing Ray are one line."""
 
 from __future__ import annotations
@@ -54,6 +55,14 @@ def test_a_building_through_ray_is_byte_identical(ray_local, tmp_path):
     assert tree_bytes(ray) == tree_bytes(local)
     passes = sorted(p.parent.name for p in ray.glob("*/meta.json"))
     assert len(passes) >= 3 and sorted(s["name"] for s in stats) == passes
+    # its passes mapped as Ray tasks: the building map local processes give
+    from mvracklay.building_job import map_building
+
+    here = map_building(local, tmp_path / "map_here", layouts="gt", progress=False)
+    there = map_building(ray, tmp_path / "map_ray", layouts="gt", ray=ray_local, progress=False)
+    assert there.mapped == len(passes) and there.map.box_count() > 0
+    assert (tmp_path / "map_ray/inventory.csv").read_bytes() == (tmp_path / "map_here/inventory.csv").read_bytes()
+    assert [f.map.to_dict() for f in there.map.faces] == [f.map.to_dict() for f in here.map.faces]
 
 
 def test_results_come_back_with_their_keys_and_errors_as_themselves(ray_local):

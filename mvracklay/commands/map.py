@@ -100,8 +100,8 @@ def run(args: argparse.Namespace) -> int:
     run_cfg = {}
     if args.layouts == "net":
         threads = resolve_threads(args.threads)
-        if args.workers > 1 and args.threads == "auto":
-            threads = max(1, threads // args.workers)
+        if args.threads == "auto" and (args.ray is not None or args.workers > 1):
+            threads = 1 if args.ray is not None else max(1, threads // args.workers)  # a task per CPU
         run_cfg = {"checkpoint": args.checkpoint, "distance": args.distance, "camera_height": args.camera_height,
                    "device": args.device, "threads": threads}  # fmt: skip
         RunConfig(**run_cfg).validate()
