@@ -69,7 +69,9 @@ def main(argv: list[str] | None = None) -> int:
         root = building(args.work, a)
         r = time_map(root, args.work / f"map_{a}", args.workers)
         me, kids = peak_mb()
-        print(f"{a:>6} {r['passes']:>6} {r['boxes']:>6} {r['seconds']:>7.1f} {r['per_pass']:>7.2f} {me:>8.0f} {kids:>10.0f}")
+        print(
+            f"{a:>6} {r['passes']:>6} {r['boxes']:>6} {r['seconds']:>7.1f} {r['per_pass']:>7.2f} {me:>8.0f} {kids:>10.0f}"
+        )
     if not args.no_ray:
         root = building(args.work, args.ray_aisles)
         local = time_map(root, args.work / "map_local", args.workers)
