@@ -119,3 +119,28 @@ def evaluate_building(
             1 for i, (code, _) in enumerate(pr) if i not in matched_pr and (code in counted or code not in all_codes)
         )
     return BuildingEval(len(counted), exact, missed, invented, tp, fp, fn, float(np.mean(ious)) if ious else 0.0, wrong)
+
+
+def evaluate_changes(found: list[dict[str, Any]], truth: list[dict[str, str]]) -> dict[str, dict[str, float]]:
+    """Precision and recall per change category of diff rows against a rescan's ``changes.csv`` rows: a change
+    is right where the truth has the same category at the same location (for a move, from the same location
+    too), each truth row matched at most once."""
+    from collections import Counter
+
+    def key(r: dict) -> tuple[str, str, str]:
+        return (
+            str(r["change"]),
+            str(r["location"]),
+            str(r.get("other_location") or "") if r["change"] == "moved" else "",
+        )
+
+    got, want = Counter(map(key, found)), Counter(map(key, truth))
+    out = {}
+    for cat in ("added", "removed", "moved", "shifted"):
+        g = {k: v for k, v in got.items() if k[0] == cat}
+        w = {k: v for k, v in want.items() if k[0] == cat}
+        tp = sum(min(v, w.get(k, 0)) for k, v in g.items())
+        ng, nw = sum(g.values()), sum(w.values())
+        out[cat] = {"tp": tp, "found": ng, "truth": nw, "precision": tp / ng if ng else 1.0,
+                    "recall": tp / nw if nw else 1.0}  # fmt: skip
+    return out

@@ -82,3 +82,32 @@ def ray_local() -> Iterator[str]:
         finally:
             shutdown()
             shutil.rmtree(temp, ignore_errors=True)
+
+
+#: a tiny building (2 aisles of 3-4 bays; 32x24 images, 128 px layouts: the maps read only the layouts)
+TINY_BUILDING = {
+    "aisles": 2, "bays": [3, 4], "bay_width": [1.6, 2.0], "levels": [2, 3], "pass_length": 4.5,
+    "overlap": [1.5, 2.0], "twice_share": 0.5,
+}  # fmt: skip
+TINY_CONFIG = {"camera": {"step": [0.25, 0.3]}}
+
+
+@pytest.fixture(scope="session")
+def tiny_building(tmp_path_factory) -> Path:
+    """A generated tiny building (`TINY_BUILDING`, seed 3), shared by the building tests of a worker."""
+    from layouts.spec import LayoutSpec
+    from waresynth.building_generate import generate_building
+
+    root = tmp_path_factory.mktemp("tiny_building") / "b"
+    return generate_building(root, building=TINY_BUILDING, config=TINY_CONFIG, image_size=(32, 24),
+                             spec=LayoutSpec(size=128), seed=3, progress=False)  # fmt: skip
+
+
+@pytest.fixture(scope="session")
+def tiny_building_map(tiny_building, tmp_path_factory) -> Path:
+    """`tiny_building` mapped from its ground-truth layouts (`mvracklay map --layouts gt`): the MAP folder."""
+    from mvracklay.building_job import map_building
+
+    out = tmp_path_factory.mktemp("tiny_building_map") / "m"
+    map_building(tiny_building, out, layouts="gt", progress=False)
+    return out

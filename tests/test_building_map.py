@@ -12,7 +12,6 @@ import pytest
 
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED, read_inventory
-from layouts.spec import LayoutSpec
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
 from stitching.building_eval import evaluate_building
@@ -23,27 +22,16 @@ from stitching.building_route import load_route, parse_pose_noise, perturb
 from stitching.export_gltf import glb_json
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
-from waresynth.building_generate import generate_building
-
-BUILDING = {
-    "aisles": 2, "bays": [3, 4], "bay_width": [1.6, 2.0], "levels": [2, 3], "pass_length": 4.5,
-    "overlap": [1.5, 2.0], "twice_share": 0.5,
-}  # fmt: skip
-CONFIG = {"camera": {"step": [0.25, 0.3]}}
 
 
-@pytest.fixture(scope="module")
-def building(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("building") / "b"
-    return generate_building(root, building=BUILDING, config=CONFIG, image_size=(32, 24), spec=LayoutSpec(size=128),
-                             seed=3, progress=False)  # fmt: skip
+@pytest.fixture
+def building(tiny_building) -> Path:
+    return tiny_building
 
 
-@pytest.fixture(scope="module")
-def mapped(building, tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("map") / "m"
-    map_building(building, out, layouts="gt", progress=False)
-    return out
+@pytest.fixture
+def mapped(tiny_building_map) -> Path:
+    return tiny_building_map
 
 
 def _truth(building: Path) -> tuple[dict, list[dict]]:

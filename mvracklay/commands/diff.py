@@ -1,0 +1,117 @@
+"""``mvracklay diff``: what changed between two scans of a building, per location."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from layouts.errors import InputError
+
+NAME = "diff"
+HELP = "what changed between two building maps: boxes added, removed, moved, shifted, per location"
+DESCRIPTION = (
+    "Compares two building maps of the same building (`mvracklay map`'s output folders or building.json; any "
+    "route poses, camera distances or passes): per location the boxes added, removed, moved (from -> to) and "
+    "shifted along their level, and the change of free length, each change with a confidence from both maps. "
+    "A location the new scan did not see is `not scanned`, never `removed`. Prints the changes and writes "
+    "DIR/changes.csv and changes.json (the columns of a generated rescan's ground_truth/changes.csv, plus "
+    "confidence; the JSON also per location), DIR/changes.glb and changes.rrd (added green, removed a red "
+    "outline, moved blue with an arrow from where it stood, shifted orange)."
+)
+GROUP = "use"
+ORDER = 14
+INTERRUPTED = "DIR left as it was"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("old", metavar="OLD_MAP", help="the earlier scan's building map (folder or building.json)")
+    p.add_argument("new", metavar="NEW_MAP", help="the later scan's building map")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder of the changes")
+    p.add_argument(
+        "--truth",
+        type=Path,
+        metavar="CHANGES_CSV",
+        help="a generated rescan's ground_truth/changes.csv: print precision and recall per change category",
+    )
+    p.add_argument("--same", type=float, default=0.08, help="metres along a level within which a box has not moved")
+    p.add_argument(
+        "--size-tol", type=float, default=0.06, help="metres each size may differ for a box in place to be the same"
+    )
+    p.add_argument(
+        "--move-tol", type=float, default=0.015, help="metres each size may differ for a box found elsewhere (a move)"
+    )
+    p.add_argument("--no-rrd", action="store_true", help="do not write changes.rrd")
+    p.add_argument("--limit", type=int, default=40, help="changes printed (all are written)")
+
+
+def building_path(arg: str | Path, name: str) -> Path:
+    path = Path(arg)
+    if path.is_dir():
+        path = path / "building.json"
+    if not path.is_file():
+        raise InputError(f"{name} {arg}: no building map there (want `mvracklay map`'s folder or its building.json)")
+    return path
+
+
+def run(args: argparse.Namespace) -> int:
+    from layouts.fileio import atomic_write_json, atomic_write_text
+    from mvracklay.outputs import check_out
+    from stitching.building_diff import CHANGE_COLUMNS, DiffConfig, diff_buildings, format_diff
+    from stitching.building_diff_export import export_changes_glb, write_changes_rrd
+    from stitching.building_map import BuildingMap
+
+    for name, v in (("--same", args.same), ("--size-tol", args.size_tol), ("--move-tol", args.move_tol)):
+        if not 0 <= v <= 5:
+            raise InputError(f"{name} must be in [0, 5] metres, got {v}")
+    old = BuildingMap.load(building_path(args.old, "OLD_MAP"))
+    new = BuildingMap.load(building_path(args.new, "NEW_MAP"))
+    truth = None
+    if args.truth is not None:
+        if not args.truth.is_file():
+            raise InputError(f"--truth {args.truth}: file not found")
+        truth = _read_changes(args.truth)
+    check_out(args.out, overwrite=True)
+    d = diff_buildings(old, new, DiffConfig(args.same, args.size_tol, args.move_tol))
+    print(format_diff(d, args.limit))
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = d.rows()
+    atomic_write_text(args.out / "changes.csv", _csv(rows, CHANGE_COLUMNS))
+    doc = {"columns": list(CHANGE_COLUMNS), "changes": rows, "counts": d.counts(),
+           "locations": [vars(loc) for loc in d.locations]}  # fmt: skip
+    if truth is not None:
+        from stitching.building_eval import evaluate_changes
+
+        scores = evaluate_changes(rows, truth)
+        doc["evaluation"] = scores
+        for cat, s in scores.items():
+            print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
+                  f"{s['truth']} true)")  # fmt: skip
+    atomic_write_json(args.out / "changes.json", doc)
+    export_changes_glb(new, old, d, args.out / "changes.glb")
+    written = ["changes.csv", "changes.json", "changes.glb"]
+    if not args.no_rrd:
+        write_changes_rrd(new, old, d, args.out / "changes.rrd")
+        written.append("changes.rrd")
+    print("wrote " + ", ".join(str(args.out / n) for n in written))
+    return 0
+
+
+def _csv(rows: list[dict], columns: tuple[str, ...]) -> str:
+    import csv
+    import io
+
+    out = io.StringIO()
+    w = csv.DictWriter(out, fieldnames=columns, lineterminator="\n")
+    w.writeheader()
+    w.writerows(rows)
+    return out.getvalue()
+
+
+def _read_changes(path: Path) -> list[dict[str, str]]:
+    import csv
+
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if rows and not {"location", "change"} <= set(rows[0]):
+        raise InputError(f"--truth {path}: not a changes.csv (its header lacks location, change)")
+    return rows

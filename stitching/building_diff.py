@@ -1,0 +1,236 @@
+"""What changed between two scans of a building: per location the boxes added, removed, moved (from -> to) and
+shifted along their level, and the change of free space, each with a confidence.
+
+Both maps are `BuildingMap`s of the same building (any route poses, camera distances or passes): their boxes
+are compared in the building frame, per face and level, in four rounds (`DiffConfig`):
+
+1. **the same box**: an old and a new box (of similar size) whose centres lie within ``same`` along the
+   level, one to one, nearest first; nothing changed;
+2. **shifted**: of the rest, an old and a new box of similar size in the same location, one to one, nearest
+   first;
+3. **moved**: of the rest, building-wide, an old and a new box of the same size (within ``move_tol``) and
+   colour (where both scans saw it) in different locations, one to one by size (Hungarian);
+4. **removed** / **added**: what is left of the old / the new scan.
+
+Where one scan did not see a box's place (its location not scanned by the other scan), the box is not
+compared: its location is ``not scanned`` (never ``removed``). A change's confidence is the product of the
+boxes' confidences and the shares of their locations each scan saw.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from layouts.errors import InputError
+from layouts.locations import NOT_SCANNED
+from stitching.building_map import BuildingMap, FaceMap, Location
+from stitching.free_space import shelf_free_space
+from stitching.warehouse_map import MapBox, MapShelf
+
+CHANGES = ("added", "removed", "moved", "shifted")
+CHANGE_COLUMNS = (
+    "location", "change", "other_location", "boxes", "size", "box_ids", "old_box_ids", "x", "old_x", "note",
+    "confidence",
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DiffConfig:
+    same: float = 0.08  #: metres along the level within which an old and a new box are the same box
+    size_tol: float = 0.06  #: metres each of width, height, depth may differ for two boxes to be one in place
+    move_tol: float = 0.015  #: the same for a box found elsewhere (a move: stricter, as any box may match)
+    colour_tol: float = 40.0  #: RGB distance two boxes' colours may differ by to be one, where both maps saw them
+    min_shift: float = 0.08  #: metres a box must move along its level to count as shifted
+
+
+@dataclass
+class _Box:
+    code: str
+    key: tuple[int, str, int]  #: (aisle, side, level)
+    x: float  #: building X of its centre
+    box: MapBox
+    weight: float  #: its confidence times its location's seen share
+
+
+@dataclass
+class Change:
+    location: str
+    change: str  #: added | removed | moved | shifted
+    other_location: str = ""  #: a move's old location
+    size: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: width x height x depth of the (new, else old) box
+    box_ids: list[str] = field(default_factory=list)  #: in the new map
+    old_box_ids: list[str] = field(default_factory=list)  #: in the old map
+    x: float | None = None  #: building X of the new box
+    old_x: float | None = None
+    confidence: float = 1.0
+
+    def row(self) -> dict[str, Any]:
+        return {
+            "location": self.location, "change": self.change, "other_location": self.other_location, "boxes": 1,
+            "size": "x".join(f"{v:.3f}" for v in self.size), "box_ids": ";".join(self.box_ids),
+            "old_box_ids": ";".join(self.old_box_ids), "x": "" if self.x is None else round(self.x, 4),
+            "old_x": "" if self.old_x is None else round(self.old_x, 4), "note": "",
+            "confidence": round(self.confidence, 4),
+        }  # fmt: skip
+
+
+@dataclass
+class LocationChange:
+    """One location's summary: counts of each change, the free length's change, or ``not scanned``."""
+
+    location: str
+    status: str  #: "changed", "unchanged", "not scanned" (the new scan did not see it), "new" (only in the new)
+    added: int = 0
+    removed: int = 0
+    moved_in: int = 0
+    moved_out: int = 0
+    shifted: int = 0
+    free_length_change_m: float | None = None
+
+
+@dataclass
+class BuildingDiff:
+    changes: list[Change]
+    locations: list[LocationChange]
+
+    def rows(self) -> list[dict[str, Any]]:
+        return [c.row() for c in self.changes]
+
+    def counts(self) -> dict[str, int]:
+        return {k: sum(1 for c in self.changes if c.change == k) for k in CHANGES}
+
+
+def _seen(bmap: BuildingMap) -> dict[str, tuple[FaceMap, MapShelf, Location]]:
+    return {loc.code: (f, s, loc) for f, s, loc in bmap.locations()}
+
+
+def _boxes(bmap: BuildingMap) -> list[_Box]:
+    out = []
+    for f, shelf, loc in bmap.locations():
+        if not loc.scanned:
+            continue
+        for b in shelf.boxes:
+            out.append(_Box(loc.code, (loc.aisle, loc.side, loc.level), f.sign * b.center[0] + 0.0, b,
+                            b.confidence * min(1.0, loc.seen)))  # fmt: skip
+    return out
+
+
+def _similar(a: MapBox, b: MapBox, tol: float, colour_tol: float = float("inf")) -> bool:
+    if a.colour is not None and b.colour is not None:
+        if sum((u - v) ** 2 for u, v in zip(a.colour, b.colour)) ** 0.5 > colour_tol:
+            return False
+    return all(abs(u - v) <= tol for u, v in zip(a.size, b.size))
+
+
+def _covered(bmaps: _Box, other: dict[str, tuple[FaceMap, MapShelf, Location]]) -> bool:
+    """Whether the other scan saw the place of this box (its location there exists and was scanned)."""
+    t = other.get(bmaps.code)
+    return t is not None and t[2].scanned
+
+
+def _greedy(old: list[_Box], new: list[_Box], ok, cost) -> list[tuple[_Box, _Box]]:
+    """One-to-one pairs, cheapest first, among the pairs ``ok`` allows."""
+    pairs = sorted(((cost(o, n), i, j) for i, o in enumerate(old) for j, n in enumerate(new) if ok(o, n)))
+    used_o, used_n, out = set(), set(), []
+    for _, i, j in pairs:
+        if i not in used_o and j not in used_n:
+            used_o.add(i)
+            used_n.add(j)
+            out.append((old[i], new[j]))
+    return out
+
+
+def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None = None) -> BuildingDiff:
+    """The changes from ``old`` to ``new`` (see the module docstring)."""
+    if not isinstance(old, BuildingMap) or not isinstance(new, BuildingMap):
+        raise InputError("diff: both maps must be building maps (`mvracklay map`'s building.json)")
+    cfg = config or DiffConfig()
+    seen_old, seen_new = _seen(old), _seen(new)
+    old_boxes = [b for b in _boxes(old) if _covered(b, seen_new)]
+    new_boxes = [b for b in _boxes(new) if _covered(b, seen_old)]
+
+    def drop(pairs: list[tuple[_Box, _Box]]) -> None:
+        gone_o, gone_n = {id(o) for o, _ in pairs}, {id(n) for _, n in pairs}
+        old_boxes[:] = [b for b in old_boxes if id(b) not in gone_o]
+        new_boxes[:] = [b for b in new_boxes if id(b) not in gone_n]
+
+    same = _greedy(old_boxes, new_boxes, lambda o, n: o.key == n.key and abs(o.x - n.x) <= cfg.same
+                   and _similar(o.box, n.box, cfg.size_tol), lambda o, n: abs(o.x - n.x))  # fmt: skip
+    drop(same)
+    shifted = _greedy(old_boxes, new_boxes, lambda o, n: o.code == n.code and abs(o.x - n.x) >= cfg.min_shift
+                      and _similar(o.box, n.box, cfg.size_tol), lambda o, n: abs(o.x - n.x))  # fmt: skip
+    drop(shifted)
+    moved = []
+    if old_boxes and new_boxes:
+        cost = np.array(
+            [[sum(abs(u - v) for u, v in zip(o.box.size, n.box.size)) for n in new_boxes] for o in old_boxes]
+        )
+        rr, cc = linear_sum_assignment(cost)
+        moved = [(old_boxes[i], new_boxes[j]) for i, j in zip(rr, cc)
+                 if old_boxes[i].code != new_boxes[j].code and _similar(old_boxes[i].box, new_boxes[j].box, cfg.move_tol, cfg.colour_tol)]  # fmt: skip
+        drop(moved)
+    changes = []
+    for o, n in shifted:
+        changes.append(Change(n.code, "shifted", "", n.box.size, [n.box.id], [o.box.id], n.x, o.x, o.weight * n.weight))
+    for o, n in moved:
+        changes.append(
+            Change(n.code, "moved", o.code, n.box.size, [n.box.id], [o.box.id], n.x, o.x, o.weight * n.weight)
+        )
+    for o in old_boxes:
+        w = seen_new[o.code][2].seen
+        changes.append(Change(o.code, "removed", "", o.box.size, [], [o.box.id], None, o.x, o.weight * w))
+    for n in new_boxes:
+        w = seen_old[n.code][2].seen
+        changes.append(Change(n.code, "added", "", n.box.size, [n.box.id], [], n.x, None, n.weight * w))
+    order = {code: k for k, code in enumerate(sorted(set(seen_old) | set(seen_new)))}
+    changes.sort(key=lambda c: (order[c.location], CHANGES.index(c.change), c.x if c.x is not None else c.old_x))
+    return BuildingDiff(changes, _per_location(seen_old, seen_new, changes))
+
+
+def _per_location(seen_old: dict, seen_new: dict, changes: list[Change]) -> list[LocationChange]:
+    out = []
+    for code in sorted(set(seen_old) | set(seen_new)):
+        o, n = seen_old.get(code), seen_new.get(code)
+        if n is None or not n[2].scanned:
+            out.append(LocationChange(code, NOT_SCANNED))
+            continue
+        if o is None or not o[2].scanned:
+            out.append(LocationChange(code, "new"))
+            continue
+        lc = LocationChange(code, "unchanged")
+        for c in changes:
+            if c.location == code:
+                kind = {"added": "added", "removed": "removed", "shifted": "shifted", "moved": "moved_in"}[c.change]
+                setattr(lc, kind, getattr(lc, kind) + 1)
+            if c.change == "moved" and c.other_location == code:
+                lc.moved_out += 1
+        lc.free_length_change_m = round(shelf_free_space(n[1]).free_length - shelf_free_space(o[1]).free_length, 4)
+        if lc.added or lc.removed or lc.moved_in or lc.moved_out or lc.shifted:
+            lc.status = "changed"
+        out.append(lc)
+    return out
+
+
+def format_diff(d: BuildingDiff, limit: int = 40) -> str:
+    """A plain-text table of the changes (one line each), then the counts."""
+    if not d.changes:
+        lines = ["no change"]
+    else:
+        head = f"{'location':<14} {'change':<8} {'from':<14} {'size (m)':<19} {'x':>7} {'old_x':>7} {'conf':>5}"
+        lines = [head, "-" * len(head)]
+        for c in d.changes[:limit]:
+            r = c.row()
+            lines.append(
+                f"{c.location:<14} {c.change:<8} {c.other_location or '-':<14} {r['size']:<19} {str(r['x']):>7} "
+                f"{str(r['old_x']):>7} {c.confidence:>5.2f}"
+            )
+        if len(d.changes) > limit:
+            lines.append(f"... and {len(d.changes) - limit} more (changes.csv lists all)")
+    counts = d.counts()
+    unseen = sum(1 for loc in d.locations if loc.status == NOT_SCANNED)
+    lines.append(", ".join(f"{v} {k}" for k, v in counts.items()) + f"; {unseen} locations not scanned by the new scan")
+    return "\n".join(lines)
