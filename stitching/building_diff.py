@@ -14,7 +14,8 @@ are compared in the building frame, per face and level, in four rounds (`DiffCon
 
 Where one scan did not see a box's place (its location not scanned by the other scan), the box is not
 compared: its location is ``not scanned`` (never ``removed``). A change's confidence is the product of the
-boxes' confidences and the shares of their locations each scan saw.
+boxes' confidences and the shares of their locations each scan saw. The tolerances (`DiffConfig.for_maps`)
+are wider between maps made from the network's layouts.
 """
 
 from __future__ import annotations
@@ -45,6 +46,14 @@ class DiffConfig:
     move_tol: float = 0.015  #: the same for a box found elsewhere (a move: stricter, as any box may match)
     colour_tol: float = 40.0  #: RGB distance two boxes' colours may differ by to be one, where both maps saw them
     min_shift: float = 0.08  #: metres a box must move along its level to count as shifted
+
+    @classmethod
+    def for_maps(cls, old: BuildingMap, new: BuildingMap) -> DiffConfig:
+        """The tolerances for these maps: wider where either was made from the network's layouts, whose boxes
+        move by a few centimetres and change size by up to ten between two scans of the same stack."""
+        if "net" in (old.meta.get("layouts"), new.meta.get("layouts")):
+            return cls(same=0.15, size_tol=0.15, move_tol=0.05, min_shift=0.15)
+        return cls()
 
 
 @dataclass
@@ -148,7 +157,7 @@ def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None
     """The changes from ``old`` to ``new`` (see the module docstring)."""
     if not isinstance(old, BuildingMap) or not isinstance(new, BuildingMap):
         raise InputError("diff: both maps must be building maps (`mvracklay map`'s building.json)")
-    cfg = config or DiffConfig()
+    cfg = config or DiffConfig.for_maps(old, new)
     seen_old, seen_new = _seen(old), _seen(new)
     old_boxes = [b for b in _boxes(old) if _covered(b, seen_new)]
     new_boxes = [b for b in _boxes(new) if _covered(b, seen_old)]

@@ -33,12 +33,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="CHANGES_CSV",
         help="a generated rescan's ground_truth/changes.csv: print precision and recall per change category",
     )
-    p.add_argument("--same", type=float, default=0.08, help="metres along a level within which a box has not moved")
     p.add_argument(
-        "--size-tol", type=float, default=0.06, help="metres each size may differ for a box in place to be the same"
+        "--same",
+        type=float,
+        help="metres along a level within which a box has not moved (default 0.08; 0.15 between network-made maps)",
     )
     p.add_argument(
-        "--move-tol", type=float, default=0.015, help="metres each size may differ for a box found elsewhere (a move)"
+        "--size-tol",
+        type=float,
+        help="metres each size may differ for a box in place to be the same (default 0.06; 0.15 network-made)",
+    )
+    p.add_argument(
+        "--move-tol",
+        type=float,
+        help="metres each size may differ for a box found elsewhere, a move (default 0.015; 0.05 network-made)",
     )
     p.add_argument("--no-rrd", action="store_true", help="do not write changes.rrd")
     p.add_argument("--limit", type=int, default=40, help="changes printed (all are written)")
@@ -61,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from stitching.building_map import BuildingMap
 
     for name, v in (("--same", args.same), ("--size-tol", args.size_tol), ("--move-tol", args.move_tol)):
-        if not 0 <= v <= 5:
+        if v is not None and not 0 <= v <= 5:
             raise InputError(f"{name} must be in [0, 5] metres, got {v}")
     old = BuildingMap.load(building_path(args.old, "OLD_MAP"))
     new = BuildingMap.load(building_path(args.new, "NEW_MAP"))
@@ -71,7 +79,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--truth {args.truth}: file not found")
         truth = _read_changes(args.truth)
     check_out(args.out, overwrite=True)
-    d = diff_buildings(old, new, DiffConfig(args.same, args.size_tol, args.move_tol))
+    from dataclasses import replace
+
+    given = {
+        k: v
+        for k, v in (("same", args.same), ("size_tol", args.size_tol), ("move_tol", args.move_tol))
+        if v is not None
+    }
+    d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
     print(format_diff(d, args.limit))
     args.out.mkdir(parents=True, exist_ok=True)
     rows = d.rows()
