@@ -66,11 +66,16 @@ def test_pose_noise_on_both_scans(scans, tmp_path):
     assert all(s["precision"] >= 0.95 and s["recall"] >= 0.95 for s in scores.values()), scores
 
 
-def test_a_rescan_without_changes_reports_nothing(scans):
+def test_a_rescan_without_changes_keeps_the_codes_and_reports_nothing(scans):
     quiet = _rescan(scans["old_data"], scans["root"] / "same", 12, {k: 0.0 for k in RATES})
     assert len(_truth(quiet / "ground_truth/changes.csv")) == 0
     new = map_building(quiet, scans["root"] / "same_map", layouts="gt", rrd=False, progress=False).map
-    d = diff_buildings(_load(scans["old"]), new)
+    old = _load(scans["old"])
+    # another scan (new passes, cameras, distances): the same codes for the same racks
+    assert [t[2].code for t in new.locations()] == [t[2].code for t in old.locations()]
+    for (fo, so, _), (fn, sn, _) in zip(old.locations(), new.locations()):
+        assert abs(fo.to_building(so.cuboid).center[0] - fn.to_building(sn.cuboid).center[0]) < 0.05
+    d = diff_buildings(old, new)
     assert d.changes == [] and {loc.status for loc in d.locations} == {"unchanged"}
 
 
