@@ -159,3 +159,26 @@ def test_bad_input_is_one_line(building, tmp_path, capsys):
     bad.write_text(json.dumps(doc))
     with pytest.raises(InputError, match=r"route.json: passes\[0\].side"):
         load_route(bad)
+
+
+def test_a_route_file_of_ones_own(building, tmp_path):
+    """A route file elsewhere naming its passes' folders relative to itself, levels by ``first_level``."""
+    import os
+
+    doc = json.loads((building / "route.json").read_text())
+    face = (doc["passes"][0]["aisle"], doc["passes"][0]["side"])
+    mine = [p for p in doc["passes"] if (p["aisle"], p["side"]) == face]
+    route = {
+        "faces": [f for f in doc["faces"] if (f["aisle"], f["side"]) == face],
+        "passes": [
+            {"sequence": os.path.relpath(building / p["sequence"], tmp_path), "aisle": p["aisle"], "side": p["side"],
+             "start": p["start"], "first_level": p["levels"][0]}
+            for p in mine
+        ],
+    }  # fmt: skip
+    (tmp_path / "route.json").write_text(json.dumps(route))
+    res = map_building(tmp_path / "route.json", tmp_path / "m", layouts="gt", rrd=False, progress=False)
+    assert len(res.map.faces) == 1 and res.map.box_count() > 0
+    rows = {r["location"]: r for r in res.inventory}
+    truth = {r["location"]: r for r in _truth(building)[1] if r["pass"]}
+    assert set(rows) <= set(truth) and all(rows[c]["boxes"] == int(truth[c]["boxes"]) for c in rows)
