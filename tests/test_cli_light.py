@@ -49,7 +49,7 @@ def test_help_lists_the_commands_in_groups_without_heavy_imports():
     names = [
         [line.split()[0] for line in b.splitlines()[1:] if line.startswith("  ") and line[2] != " "] for b in blocks
     ]
-    assert names[0] == ["run", "reconstruct", "free-space", "predict"]
+    assert names[0] == ["run", "reconstruct", "free-space", "predict", "map", "diff"]
     assert names[1] == ["generate", "inspect", "export", "merge-shards"]
     assert names[2][:4] == ["train", "evaluate", "evaluate-baseline", "eval-reconstruction"]
 

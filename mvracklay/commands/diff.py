@@ -19,7 +19,7 @@ DESCRIPTION = (
     "outline, moved blue with an arrow from where it stood, shifted orange)."
 )
 GROUP = "use"
-ORDER = 14
+ORDER = 15
 INTERRUPTED = "DIR left as it was"
 
 

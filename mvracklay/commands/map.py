@@ -28,7 +28,7 @@ DESCRIPTION = (
     "and each pass's row map under MAP/passes/, which a later run with the same settings reuses."
 )
 GROUP = "use"
-ORDER = 13
+ORDER = 14
 #: what the CLI says when interrupted: the passes mapped so far are kept
 INTERRUPTED = "the passes mapped so far are kept in MAP/passes; run it again to go on"
 
