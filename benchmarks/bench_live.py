@@ -4,7 +4,8 @@ and forth), and the process's memory (RSS) over a longer stream: it should stay 
 
 Each case runs `mvracklay.api.reconstruct_live` on ``udp://127.0.0.1:PORT`` (PyAV decoding in the reader thread,
 the bounded buffer, the network, the stitcher, the recording written to a temporary .rrd) while a thread of this
-process encodes and sends the frames, so the sender shares the cores with the run.
+process encodes and sends the frames, so the sender shares the cores with the run. The distance (2.6 m) and a
+level mount are given, so no frames are read ahead (`--read-angles` reads the angles, the first ten frames ahead).
 
     .venv/bin/python benchmarks/bench_live.py                       # 128 and 256, 10 s each; memory over 0.5 min
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --fps 30 --seconds 20 --minutes 10
@@ -87,6 +88,7 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
     from mvracklay.api import reconstruct_live
 
     url, go = f"udp://127.0.0.1:{free_port()}", threading.Event()
+    angles = {} if args.read_angles else {"roll": 0.0, "pitch": 0.0, "yaw": 0.0}
     opener = live_source._open_container
 
     def opened(*a):  # the sender starts once the receiver opens
@@ -110,7 +112,7 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
     try:
         res = reconstruct_live(url, out=tmp / f"out{size}_{int(seconds)}", checkpoint=MODELS[size],
                                distance=2.6, threads=args.threads, idle_timeout=2.0, buffer=args.buffer,
-                               every=args.every)  # fmt: skip
+                               every=args.every, **angles)  # fmt: skip
     finally:
         live_source._open_container = opener
         done.set()
@@ -121,18 +123,21 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--sizes", type=int, nargs="+", default=[128, 256], choices=sorted(MODELS))
+    p.add_argument("--sizes", type=int, nargs="*", default=[128, 256], choices=sorted(MODELS), help="none: the memory run only")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--fps", type=float, default=10.0, help="the stream's frame rate")
     p.add_argument("--seconds", type=float, default=10.0, help="stream length per size for the latency")
     p.add_argument("--minutes", type=float, default=0.5, help="stream length of the memory run (128; 0: none)")
     p.add_argument("--buffer", type=int, default=2, help="--live-buffer")
     p.add_argument("--every", default=1, type=lambda s: s if s == "auto" else int(s), help="N or auto")
+    p.add_argument("--read-angles", action="store_true", help="read roll / pitch / yaw (default: a level mount given)")
     p.add_argument("--frames", type=int, default=40, help="frames of the generated sequence (played back and forth)")
     args = p.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-live-") as t:
         tmp = Path(t)
-        print(f"stream: UDP MPEG-TS at {args.fps:g} fps; {args.threads} threads; buffer {args.buffer}; every {args.every}")
+        print(
+            f"stream: UDP MPEG-TS at {args.fps:g} fps; {args.threads} threads; buffer {args.buffer}; every {args.every}"
+        )
         print("size  seconds  received  mapped  dropped  mapped/s  latency p50   p95 ms  boxes")
         for size in args.sizes:
             frames = frames_of(size, args.frames, 202, tmp)

@@ -91,7 +91,7 @@ class LiveRun:
         self._last: float | None = None
 
     def mapped(self, frame: PredictedFrame, stitcher: Stitcher) -> None:
-        received, stream_time = self.source.arrivals[frame.index]
+        received, stream_time = self.source.arrival(frame.index)
         latency = time.monotonic() - received
         self.latencies.append(latency)
         t = stream_time if stream_time is not None else received

@@ -169,9 +169,8 @@ class Spacing:
 
 @dataclass
 class LiveSource(FrameSource):
-    """A live stream as a `FrameSource` (kind ``live``): `open_live` makes one. ``arrivals[i]`` is when the i-th
-    frame given out was received, its stream time and the frame's number in the stream; ``stats`` what came and
-    what was dropped."""
+    """A live stream as a `FrameSource` (kind ``live``, `open_live`): the frames given out are the buffer's, in
+    order; `arrival` says when each was received; `stats` what came, what was dropped; `stop` ends it."""
 
     url: str = ""  #: the source as printed and recorded (`shown`)
     target: str = field(default="", repr=False)  #: the source as opened
@@ -180,13 +179,18 @@ class LiveSource(FrameSource):
     every: int | str = 1
     buffer: LatestFrames = field(default_factory=LatestFrames, repr=False)
     spacing: Spacing | None = field(default=None, repr=False)
-    arrivals: list[tuple[float, float | None]] = field(default_factory=list, repr=False)
+    #: frame index given out -> (when received, stream time) until the frame is mapped (`arrival`)
+    arrivals: dict[int, tuple[float, float | None]] = field(default_factory=dict, repr=False)
+    given: int = 0  #: frames given out
     ended: str = ""  #: why the stream ended ("" while it runs)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
+    #: set while the reader reopens a lost connection (the idle timeout waits for it: the retries decide)
+    _reconnecting: threading.Event = field(default_factory=threading.Event, repr=False)
     _thread: threading.Thread | None = field(default=None, repr=False)
     _container: Any = field(default=None, repr=False)
     _first: Arrival | None = field(default=None, repr=False)
     _decoded: int = 0
+    _tries: int = 0  #: reconnections tried since the last frame decoded
 
     def stop(self, why: str = "stopped") -> None:
         """End the stream: the frames waiting are dropped, the pipeline finishes with what it mapped."""
@@ -212,6 +216,8 @@ class LiveSource(FrameSource):
         n = 0
         while not self._stop.is_set() and not (max_frames and n >= max_frames):
             item = self.buffer.get(self.idle_timeout, self._stop)
+            if item is None and self._reconnecting.is_set() and not self.buffer.closed:
+                continue
             if item is None:
                 if not self._stop.is_set() and not self.buffer.closed:
                     self.ended = self.ended or f"quiet for {self.idle_timeout:g} s"
@@ -219,14 +225,19 @@ class LiveSource(FrameSource):
             t = item.stream_time if item.stream_time is not None else item.received
             if self.spacing is not None and not self.spacing.keep(t):
                 continue
-            self.arrivals.append((item.received, item.stream_time))
+            self.arrivals[self.given] = (item.received, item.stream_time)
+            self.given += 1
             n += 1
             yield item.rgb
         self.ended = self.ended or ("max frames reached" if max_frames and n >= max_frames else "stream ended")
         self._stop.set()
 
+    def arrival(self, index: int) -> tuple[float, float | None]:
+        """When the frame given out as ``index`` was received and its stream time (forgotten once asked)."""
+        return self.arrivals.pop(index)
+
     def _keep(self, frame: Any) -> bool:
-        """Whether the reader buffers the decoded ``frame`` (every N-th with an integer ``every``), sized right."""
+        """Whether the reader buffers the decoded ``frame`` (every N-th with an integer ``every``)."""
         self._decoded += 1
         return not isinstance(self.every, int) or (self._decoded - 1) % self.every == 0
 
@@ -242,7 +253,6 @@ class LiveSource(FrameSource):
         if self._first is not None:
             self.buffer.put(self._first)
             self._first = None
-        tries = 0
         while not self._stop.is_set():
             container, failed = self._container, None
             try:
@@ -250,7 +260,7 @@ class LiveSource(FrameSource):
                 for frame in container.decode(stream):
                     if self._stop.is_set():
                         break
-                    tries = 0
+                    self._tries = 0
                     if not self._keep(frame):
                         continue
                     item = self._arrival(frame)
@@ -272,9 +282,8 @@ class LiveSource(FrameSource):
                 self._container = None
             if failed is None or self._stop.is_set():
                 break
-            if not self._reconnect(failed, tries):
+            if not self._reconnect(failed):
                 break
-            tries += 1
         self.buffer.close()
 
     def _flush(self, container: Any) -> None:
@@ -286,13 +295,20 @@ class LiveSource(FrameSource):
         except Exception:  # noqa: BLE001 (a decoder that cannot flush gives nothing more)
             pass
 
-    def _reconnect(self, failed: str, tries: int) -> bool:
+    def _reconnect(self, failed: str) -> bool:
         """Reopen after a lost connection (one line each try); False once ``retries`` tries failed."""
-        while tries < self.retries and not self._stop.is_set():
-            tries += 1
-            print(f"{self.prog}: warning: {self.url}: connection lost ({failed}), reconnecting ({tries}/{self.retries})",
-                  file=sys.stderr, flush=True)  # fmt: skip
-            time.sleep(min(1.0 * tries, 3.0))
+        self._reconnecting.set()
+        try:
+            return self._reopen(failed)
+        finally:
+            self._reconnecting.clear()
+
+    def _reopen(self, failed: str) -> bool:
+        while self._tries < self.retries and not self._stop.is_set():
+            self._tries += 1
+            said = f"connection lost ({failed}), reconnecting ({self._tries}/{self.retries})"
+            print(f"{self.prog}: warning: {self.url}: {said}", file=sys.stderr, flush=True)
+            time.sleep(min(0.5 * self._tries, 3.0))
             try:
                 self._container = _open_container(self.target, self.idle_timeout, self.idle_timeout)
                 return True
@@ -306,7 +322,7 @@ class LiveSource(FrameSource):
         auto``: too close), mapped (given out), and the most held at once."""
         b = self.buffer
         skipped = self.spacing.skipped if self.spacing is not None else 0
-        return {"received": b.received, "dropped": b.dropped, "skipped": skipped, "given": len(self.arrivals),
+        return {"received": b.received, "dropped": b.dropped, "skipped": skipped, "given": self.given,
                 "buffer_most": b.most, "buffer_capacity": b.capacity}  # fmt: skip
 
 

@@ -157,6 +157,63 @@ def test_live_inputs_are_told_from_files(tmp_path):
     assert shown("rtsp://admin:secret@10.0.0.5/live") == "rtsp://10.0.0.5/live"
 
 
+def _ts(values: list[int], start: int) -> bytes:
+    """MPEG-TS bytes of flat 64x64 frames of ``values`` (pts from ``start``)."""
+    import io
+
+    import av
+
+    buf = io.BytesIO()
+    out = av.open(buf, "w", format="mpegts")
+    stream = out.add_stream("mpeg2video", rate=10)
+    stream.width = stream.height = 64
+    stream.pix_fmt, stream.gop_size = "yuv420p", 1
+    stream.codec_context.max_b_frames = 0
+    for i, v in enumerate(values):
+        frame = av.VideoFrame.from_ndarray(np.full((64, 64, 3), v, np.uint8), format="rgb24")
+        frame.pts = start + i
+        for packet in stream.encode(frame):
+            out.mux(packet)
+    for packet in stream.encode():
+        out.mux(packet)
+    out.close()
+    return buf.getvalue()
+
+
+def test_a_lost_connection_is_reopened_in_one_line(capsys):
+    import struct
+
+    from mvracklay.live_source import open_live
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(2)
+
+    def serve():
+        conn, _ = server.accept()
+        conn.sendall(_ts([10, 20, 30, 40, 50], 0))
+        time.sleep(0.8)
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        conn.close()  # a reset: the connection lost
+        conn, _ = server.accept()
+        data = _ts([100, 110, 120, 130, 140, 150], 5)
+        for k in range(0, len(data), 1316):  # as a live stream sends
+            conn.sendall(data[k : k + 1316])
+            time.sleep(0.01)
+        time.sleep(0.3)
+        conn.close()  # the stream's end
+
+    threading.Thread(target=serve, daemon=True).start()
+    url = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    src = open_live(url, idle_timeout=3.0, retries=2)
+    seen = [int(rgb[0, 0, 0]) for rgb in src.frames()]
+    server.close()
+    before, after = [v for v in seen if v < 90], [v for v in seen if v > 90]
+    assert len(before) >= 3 and len(after) >= 5 and src.ended == "stream ended"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"mvracklay run: warning: {url}: connection lost (ConnectionResetError), reconnecting (1/2)"]
+
+
 def test_a_url_that_cannot_be_opened_is_one_line_and_status_2(tiny_checkpoint, tmp_path, capsys):
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))

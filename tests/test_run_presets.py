@@ -10,8 +10,8 @@ import pytest
 
 from mvracklay import cli
 from mvracklay.options import FUSE_TAU
-from mvracklay.settings import LIVE_GROUP
 from mvracklay.pipeline import RunConfig
+from mvracklay.settings import LIVE_GROUP
 from stitching.warehouse_map import WarehouseMap
 
 
