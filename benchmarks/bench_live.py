@@ -123,7 +123,9 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--sizes", type=int, nargs="*", default=[128, 256], choices=sorted(MODELS), help="none: the memory run only")
+    p.add_argument(
+        "--sizes", type=int, nargs="*", default=[128, 256], choices=sorted(MODELS), help="none: the memory run only"
+    )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--fps", type=float, default=10.0, help="the stream's frame rate")
     p.add_argument("--seconds", type=float, default=10.0, help="stream length per size for the latency")

@@ -85,14 +85,14 @@ def test_a_udp_stream_is_mapped_as_the_folder_is_and_ends_when_quiet(
     out = tmp_path / "live"
     argv = ["run", url, "--out", str(out), "--checkpoint", str(tiny_checkpoint), *FIXED]
     # a buffer holding the whole stream: nothing dropped however slow this machine, so both runs see the same frames
-    assert main([*argv, "--idle-timeout", "1", "--live-buffer", "20"]) == 0
+    assert main([*argv, "--idle-timeout", "2", "--live-buffer", "20"]) == 0
     sender.join(10)
     text = capsys.readouterr().out
     wmap = WarehouseMap.load(out / "warehouse.json")
     assert {p.name for p in out.iterdir()} >= {"warehouse.json", "warehouse.glb", "warehouse.rrd", "layouts"}
     assert wmap.meta["input"] == url and wmap.meta["input_kind"] == "live"
     assert wmap.meta["frames"] == 20 and "20 frames received, 20 mapped, 0 dropped (0.0 %)" in text
-    assert "ended: quiet for 1 s" in text and "latency, frame received -> map updated: p50" in text
+    assert "ended: quiet for 2 s" in text and "latency, frame received -> map updated: p50" in text
     assert abs(len(wmap.boxes()) - ref_boxes) <= 0.1 * ref_boxes + 1
 
 
@@ -285,3 +285,31 @@ def test_viewer_sinks_serve_and_spawn_without_a_gui(monkeypatch):
     sinks, said = viewer_sinks(True, None)
     assert spawned == [{"port": 9876, "connect": False}] and len(sinks) == 1 and not said
     assert isinstance(sinks[0], rr.GrpcSink)
+
+
+def test_the_motion_read_sets_the_spacing_of_every_auto():
+    from types import SimpleNamespace
+
+    from mvracklay.live import LiveRun
+    from mvracklay.live_source import iter_live
+
+    src = iter_live(iter([np.zeros((8, 8, 3), np.uint8)]), every="auto")
+    src.arrivals.update({0: (5.0, 0.0), 1: (5.1, 0.2)})  # received, stream time: 0.2 s apart in the stream
+    run = LiveRun(src)
+    for i, step in enumerate((0.0, 0.05)):
+        run.mapped(SimpleNamespace(index=i, prediction=SimpleNamespace(camera_step=step)), None)
+    assert src.spacing.speed == pytest.approx(0.25) and not src.arrivals  # 5 cm in 0.2 s; arrivals forgotten
+    assert len(run.latencies) == 2
+
+
+def test_the_live_options_in_a_config_file(seq20, tmp_path, capsys):
+    import json
+
+    cfg = tmp_path / "live.json"
+    cfg.write_text(json.dumps({"idle-timeout": -1}))
+    base = ["run", str(seq20), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg)]
+    assert main(base) == 2 and "idle-timeout" in capsys.readouterr().err
+    cfg.write_text(json.dumps({"every": "auto", "idle-timeout": 2, "live-buffer": 4, "retries": 1}))
+    assert main(base) == 2  # taken by the file, refused for a file run in one line
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--every auto keeps a live stream's frames a few cm apart" in err[0]
