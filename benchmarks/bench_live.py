@@ -112,7 +112,7 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
     try:
         res = reconstruct_live(url, out=tmp / f"out{size}_{int(seconds)}", checkpoint=MODELS[size],
                                distance=2.6, threads=args.threads, idle_timeout=2.0, buffer=args.buffer,
-                               every=args.every, **angles)  # fmt: skip
+                               every=args.every, rrd=not args.no_rrd, **angles)  # fmt: skip
     finally:
         live_source._open_container = opener
         done.set()
@@ -132,6 +132,7 @@ def main() -> None:
     p.add_argument("--minutes", type=float, default=0.5, help="stream length of the memory run (128; 0: none)")
     p.add_argument("--buffer", type=int, default=2, help="--live-buffer")
     p.add_argument("--every", default=1, type=lambda s: s if s == "auto" else int(s), help="N or auto")
+    p.add_argument("--no-rrd", action="store_true", help="no recording (what memory the .rrd's logging takes)")
     p.add_argument("--read-angles", action="store_true", help="read roll / pitch / yaw (default: a level mount given)")
     p.add_argument("--frames", type=int, default=40, help="frames of the generated sequence (played back and forth)")
     args = p.parse_args()

@@ -213,8 +213,8 @@ def _stream_into_map(
 ) -> tuple[int, float, dict[str, float]]:
     """Stream the frames through ``pred`` (`mvracklay.inference.predict_frames`, as ``predict`` does): each frame's
     layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept), logged to the
-    ``recording`` and given to ``on_frame``. Returns the frame count, the last rack depth read and the seconds spent predicting, stitching
-    and logging."""
+    ``recording`` and given to ``on_frame``. Returns the frame count, the last rack depth read and the seconds
+    spent predicting, stitching and logging."""
     bar = tqdm(
         total=source.frame_count(cfg.max_frames or None),
         desc=f"predict+stitch ({cfg.mode})",
@@ -296,7 +296,7 @@ def _map_meta(
     """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
     lev = pred.leveller
     return {
-        "input": getattr(source, "url", None) or str(source.path),  # a live source's URL as given
+        "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
         "input_kind": source.kind,
         "frames": n,
         **({"every": cfg.every} if cfg.every != 1 else {}),  # every N-th input frame processed (live: or "auto")
