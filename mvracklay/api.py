@@ -139,7 +139,7 @@ def reconstruct_live(
 class LiveUpdates:
     """`reconstruct_live` as a generator: iterate for each `mvracklay.live.MapUpdate` as the map grows (the run goes
     on in a thread; at most ``pending`` updates wait for the reader, then the run waits); ``.result`` is the
-    `mvracklay.live.LiveResult` once the iteration ended."""
+    `mvracklay.live.LiveResult` once the iteration ended. Leaving the loop early abandons the run (nothing saved)."""
 
     def __init__(self, frames: Any, pending: int = 4, **kwargs: Any) -> None:
         self.frames, self.pending, self.kwargs = frames, pending, kwargs
@@ -150,24 +150,42 @@ class LiveUpdates:
         import threading
 
         q: queue.Queue = queue.Queue(maxsize=self.pending)
-        done = object()
+        done, left = object(), threading.Event()
         failed: list[BaseException] = []
+
+        def hand(update: Any) -> None:  # blocks while the reader is behind; gives up once the reader left
+            while not left.is_set():
+                try:
+                    return q.put(update, timeout=0.2)
+                except queue.Full:
+                    continue
+            raise _Abandoned
 
         def work() -> None:
             try:
-                self.result = reconstruct_live(self.frames, on_update=q.put, **self.kwargs)
+                self.result = reconstruct_live(self.frames, on_update=hand, **self.kwargs)
+            except _Abandoned:
+                pass
             except BaseException as e:  # noqa: BLE001 (raised again in the reader's thread)
                 failed.append(e)
             finally:
-                q.put(done)
+                if not left.is_set():
+                    q.put(done)
 
         thread = threading.Thread(target=work, name="live-updates", daemon=True)
         thread.start()
-        while (item := q.get()) is not done:
-            yield item
+        try:
+            while (item := q.get()) is not done:
+                yield item
+        finally:
+            left.set()
         thread.join()
         if failed:
             raise failed[0]
+
+
+class _Abandoned(Exception):
+    """The reader of `LiveUpdates` left the loop: the run stops."""
 
 
 def live_updates(frames: Any, **kwargs: Any) -> LiveUpdates:

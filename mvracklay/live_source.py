@@ -36,8 +36,10 @@ LIVE_SCHEMES = ("rtsp", "rtsps", "rtmp", "rtmps", "http", "https", "udp", "tcp",
 AUTO_SPACING = 0.06
 #: with ``every="auto"``, a frame is kept at least this often (seconds), so a stopped camera's motion is read again
 AUTO_MAX_GAP = 1.0
-#: FFmpeg options: probe briefly (a live stream has no index to read), buffer UDP generously
-_OPTIONS = {"analyzeduration": "500000", "probesize": "500000", "fifo_size": "1000000", "overrun_nonfatal": "1"}
+#: FFmpeg options: probe briefly (a live stream has no index to read); UDP into a ring of 50000 packets of 188 bytes
+#: (9.4 MB: seconds of an HD stream; its pages are touched as the stream goes round it, so a larger ring shows as
+#: memory growing for minutes), an overrun dropping packets rather than ending the stream
+_OPTIONS = {"analyzeduration": "500000", "probesize": "500000", "fifo_size": "50000", "overrun_nonfatal": "1"}
 _RTSP = {"rtsp_transport": "tcp"}
 
 
