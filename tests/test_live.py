@@ -313,3 +313,21 @@ def test_the_live_options_in_a_config_file(seq20, tmp_path, capsys):
     assert main(base) == 2  # taken by the file, refused for a file run in one line
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--every auto keeps a live stream's frames a few cm apart" in err[0]
+
+
+def test_leaving_the_updates_loop_early_stops_the_run(seq20, tiny_checkpoint, tmp_path):
+    import mvracklay
+
+    frames, stop = _frames(seq20), threading.Event()
+    kw = dict(checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0, yaw=0.0, threads=1)
+    try:
+        for update in mvracklay.live_updates(_endless(frames, stop), out=tmp_path / "left", **kw):
+            if update.index == 2:
+                break
+        (worker,) = [t for t in threading.enumerate() if t.name == "live-updates"] or [None]
+        if worker is not None:
+            worker.join(20)
+        assert worker is None or not worker.is_alive()
+        assert not (tmp_path / "left").exists()  # abandoned: nothing published
+    finally:
+        stop.set()
