@@ -141,14 +141,16 @@ def main() -> None:
         print(
             f"stream: UDP MPEG-TS at {args.fps:g} fps; {args.threads} threads; buffer {args.buffer}; every {args.every}"
         )
-        print("size  seconds  received  mapped  dropped  mapped/s  latency p50   p95 ms  boxes")
+        print("size  seconds  received  mapped  dropped  skipped  mapped/s  latency p50   p95 ms  boxes")
         for size in args.sizes:
             frames = frames_of(size, args.frames, 202, tmp)
             r = run_case(size, frames, args, args.seconds, tmp)
             rep = r["report"]
-            print(f"{size:4d}  {args.seconds:7.0f}  {rep.received:8d}  {rep.mapped:6d}  {100 * rep.dropped_share:6.1f}%  "
-                  f"{rep.mapped / args.seconds:8.1f}  {1000 * rep.latency_p50:11.0f}  {1000 * rep.latency_p95:7.0f}  "
-                  f"{r['boxes']:5d}")  # fmt: skip
+            print(
+                f"{size:4d}  {args.seconds:7.0f}  {rep.received:8d}  {rep.mapped:6d}  {100 * rep.dropped_share:6.1f}%  "
+                f"{rep.skipped:7d}  {rep.mapped / args.seconds:8.1f}  {1000 * rep.latency_p50:11.0f}  "
+                f"{1000 * rep.latency_p95:7.0f}  {r['boxes']:5d}"
+            )  # fmt: skip
         if args.minutes > 0:
             frames = frames_of(128, args.frames, 202, tmp)
             r = run_case(128, frames, args, 60 * args.minutes, tmp)
