@@ -16,6 +16,7 @@ import pytest
 from layouts.errors import InputError
 from mvracklay.cli import main
 from mvracklay.live_source import LatestFrames, Spacing, is_live, shown
+from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
 
 #: the same camera for both runs: no distance or angle read from the frames (the stream and the folder alike)
@@ -83,7 +84,10 @@ def test_a_udp_stream_is_mapped_as_the_folder_is_and_ends_when_quiet(
     sender = threading.Thread(target=_send_udp, args=(_frames(seq20), url, 10.0, go), daemon=True)
     sender.start()
     out = tmp_path / "live"
-    argv = ["run", url, "--out", str(out), "--checkpoint", str(tiny_checkpoint), *FIXED]
+    with socket.socket() as s:  # a free TCP port for the recording's server
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    argv = ["run", url, "--out", str(out), "--checkpoint", str(tiny_checkpoint), *FIXED, "--serve", str(port)]
     # a buffer holding the whole stream: nothing dropped however slow this machine, so both runs see the same frames
     assert main([*argv, "--idle-timeout", "2", "--live-buffer", "20"]) == 0
     sender.join(10)
@@ -94,6 +98,11 @@ def test_a_udp_stream_is_mapped_as_the_folder_is_and_ends_when_quiet(
     assert wmap.meta["frames"] == 20 and "20 frames received, 20 mapped, 0 dropped (0.0 %)" in text
     assert "ended: quiet for 2 s" in text and "latency, frame received -> map updated: p50" in text
     assert abs(len(wmap.boxes()) - ref_boxes) <= 0.1 * ref_boxes + 1
+    assert f"serving the recording: rerun --connect rerun+http://{socket.gethostname()}:{port}/proxy" in text
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(out / "warehouse.rrd"))  # the file written beside the server: whole, with the blueprint
+    assert len(reader.blueprints()) == 1 and "/world/camera/path" in read_entities(out / "warehouse.rrd")
 
 
 def test_a_source_faster_than_the_model_drops_frames_within_the_bound(tiny_checkpoint):
