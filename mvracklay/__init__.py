@@ -9,7 +9,7 @@ if "torch" not in _sys.modules:  # idle OpenMP threads sleep, unless set otherwi
 
     _quiet_openmp()
 
-__all__ = ["reconstruct", "free_space", "WarehouseMap", "Intrinsics", "InputError"]
+__all__ = ["reconstruct", "reconstruct_live", "live_updates", "free_space", "WarehouseMap", "Intrinsics", "InputError"]
 
 
 def __getattr__(name: str):
@@ -18,6 +18,10 @@ def __getattr__(name: str):
         from mvracklay.api import reconstruct
 
         return reconstruct
+    if name in ("reconstruct_live", "live_updates"):
+        from mvracklay import api
+
+        return getattr(api, name)
     if name == "free_space":
         from stitching.free_space import free_space
 

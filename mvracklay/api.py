@@ -86,3 +86,109 @@ def reconstruct(
         return run_pipeline(source, out, cfg).map
     with tempfile.TemporaryDirectory(prefix="mvracklay-") as tmp:
         return run_pipeline(source, Path(tmp) / "run", replace(cfg, rrd=False)).map
+
+
+def reconstruct_live(
+    frames: Iterable[np.ndarray] | str,
+    camera: Intrinsics | dict | str | os.PathLike | None = None,
+    distance: float | None = None,
+    camera_height: float | None = None,
+    checkpoint: str | os.PathLike | None = None,
+    quality: str = "default",
+    out: str | os.PathLike | None = None,
+    on_update: Any = None,
+    idle_timeout: float = 5.0,
+    buffer: int = 2,
+    every: int | str = 1,
+    **options: Any,
+) -> Any:
+    """Map frames as they arrive, as ``mvracklay run`` maps a camera or a stream: ``frames`` an iterator yielding
+    uint8 RGB ``(H, W, 3)`` arrays as they come (read by a thread into a buffer of ``buffer`` frames: when the network
+    falls behind the oldest waiting is dropped and counted), or a stream URL / camera (``"rtsp://..."``, ``"0"``).
+
+    ``on_update(update)`` is called with each frame as it lands in the map (`mvracklay.live.MapUpdate`: its index,
+    seconds from received to mapped, the map so far); `live_updates` gives the same as a generator. The run ends when
+    the iterator ends or yields nothing for ``idle_timeout`` seconds. ``every``: every N-th frame, or ``"auto"`` (a
+    few cm apart at the speed read). Other arguments as `reconstruct`. Returns a `mvracklay.live.LiveResult`
+    (``.run.map`` the `WarehouseMap`, ``.report`` frames received / mapped / dropped and the latency).
+    """
+    from mvracklay.argtypes import check_call
+
+    check_call(reconstruct_live, locals())
+    from mvracklay.live import reconstruct_live as run
+    from mvracklay.presets import preset_fields
+    from mvracklay.settings import LiveSettings
+
+    if on_update is not None and not callable(on_update):
+        raise InputError(f"on_update: want a callable, got {type(on_update).__name__}")
+    settings = LiveSettings(idle_timeout=idle_timeout, live_buffer=buffer)
+    cfg = dict(
+        checkpoint=Path(checkpoint) if checkpoint is not None else None,
+        camera=Path(camera) if isinstance(camera, (str, os.PathLike)) else None,
+        distance=distance,
+        camera_height=camera_height,
+        **{**preset_fields(quality), **options},
+    )
+    if out is not None:
+        from mvracklay.outputs import check_out
+
+        check_out(Path(out), overwrite=False)
+    return run(frames, out, on_update=on_update, settings=settings, every=every, intrinsics=_intrinsics(camera), **cfg)
+
+
+class LiveUpdates:
+    """`reconstruct_live` as a generator: iterate for each `mvracklay.live.MapUpdate` as the map grows (the run goes
+    on in a thread; at most ``pending`` updates wait for the reader, then the run waits); ``.result`` is the
+    `mvracklay.live.LiveResult` once the iteration ended. Leaving the loop early abandons the run (nothing saved)."""
+
+    def __init__(self, frames: Any, pending: int = 4, **kwargs: Any) -> None:
+        self.frames, self.pending, self.kwargs = frames, pending, kwargs
+        self.result: Any = None
+
+    def __iter__(self) -> Any:
+        import queue
+        import threading
+
+        q: queue.Queue = queue.Queue(maxsize=self.pending)
+        done, left = object(), threading.Event()
+        failed: list[BaseException] = []
+
+        def hand(update: Any) -> None:  # blocks while the reader is behind; gives up once the reader left
+            while not left.is_set():
+                try:
+                    return q.put(update, timeout=0.2)
+                except queue.Full:
+                    continue
+            raise _Abandoned
+
+        def work() -> None:
+            try:
+                self.result = reconstruct_live(self.frames, on_update=hand, **self.kwargs)
+            except _Abandoned:
+                pass
+            except BaseException as e:  # noqa: BLE001 (raised again in the reader's thread)
+                failed.append(e)
+            finally:
+                if not left.is_set():
+                    q.put(done)
+
+        thread = threading.Thread(target=work, name="live-updates", daemon=True)
+        thread.start()
+        try:
+            while (item := q.get()) is not done:
+                yield item
+        finally:
+            left.set()
+        thread.join()
+        if failed:
+            raise failed[0]
+
+
+class _Abandoned(Exception):
+    """The reader of `LiveUpdates` left the loop: the run stops."""
+
+
+def live_updates(frames: Any, **kwargs: Any) -> LiveUpdates:
+    """Map updates as a generator: ``for update in (live := mvracklay.live_updates(frames)): ...``, then
+    ``live.result.run.map`` (arguments as `reconstruct_live`)."""
+    return LiveUpdates(frames, **kwargs)

@@ -71,7 +71,7 @@ def resolve_intrinsics(source: FrameSource, camera: str | os.PathLike | None = N
     if camera is not None:
         return load_camera(camera, source.width, source.height), f"--camera {camera}"
     if source.intrinsics is not None:
-        return source.intrinsics, "given" if source.kind == "arrays" else f"{source.path / 'meta.json'}"
+        return source.intrinsics, "given" if source.kind in ("arrays", "live") else f"{source.path / 'meta.json'}"
     return default_intrinsics(source.width, source.height), f"default ({DEFAULT_HFOV_DEG:g} deg horizontal FOV)"
 
 

@@ -30,8 +30,15 @@ class _EveryNthVideo(FrameSource):
         return min(n, max_frames) if max_frames else n
 
 
-def every_nth(source: FrameSource, every: int, option: str = "--every") -> FrameSource:
-    """``source`` keeping frames 0, N, 2N, ... (itself when ``every`` is 1); one-line error unless N >= 1."""
+def every_nth(source: FrameSource, every: int | str, option: str = "--every") -> FrameSource:
+    """``source`` keeping frames 0, N, 2N, ... (itself when ``every`` is 1); one-line error unless N >= 1.
+    A live source (`mvracklay.live_source`) thins itself as frames arrive (N, or ``auto``): it is returned as it is."""
+    if source.kind == "live":
+        return source
+    if every == "auto":
+        raise InputError(
+            f"{option} auto keeps a live stream's frames a few cm apart; for a file give N (--every 3 on a 30 fps walk)"
+        )
     if not isinstance(every, int) or isinstance(every, bool) or every < 1:
         raise InputError(f"{option} must be an integer >= 1, got {every!r}")
     if every == 1:

@@ -161,9 +161,13 @@ def add_quiet_option(p: argparse.ArgumentParser, help_text: str = "no progress b
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
-def add_spawn_option(p: argparse.ArgumentParser, rrd: str = "OUT/warehouse.rrd") -> None:
-    """``--spawn``: open the Rerun viewer on the written recording when done (needs the .rrd)."""
-    p.add_argument("--spawn", action="store_true", help=f"open the Rerun viewer on {rrd} when done")
+def add_spawn_option(p: argparse.ArgumentParser, rrd: str = "OUT/warehouse.rrd", live: bool = False) -> None:
+    """``--spawn``: open the Rerun viewer on the written recording when done (needs the .rrd); ``live``: a live
+    source's run streams into the viewer as it maps."""
+    more = "; a live source: the viewer opens at the start and the recording streams into it as the map grows"
+    p.add_argument(
+        "--spawn", action="store_true", help=f"open the Rerun viewer on {rrd} when done" + (more if live else "")
+    )
 
 
 def add_hidden_alias(p: argparse.ArgumentParser, old: str, dest: str, **kwargs) -> None:

@@ -16,6 +16,7 @@ import os
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -92,12 +93,28 @@ def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None,
         return None, None, None
 
 
-def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | None = None) -> RunResult:
+#: called with each frame once it is in the map (its layouts written, stitched, logged) and the stitcher
+OnFrame = Callable[[PredictedFrame, Stitcher], None]
+#: a loaded model: ``(checkpoint, model, record)`` (`load_model`)
+Loaded = tuple[Path, "MVRackLay", dict[str, Any]]
+
+
+def run_pipeline(
+    source: FrameSource,
+    out: str | os.PathLike,
+    cfg: RunConfig | None = None,
+    *,
+    loaded: Loaded | None = None,
+    on_frame: OnFrame | None = None,
+    sinks: tuple = (),
+) -> RunResult:
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
 
     Four stages: the model, camera and distances are set up; the frames stream through the predictor into the
     layout folder and the stitcher (`_stream_into_map`); the map is finished and exported (`_export`) into a
-    staging folder; that folder is published as OUT.
+    staging folder; that folder is published as OUT. A live run (`mvracklay.live`) passes the model it loaded
+    before opening its stream (``loaded``), follows each frame into the map (``on_frame``) and streams the
+    recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file).
     """
     cfg = cfg or RunConfig()
     cfg.validate()
@@ -108,7 +125,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     seconds: dict[str, float] = {}
     warnings: list[str] = []
     t0 = time.perf_counter()
-    ckpt, model, record = _load_model(cfg)
+    ckpt, model, record = loaded or load_model(cfg)
     intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
     spec = _layout_spec(model, cfg)
     dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
@@ -123,13 +140,13 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
         if cfg.rrd:
             save = stage / "warehouse.rrd"
             recording = RunRecording(
-                f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb, cfg.map_every
+                f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks
             )
         # a generated sequence's camera rotation is recorded; footage's is read from the frames
         pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
         colours = BoxColours(pred.cfg.view)  # each box's colour from the frames' pixels
         n, depth, timings = _stream_into_map(
-            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours
+            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
         )
         seconds.update(timings)
 
@@ -160,7 +177,7 @@ def run_pipeline(source: FrameSource, out: str | os.PathLike, cfg: RunConfig | N
     return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read, dists.reading)
 
 
-def _load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
+def load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
     """The checkpoint to run, its model (on ``cfg.device``, in ``cfg.precision``) and its record."""
     ckpt = resolve_checkpoint(cfg.checkpoint)
     model, record = load_for_inference(ckpt, "run", cfg.device, cfg.precision, cfg.threads)
@@ -192,11 +209,12 @@ def _stream_into_map(
     stitcher: Stitcher,
     recording: RunRecording | None,
     colours: BoxColours,
+    on_frame: OnFrame | None = None,
 ) -> tuple[int, float, dict[str, float]]:
     """Stream the frames through ``pred`` (`mvracklay.inference.predict_frames`, as ``predict`` does): each frame's
-    layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept) and logged to the
-    ``recording``. Returns the frame count, the last rack depth read and the seconds spent predicting, stitching
-    and logging."""
+    layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept), logged to the
+    ``recording`` and given to ``on_frame``. Returns the frame count, the last rack depth read and the seconds
+    spent predicting, stitching and logging."""
     bar = tqdm(
         total=source.frame_count(cfg.max_frames or None),
         desc=f"predict+stitch ({cfg.mode})",
@@ -225,6 +243,8 @@ def _stream_into_map(
         if recording is not None:
             recording.log(frame, frame_rec, offset, stitcher)
         td = time.perf_counter()
+        if on_frame is not None:
+            on_frame(frame, stitcher)
         seconds["predict"] += tb - ta
         seconds["stitch"] += tc - tb
         seconds["rerun"] += td - tc
@@ -276,10 +296,10 @@ def _map_meta(
     """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
     lev = pred.leveller
     return {
-        "input": str(source.path),
+        "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
         "input_kind": source.kind,
         "frames": n,
-        **({"every": cfg.every} if cfg.every > 1 else {}),  # every N-th input frame processed
+        **({"every": cfg.every} if cfg.every != 1 else {}),  # every N-th input frame processed (live: or "auto")
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
         "flip_average": cfg.inference.flip,

@@ -42,7 +42,8 @@ def decimate(path: list, limit: int = 256) -> list:
 
 class RunRecording:
     """The recording of one run, saved to ``save``; ``camera_yz``: the camera's height and depth in the map frame
-    (None: unknown), ``rgb``: log the frames' pixels, ``map_every``: log the growing map every N-th frame."""
+    (None: unknown), ``rgb``: log the frames' pixels, ``map_every``: log the growing map every N-th frame;
+    ``sinks``: Rerun sinks streamed to while the run goes (a live run's viewer, `mvracklay.live.viewer_sinks`)."""
 
     def __init__(
         self,
@@ -52,8 +53,9 @@ class RunRecording:
         camera_yz: tuple[float | None, float | None],
         rgb: bool = True,
         map_every: int = 1,
+        sinks: tuple = (),
     ) -> None:
-        self.rec: Any = rerun_log.start(name, save=save, num_slots=num_slots)
+        self.rec: Any = rerun_log.start(name, save=save, num_slots=num_slots, sinks=sinks)
         self.num_slots, self.camera_yz, self.rgb, self.map_every = num_slots, camera_yz, rgb, map_every
         self.pending: deque[np.ndarray | None] = deque()  # each frame's thumbnail until its layouts come
         self.path: list[tuple[float, float, float]] = []

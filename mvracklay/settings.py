@@ -197,6 +197,16 @@ def check_range(cls: type, settings: Any) -> None:
             raise InputError(f"{f.metadata['option']} must be {said}, got {value!r}")
 
 
+def every_arg(text: str) -> int | str:
+    """``--every``'s argparse type: a count, or ``auto`` (a live source's frames kept a few cm apart)."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"want an integer >= 1 or auto, got {text!r}") from None
+
+
 def _run(name: str, help: str, **kwargs: Any) -> Any:
     """A `RunConfig` field with its ``mvracklay run`` option (``default`` among ``kwargs``)."""
     default = kwargs.pop("default", None)
@@ -218,10 +228,11 @@ class RunConfig:
     mode: str = _run("--mode", "network inference mode", default="stream", choices=["stream", "window"])
     max_frames: int = _run("--max-frames", "process at most N frames (0 = all)", default=0, type=int, range=(0, None))
     #: process every N-th frame of the input (`mvracklay.every`)
-    every: int = _run(
+    every: int | str = _run(
         "--every",
-        "process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames kept",
-        default=1, type=int, metavar="N", range=(1, None),
+        "process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames "
+        "kept; a live source also takes auto: frames kept a few cm apart, at the camera speed the network reads",
+        default=1, type=every_arg, metavar="N|auto", range=(1, None),
     )  # fmt: skip
     layout_size: int = _run(
         "--layout-size", "resolution D of the written layouts (0 = the model's)", default=0, type=int
@@ -280,8 +291,8 @@ class RunConfig:
             raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.max_frames < 0:
             raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
-        if not isinstance(self.every, int) or self.every < 1:
-            raise InputError(f"--every must be an integer >= 1, got {self.every!r}")
+        if self.every != "auto" and (not isinstance(self.every, int) or self.every < 1):
+            raise InputError(f"--every must be an integer >= 1 (or auto, for a live source), got {self.every!r}")
         if self.layout_size and not 8 <= self.layout_size <= 1024:
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         check_distance(self.distance)
@@ -315,3 +326,44 @@ def precision_setting(more: str = "") -> Any:
     from mvracklay.options import PRECISION_HELP, PRECISIONS
 
     return setting("--precision", PRECISION_HELP + more, "fp32", choices=PRECISIONS)
+
+
+#: the help heading of the live sources' options
+LIVE_GROUP = "live source (a camera or a stream URL)"
+#: the port a live run's Rerun server listens on (``--serve`` given bare), Rerun's own default
+SERVE_PORT = 9876
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    """What a live run (`mvracklay.live`: INPUT a camera or a stream URL) adds to `RunConfig`: when it ends, how it
+    reconnects, the buffer between the stream and the network and the Rerun server a remote viewer connects to."""
+
+    idle_timeout: float = _run(
+        "--idle-timeout", "end the run (saving the map) when the stream has been quiet this long",
+        default=5.0, type=float, metavar="S", range=(0.0, None), group=LIVE_GROUP,
+    )  # fmt: skip
+    serve: int | None = _run(
+        "--serve",
+        "serve the recording as it grows (Rerun's gRPC server on PORT, default 9876) for a viewer "
+        "on another machine: rerun --connect rerun+http://HOST:PORT/proxy",
+        type=int, nargs="?", const=SERVE_PORT, metavar="PORT", range=(1, 65535), group=LIVE_GROUP,
+    )  # fmt: skip
+    retries: int = _run(
+        "--retries", "a live source: reopen a lost connection this many times before ending the run",
+        default=3, type=int, metavar="N", range=(0, None),
+    )  # fmt: skip
+    live_buffer: int = _run(
+        "--live-buffer",
+        "a live source: frames waiting for the network at most; when it falls behind the oldest is dropped",
+        default=2, type=int, metavar="N", range=(1, None),
+    )  # fmt: skip
+
+    def validate(self) -> None:
+        """One line naming the option when a setting is out of its range (its type first)."""
+        from mvracklay.argtypes import check_dataclass
+
+        check_dataclass(self)
+        if not self.idle_timeout > 0:
+            raise InputError(f"--idle-timeout must be > 0 seconds, got {self.idle_timeout!r}")
+        check_range(LiveSettings, self)

@@ -48,12 +48,16 @@ def start(
     save: str | os.PathLike | None = None,
     spawn: bool = False,
     num_slots: int = DEFAULT_SLOTS,
+    sinks: tuple = (),
 ):
-    """A recording stream writing to ``save`` (an ``.rrd``, with `blueprint` as its default) or to a spawned viewer."""
+    """A recording stream writing to ``save`` (an ``.rrd``, with `blueprint` as its default) or to a spawned viewer;
+    ``sinks``: Rerun sinks it also streams to, live (``rr.GrpcSink`` to a viewer, ``rr.GrpcServerSink``)."""
     rr = _rr()
     rec = rr.RecordingStream(app_id, recording_id=app_id)
     bp = blueprint(num_slots)
-    if save is not None:
+    if sinks:
+        rec.set_sinks(*([rr.FileSink(str(save))] if save is not None else []), *sinks, default_blueprint=bp)
+    elif save is not None:
         rec.save(str(save), default_blueprint=bp)
     elif spawn:
         rec.spawn(default_blueprint=bp)

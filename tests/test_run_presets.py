@@ -11,6 +11,7 @@ import pytest
 from mvracklay import cli
 from mvracklay.options import FUSE_TAU
 from mvracklay.pipeline import RunConfig
+from mvracklay.settings import LIVE_GROUP
 from stitching.warehouse_map import WarehouseMap
 
 
@@ -116,8 +117,10 @@ def test_run_help_shows_a_dozen_options_and_help_all_the_rest(capsys):
     parser = cli.build_parser()
     (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     run = sub.choices["run"]
-    shown = [a for a in run._actions if a.option_strings and a.help != argparse.SUPPRESS]
+    live = {a for g in run._action_groups if g.title == LIVE_GROUP for a in g._group_actions}
+    shown = [a for a in run._actions if a.option_strings and a.help != argparse.SUPPRESS and a not in live]
     assert len(shown) <= 14  # -h and --help-all besides the dozen
+    assert {a.option_strings[0] for a in live} == {"--idle-timeout", "--serve"}  # a live source's own, apart
     with pytest.raises(SystemExit):
         cli.main(["run", "--help-all"])
     text = capsys.readouterr().out

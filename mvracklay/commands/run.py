@@ -16,17 +16,22 @@ from mvracklay.options import (
     read_config,
 )
 from mvracklay.presets import PRESETS
-from mvracklay.settings import InferenceSettings, RunConfig, add_options, from_args
+from mvracklay.settings import SERVE_PORT, InferenceSettings, LiveSettings, RunConfig, add_options, from_args
 from mvracklay.threads import resolve_threads
 
 NAME = "run"
-HELP = "the main job: video / image folder / sequence -> layouts -> 3D map (.glb, .json, .rrd) + free space"
+HELP = "the main job: video / image folder / sequence / camera or stream -> 3D map (.glb, .json, .rrd) + free space"
 DESCRIPTION = (
     "Run the MVRackLay network over INPUT frame by frame (streaming: one encoder pass per frame, the ConvLSTM "
     "state carried), stitch the per-frame layouts into one 3D map of the rack row, and write OUT/layouts/ "
     "(a layout folder for 'mvracklay reconstruct'), OUT/warehouse.json, OUT/warehouse.glb and "
     "OUT/warehouse.rrd; then print the free space per shelf. INPUT is a WareSynth sequence folder, any folder "
-    "of ordered PNG/JPEG images (natural name order, all the same size) or a video file. The camera should "
+    "of ordered PNG/JPEG images (natural name order, all the same size), a video file, or a live source: a camera "
+    "(/dev/video0, or its index 0) or a stream URL (rtsp://, rtmp://, http(s)://, udp://, tcp://, srt://), mapped as "
+    "its frames arrive (frames the network cannot keep up with are dropped and counted; the latency and the share "
+    "dropped are printed); a live run ends when the stream ends or stays quiet --idle-timeout seconds, or on Ctrl-C "
+    "or SIGTERM, and saves the map of what it saw; --spawn streams into a viewer as it maps, --serve serves the "
+    "recording to a viewer on another machine. The camera should "
     "move sideways along one rack row at a roughly constant distance, facing the racks, without turning as it "
     "goes; a camera mounted askew is levelled: its roll read from the frames (--roll), a pitch or yaw given or "
     "read (--pitch, --yaw). "
@@ -41,7 +46,11 @@ INTERRUPTED = "OUT left as it was; run it again to start over"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("input", metavar="INPUT", help="sequence folder, image folder or video file")
+    p.add_argument(
+        "input",
+        metavar="INPUT",
+        help="sequence folder, image folder, video file, or live: a camera (/dev/video0 or 0) or a stream URL",
+    )
     p.add_argument("--out", type=Path, help="output folder (required)")
     p.add_argument(
         "--overwrite",
@@ -66,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     add_device_option(p)
     add_threads_option(p)
-    add_spawn_option(p)
+    add_spawn_option(p, live=True)
+    add_options(p, LiveSettings, only=("idle_timeout", "serve"))
     add_quiet_option(p)
     add_help_all_option(p)
     # the rest: config-file keys, still parseable (--help-all shows them)
@@ -75,6 +85,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_options(p, RunConfig, hidden=True, only=("layout_size",))
     add_precision_option(p, hidden=True)
     add_options(p, RunConfig, hidden=True, only=("rrd", "rgb", "map_every", "opening", "board_thickness"))
+    add_options(p, LiveSettings, hidden=True, only=("retries", "live_buffer"))
     hidden = [a.option_strings[0][2:] for a in p._actions if a.help == argparse.SUPPRESS and hasattr(a, "full_help")]
     p.epilog = (
         f"More options, by their long names in a --config file (or as --NAME here): {', '.join(hidden)}. "
@@ -84,7 +95,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict[str, object]:
     """The defaults ``--quality`` and ``--config`` give (the command line is parsed again over them)."""
-    from_file = read_config(args.config, parser, settings=(RunConfig, InferenceSettings)) if args.config else {}
+    classes = (RunConfig, InferenceSettings, LiveSettings)
+    from_file = read_config(args.config, parser, settings=classes) if args.config else {}
     quality = args.quality or from_file.pop("quality", None) or "default"
     from_file.pop("quality", None)
     return {**PRESETS[quality], **from_file, "quality": quality}
@@ -92,15 +104,19 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
+    from mvracklay.live_source import is_live
     from mvracklay.outputs import OUTPUTS, check_apart, check_out, spawn_viewer
     from mvracklay.pipeline import run_pipeline
-    from network.inference.roll import describe_angles
-    from stitching.free_space import format_table
 
     if args.out is None:
         raise InputError("--out is required (on the command line or as 'out' in the --config file)")
     if args.spawn and args.no_rrd:
         raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
+    live = is_live(args.input)
+    if args.serve is not None and not live:
+        raise InputError("--serve serves a live run's recording; a file run's: rerun OUT/warehouse.rrd")
+    if args.serve is not None and args.no_rrd:
+        raise InputError("--serve serves the recording; it cannot be combined with --no-rrd")
     cfg = from_args(
         RunConfig,
         args,
@@ -120,8 +136,52 @@ def run(args: argparse.Namespace) -> int:
     from mvracklay.pipeline import resolve_checkpoint
 
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
+    if live:
+        return _run_live(args, cfg)
     source = open_source(args.input, prog="mvracklay run")
     res = run_pipeline(source, args.out, cfg)
+    _summary(res, source)
+    if args.spawn:
+        spawn_viewer(res.out / "warehouse.rrd")
+    return 0
+
+
+def _run_live(args: argparse.Namespace, cfg: RunConfig) -> int:
+    """A live source: the model loaded, the viewer's sinks made, the stream opened, mapped until it ends."""
+    from mvracklay.live import run_live, viewer_sinks
+    from mvracklay.live_source import open_live
+    from mvracklay.pipeline import load_model
+
+    settings = from_args(LiveSettings, args, serve=SERVE_PORT if args.serve is True else args.serve)
+    settings.validate()
+    if cfg.inference.whole_sequence:
+        raise InputError(
+            "--whole-sequence (--quality offline) reads every frame before the first map: not for a live source"
+        )
+    loaded = load_model(cfg)  # before the stream opens: its frames do not wait on the model
+    source = open_live(args.input, idle_timeout=settings.idle_timeout, retries=settings.retries,
+                       buffer=settings.live_buffer, every=cfg.every, prog="mvracklay run")  # fmt: skip
+    try:
+        sinks, said = viewer_sinks(args.spawn, settings.serve)
+    except BaseException:
+        source.close()
+        raise
+    for line in said:
+        print(line, flush=True)
+    if cfg.progress:
+        print(f"mapping {source.url} ({source.width}x{source.height}) as it streams; Ctrl-C ends it", flush=True)
+    result = run_live(source, args.out, cfg, loaded=loaded, sinks=sinks)
+    _summary(result.run, source)
+    for line in result.report.lines():
+        print(line)
+    return 0
+
+
+def _summary(res, source) -> None:
+    """What a run prints at its end: frames, map, speed, distance, angles, free space, the files written."""
+    from network.inference.roll import describe_angles
+    from stitching.free_space import format_table
+
     wmap = res.map
     print(
         f"{res.frames} frames ({source.kind}, {source.width}x{source.height}, camera: {res.intrinsics_source}) -> "
@@ -136,6 +196,3 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     print(format_table(res.free_space, racks=len(wmap.racks)))
     print("wrote " + ", ".join(str(p) for p in res.paths.values()))
-    if args.spawn:
-        spawn_viewer(res.out / "warehouse.rrd")
-    return 0

@@ -1,0 +1,342 @@
+"""Live sources for `mvracklay run`: a UDP stream mapped as it arrives, frames dropped when the network falls
+behind (the buffer bounded, the drops counted), a bad URL in one line, SIGTERM and a quiet stream saving the map."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from layouts.errors import InputError
+from mvracklay.cli import main
+from mvracklay.live_source import LatestFrames, Spacing, is_live, shown
+from stitching.rerun_log import read_entities
+from stitching.warehouse_map import WarehouseMap
+
+#: the same camera for both runs: no distance or angle read from the frames (the stream and the folder alike)
+FIXED = ["--distance", "2.6", "--roll", "0", "--pitch", "0", "--yaw", "0", "--threads", "1", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def seq20(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One generated sequence of 20 frames at 128x128 (a couple of seconds)."""
+    from waresynth.generate import generate_dataset
+
+    out = tmp_path_factory.mktemp("live") / "data"
+    generate_dataset(out, num_sequences=1, frames=20, image_size=(128, 128), seed=11, progress=False)
+    return out / "seq_00000"
+
+
+def _frames(seq: Path) -> list[np.ndarray]:
+    from waresynth.imageio import read_png
+
+    return [read_png(p, np.uint8, 3) for p in sorted((seq / "rgb").glob("*.png"))]
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _send_udp(frames: list[np.ndarray], url: str, fps: float, go: threading.Event) -> None:
+    """Stream ``frames`` as MPEG-TS (intra-only MPEG-2 at a high rate: near lossless) in real time, once ``go``."""
+    import av
+
+    go.wait(30)
+    time.sleep(0.3)  # the receiver is inside av.open by now
+    out = av.open(url + "?pkt_size=1316", "w", format="mpegts")
+    stream = out.add_stream("mpeg2video", rate=int(fps))
+    stream.width, stream.height, stream.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
+    stream.bit_rate, stream.gop_size = 8_000_000, 1
+    stream.codec_context.max_b_frames = 0
+    t0 = time.monotonic()
+    for i, rgb in enumerate(frames):
+        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        frame.pts = i
+        for packet in stream.encode(frame):
+            out.mux(packet)
+        time.sleep(max(0.0, t0 + (i + 1) / fps - time.monotonic()))
+    for packet in stream.encode():
+        out.mux(packet)
+    out.close()
+
+
+def test_a_udp_stream_is_mapped_as_the_folder_is_and_ends_when_quiet(
+    seq20, tiny_checkpoint, tmp_path, monkeypatch, capsys
+):
+    import mvracklay.live_source as live_source
+
+    ref = tmp_path / "ref"
+    assert main(["run", str(seq20), "--out", str(ref), "--checkpoint", str(tiny_checkpoint), *FIXED]) == 0
+    ref_boxes = len(WarehouseMap.load(ref / "warehouse.json").boxes())
+
+    url = f"udp://127.0.0.1:{_free_udp_port()}"
+    go = threading.Event()
+    opener = live_source._open_container
+    monkeypatch.setattr(live_source, "_open_container", lambda *a: (go.set(), opener(*a))[1])
+    sender = threading.Thread(target=_send_udp, args=(_frames(seq20), url, 10.0, go), daemon=True)
+    sender.start()
+    out = tmp_path / "live"
+    with socket.socket() as s:  # a free TCP port for the recording's server
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    argv = ["run", url, "--out", str(out), "--checkpoint", str(tiny_checkpoint), *FIXED, "--serve", str(port)]
+    # a buffer holding the whole stream: nothing dropped however slow this machine, so both runs see the same frames
+    assert main([*argv, "--idle-timeout", "2", "--live-buffer", "20"]) == 0
+    sender.join(10)
+    text = capsys.readouterr().out
+    wmap = WarehouseMap.load(out / "warehouse.json")
+    assert {p.name for p in out.iterdir()} >= {"warehouse.json", "warehouse.glb", "warehouse.rrd", "layouts"}
+    assert wmap.meta["input"] == url and wmap.meta["input_kind"] == "live"
+    assert wmap.meta["frames"] == 20 and "20 frames received, 20 mapped, 0 dropped (0.0 %)" in text
+    assert "ended: quiet for 2 s" in text and "latency, frame received -> map updated: p50" in text
+    assert abs(len(wmap.boxes()) - ref_boxes) <= 0.1 * ref_boxes + 1
+    assert f"serving the recording: rerun --connect rerun+http://{socket.gethostname()}:{port}/proxy" in text
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(out / "warehouse.rrd"))  # the file written beside the server: whole, with the blueprint
+    assert len(reader.blueprints()) == 1 and "/world/camera/path" in read_entities(out / "warehouse.rrd")
+
+
+def test_a_source_faster_than_the_model_drops_frames_within_the_bound(tiny_checkpoint):
+    import mvracklay
+
+    frames = [np.full((96, 128, 3), 40 + i, np.uint8) for i in range(40)]
+    produced = 0
+    ahead = threading.Condition()
+
+    def camera():  # yields as fast as it is read
+        nonlocal produced
+        for rgb in frames:
+            with ahead:
+                produced += 1
+                ahead.notify_all()
+            yield rgb
+
+    def slow_network(update):  # the map is updated only once the camera is 6 frames further
+        with ahead:
+            ahead.wait_for(lambda: produced >= min(len(frames), update.index + 7), timeout=10)
+
+    res = mvracklay.reconstruct_live(camera(), checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0,
+                                     yaw=0.0, threads=1, buffer=2, on_update=slow_network)  # fmt: skip
+    rep = res.report
+    assert rep.buffer_capacity == 2 and rep.buffer_most <= 2
+    assert rep.dropped > 0 and rep.received == 40 and rep.mapped + rep.dropped == rep.received
+    assert res.run.frames == rep.mapped and 0 < rep.dropped_share < 1
+
+
+def test_the_buffer_never_holds_more_than_its_bound():
+    from mvracklay.live_source import Arrival
+
+    buf = LatestFrames(3)
+    for i in range(10):
+        buf.put(Arrival(np.zeros((1, 1, 3), np.uint8), float(i), None))
+    assert (buf.received, buf.dropped, buf.most) == (10, 7, 3)
+    stop = threading.Event()
+    assert [buf.get(0.01, stop).received for _ in range(3)] == [7.0, 8.0, 9.0]  # the newest kept, oldest first
+    assert buf.get(0.01, stop) is None
+    with pytest.raises(InputError, match="--live-buffer"):
+        LatestFrames(0)
+
+
+def test_every_auto_keeps_frames_a_few_cm_apart():
+    sp = Spacing(spacing=0.06, max_gap=1.0)
+    assert sp.keep(0.0) and sp.keep(0.1)  # no speed read yet: every frame
+    sp.moved(0.03, 0.1)  # 0.3 m/s: 6 cm take 0.2 s
+    kept = [t for t in np.arange(0.2, 1.2, 0.1).round(2) if sp.keep(float(t))]
+    assert kept == [0.3, 0.5, 0.7, 0.9, 1.1] and sp.skipped == 5
+    sp.moved(0.0, 0.2)
+    sp.moved(0.0, 0.2)  # the camera stopped: still a frame a second, so its motion is read again
+    assert not sp.keep(1.5) and sp.keep(2.1)
+
+
+def test_live_inputs_are_told_from_files(tmp_path):
+    for live in ("rtsp://cam/1", "UDP://127.0.0.1:5000", "srt://h:1", "https://h/x.m3u8", "/dev/video0", "0"):
+        assert is_live(live), live
+    (tmp_path / "3").mkdir()
+    for not_live in ("walk.mp4", "file:///x.mp4", "/dev/sda", "frames/", str(tmp_path / "3")):
+        assert not is_live(not_live), not_live
+    assert shown("rtsp://admin:secret@10.0.0.5/live") == "rtsp://10.0.0.5/live"
+
+
+def _ts(values: list[int], start: int) -> bytes:
+    """MPEG-TS bytes of flat 64x64 frames of ``values`` (pts from ``start``)."""
+    import io
+
+    import av
+
+    buf = io.BytesIO()
+    out = av.open(buf, "w", format="mpegts")
+    stream = out.add_stream("mpeg2video", rate=10)
+    stream.width = stream.height = 64
+    stream.pix_fmt, stream.gop_size = "yuv420p", 1
+    stream.codec_context.max_b_frames = 0
+    for i, v in enumerate(values):
+        frame = av.VideoFrame.from_ndarray(np.full((64, 64, 3), v, np.uint8), format="rgb24")
+        frame.pts = start + i
+        for packet in stream.encode(frame):
+            out.mux(packet)
+    for packet in stream.encode():
+        out.mux(packet)
+    out.close()
+    return buf.getvalue()
+
+
+def test_a_lost_connection_is_reopened_in_one_line(capsys):
+    import struct
+
+    from mvracklay.live_source import open_live
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(2)
+
+    def serve():
+        conn, _ = server.accept()
+        conn.sendall(_ts([10, 20, 30, 40, 50], 0))
+        time.sleep(0.8)
+        conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        conn.close()  # a reset: the connection lost
+        conn, _ = server.accept()
+        data = _ts([100, 110, 120, 130, 140, 150], 5)
+        for k in range(0, len(data), 1316):  # as a live stream sends
+            conn.sendall(data[k : k + 1316])
+            time.sleep(0.01)
+        time.sleep(0.3)
+        conn.close()  # the stream's end
+
+    threading.Thread(target=serve, daemon=True).start()
+    url = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    src = open_live(url, idle_timeout=3.0, retries=2)
+    seen = [int(rgb[0, 0, 0]) for rgb in src.frames()]
+    server.close()
+    before, after = [v for v in seen if v < 90], [v for v in seen if v > 90]
+    assert len(before) >= 3 and len(after) >= 5 and src.ended == "stream ended"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"mvracklay run: warning: {url}: connection lost (ConnectionResetError), reconnecting (1/2)"]
+
+
+def test_a_url_that_cannot_be_opened_is_one_line_and_status_2(tiny_checkpoint, tmp_path, capsys):
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"tcp://127.0.0.1:{port}"
+    assert main(["run", url, "--out", str(tmp_path / "o"), "--checkpoint", str(tiny_checkpoint), *FIXED]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and url in err[0] and "cannot open the live source" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_file_runs_refuse_the_live_options(seq20, tmp_path):
+    base = ["run", str(seq20), "--out", str(tmp_path / "o"), "--quiet"]
+    assert main([*base, "--serve"]) == 2
+    assert main([*base, "--every", "auto"]) == 2
+
+
+def _endless(frames: list[np.ndarray], stop: threading.Event, count: int | None = None):
+    """A camera: the frames over and over, 20 a second (``count`` frames, then silent until ``stop``)."""
+    for i in range(count or 10**6):
+        if stop.is_set():
+            return
+        yield frames[i % len(frames)]
+        time.sleep(0.05)
+    stop.wait(30)
+
+
+def test_sigterm_and_a_quiet_stream_save_the_map(seq20, tiny_checkpoint, tmp_path):
+    import mvracklay
+
+    frames, stop = _frames(seq20), threading.Event()
+    kw = dict(checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0, yaw=0.0, threads=1)
+
+    def term_at_4(update):
+        if update.index == 3:
+            os.kill(os.getpid(), signal.SIGTERM)  # handled: the stream ends, the map is saved
+
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        res = mvracklay.reconstruct_live(_endless(frames, stop), out=tmp_path / "term", on_update=term_at_4, **kw)
+        assert res.report.ended == "SIGTERM" and res.run.frames >= 4
+        assert WarehouseMap.load(tmp_path / "term" / "warehouse.json").meta["frames"] == res.run.frames
+        assert (tmp_path / "term" / "warehouse.glb").is_file() and (tmp_path / "term" / "warehouse.rrd").is_file()
+        assert signal.getsignal(signal.SIGTERM) == before  # the handler put back
+
+        updates = mvracklay.live_updates(
+            _endless(frames, stop, count=6), out=tmp_path / "quiet", idle_timeout=0.5, **kw
+        )
+        seen = [u.index for u in updates]
+        assert seen == list(range(len(seen))) and len(seen) == updates.result.run.frames
+        assert updates.result.report.ended == "quiet for 0.5 s"
+        assert WarehouseMap.load(tmp_path / "quiet" / "warehouse.json").meta["frames"] == len(seen)
+    finally:
+        stop.set()
+
+
+def test_viewer_sinks_serve_and_spawn_without_a_gui(monkeypatch):
+    import rerun as rr
+
+    from mvracklay.live import viewer_sinks
+
+    port = _free_udp_port()
+    sinks, said = viewer_sinks(False, port)
+    assert len(sinks) == 1 and isinstance(sinks[0], rr.GrpcServerSink) and f":{port}/proxy" in sinks[0].uri
+    assert said == [f"serving the recording: rerun --connect rerun+http://{socket.gethostname()}:{port}/proxy"]
+    del sinks
+    spawned = []
+    monkeypatch.setattr(rr, "spawn", lambda **kw: spawned.append(kw))
+    sinks, said = viewer_sinks(True, None)
+    assert spawned == [{"port": 9876, "connect": False}] and len(sinks) == 1 and not said
+    assert isinstance(sinks[0], rr.GrpcSink)
+
+
+def test_the_motion_read_sets_the_spacing_of_every_auto():
+    from types import SimpleNamespace
+
+    from mvracklay.live import LiveRun
+    from mvracklay.live_source import iter_live
+
+    src = iter_live(iter([np.zeros((8, 8, 3), np.uint8)]), every="auto")
+    src.arrivals.update({0: (5.0, 0.0), 1: (5.1, 0.2)})  # received, stream time: 0.2 s apart in the stream
+    run = LiveRun(src)
+    for i, step in enumerate((0.0, 0.05)):
+        run.mapped(SimpleNamespace(index=i, prediction=SimpleNamespace(camera_step=step)), None)
+    assert src.spacing.speed == pytest.approx(0.25) and not src.arrivals  # 5 cm in 0.2 s; arrivals forgotten
+    assert len(run.latencies) == 2
+
+
+def test_the_live_options_in_a_config_file(seq20, tmp_path, capsys):
+    import json
+
+    cfg = tmp_path / "live.json"
+    cfg.write_text(json.dumps({"idle-timeout": -1}))
+    base = ["run", str(seq20), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg)]
+    assert main(base) == 2 and "idle-timeout" in capsys.readouterr().err
+    cfg.write_text(json.dumps({"every": "auto", "idle-timeout": 2, "live-buffer": 4, "retries": 1}))
+    assert main(base) == 2  # taken by the file, refused for a file run in one line
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--every auto keeps a live stream's frames a few cm apart" in err[0]
+
+
+def test_leaving_the_updates_loop_early_stops_the_run(seq20, tiny_checkpoint, tmp_path):
+    import mvracklay
+
+    frames, stop = _frames(seq20), threading.Event()
+    kw = dict(checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0, yaw=0.0, threads=1)
+    try:
+        for update in mvracklay.live_updates(_endless(frames, stop), out=tmp_path / "left", **kw):
+            if update.index == 2:
+                break
+        (worker,) = [t for t in threading.enumerate() if t.name == "live-updates"] or [None]
+        if worker is not None:
+            worker.join(20)
+        assert worker is None or not worker.is_alive()
+        assert not (tmp_path / "left").exists()  # abandoned: nothing published
+    finally:
+        stop.set()
