@@ -36,7 +36,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -n
     # CPU build of PyTorch first, so nothing pulls a multi-GB CUDA build.
     .venv/bin/python -m pip install -q torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
     .venv/bin/python -m pip install -q -e '.[dev]' 2>&1 | grep -v '^WARNING: Location' || true
-    .venv/bin/python -c "import torch, open3d, trimesh, rerun, skimage" || { echo "setup: install failed" >&2; exit 1; }
+    .venv/bin/python -c "import torch, open3d, trimesh, rerun, skimage, onnx, onnxruntime" || { echo "setup: install failed" >&2; exit 1; }
     touch "$stamp"
 fi
 
