@@ -12,6 +12,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # Models load in torch's graphs here: exporting each part to ONNX Runtime costs ~1 s a model, which every command
 # run by the tests would pay; tests/test_ortgraph.py holds the ONNX Runtime path (the commands' default) to them.
 os.environ.setdefault("MVRACKLAY_RUNTIME", "torch")
+os.environ.setdefault("MVRACKLAY_ONNX_CACHE", "off")  # nothing written to the user's cache (tests/test_ortgraph.py)
 
 import pytest
 

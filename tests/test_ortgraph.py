@@ -136,3 +136,31 @@ def test_commands_load_models_in_the_runtime_the_environment_names(monkeypatch):
     monkeypatch.setenv(ortgraph.ENV, "torch")
     model, _ = load_for_inference(default_checkpoint(), "predict", "cpu")
     assert model.graph_runtime == "torch" and frozen.graph_runtime(model) == "torch"
+
+
+@needs_ort
+def test_an_export_is_cached_by_a_digest_of_what_it_depends_on_and_reloaded(monkeypatch, tmp_path):
+    monkeypatch.setenv(ortgraph.CACHE_ENV, str(tmp_path))
+    frames = _frames(2)
+    model = _model()
+    want = _stream(model, "onnx", frames)
+    files = sorted(tmp_path.glob("*.onnx"))
+    assert len(files) == 6  # trunk, rows, slots, box-depth head, memory step fresh and carried
+    exports = []
+    monkeypatch.setattr(ortgraph, "export", lambda *a: exports.append(1) or pytest.fail("exported again"))
+    again = _model()  # another model object, the same weights: every part from the cache
+    got = _stream(again, "onnx", frames)
+    assert all(h[2].cached for h in frozen._GRAPHS[again].values() if isinstance(h[2], ortgraph.OrtGraph))
+    for g, w in zip(got, want, strict=True):
+        for p, q in zip(g, w, strict=True):
+            assert torch.equal(p, q)
+    monkeypatch.undo()
+    monkeypatch.setenv(ortgraph.CACHE_ENV, str(tmp_path))
+    files[0].write_bytes(b"not onnx")  # a damaged file is exported again and replaced
+    other = _model(seed=3)  # other weights: other digests, new files beside the old
+    _stream(other, "onnx", frames)
+    _stream(_model(), "onnx", frames)
+    assert len(list(tmp_path.glob("*.onnx"))) == 12 and files[0].read_bytes() != b"not onnx"
+    assert not list(tmp_path.glob(".*.tmp"))  # atomic writes leave no temporaries
+    monkeypatch.setenv(ortgraph.CACHE_ENV, "off")
+    assert ortgraph.cache_dir() is None

@@ -193,7 +193,8 @@ def _key(model: nn.Module, part: str, xs: tuple[torch.Tensor, ...], tensors: lis
 def _build(model: nn.Module, part: str, fn: Callable[..., Any], xs: tuple[torch.Tensor, ...], bf16: bool) -> Any:
     if not bf16 and graph_runtime(model, part) == "onnx":
         try:
-            return ortgraph.OrtGraph(_Part(model, part, fn).eval(), xs, torch.get_num_threads())
+            context = f"{part} {fn.__module__}.{fn.__qualname__} {getattr(model, 'cfg', None)!r}"
+            return ortgraph.OrtGraph(_Part(model, part, fn).eval(), xs, torch.get_num_threads(), context)
         except Exception as e:  # noqa: BLE001 - an export or session failure: torch's graph still works
             said = "its modules" if PARTS[part].onnx_only else "torch's graph"
             warnings.warn(f"the {part} part could not run in ONNX Runtime ({e}); running {said}", stacklevel=3)
