@@ -14,7 +14,7 @@ from network.checkpoint import load_model
 from network.device import single_process_device
 from network.model.frozen import use_precision, use_runtime
 from network.model.net import MVRackLay
-from network.model.ortgraph import default_runtime
+from network.model.ortgraph import check_runtime, default_runtime
 
 
 def load_for_inference(
@@ -29,6 +29,7 @@ def load_for_inference(
     ``precision``; its CPU graphs in ``runtime``, None: `network.model.ortgraph.default_runtime`, ONNX Runtime
     where it is installed unless ``MVRACKLAY_RUNTIME`` says otherwise) and its record; ``threads``: torch's CPU
     threads (None leaves them). ``command`` names the one-process command in the refusal to run under torchrun."""
+    runtime = default_runtime() if runtime is None else check_runtime(runtime, "runtime")  # refused before the load
     if threads is not None:
         if threads < 1:
             raise InputError(f"--threads must be >= 1, got {threads}")
@@ -36,5 +37,5 @@ def load_for_inference(
     model, record = load_model(checkpoint)
     model.to(single_process_device(command, device))
     use_precision(model, precision)
-    use_runtime(model, default_runtime() if runtime is None else runtime)
+    use_runtime(model, runtime)
     return model, record
