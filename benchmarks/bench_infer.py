@@ -16,6 +16,7 @@ process sets OpenMP's wait policy as the command line does (`mvracklay.threads.q
     .venv/bin/python benchmarks/bench_infer.py --checkpoint mvracklay-disc-4 --sizes 128 --modes stream \
         --threads 2 --frames 30 --repeats 3 --compete 2
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --precision bf16
+    .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --runtime torch  # TorchScript
     python benchmarks/bench_infer.py --device cuda --checkpoint mvracklay-disc-4   # on a GPU
 """
 
@@ -57,6 +58,7 @@ from network.inference.predictor import Predictor  # noqa: E402
 from network.model import frozen  # noqa: E402
 from network.model.config import VARIANTS, ModelConfig  # noqa: E402
 from network.model.net import MVRackLay  # noqa: E402
+from network.model.ortgraph import RUNTIMES, default_runtime  # noqa: E402
 
 
 def sync(device: torch.device) -> None:
@@ -193,6 +195,13 @@ def main() -> int:
         help="run the network's modules, not its frozen graphs (network/model/frozen.py), to see what they buy",
     )
     add_precision_option(ap)
+    ap.add_argument(
+        "--runtime",
+        choices=RUNTIMES,
+        default=None,
+        help="the graphs' runtime (network/model/ortgraph.py): auto (default, as commands load models: ONNX Runtime "
+        "where installed, unless MVRACKLAY_RUNTIME says otherwise), torch (TorchScript) or onnx",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     try:
@@ -204,6 +213,7 @@ def main() -> int:
     if args.compete < 0:
         ap.error(f"--compete must be >= 0, got {args.compete}")
     auto = str(args.threads).strip().lower() == "auto"
+    runtime = args.runtime or default_runtime()
     try:
         args.threads = resolve_threads(args.threads)
     except ValueError as e:
@@ -225,7 +235,7 @@ def main() -> int:
         f"layouts {cfg.spec.shape}{f', neighbouring frames fused with tau {args.fuse_frames:g}' if args.fuse_frames else ''}"
         f"{camera}{', modules (no frozen graphs)' if args.no_graphs else ''}"
         f"{', the trunk in bf16' if args.precision == 'bf16' and not args.no_graphs and device.type == 'cpu' else ''}"
-        f", OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}"
+        f", runtime {runtime}, OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}"
     )
     line = frozen.precision_warning(args.precision)
     if line:
@@ -235,6 +245,7 @@ def main() -> int:
         model = base if base is not None and c == cfg else MVRackLay(c).eval()
         model.frozen_graphs = not args.no_graphs
         frozen.set_precision(model, args.precision)
+        frozen.set_runtime(model, runtime)
         pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch, yaw=args.yaw)
         frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
         for mode in args.modes:
@@ -250,6 +261,8 @@ def main() -> int:
                 "device": str(device),
                 "graphs": not args.no_graphs,
                 "precision": frozen.trunk_precision(model),  # what ran: bf16 on the CPU's graphs only
+                # what ran the trunk: onnx or torch (its graph or, without graphs or on a GPU, the modules)
+                "runtime": frozen.graph_runtime(model) if frozen.graphs_held(model) else "torch",
                 "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
                 "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
             }

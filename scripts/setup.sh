@@ -37,7 +37,7 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ scripts/setup.sh -n
     .venv/bin/python -m pip install -q torch==2.13.0 2>&1 | grep -v '^WARNING: Location' || true
     # with Ray (the `ray` extra) for `--ray ADDRESS`: about 80 MB to download, 240 MB installed
     .venv/bin/python -m pip install -q -e '.[dev,ray]' 2>&1 | grep -v '^WARNING: Location' || true
-    .venv/bin/python -c "import torch, open3d, trimesh, rerun, skimage, ray" || { echo "setup: install failed" >&2; exit 1; }
+    .venv/bin/python -c "import torch, open3d, trimesh, rerun, skimage, onnx, onnxruntime, ray" || { echo "setup: install failed" >&2; exit 1; }
     touch "$stamp"
 fi
 

@@ -13,6 +13,10 @@ from pathlib import Path
 # The suite runs on both cores at once (pytest-xdist): OpenMP threads that sleep when idle instead of spinning
 # keep two workers' torch threads from starving each other (set before torch loads; subprocesses inherit it).
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# Models load in torch's graphs here: exporting each part to ONNX Runtime costs ~1 s a model, which every command
+# run by the tests would pay; tests/test_ortgraph.py holds the ONNX Runtime path (the commands' default) to them.
+os.environ.setdefault("MVRACKLAY_RUNTIME", "torch")
+os.environ.setdefault("MVRACKLAY_ONNX_CACHE", "off")  # nothing written to the user's cache (tests/test_ortgraph.py)
 
 import pytest
 

@@ -1,7 +1,9 @@
 """The shipped weights' layouts on a fixed generated sequence, byte for byte: a restructuring of the code
 must not change what a user gets. The digests in `data/layout_digests.json` were made with the same
 commands; the network runs in a subprocess on one thread with the CPU kernels pinned to one instruction
-set (AVX2 and MKL's compatible path), so the figures do not depend on the machine's CPU features."""
+set (AVX2 and MKL's compatible path) in torch's graphs (``MVRACKLAY_RUNTIME=torch``: ONNX Runtime, the default
+where installed, picks its kernels by the CPU and cannot be pinned; `tests/test_ortgraph.py` holds it to
+torch's outputs), so the figures do not depend on the machine's CPU features."""
 
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DIGESTS = Path(__file__).with_name("data") / "layout_digests.json"
 #: pinned kernels: the same arithmetic on any x86-64 CPU with AVX2 (every one of the last decade)
 PINNED = {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2", "MKL_CBWR": "COMPATIBLE",
-          "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}  # fmt: skip
+          "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "MVRACKLAY_RUNTIME": "torch"}  # fmt: skip
 
 
 def layout_digest(folder: Path) -> str:

@@ -9,6 +9,12 @@ modules, with outputs within float rounding of the modules' (~1e-6). Measured at
 (docs/network.md *Inference speed*): the trunk 26 -> 16 ms a frame, the slot maps 11.6 -> 10.8, the
 box-depth head 6.7 -> 5.8.
 
+Runtimes (`set_runtime`): ``torch`` runs the TorchScript graphs above; ``onnx`` runs each part as an ONNX Runtime
+session exported from the same module (`network.model.ortgraph`, faster on the CPUs measured, outputs within
+float rounding of the graphs'), a part in bf16 or one that fails to export still in TorchScript; ``auto`` is
+``onnx`` where ONNX Runtime is installed. A model built in code runs ``torch``; commands load models in
+`network.model.ortgraph.default_runtime` (``auto`` unless ``MVRACKLAY_RUNTIME`` says otherwise).
+
 `run` uses a graph only where it gives the same function: the model in eval mode, no gradients, float32
 on the CPU, no autocast. A graph is kept per model (weakly: it goes with the model), part and input
 shapes, and rebuilt when any of the part's weights changes (weights are tracked by storage and version,
@@ -36,6 +42,7 @@ from weakref import WeakKeyDictionary
 import torch
 from torch import nn
 
+from network.model import ortgraph
 from network.precision import check_precision, cpu_has_native_bf16
 
 
@@ -50,12 +57,16 @@ class Part(NamedTuple):
     channels_last: bool = False
     #: may run in bf16 under `set_precision` (measured worth it for the trunk only; see the module docstring)
     bf16: bool = False
+    #: a graph in the ``onnx`` runtime only (the modules run it in ``torch``'s, whose arithmetic stays theirs)
+    onnx_only: bool = False
 
 
 PARTS: dict[str, Part] = {
     "trunk": Part(("encoder", "reduce", "temporal", "pyramid"), ("mean", "std"), channels_last=True, bf16=True),
     "slots": Part(("slots",)),
     "box_depth": Part(("box_depth",)),
+    "rows": Part(("rows", "back", "uprights"), onnx_only=True),  # the row heads (a model may lack the last two)
+    "decode": Part(("memory", "slots"), onnx_only=True),  # a stream's memory step and the logits
 }
 #: graphs kept per model and part, one per set of input shapes (a windowed pass and a stream alternate
 #: two), the oldest dropped
@@ -72,6 +83,27 @@ def set_precision(model: nn.Module, precision: str) -> None:
     the module docstring) wherever its graphs apply; one line naming the option when it is neither."""
     check_precision(precision)
     model.graph_precision = precision
+
+
+def set_runtime(model: nn.Module, runtime: str) -> None:
+    """Run ``model``'s CPU graphs in ``runtime`` (`network.model.ortgraph.RUNTIMES`: ``torch``, ``onnx`` or ``auto``;
+    see the module docstring); one line naming the option when it is none of them."""
+    model.graph_runtime = ortgraph.check_runtime(runtime)
+
+
+def use_runtime(model: nn.Module, runtime: str) -> None:
+    """`set_runtime` for a command, with a line on stderr where ``onnx`` was asked for and ONNX Runtime is absent."""
+    set_runtime(model, runtime)
+    if runtime == "onnx" and not ortgraph.available():
+        print("warning: runtime onnx: onnxruntime (or onnx) is not installed; running torch's graphs", file=sys.stderr)
+
+
+def graph_runtime(model: nn.Module, part: str = "trunk") -> str:
+    """The runtime ``part``'s graph runs in for ``model`` when its graphs apply: ``onnx`` or ``torch`` (a part in
+    bf16 runs in torch)."""
+    if in_bf16(model, part):
+        return "torch"
+    return ortgraph.resolve(getattr(model, "graph_runtime", "torch"))
 
 
 def precision_warning(precision: str) -> str | None:
@@ -143,7 +175,8 @@ def applies(model: nn.Module, x: torch.Tensor) -> bool:
 def _tensors(model: nn.Module, part: str) -> list[torch.Tensor]:
     """The part's parameters and buffers (the objects themselves: in-place updates keep them)."""
     modules, buffers = PARTS[part].modules, PARTS[part].buffers
-    return [t for name in modules for t in getattr(model, name).state_dict(keep_vars=True).values()] + [
+    present = [getattr(model, name) for name in modules if getattr(model, name) is not None]
+    return [t for module in present for t in module.state_dict(keep_vars=True).values()] + [
         getattr(model, name) for name in buffers
     ]
 
@@ -158,6 +191,15 @@ def _key(model: nn.Module, part: str, xs: tuple[torch.Tensor, ...], tensors: lis
 
 
 def _build(model: nn.Module, part: str, fn: Callable[..., Any], xs: tuple[torch.Tensor, ...], bf16: bool) -> Any:
+    if not bf16 and graph_runtime(model, part) == "onnx":
+        try:
+            context = f"{part} {fn.__module__}.{fn.__qualname__} {getattr(model, 'cfg', None)!r}"
+            return ortgraph.OrtGraph(_Part(model, part, fn).eval(), xs, torch.get_num_threads(), context)
+        except Exception as e:  # noqa: BLE001 - an export or session failure: torch's graph still works
+            said = "its modules" if PARTS[part].onnx_only else "torch's graph"
+            warnings.warn(f"the {part} part could not run in ONNX Runtime ({e}); running {said}", stacklevel=3)
+    if PARTS[part].onnx_only:
+        return None
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracing's notes on constants: the shapes are fixed by design
@@ -178,11 +220,13 @@ def run(model: nn.Module, part: str, fn: Callable[..., T], *xs: torch.Tensor) ->
     """``fn(model, *xs)``, through the part's frozen graph where that `applies`: ``fn`` reads only the part's
     submodules and buffers (`PARTS`) and returns tensors (or tuples of them); its Python control flow may
     depend on the inputs' shapes only (a graph is traced per set of shapes)."""
-    if not applies(model, xs[0]):
+    if not applies(model, xs[0]) or (PARTS[part].onnx_only and graph_runtime(model, part) != "onnx"):
         return fn(model, *xs)
     graphs = _GRAPHS.setdefault(model, {})
     bf16 = in_bf16(model, part)
-    slot = (part, fn, tuple(tuple(x.shape) for x in xs), bf16)
+    # a session is made for a runtime and a thread count: either changed, another is made
+    how = (graph_runtime(model, part), torch.get_num_threads())
+    slot = (part, fn, tuple(tuple(x.shape) for x in xs), bf16, how)
     held = graphs.get(slot)
     if held is None or held[0] != _key(model, part, xs, held[1]):
         tensors = _tensors(model, part)
@@ -197,7 +241,10 @@ def run(model: nn.Module, part: str, fn: Callable[..., T], *xs: torch.Tensor) ->
         return fn(model, *xs)
     if bf16:
         xs = _cast(xs, torch.bfloat16)
-    out = _contiguous(graph(*_channels_last(xs))) if PARTS[part].channels_last else graph(*xs)
+    if PARTS[part].channels_last and not isinstance(graph, ortgraph.OrtGraph):
+        out = _contiguous(graph(*_channels_last(xs)))
+    else:
+        out = graph(*xs)
     return _cast(out, torch.float32) if bf16 else out
 
 

@@ -75,6 +75,17 @@ class SlotMemory(nn.Module):
             for h, c in state
         ]
 
+    def align_grid(self, state: MemoryState, cur: SlotFeatures, dx: torch.Tensor | None = None) -> torch.Tensor | None:
+        """The `shift_grid` that moves ``state`` (every map of it: they share one shape) to ``cur``'s frame, as
+        `step` moves it (None: an unaligned memory)."""
+        if self.view is None:
+            return None
+        if dx is None:
+            if state.motion is None or cur.motion is None:
+                raise InputError("the aligned slot memory needs each frame's motion signature")
+            dx = camera_shift(state.motion, cur.motion, self.view)  # (N,) metres
+        return shift_grid(state.lstm[0][0], dx, self.view.x_extent, cur.valid.shape[1])
+
     def step(
         self, f: SlotFeatures, state: MemoryState | None, motion: torch.Tensor | None = None
     ) -> tuple[SlotFeatures, MemoryState]:
@@ -99,11 +110,20 @@ def shift_columns(x: torch.Tensor, dx: torch.Tensor, x_extent: float, slots: int
     The layout frame moves with the camera, so a world point at column x moves to x - dx: the new
     map at x is the old one at x + dx (bilinear; cells that come into view start at zero).
     """
+    return shifted(x, shift_grid(x, dx, x_extent, slots))
+
+
+def shift_grid(x: torch.Tensor, dx: torch.Tensor, x_extent: float, slots: int) -> torch.Tensor:
+    """The sampling grid of `shift_columns` for maps shaped like ``x`` (`shifted` applies it)."""
     n = x.shape[0]
     off = (2.0 * dx / x_extent).to(x.dtype).repeat_interleave(slots)  # normalised grid units
     theta = x.new_zeros(n, 2, 3)
     theta[:, 0, 0] = 1.0
     theta[:, 1, 1] = 1.0
     theta[:, 0, 2] = off
-    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+    return F.affine_grid(theta, list(x.shape), align_corners=False)
+
+
+def shifted(x: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:
+    """Maps ``x`` moved by a `shift_grid` (bilinear; cells that come into view start at zero)."""
     return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)

@@ -48,7 +48,7 @@ from network.heads.uprights import UprightHead, pool_columns
 from network.model import frozen
 from network.model.config import ModelConfig
 from network.model.decoders import Pyramid, RowHead, SlotFeatures, SlotHeads, anchors_from_rows, conv_bn_relu
-from network.model.memory import MemoryState, SlotMemory
+from network.model.memory import MemoryState, SlotMemory, shifted
 from network.model.motion import motion_signature
 from network.model.resnet import ResNet18Encoder
 
@@ -108,6 +108,9 @@ class MVRackLay(nn.Module):
         self.frozen_graphs = True
         #: the trunk graph's precision, fp32 or bf16 (`network.model.frozen.set_precision`)
         self.graph_precision = "fp32"
+        #: the runtime of those graphs, torch, onnx or auto (`network.model.frozen.set_runtime`); commands load
+        #: models in `network.model.ortgraph.default_runtime`
+        self.graph_runtime = "torch"
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -134,8 +137,9 @@ class MVRackLay(nn.Module):
         """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``
         (the given ones, else the row head's)."""
         p1, p2 = self.maps(images)
-        pooled = pool_rows(p1, p2)
-        rows = self.rows.from_pooled(pooled)
+        heads = frozen.run(self, "rows", row_heads, p1, p2)
+        heads = list(heads) if isinstance(heads, tuple) else [heads]  # a session of one output gives a tensor
+        rows = heads.pop(0)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
         sig = motion_signature(images) if self.memory is not None and self.memory.view is not None else None
@@ -143,9 +147,9 @@ class MVRackLay(nn.Module):
         maps = frozen.run(self, "slots", fn, p1, p2, anchors)
         feats = SlotFeatures(*maps[:3], torch.isfinite(anchors), motion=sig)
         if self.back is not None:
-            feats.back = self.back(pooled)
+            feats.back = heads.pop(0)
         if self.uprights is not None:
-            feats.uprights = self.uprights(pool_columns(p1, p2))
+            feats.uprights = heads.pop(0)
         if self.box_depth is not None:
             feats.window = maps[3]
         return feats, rows, anchors
@@ -199,13 +203,56 @@ class MVRackLay(nn.Module):
             if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
                 raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
         feats, rows, anchors = self.frame_features(image, anchors)
-        if self.memory is not None:
-            feats, state = self.memory.step(feats, state, motion)
-        out = self.slots.finish(feats)
+        if self.memory is not None and self.memory.view is not None and frozen.graph_runtime(self, "decode") == "onnx":
+            out, state = self._decode(feats, state, motion)
+        else:
+            if self.memory is not None:
+                feats, state = self.memory.step(feats, state, motion)
+            out = self.slots.finish(feats)
         out["rows"] = rows
         out["anchors"] = anchors
         out.update(head_outputs(feats))
         return out, state
+
+    def _decode(
+        self, feats: SlotFeatures, state: MemoryState | None, motion: torch.Tensor | None
+    ) -> tuple[dict[str, torch.Tensor], MemoryState]:
+        """`step`'s aligned memory step and logits as one part (`decode_step`), which `network.model.frozen` runs in
+        ONNX Runtime where the model's graphs do: the same function as the modules'."""
+        assert self.memory is not None
+        xs = (feats.top, feats.front, feats.fine, feats.valid)
+        if state is not None:
+            grid = self.memory.align_grid(state, feats, motion)
+            xs = (*xs, grid, *(t for hc in state.lstm for t in hc))
+        top, front, *lstm = frozen.run(self, "decode", decode_step, *xs)
+        return {"top": top, "front": front}, MemoryState(list(zip(lstm[0::2], lstm[1::2])), feats.motion)
+
+
+def decode_step(m: Any, top: torch.Tensor, front: torch.Tensor, fine: torch.Tensor, valid: torch.Tensor,
+                *carried: torch.Tensor) -> tuple[torch.Tensor, ...]:  # fmt: skip
+    """One frame of the aligned slot memory and the slot heads' logits, on tensors: the coarse maps, fine samples
+    and anchor mask of `SlotFeatures`, then (after a first frame) the state's `network.model.memory.shift_grid` and
+    its ``h, c`` per layer. Returns the top and front logits and the new ``h, c`` per layer."""
+    f = SlotFeatures(top, front, fine, valid)
+    lstm = None
+    if carried:
+        grid, held = carried[0], carried[1:]
+        lstm = [(shifted(h, grid), shifted(c, grid)) for h, c in zip(held[0::2], held[1::2])]
+    h, lstm = m.memory.lstm.step(m.memory._pooled(f), lstm)
+    out = m.slots.finish(m.memory._refine(f, h))
+    return (out["top"], out["front"], *(t for hc in lstm for t in hc))
+
+
+def row_heads(m: Any, p1: torch.Tensor, p2: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """The row heads on the pyramid maps: the board rows' logits, then those of the back edges and the uprights
+    (of the heads the model has): the part of a frame that `network.model.frozen` runs as ``rows``."""
+    pooled = pool_rows(p1, p2)
+    out = [m.rows.from_pooled(pooled)]
+    if m.back is not None:
+        out.append(m.back(pooled))
+    if m.uprights is not None:
+        out.append(m.uprights(pool_columns(p1, p2)))
+    return tuple(out)
 
 
 def slot_maps(m: Any, p1: torch.Tensor, p2: torch.Tensor, anchors: torch.Tensor) -> tuple[torch.Tensor, ...]:
