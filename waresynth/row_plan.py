@@ -76,6 +76,18 @@ def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: f
     return True
 
 
+def canonical_half_height(intr: Intrinsics, x_extent: float) -> float:
+    """Half the height (metres, on the rack front plane) of the canonical view of ``intr``'s images: the
+    network's window is ``x_extent`` wide and ``x_extent * H / W`` tall about the optical axis."""
+    return x_extent * intr.height / intr.width / 2
+
+
+def level_in_window(cam_height: float, level: float, clear: float, half: float) -> bool:
+    """Whether the two points of the visibility rule (the board edge and half the clear height above it) lie
+    within ``half`` metres of the level camera's height: on the canonical view's rows (`layouts.canonical`)."""
+    return all(-half <= cam_height - level - h < half for h in (0.0, clear / 2))
+
+
 def clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
     out = []
     for k, lv in enumerate(levels):
