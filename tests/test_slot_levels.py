@@ -4,10 +4,12 @@ a board a wide lens shows below the network's window is no slot, so slot 0 is th
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from layouts.camera import Intrinsics
 from layouts.canonical import CanonicalView
 from layouts.classes import SHELF
+from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from waresynth.config import load_config
 from waresynth.groundtruth import frame_layouts, frame_slots, in_canonical_view, slot_levels
@@ -45,9 +47,27 @@ def test_a_floor_board_below_the_canonical_view_is_no_slot_and_slot_0_is_the_nex
 
 
 def test_the_default_camera_keeps_its_visible_levels_as_slots() -> None:
-    for seed in range(8):
-        scene = _scene(None, seed, 60.0)
-        inside = [k for k in scene.visible_levels if in_canonical_view(scene, SPEC, k)]
-        assert slot_levels(scene, SPEC) == inside[: SPEC.num_slots]
-        if scene.camera.distance <= 2.6:  # the canonical view holds the whole 60-degree image
+    # the window's margin holds what the 60-degree camera sees at its farthest (2.9 m): the default's
+    # slots, and every dataset generated with it, are as they were
+    far = {"camera": {"distance": [2.88, 2.9]}}
+    for seed in range(12):
+        for config in (None, far):
+            scene = _scene(config, seed, 60.0)
+            assert all(in_canonical_view(scene, SPEC, k) for k in scene.visible_levels)
             assert slot_levels(scene, SPEC) == scene.visible_levels[: SPEC.num_slots]
+
+
+def test_a_sampled_scene_is_drawn_again_until_it_has_a_slot() -> None:
+    intr = Intrinsics.from_fov(64, 64, 80.0)
+    low = {
+        "camera": {"height": [2.5, 2.6], "distance": [3.0, 3.1], "hfov_deg": 80.0},
+        "rack": {"levels": [2, 2], "first_level": [0.0, 0.02], "spacing": [0.7, 0.75]},
+    }
+    # the lens sees both low boards, both more than 1.5 m below the camera: no scene has a slot
+    scene = build_scene(np.random.default_rng(0), load_config(low), intr, 2)
+    assert scene.visible_levels and slot_levels(scene, SPEC) == []
+    with pytest.raises(InputError, match="never make a shelf visible inside the canonical view"):
+        build_scene(np.random.default_rng(0), load_config(low), intr, 2, x_extent=SPEC.x_extent)
+    for seed in range(4):  # a floor board below the view and one inside: drawn as before, one slot
+        scene = build_scene(np.random.default_rng(seed), load_config(FLOOR), intr, 2, x_extent=SPEC.x_extent)
+        assert slot_levels(scene, SPEC) == [1]

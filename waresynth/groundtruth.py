@@ -20,7 +20,7 @@ from layouts.classes import BOX, SHELF
 from layouts.codecs import FrameLayouts
 from layouts.raster import fill_rect
 from layouts.spec import LayoutSpec
-from waresynth.row_plan import canonical_half_height, level_in_window
+from waresynth.row_plan import level_in_window, slot_half_height
 from waresynth.scene import Scene
 
 
@@ -38,10 +38,11 @@ def stacks(shelf) -> list[dict[str, Any]]:
 
 def in_canonical_view(scene: Scene, spec: LayoutSpec, level: int) -> bool:
     """Whether a level's board edge and the point at half its clear height (the two points of the visibility
-    rule) lie on the rows of the canonical view of the scene's images: the level camera's front plane,
-    ``spec.x_extent`` wide and ``x_extent * H / W`` tall about the optical axis (`layouts.canonical`)."""
+    rule) lie within the canonical view of the scene's images (`layouts.canonical`: on the level camera's
+    front plane, ``spec.x_extent`` wide and ``x_extent * H / W`` tall about the optical axis) or at most
+    `waresynth.row_plan.SLOT_MARGIN` past its edges."""
     shelf = scene.racks[0].shelves[level]
-    half = canonical_half_height(scene.camera.intrinsics, spec.x_extent)
+    half = slot_half_height(scene.camera.intrinsics, spec.x_extent)
     return level_in_window(scene.camera.height, -float(shelf.board_top_y), float(shelf.clear_height), half)
 
 
@@ -49,7 +50,7 @@ def slot_levels(scene: Scene, spec: LayoutSpec, canonical: bool = True) -> list[
     """The levels the shelf slots show, lowest first (at most R): the visible ones inside the canonical view
     (``canonical=False``: every visible one, the rule a building's planned passes keep with their routes).
 
-    A wider lens or a camera further back than the canonical view's 60 degrees at 2.6 m sees boards above
+    A wider lens or a camera further back than the default's (60 degrees, at most 2.9 m) sees boards above
     and below the rows the network reads; counted as slots, slot 0 would be a board its row head cannot find
     and every slot it finds would name the level below its own."""
     inside = [k for k in scene.visible_levels if not canonical or in_canonical_view(scene, spec, k)]

@@ -76,10 +76,17 @@ def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: f
     return True
 
 
-def canonical_half_height(intr: Intrinsics, x_extent: float) -> float:
-    """Half the height (metres, on the rack front plane) of the canonical view of ``intr``'s images: the
-    network's window is ``x_extent`` wide and ``x_extent * H / W`` tall about the optical axis."""
-    return x_extent * intr.height / intr.width / 2
+#: how far past the canonical view's edge (a fraction of its half height) a board still counts as a slot:
+#: the default camera at its farthest (60 degrees, 2.9 m) sees 11.5 % past it, and a row head trained on
+#: it finds a board there at the view's edge
+SLOT_MARGIN = 0.12
+
+
+def slot_half_height(intr: Intrinsics, x_extent: float) -> float:
+    """Half the height (metres, on the rack front plane) of the window whose boards are shelf slots: the
+    canonical view of ``intr``'s images (``x_extent`` wide and ``x_extent * H / W`` tall about the optical
+    axis, the network's window) and `SLOT_MARGIN` past its edges."""
+    return x_extent * intr.height / intr.width / 2 * (1 + SLOT_MARGIN)
 
 
 def level_in_window(cam_height: float, level: float, clear: float, half: float) -> bool:

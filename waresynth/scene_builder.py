@@ -27,10 +27,10 @@ from waresynth.row_plan import (
     RowPlan,
     StackPlan,
     board_span,
-    canonical_half_height,
     clear_heights,
     level_in_window,
     level_visible,
+    slot_half_height,
     visible_levels,
 )
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
@@ -228,7 +228,7 @@ def _sample_row_camera(
         distance = uniform(rng, cc["distance"])
         cam_h = uniform(rng, cc["height"])
         visible = [k for k in range(len(levels)) if level_visible(intrinsics, cam_h, distance, levels[k], clears[k])]
-        half = None if x_extent is None else canonical_half_height(intrinsics, x_extent)
+        half = None if x_extent is None else slot_half_height(intrinsics, x_extent)
         if any(half is None or level_in_window(cam_h, levels[k], clears[k], half) for k in visible):
             break
     else:
