@@ -42,7 +42,9 @@ class GenerateSettings:
     config: Path | None = setting(
         "--config",
         "JSON config overriding waresynth/default_config.json, or a shipped one by name (wide_look: the wider camera "
-        "and building look meant for training; shifted_look: a look outside it, for held-out tests)",
+        "and building look meant for training; wide_camera: a wider camera geometry, 45-80 degree lenses, 1.8-3.5 m, "
+        "turned mounts, steps to 30 cm; shifted_look: a look outside wide_look, for held-out tests); several joined "
+        "by '+' apply in order (wide_look+wide_camera)",
         metavar="FILE", type=Path,
     )  # fmt: skip
     supersample: int | None = setting(

@@ -231,7 +231,7 @@ def test_bad_look_values_are_refused_in_one_line_naming_the_key(bad, key):
 
 
 def test_the_shipped_configs_load_by_name_and_the_shift_lies_outside_the_wide_ranges(tmp_path):
-    assert shipped_configs() == ["shifted_look", "wide_look"]
+    assert shipped_configs() == ["shifted_look", "wide_camera", "wide_look"]
     wide, shifted = (json.loads((CONFIGS_DIR / f"{n}.json").read_text()) for n in ("wide_look", "shifted_look"))
     assert load_config("wide_look") == load_config(CONFIGS_DIR / "wide_look.json")
     for section in ("lighting", "sensor"):
@@ -241,7 +241,7 @@ def test_the_shipped_configs_load_by_name_and_the_shift_lies_outside_the_wide_ra
                 assert v[0] > w[1] or v[1] < w[0], f"{section}.{k}: {v} overlaps {w}"
     for section in ("rack", "boxes", "floor", "wall"):
         assert not {tuple(c) for c in shifted[section]["colours"]} & {tuple(c) for c in wide[section]["colours"]}
-    with pytest.raises(InputError, match="no_look: config file not found .*shifted_look, wide_look"):
+    with pytest.raises(InputError, match="no_look: config file not found .*shifted_look, wide_camera, wide_look"):
         load_config("no_look")
 
 

@@ -25,7 +25,7 @@ from layouts.fileio import load_json
 from waresynth.look import COMPRESSIONS, SUBSAMPLING
 
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("default_config.json")
-#: the shipped configs (`load_config` takes their names: "wide_look", "shifted_look")
+#: the shipped configs (`load_config` takes their names: "wide_look", "wide_camera", "shifted_look", joined by "+")
 CONFIGS_DIR = Path(__file__).with_name("configs")
 
 #: Texture names each section may use (renderer patterns).
@@ -242,26 +242,44 @@ def _shipped(config: str | os.PathLike) -> str | os.PathLike:
     return shipped if shipped.is_file() else config
 
 
+def config_parts(config: str | os.PathLike) -> list[str | os.PathLike]:
+    """The configs a name stands for, applied in order: a file, a shipped config's name, or shipped names and
+    files joined by ``+`` (``"wide_look+wide_camera"``: the wide look with the wide camera geometry)."""
+    name = str(config)
+    if Path(config).is_file() or "+" not in name:
+        return [_shipped(config)]
+    return [_shipped(part) for part in name.split("+")]
+
+
+def is_config(config: str | os.PathLike) -> bool:
+    """Whether ``config`` names configs `load_config` finds (every ``+`` part a file or a shipped name)."""
+    parts = config_parts(config)
+    return all(Path(p).is_file() for p in parts)
+
+
 def load_config(config: dict[str, Any] | str | os.PathLike | None = None) -> dict[str, Any]:
     """Effective config: the defaults overridden by ``config`` (a dict, a JSON file path, a shipped config's
-    name such as ``"wide_look"``, or None)."""
+    name such as ``"wide_look"``, several joined by ``+`` and applied in order, or None)."""
     cfg = default_config()
     if config is None:
         return cfg
     if isinstance(config, (str, os.PathLike)):
         src = str(config)
-        config = _shipped(config)
-        if not Path(config).is_file():
-            names = ", ".join(shipped_configs())
-            raise InputError(f"{src}: config file not found (nor a shipped config: {names})")
-        user = load_json(config)
+        users = []
+        parts = config_parts(config)
+        for part, given in zip(parts, src.split("+") if len(parts) > 1 else [src]):
+            if not Path(part).is_file():
+                names = ", ".join(shipped_configs())
+                raise InputError(f"{given}: config file not found (nor a shipped config: {names})")
+            users.append((given, load_json(part)))
     elif isinstance(config, dict):
-        src, user = "config", config
+        src, users = "config", [("config", config)]
     else:
         raise InputError(f"config must be a dict, a JSON file path or None, got {type(config).__name__}")
-    if not isinstance(user, dict):
-        raise InputError(f"{src}: config must be a JSON object, got {type(user).__name__}")
-    _merge(src, cfg, copy.deepcopy(user))
+    for part_src, user in users:
+        if not isinstance(user, dict):
+            raise InputError(f"{part_src}: config must be a JSON object, got {type(user).__name__}")
+        _merge(part_src, cfg, copy.deepcopy(user))
     _check_whole(src, cfg)
     from waresynth.config_schema import check_config
 

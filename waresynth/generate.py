@@ -143,7 +143,7 @@ def write_sequence(
     intr = Intrinsics.from_fov(image_size[0], image_size[1], hfov)
     scene_rng = np.random.default_rng(np.random.SeedSequence([seed, 0]))
     noise_rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))
-    scene = build_scene(scene_rng, cfg, intr, frames, planned)
+    scene = build_scene(scene_rng, cfg, intr, frames, planned, spec.x_extent)
     renderer = Renderer(
         scene,
         intr,
@@ -154,7 +154,8 @@ def write_sequence(
     for sub in ("rgb", "depth", "semantic", "instance"):
         (tmp / sub).mkdir(parents=True)
     folder = LayoutFolder.create(tmp / "layouts", spec)
-    slots = frame_slots(scene, spec)
+    sampled = planned is None  # a building's planned pass keeps the levels its route names
+    slots = frame_slots(scene, spec, sampled)
     # the camera's travel while the shutter is open (centred on the frame's position)
     exposure = np.array([scene.sensor["motion_blur"] * scene.camera.step, 0.0, 0.0])
     records = []
@@ -165,7 +166,7 @@ def write_sequence(
         write_png(tmp / "depth" / fname, fr.depth_mm)
         write_png(tmp / "semantic" / fname, fr.semantic)
         write_png(tmp / "instance" / fname, fr.instance)
-        lay = frame_layouts(scene, spec, float(pos[0]))
+        lay = frame_layouts(scene, spec, float(pos[0]), sampled)
         folder.write(i, lay)
         records.append(_frame_record(scene, i, pos, slots, lay))
         if on_frame:

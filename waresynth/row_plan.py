@@ -76,6 +76,25 @@ def level_visible(intr: Intrinsics, cam_height: float, distance: float, level: f
     return True
 
 
+#: how far past the canonical view's edge (a fraction of its half height) a board still counts as a slot:
+#: the default camera at its farthest (60 degrees, 2.9 m) sees 11.5 % past it, and a row head trained on
+#: it finds a board there at the view's edge
+SLOT_MARGIN = 0.12
+
+
+def slot_half_height(intr: Intrinsics, x_extent: float) -> float:
+    """Half the height (metres, on the rack front plane) of the window whose boards are shelf slots: the
+    canonical view of ``intr``'s images (``x_extent`` wide and ``x_extent * H / W`` tall about the optical
+    axis, the network's window) and `SLOT_MARGIN` past its edges."""
+    return x_extent * intr.height / intr.width / 2 * (1 + SLOT_MARGIN)
+
+
+def level_in_window(cam_height: float, level: float, clear: float, half: float) -> bool:
+    """Whether the two points of the visibility rule (the board edge and half the clear height above it) lie
+    within ``half`` metres of the level camera's height: on the canonical view's rows (`layouts.canonical`)."""
+    return all(-half <= cam_height - level - h < half for h in (0.0, clear / 2))
+
+
 def clear_heights(levels: list[float], thickness: float, top: float) -> list[float]:
     out = []
     for k, lv in enumerate(levels):

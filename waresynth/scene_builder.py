@@ -28,7 +28,9 @@ from waresynth.row_plan import (
     StackPlan,
     board_span,
     clear_heights,
+    level_in_window,
     level_visible,
+    slot_half_height,
     visible_levels,
 )
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
@@ -215,9 +217,10 @@ class _Row:
 
 
 def _sample_row_camera(
-    rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intrinsics, frames: int
+    rng: np.random.Generator, cfg: dict[str, Any], intrinsics: Intrinsics, frames: int, x_extent: float | None
 ) -> tuple[_Row, Camera, list[int]]:
-    """Row heights (shared by every rack of the row), a camera that sees 1..R of them, and its path."""
+    """Row heights (shared by every rack of the row), a camera that sees 1..R of them, and its path; with
+    ``x_extent``, one of those inside the canonical view too (a shelf slot: `waresynth.groundtruth.slot_levels`)."""
     cc, rc = cfg["camera"], cfg["rack"]
     for _ in range(200):
         levels, thickness, top = sample_levels(rng, cfg)
@@ -225,10 +228,14 @@ def _sample_row_camera(
         distance = uniform(rng, cc["distance"])
         cam_h = uniform(rng, cc["height"])
         visible = [k for k in range(len(levels)) if level_visible(intrinsics, cam_h, distance, levels[k], clears[k])]
-        if visible:
+        half = None if x_extent is None else slot_half_height(intrinsics, x_extent)
+        if any(half is None or level_in_window(cam_h, levels[k], clears[k], half) for k in visible):
             break
     else:
-        raise InputError("config: camera.height/distance and rack levels never make a shelf visible; widen the ranges")
+        raise InputError(
+            "config: camera.height/distance and rack levels never make a shelf visible inside the canonical view; "
+            "widen the ranges"
+        )
     depth = uniform(rng, rc["depth"])
     step = uniform(rng, cc["step"]) * (-1.0 if rng.random() < cc["reverse_probability"] else 1.0)
     cam_z = Z_FRONT - distance
@@ -420,16 +427,19 @@ def build_scene(
     intrinsics: Intrinsics,
     frames: int,
     planned: tuple[RowPlan, CameraPlan] | None = None,
+    x_extent: float | None = None,
 ) -> Scene:
     """Sample a whole scene and camera path for one sequence from ``rng`` and the effective config.
 
     ``planned``: the row and the camera's path given (a pass along a planned rack face); the rest of the
     scene (background, floor, wall, light, sensor, look) is drawn from ``rng`` as for a sampled row.
+    ``x_extent``: the layout's width (`LayoutSpec.x_extent`); a sampled camera is then drawn again until a
+    level it sees lies inside the canonical view, so that every frame has a shelf slot.
     """
     cc = cfg["camera"]
     b = _Builder()
     if planned is None:
-        row, camera, visible = _sample_row_camera(rng, cfg, intrinsics, frames)
+        row, camera, visible = _sample_row_camera(rng, cfg, intrinsics, frames, x_extent)
         plan = _sample_row_plan(rng, cfg, row, camera)
     else:
         plan = planned[0]

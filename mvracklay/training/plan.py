@@ -160,10 +160,10 @@ def check_steps(ctx: Context, out: Path, quiet: bool) -> list[Step]:
             continue
         if not path.exists():
             problems.append(f"{ctx.recipe.path}: key 'requires': {path} is missing")
-    from waresynth.config import shipped_configs
+    from waresynth.config import is_config
 
     for spec in ctx.recipe.data.values():
-        if spec.config and not Path(spec.config).is_file() and spec.config not in shipped_configs():
+        if spec.config and not is_config(spec.config):
             problems.append(
                 f"{ctx.recipe.path}: data {spec.name!r}: key 'config': {spec.config} is no file nor a shipped config"
             )
