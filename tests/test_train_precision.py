@@ -18,7 +18,7 @@ from network.training.trainer import Trainer
 def test_bf16_runs_the_forward_in_bf16_learns_and_keeps_fp32_weights(tmp_path):
     data = seqs()
     tcfg = TrainConfig(
-        frames_per_step=8, steps_per_epoch=15, epochs=2, lr=1e-2, dice_weight=0.0, augment=False, threads=1,
+        frames_per_step=4, steps_per_epoch=12, epochs=2, lr=2e-2, dice_weight=0.0, augment=False, threads=1,
         precision="bf16",
     )  # fmt: skip
     trainer = Trainer(tiny("mvracklay-disc-4"), tcfg, data, data, tmp_path / "run", progress=False)
