@@ -52,6 +52,7 @@ class BuildingResult:
     mapped: int  #: passes mapped by this run (the rest were there from an earlier one)
     inventory: list[dict[str, Any]]
     written: list[str] = field(default_factory=list)  #: the outputs' file names, in MAP
+    worker_peak_mb: float = 0.0  #: the most memory a process mapping a pass held (0: none mapped)
 
 
 def resolve_route(path: str | os.PathLike) -> tuple[Route, Path]:
@@ -81,9 +82,9 @@ def building_config(base: Path) -> dict[str, Any]:
     return {}
 
 
-def map_pass(task: PassTask) -> str:
+def map_pass(task: PassTask) -> float:
     """Map one pass as a row into ``task.out`` (``warehouse.json``, and the run's outputs for the network);
-    returns its name. Runs in a worker process or a Ray task."""
+    returns the peak memory (MB) of the process that mapped it. Runs in a worker process or a Ray task."""
     out = Path(task.out)
     if task.layouts == "gt":
         from layouts.codecs import LayoutFolder
@@ -104,7 +105,9 @@ def map_pass(task: PassTask) -> str:
         cfg = RunConfig(**task.run)
         run_pipeline(open_source(task.source, prog="mvracklay map"), out, cfg)
     atomic_write_json(out / "pass.json", {"key": task.key, "source": task.source, "layouts": task.layouts})
-    return task.name
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _done(task: PassTask) -> bool:
@@ -166,9 +169,10 @@ def map_building(
         run.setdefault("progress", False)
     tasks = pass_tasks(route, base, out, layouts, run)
     todo = [t for t in tasks if not _done(t)]
-    for _ in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
-                       progress="map passes" if progress else None):  # fmt: skip
-        pass
+    peak = 0.0
+    for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
+                           progress="map passes" if progress else None):  # fmt: skip
+        peak = max(peak, mb)
     if pose_noise is not None:
         route = perturb(route, pose_noise[0], pose_noise[1], seed)
     maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
@@ -189,7 +193,7 @@ def map_building(
             file=sys.stderr,
         )
     written = [n for n in OUTPUTS if (out / n).is_file() and (rrd or n != "building.rrd")]
-    return BuildingResult(base, out, bmap, len(todo), rows, written)
+    return BuildingResult(base, out, bmap, len(todo), rows, written, peak)
 
 
 def summary(res: BuildingResult) -> str:
