@@ -44,18 +44,38 @@ def check_code_format(code: str, positions: int = 1) -> str:
     return code
 
 
-def inventory_csv(rows: list[dict[str, Any]]) -> str:
-    """Inventory rows as CSV text: the `INVENTORY_COLUMNS` header, then one row per location."""
+def covered_length(intervals: list[tuple[float, float]], lo: float, hi: float) -> float:
+    """Length of ``[lo, hi]`` under the union of ``intervals`` (a location's occupied or seen length)."""
+    total, end = 0.0, lo
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals):
+        if b > end:
+            total += b - max(a, end)
+            end = b
+    return total
+
+
+def rows_csv(rows: list[dict[str, Any]], columns: tuple[str, ...]) -> str:
+    """Rows as CSV text: the ``columns`` header, then one line per row."""
     out = io.StringIO()
-    w = csv.DictWriter(out, fieldnames=INVENTORY_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(out, fieldnames=columns, lineterminator="\n")
     w.writeheader()
     w.writerows(rows)
     return out.getvalue()
 
 
+def inventory_csv(rows: list[dict[str, Any]]) -> str:
+    """Inventory rows as CSV text: the `INVENTORY_COLUMNS` header, then one row per location."""
+    return rows_csv(rows, INVENTORY_COLUMNS)
+
+
+def read_rows(text: str, needs: tuple[str, ...], source: str) -> list[dict[str, str]]:
+    """Rows of a CSV whose header holds ``needs`` (one line naming ``source`` otherwise)."""
+    rows = list(csv.DictReader(io.StringIO(text)))
+    if not text.strip() or (rows and set(needs) - set(rows[0])):
+        raise InputError(f"{source}: its header must hold {', '.join(needs)}")
+    return rows
+
+
 def read_inventory(text: str, source: str = "inventory") -> list[dict[str, str]]:
     """Rows of an inventory CSV (its header must hold `INVENTORY_COLUMNS`)."""
-    rows = list(csv.DictReader(io.StringIO(text)))
-    if not text.strip() or (rows and set(INVENTORY_COLUMNS) - set(rows[0])):
-        raise InputError(f"{source}: not an inventory (its header must hold {', '.join(INVENTORY_COLUMNS)})")
-    return rows
+    return read_rows(text, INVENTORY_COLUMNS, f"{source}: not an inventory")

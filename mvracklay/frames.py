@@ -324,12 +324,11 @@ def _rgb_array(a: Any, n: int, size: tuple[int, int] | None = None) -> np.ndarra
     return np.ascontiguousarray(a[..., :3])
 
 
-def array_source(
-    frames: Iterable[Any], intrinsics: Intrinsics | None = None, prog: str = "mvracklay.reconstruct"
-) -> FrameSource:
-    """Frames in memory (uint8 ``(H, W, 3)`` arrays, any iterable, streamed once) as a `FrameSource`."""
-    if isinstance(frames, np.ndarray) and frames.ndim == 3 and frames.shape[-1] in (3, 4) and frames.dtype == np.uint8:
-        frames = [frames]  # one image, not a stack of grey frames
+def first_frame(
+    frames: Iterable[Any], intrinsics: Intrinsics | None
+) -> tuple[np.ndarray, Iterator[Any], Intrinsics | None]:
+    """The first of in-memory ``frames`` (checked, as uint8 RGB), an iterator over the rest, and ``intrinsics``
+    checked against and scaled to its size; one line when ``frames`` is not an iterable of frames or is empty."""
     try:
         it = iter(frames)
     except TypeError:
@@ -337,11 +336,22 @@ def array_source(
     first = next(it, None)
     if first is None:
         raise InputError("frames: no frames given")
-    first = _rgb_array(first, 0)
-    h, w = first.shape[:2]
+    rgb = _rgb_array(first, 0)
+    h, w = rgb.shape[:2]
     if intrinsics is not None:
         check_camera_fits(intrinsics, w, h, "camera")
         intrinsics = intrinsics if (intrinsics.width, intrinsics.height) == (w, h) else intrinsics.scaled(w, h)
+    return rgb, it, intrinsics
+
+
+def array_source(
+    frames: Iterable[Any], intrinsics: Intrinsics | None = None, prog: str = "mvracklay.reconstruct"
+) -> FrameSource:
+    """Frames in memory (uint8 ``(H, W, 3)`` arrays, any iterable, streamed once) as a `FrameSource`."""
+    if isinstance(frames, np.ndarray) and frames.ndim == 3 and frames.shape[-1] in (3, 4) and frames.dtype == np.uint8:
+        frames = [frames]  # one image, not a stack of grey frames
+    first, it, intrinsics = first_frame(frames, intrinsics)
+    h, w = first.shape[:2]
     count = len(frames) if hasattr(frames, "__len__") else None
     return FrameSource(
         "arrays", Path("<frames>"), w, h, count, intrinsics=intrinsics, prog=prog, arrays=_chain(first, it)

@@ -198,6 +198,31 @@ def run_live(
     return LiveResult(res, live.report())
 
 
+def map_live_source(url: str, out: Path, cfg: RunConfig, settings: LiveSettings, spawn: bool = False):
+    """`mvracklay run` on a live source: the model loaded, the stream opened, the viewer's sinks made (their
+    lines printed), mapped until it ends. Returns the `LiveResult` and the source."""
+    from mvracklay.pipeline import load_model
+
+    settings.validate()
+    if cfg.inference.whole_sequence:
+        raise InputError(
+            "--whole-sequence (--quality offline) reads every frame before the first map: not for a live source"
+        )
+    loaded = load_model(cfg)  # before the stream opens: its frames do not wait on the model
+    source = open_live(url, idle_timeout=settings.idle_timeout, retries=settings.retries,
+                       buffer=settings.live_buffer, every=cfg.every, prog="mvracklay run")  # fmt: skip
+    try:
+        sinks, said = viewer_sinks(spawn, settings.serve)
+    except BaseException:
+        source.close()
+        raise
+    for line in said:
+        print(line, flush=True)
+    if cfg.progress:
+        print(f"mapping {source.url} ({source.width}x{source.height}) as it streams; Ctrl-C ends it", flush=True)
+    return run_live(source, out, cfg, loaded=loaded, sinks=sinks), source
+
+
 def reconstruct_live(
     frames: Iterable[np.ndarray] | str,
     out: str | Path | None = None,

@@ -412,25 +412,14 @@ def iter_live(
 ) -> LiveSource:
     """A live source reading ``frames`` (an iterable of uint8 RGB ``(H, W, 3)`` arrays, yielded as they arrive) in a
     thread; its first frame is read here (the size)."""
-    from layouts.camera_record import check_camera_fits
-    from mvracklay.frames import _rgb_array
+    from mvracklay.frames import first_frame
 
     if not (isinstance(idle_timeout, (int, float)) and idle_timeout > 0):
         raise InputError(f"idle_timeout must be > 0 seconds, got {idle_timeout!r}")
     if every != "auto" and (not isinstance(every, int) or isinstance(every, bool) or every < 1):
         raise InputError(f"every must be an integer >= 1 or auto, got {every!r}")
-    try:
-        it = iter(frames)
-    except TypeError:
-        raise InputError(f"frames: want an iterable of uint8 (H, W, 3) arrays, got {type(frames).__name__}") from None
-    first = next(it, None)
-    if first is None:
-        raise InputError("frames: no frames given")
-    rgb = _rgb_array(first, 0)
+    rgb, it, intrinsics = first_frame(frames, intrinsics)
     h, w = rgb.shape[:2]
-    if intrinsics is not None:
-        check_camera_fits(intrinsics, w, h, "camera")
-        intrinsics = intrinsics if (intrinsics.width, intrinsics.height) == (w, h) else intrinsics.scaled(w, h)
     src = _IteratorLive("live", Path("<frames>"), w, h, None, intrinsics=intrinsics, prog="mvracklay.reconstruct_live",
                         url="<frames>", idle_timeout=float(idle_timeout), every=every, buffer=LatestFrames(buffer),
                         spacing=Spacing() if every == "auto" else None, frames_in=it)  # fmt: skip

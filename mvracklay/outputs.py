@@ -79,3 +79,25 @@ def spawn_viewer(rrd: Path) -> None:
         subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError as e:
         raise InputError(f"cannot start the Rerun viewer ({e}); open the recording with: rerun {rrd}") from None
+
+
+def run_summary(res, source) -> str:
+    """What `run` prints at its end (a `mvracklay.pipeline.RunResult` of ``source``): frames, map, speed,
+    distance, angles, free space, the files written."""
+    from network.inference.roll import describe_angles
+    from stitching.free_space import format_table
+
+    wmap = res.map
+    lines = [
+        f"{res.frames} frames ({source.kind}, {source.width}x{source.height}, camera: {res.intrinsics_source}) -> "
+        f"{len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes"
+    ]
+    t = res.seconds
+    rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
+    lines.append(f"speed: {rate} (wall, this machine)")
+    if res.distance is not None:
+        lines.append(f"distance to the racks: {res.distance.describe()}")
+    lines += describe_angles(res.angles_read)
+    lines.append(format_table(res.free_space, racks=len(wmap.racks)))
+    lines.append("wrote " + ", ".join(str(p) for p in res.paths.values()))
+    return "\n".join(lines)

@@ -133,3 +133,29 @@ def write_changes_rrd(new: BuildingMap, old: BuildingMap, d: BuildingDiff, path:
         rec.log("changes/arrows", rr.Arrows3D(origins=origins, vectors=vectors, colors=[COLOURS["moved"]]), static=True)
     rec.flush()
     rec.disconnect()
+
+
+def write_changes(
+    old: BuildingMap, new: BuildingMap, d: BuildingDiff, out: str | os.PathLike, rrd: bool = True,
+    evaluation: dict | None = None,
+) -> list[str]:  # fmt: skip
+    """``changes.csv`` (`CHANGE_COLUMNS`), ``changes.json`` (rows, counts, per location, ``evaluation`` when
+    given), ``changes.glb`` and (``rrd``) ``changes.rrd`` in ``out``, each atomically; returns their names."""
+    from layouts.fileio import atomic_write_json, atomic_write_text
+    from layouts.locations import rows_csv
+    from stitching.building_diff import CHANGE_COLUMNS
+
+    os.makedirs(out, exist_ok=True)
+    rows = d.rows()
+    atomic_write_text(os.path.join(out, "changes.csv"), rows_csv(rows, CHANGE_COLUMNS))
+    doc = {"columns": list(CHANGE_COLUMNS), "changes": rows, "counts": d.counts(),
+           "locations": [vars(loc) for loc in d.locations]}  # fmt: skip
+    if evaluation is not None:
+        doc["evaluation"] = evaluation
+    atomic_write_json(os.path.join(out, "changes.json"), doc)
+    export_changes_glb(new, old, d, os.path.join(out, "changes.glb"))
+    written = ["changes.csv", "changes.json", "changes.glb"]
+    if rrd:
+        write_changes_rrd(new, old, d, os.path.join(out, "changes.rrd"))
+        written.append("changes.rrd")
+    return written

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from layouts.errors import InputError
+from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap
 from stitching.free_space import fits, shelf_free_space
 
@@ -105,3 +106,19 @@ def check_near(bmap: BuildingMap, code: str | None) -> str | None:
             f"--near {code!r}: no such location in the building map (e.g. {bmap.locations()[0][2].code})"
         ) from None
     return code
+
+
+def format_inventory(rows: list[dict]) -> str:
+    """A plain-text table of inventory rows: per location its boxes (or ``not scanned``), free length,
+    occupancy, confidence and whether it was seen only in part."""
+    head = f"{'location':<16} {'boxes':>11} {'free_len':>8} {'occup':>6} {'conf':>5} {'partial':>7}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        if r["boxes"] == NOT_SCANNED:
+            lines.append(f"{r['location']:<16} {NOT_SCANNED:>11}")
+            continue
+        lines.append(
+            f"{r['location']:<16} {r['boxes']:>11} {r['free_length_m']:>8.2f} {r['occupancy']:>6.0%} "
+            f"{r['confidence']:>5.2f} {r['partial']:>7}"
+        )
+    return "\n".join(lines)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import statistics
 from collections.abc import Sequence
 
-from layouts.locations import DEFAULT_CODE, check_code_format, location_code
+from layouts.locations import DEFAULT_CODE, check_code_format, covered_length, location_code
 from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement
 from stitching.building_register import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
 from stitching.building_route import FacePlan, Route
@@ -168,15 +168,6 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
     return sorted(((b, x, names) for b, x, names, _ in kept), key=lambda t: t[1])
 
 
-def _covered(intervals: list[tuple[float, float]], lo: float, hi: float) -> float:
-    total, end = 0.0, lo
-    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals):
-        if b > end:
-            total += b - max(a, end)
-            end = b
-    return total
-
-
 def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
     items = _split_joined([(p, r) for p in passes for r in p.racks])
     groups = _split_long(_clusters(items))
@@ -253,11 +244,11 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                     {
                         p.pose.sequence
                         for p in passes
-                        if lv in p.levels and _covered(views[p.pose.sequence], a, b) > 1e-6
+                        if lv in p.levels and covered_length(views[p.pose.sequence], a, b) > 1e-6
                     },
                     key=order.__getitem__,
                 )
-                seen = _covered([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
+                seen = covered_length([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
                 locations[pos_code] = Location(pos_code, face.aisle, face.side, bay, lv, j + 1, saw, min(seen, 1.0))
         racks.append(MapRack(rack_id, (lo, hi), shelves, partial))
         bays[rack_id] = bay

@@ -204,3 +204,34 @@ def format_table(rows: list[ShelfFreeSpace], racks: int = 0) -> str:
     if any(r.partial for r in rows):
         lines.append(PARTIAL_LEGEND)
     return "\n".join(lines)
+
+
+#: the CSV columns of a shelf's free space (`ShelfFreeSpace.to_dict`)
+CSV_COLUMNS = ("shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume")
+CSV_COLUMNS += ("occupancy", "confidence", "partial", "unknown_length")
+#: the CSV columns a box query adds: fits (yes/no), the box centre's X ranges (A..B, space-separated) as given and
+#: turned
+CSV_FIT_COLUMNS = ("fits", "fit_centre_x", "fit_centre_x_turned")
+
+
+def _ranges(found: list[Fit]) -> str:
+    return " ".join(f"{a:.4f}..{b:.4f}" for f in found for a, b in f.centres)
+
+
+def free_space_csv(rows: list[ShelfFreeSpace], placements: list[Fit] | None = None) -> str:
+    """One CSV line per shelf (`CSV_COLUMNS`); with ``placements`` (a box query's `fits`) the `CSV_FIT_COLUMNS`."""
+    import csv
+    import io
+
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS + (CSV_FIT_COLUMNS if placements is not None else ()))
+    for r in rows:
+        d = r.to_dict()
+        row = ["" if d[c] is None else d[c] for c in CSV_COLUMNS]
+        if placements is not None:
+            mine = [f for f in placements if f.shelf == r.shelf]
+            row += ["yes" if mine else "no"]
+            row += [_ranges([f for f in mine if not f.rotated]), _ranges([f for f in mine if f.rotated])]
+        writer.writerow(row)
+    return out.getvalue()

@@ -18,8 +18,6 @@ the same location (it is reported as ``removed`` and ``added`` there, both noted
 from __future__ import annotations
 
 import copy
-import csv
-import io
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -27,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from layouts.errors import InputError
+from layouts.locations import rows_csv
 from waresynth.building import Building, Face
 from waresynth.building_schema import CHANGE_DEFAULTS, change_rates
 from waresynth.building_truth import board_positions, box_id, location_code, position_of
@@ -309,8 +308,4 @@ def changes_rows(before: Building, after: Building, changes: list[Change]) -> li
 
 def changes_csv(rows: list[dict[str, Any]]) -> str:
     """``changes.csv`` as text: a header (`CHANGES_COLUMNS`), then one row per changed stack."""
-    out = io.StringIO()
-    w = csv.DictWriter(out, fieldnames=CHANGES_COLUMNS, lineterminator="\n")
-    w.writeheader()
-    w.writerows([{k: r[k] for k in CHANGES_COLUMNS} for r in rows])
-    return out.getvalue()
+    return rows_csv([{k: r[k] for k in CHANGES_COLUMNS} for r in rows], CHANGES_COLUMNS)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from layouts.locations import location_code
+from layouts.locations import covered_length, location_code
 from waresynth.building import Building, Face
 from waresynth.row_plan import RackPlan, board_span, clear_heights
 
@@ -86,16 +86,6 @@ def _shelf_locations(building: Building, face: Face, bay: int, rack: RackPlan, k
     return {"level": k + 1, "board_top_y": _r(-level_y), "clear_height": _r(clear), "positions": positions}
 
 
-def _covered(intervals: list[tuple[float, float]], lo: float, hi: float) -> float:
-    """Length of [lo, hi] under the union of ``intervals``."""
-    total, end = 0.0, lo
-    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in intervals):
-        if b > end:
-            total += b - max(a, end)
-            end = b
-    return total
-
-
 def ground_truth(building: Building) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """(``building.json``'s content, the inventory rows): racks -> levels -> positions -> boxes."""
     racks, rows = [], []
@@ -128,7 +118,7 @@ def _inventory_row(face: Face, bay: int, level: int, pos: dict[str, Any]) -> dic
     """One location's inventory row (ground truth: confidence 1, never partial); drops the working keys."""
     stacks, facts = pos.pop("_stacks"), pos.pop("_row")
     length, depth, clear = facts["length"], facts["depth"], facts["clear"]
-    covered = _covered([(a, b) for a, b, _, _ in stacks], pos["x_min"], pos["x_max"])
+    covered = covered_length([(a, b) for a, b, _, _ in stacks], pos["x_min"], pos["x_max"])
     passes = facts["passes"]
     return {
         "location": pos["location"], "aisle": face.aisle, "side": face.side, "bay": bay, "level": level,

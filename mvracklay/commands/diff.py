@@ -62,71 +62,37 @@ def building_path(arg: str | Path, name: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    from layouts.fileio import atomic_write_json, atomic_write_text
-    from mvracklay.outputs import check_out
-    from stitching.building_diff import CHANGE_COLUMNS, DiffConfig, diff_buildings, format_diff
-    from stitching.building_diff_export import export_changes_glb, write_changes_rrd
-    from stitching.building_map import BuildingMap
-
-    for name, v in (("--same", args.same), ("--size-tol", args.size_tol), ("--move-tol", args.move_tol)):
-        if v is not None and not 0 <= v <= 5:
-            raise InputError(f"{name} must be in [0, 5] metres, got {v}")
-    old = BuildingMap.load(building_path(args.old, "OLD_MAP"))
-    new = BuildingMap.load(building_path(args.new, "NEW_MAP"))
-    truth = None
-    if args.truth is not None:
-        if not args.truth.is_file():
-            raise InputError(f"--truth {args.truth}: file not found")
-        truth = _read_changes(args.truth)
-    check_out(args.out, overwrite=True)
     from dataclasses import replace
+
+    from layouts.locations import read_rows
+    from mvracklay.outputs import check_out
+    from stitching.building_diff import DiffConfig, diff_buildings, format_diff
+    from stitching.building_diff_export import write_changes
+    from stitching.building_eval import evaluate_changes
+    from stitching.building_map import BuildingMap
 
     given = {
         k: v
         for k, v in (("same", args.same), ("size_tol", args.size_tol), ("move_tol", args.move_tol))
         if v is not None
     }
+    for name, v in given.items():
+        if not 0 <= v <= 5:
+            raise InputError(f"--{name.replace('_', '-')} must be in [0, 5] metres, got {v}")
+    old = BuildingMap.load(building_path(args.old, "OLD_MAP"))
+    new = BuildingMap.load(building_path(args.new, "NEW_MAP"))
+    truth = None
+    if args.truth is not None:
+        if not args.truth.is_file():
+            raise InputError(f"--truth {args.truth}: file not found")
+        truth = read_rows(args.truth.read_text(), ("location", "change"), f"--truth {args.truth}")
+    check_out(args.out, overwrite=True)
     d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
     print(format_diff(d, args.limit))
-    args.out.mkdir(parents=True, exist_ok=True)
-    rows = d.rows()
-    atomic_write_text(args.out / "changes.csv", _csv(rows, CHANGE_COLUMNS))
-    doc = {"columns": list(CHANGE_COLUMNS), "changes": rows, "counts": d.counts(),
-           "locations": [vars(loc) for loc in d.locations]}  # fmt: skip
-    if truth is not None:
-        from stitching.building_eval import evaluate_changes
-
-        scores = evaluate_changes(rows, truth)
-        doc["evaluation"] = scores
-        for cat, s in scores.items():
-            print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
-                  f"{s['truth']} true)")  # fmt: skip
-    atomic_write_json(args.out / "changes.json", doc)
-    export_changes_glb(new, old, d, args.out / "changes.glb")
-    written = ["changes.csv", "changes.json", "changes.glb"]
-    if not args.no_rrd:
-        write_changes_rrd(new, old, d, args.out / "changes.rrd")
-        written.append("changes.rrd")
+    scores = evaluate_changes(d.rows(), truth) if truth is not None else None
+    for cat, s in (scores or {}).items():
+        print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
+              f"{s['truth']} true)")  # fmt: skip
+    written = write_changes(old, new, d, args.out, rrd=not args.no_rrd, evaluation=scores)
     print("wrote " + ", ".join(str(args.out / n) for n in written))
     return 0
-
-
-def _csv(rows: list[dict], columns: tuple[str, ...]) -> str:
-    import csv
-    import io
-
-    out = io.StringIO()
-    w = csv.DictWriter(out, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    return out.getvalue()
-
-
-def _read_changes(path: Path) -> list[dict[str, str]]:
-    import csv
-
-    with open(path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    if rows and not {"location", "change"} <= set(rows[0]):
-        raise InputError(f"--truth {path}: not a changes.csv (its header lacks location, change)")
-    return rows

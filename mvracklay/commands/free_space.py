@@ -44,13 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-#: the CSV columns of a shelf's free space (`ShelfFreeSpace.to_dict`)
-CSV_COLUMNS = ("shelf", "boxes", "length", "depth", "clear_height", "free_length", "free_area", "free_volume")
-CSV_COLUMNS += ("occupancy", "confidence", "partial", "unknown_length")
-#: the CSV columns --box adds: fits (yes/no), the box centre's X ranges (A..B, space-separated) as given and turned
-CSV_FIT_COLUMNS = ("fits", "fit_centre_x", "fit_centre_x_turned")
-
-
 def map_path(arg: str) -> Path:
     """The map MAP names: the file, or OUT/warehouse.json (a run's) or OUT/building.json (`map`'s) in a folder."""
     path = Path(arg)
@@ -65,29 +58,8 @@ def map_path(arg: str) -> Path:
     return path
 
 
-def _ranges(fits: list) -> str:
-    return " ".join(f"{a:.4f}..{b:.4f}" for f in fits for a, b in f.centres)
-
-
-def write_csv(rows: list, placements: list | None) -> None:
-    """One CSV row per shelf; with ``placements`` (a --box query's fits) the `CSV_FIT_COLUMNS` too."""
-    import csv
-    import sys
-
-    writer = csv.writer(sys.stdout, lineterminator="\n")
-    writer.writerow(CSV_COLUMNS + (CSV_FIT_COLUMNS if placements is not None else ()))
-    for r in rows:
-        d = r.to_dict()
-        row = ["" if d[c] is None else d[c] for c in CSV_COLUMNS]
-        if placements is not None:
-            mine = [f for f in placements if f.shelf == r.shelf]
-            row += ["yes" if mine else "no"]
-            row += [_ranges([f for f in mine if not f.rotated]), _ranges([f for f in mine if f.rotated])]
-        writer.writerow(row)
-
-
 def run(args: argparse.Namespace) -> int:
-    from stitching.free_space import fits, format_table, free_space, parse_box
+    from stitching.free_space import fits, format_table, free_space, free_space_csv, parse_box
     from stitching.warehouse_map import WarehouseMap
 
     path = map_path(args.map)
@@ -109,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         w, d, h = parse_box(args.box)
         placements = [f for f in fits(wmap, w, d, h, args.margin) if not args.shelf or f.shelf == args.shelf]
     if args.csv:
-        write_csv(rows, placements)
+        print(free_space_csv(rows, placements), end="")
         return 0
     if args.json:
         out = {"map": str(path), "racks": len(wmap.racks), "shelves": [r.to_dict() for r in rows]}
@@ -142,7 +114,7 @@ def _is_building(path: Path) -> bool:
 
 def _building(path: Path, args: argparse.Namespace) -> int:
     """A building map: its inventory, and with --box the locations the box fits, nearest to --near first."""
-    from stitching.building_free import building_fits, check_near, format_fits
+    from stitching.building_free import building_fits, check_near, format_fits, format_inventory
     from stitching.building_map import BuildingMap
     from stitching.free_space import parse_box
 
@@ -170,14 +142,5 @@ def _building(path: Path, args: argparse.Namespace) -> int:
     if found is not None:
         print(format_fits(found, args.box))
         return 0
-    head = f"{'location':<16} {'boxes':>11} {'free_len':>8} {'occup':>6} {'conf':>5} {'partial':>7}"
-    print(head + "\n" + "-" * len(head))
-    for r in rows:
-        if r["boxes"] == "not scanned":
-            print(f"{r['location']:<16} {'not scanned':>11}")
-            continue
-        print(
-            f"{r['location']:<16} {r['boxes']:>11} {r['free_length_m']:>8.2f} {r['occupancy']:>6.0%} "
-            f"{r['confidence']:>5.2f} {r['partial']:>7}"
-        )
+    print(format_inventory(rows))
     return 0

@@ -105,7 +105,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
     from mvracklay.live_source import is_live
-    from mvracklay.outputs import OUTPUTS, check_apart, check_out, spawn_viewer
+    from mvracklay.outputs import OUTPUTS, check_apart, check_out, run_summary, spawn_viewer
     from mvracklay.pipeline import run_pipeline
 
     if args.out is None:
@@ -140,59 +140,20 @@ def run(args: argparse.Namespace) -> int:
         return _run_live(args, cfg)
     source = open_source(args.input, prog="mvracklay run")
     res = run_pipeline(source, args.out, cfg)
-    _summary(res, source)
+    print(run_summary(res, source))
     if args.spawn:
         spawn_viewer(res.out / "warehouse.rrd")
     return 0
 
 
 def _run_live(args: argparse.Namespace, cfg: RunConfig) -> int:
-    """A live source: the model loaded, the viewer's sinks made, the stream opened, mapped until it ends."""
-    from mvracklay.live import run_live, viewer_sinks
-    from mvracklay.live_source import open_live
-    from mvracklay.pipeline import load_model
+    """A live source, mapped until it ends (`mvracklay.live.map_live_source`)."""
+    from mvracklay.live import map_live_source
+    from mvracklay.outputs import run_summary
 
     settings = from_args(LiveSettings, args, serve=SERVE_PORT if args.serve is True else args.serve)
-    settings.validate()
-    if cfg.inference.whole_sequence:
-        raise InputError(
-            "--whole-sequence (--quality offline) reads every frame before the first map: not for a live source"
-        )
-    loaded = load_model(cfg)  # before the stream opens: its frames do not wait on the model
-    source = open_live(args.input, idle_timeout=settings.idle_timeout, retries=settings.retries,
-                       buffer=settings.live_buffer, every=cfg.every, prog="mvracklay run")  # fmt: skip
-    try:
-        sinks, said = viewer_sinks(args.spawn, settings.serve)
-    except BaseException:
-        source.close()
-        raise
-    for line in said:
-        print(line, flush=True)
-    if cfg.progress:
-        print(f"mapping {source.url} ({source.width}x{source.height}) as it streams; Ctrl-C ends it", flush=True)
-    result = run_live(source, args.out, cfg, loaded=loaded, sinks=sinks)
-    _summary(result.run, source)
+    result, source = map_live_source(args.input, args.out, cfg, settings, args.spawn)
+    print(run_summary(result.run, source))
     for line in result.report.lines():
         print(line)
     return 0
-
-
-def _summary(res, source) -> None:
-    """What a run prints at its end: frames, map, speed, distance, angles, free space, the files written."""
-    from network.inference.roll import describe_angles
-    from stitching.free_space import format_table
-
-    wmap = res.map
-    print(
-        f"{res.frames} frames ({source.kind}, {source.width}x{source.height}, camera: {res.intrinsics_source}) -> "
-        f"{len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes"
-    )
-    t = res.seconds
-    rate = ", ".join(f"{k} {res.frames / t[k]:.1f} frames/s" for k in ("predict", "stitch", "rerun") if t.get(k, 0) > 0)
-    print(f"speed: {rate} (wall, this machine)")
-    if res.distance is not None:
-        print(f"distance to the racks: {res.distance.describe()}")
-    for line in describe_angles(res.angles_read):
-        print(line)
-    print(format_table(res.free_space, racks=len(wmap.racks)))
-    print("wrote " + ", ".join(str(p) for p in res.paths.values()))
