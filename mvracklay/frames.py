@@ -118,6 +118,11 @@ class FrameSource:
     #: an ``arrays`` source's frames (any iterable; consumed once)
     arrays: Iterable[Any] | None = field(default=None, repr=False)
 
+    def next_ready(self) -> bool:
+        """Whether the next frame can be read without waiting for a camera: always, for files and arrays (a live
+        stream's says whether its buffer holds one; the predictor overlaps frames only then)."""
+        return True
+
     def warn(self, said: str) -> None:
         """Print ``said`` as one warning line on stderr and keep it in ``warnings``."""
         self.warnings.append(said)

@@ -84,6 +84,7 @@ def predict_frames(
                 on_read(rgb)
             yield rgb
 
+    pred.next_ready = source.next_ready  # a live stream's frames overlap only while one waits
     for i, out in enumerate(pred.predict(read(), mode)):
         lay = out.layouts(spec)
         dist = distances(i)

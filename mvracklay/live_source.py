@@ -127,6 +127,10 @@ class LatestFrames:
             self.closed = True
             self._cond.notify_all()
 
+    def __len__(self) -> int:
+        """Frames waiting."""
+        return len(self._items)
+
     def get(self, timeout: float, stop: threading.Event) -> Arrival | None:
         """The oldest frame waiting; None once closed and empty, ``stop`` set, or ``timeout`` seconds quiet."""
         end = time.monotonic() + timeout
@@ -318,6 +322,10 @@ class LiveSource(FrameSource):
                 continue
         self.ended = self.ended or f"connection lost ({failed}), {self.retries} reconnections failed"
         return False
+
+    def next_ready(self) -> bool:
+        """Whether a frame waits in the buffer (else reading the next waits for the stream)."""
+        return len(self.buffer) > 0
 
     def stats(self) -> dict[str, int]:
         """Frames received from the stream (after ``every``), dropped (the network behind), skipped (``every

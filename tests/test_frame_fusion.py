@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 import torch
-from tiny_net import tiny_config
+from tiny_net import fixed_steps, tiny_config
 
 from layouts import VIEWS
 from layouts.errors import InputError
@@ -125,9 +125,7 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
     model = with_box_head(MVRackLay(tiny_config(spec)).eval())
     torch.nn.init.constant_(model.rows.net[-1].bias, 2.0)
     step = spec.x_extent / spec.size
-    monkeypatch.setattr(
-        "network.inference.predictor.camera_motion", lambda prev, cur, v: (torch.tensor([step]), torch.ones(1))
-    )
+    monkeypatch.setattr("network.inference.predictor.StepReader", fixed_steps(step))
     seq = ToySequence(spec, num_frames=4, image_size=(64, 64))
     frames = [seq.rgb(i) for i in range(4)]
     plain_pred = Predictor(model, rack_depth=0.8, fuse_tau=0)

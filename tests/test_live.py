@@ -143,8 +143,9 @@ def test_the_buffer_never_holds_more_than_its_bound():
         buf.put(Arrival(np.zeros((1, 1, 3), np.uint8), float(i), None))
     assert (buf.received, buf.dropped, buf.most) == (10, 7, 3)
     stop = threading.Event()
+    assert len(buf) == 3
     assert [buf.get(0.01, stop).received for _ in range(3)] == [7.0, 8.0, 9.0]  # the newest kept, oldest first
-    assert buf.get(0.01, stop) is None
+    assert buf.get(0.01, stop) is None and len(buf) == 0  # nothing waits: the predictor does not read ahead
     with pytest.raises(InputError, match="--live-buffer"):
         LatestFrames(0)
 

@@ -13,7 +13,7 @@ from layouts.spec import LayoutSpec
 from network.inference.predictor import Predictor
 from network.model.config import ModelConfig
 from network.model.memory import shift_columns
-from network.model.motion import MAX_SHIFT, camera_motion, camera_shift, motion_signature
+from network.model.motion import MAX_SHIFT, StepReader, camera_motion, camera_shift, motion_signature
 from network.model.net import MVRackLay
 from network.training.fit_box_depth import with_box_head
 from network.training.head_inputs import HeadInputPredictor
@@ -227,14 +227,19 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
             want.append(out)
     calls = {"infer": 0, "model": 0}
 
-    def counted(where, read=camera_shift):
+    def counted(where):
         def shift(prev, cur, view):
             calls[where] += 1
-            return read(prev, cur, view)
+            return camera_shift(prev, cur, view)
 
         return shift
 
-    monkeypatch.setattr("network.inference.predictor.camera_motion", counted("infer", camera_motion))
+    class Counted(StepReader):  # the predictor's reader: a step read for every frame after the first
+        def __call__(self, sig):
+            calls["infer"] += self._prev is not None
+            return super().__call__(sig)
+
+    monkeypatch.setattr("network.inference.predictor.StepReader", Counted)
     monkeypatch.setattr("network.model.memory.camera_shift", counted("model"))
     got = list(HeadInputPredictor(model, read_depth=False).stream(frames))
     assert calls == {"infer": 4, "model": 0}
@@ -252,3 +257,20 @@ def test_the_predictor_reads_each_step_once_and_streams_as_the_memory_reading_it
             HeadInputPredictor(model, read_depth=False, box_inputs_from=bad)
     with pytest.raises(InputError, match="box_inputs_from"):
         HeadInputPredictor(model, rack_depth=0.8, box_inputs_from=2)  # the head reads: it needs every frame's maps
+
+
+def test_the_step_reader_reads_what_camera_motion_reads_frame_after_frame():
+    """`StepReader` (each frame's spectra made once) gives `camera_motion` of each consecutive pair, bit for bit,
+    and 0 (confidence 1) for the first frame."""
+    tex = _texture(200, 3)
+    sigs = [motion_signature(tex[None, :, :, 8 * t : 8 * t + 128]) for t in range(4)]
+    reader = StepReader(VIEW)
+    first = reader(sigs[0])
+    assert first[0].tolist() == [0.0] and first[1].tolist() == [1.0]
+    for prev, cur in zip(sigs, sigs[1:]):
+        step, conf = reader(cur)
+        want_step, want_conf = camera_motion(prev, cur, VIEW)
+        assert torch.equal(step, want_step) and torch.equal(conf, want_conf)
+        assert abs(float(step[0]) - 8 * VIEW.metres_per_pixel) < 0.3 * VIEW.metres_per_pixel
+    with pytest.raises(ValueError, match="signature"):
+        reader(sigs[0][:, :1])

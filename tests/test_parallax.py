@@ -78,3 +78,20 @@ def test_a_record_naming_a_retired_option_loads_when_it_is_off_and_is_refused_wh
     assert ModelConfig.from_dict({**cfg.to_dict(), name: False}) == cfg
     with pytest.raises(InputError, match=f"'{name}' is on, an option this version no longer has"):
         ModelConfig.from_dict({**cfg.to_dict(), name: True}, "old.json")
+
+
+@pytest.mark.parametrize("h, w", [(32, 64), (6, 10), (4, 4), (5, 8), (2, 6)])
+def test_the_pooled_sweep_equals_the_sweep_then_avg_pool(h, w):
+    """`pooled_sweep` (the 3x3 mean and the 2x2 pooling as one filter at half resolution) gives what the two
+    steps give, edges included; odd or tiny sizes take the two steps."""
+    from network.fastops import avg_pool2
+    from network.heads.parallax import pooled_sweep
+
+    g = torch.Generator().manual_seed(h * w)
+    cur, prev = torch.rand(2, 1, 3, h, w, generator=g)
+    m = VIEW.metres_per_pixel
+    for dx in (0.0, 2.3 * m, -4.6 * m, 40 * m):
+        want = avg_pool2(plane_sweep(cur, prev, torch.tensor([dx]), VIEW))
+        got = pooled_sweep(cur, prev, torch.tensor([dx]), VIEW)
+        assert got.shape == want.shape == (1, len(RATIOS), h // 2, w // 2)
+        torch.testing.assert_close(got, want, atol=1e-6, rtol=1e-5)

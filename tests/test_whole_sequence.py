@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from tiny_net import tiny_config
+from tiny_net import fixed_steps, tiny_config
 
 from layouts.spec import LayoutSpec
 from network.data import row_target
@@ -51,9 +51,7 @@ def _heads_shown_last(monkeypatch) -> MVRackLay:
         return out
 
     monkeypatch.setattr("network.inference.predictor.board_peaks", lambda p, v: fronts)
-    monkeypatch.setattr(
-        "network.inference.predictor.camera_motion", lambda prev, cur, v: (torch.tensor([STEP]), torch.ones(1))
-    )
+    monkeypatch.setattr("network.inference.predictor.StepReader", fixed_steps(STEP))
     monkeypatch.setattr(model.back, "forward", back_forward)
     monkeypatch.setattr(model.box_depth, "forward", box_forward)
     model.frozen_graphs = False  # the patched forwards count their calls in Python: a traced graph would not

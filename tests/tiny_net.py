@@ -59,3 +59,19 @@ def cached_and_naive_windows(model, spec, num_frames: int = 6):
     frames = [seq.rgb(i) for i in range(num_frames)]
     pred = Predictor(model, fuse_tau=0)  # each frame's own outputs (network.inference.fusion aside)
     return pred, frames, list(pred.window(frames)), list(pred.window(frames, recompute=True))
+
+
+def fixed_steps(step: float):
+    """A stand-in for `network.model.motion.StepReader` (patched into the predictor): ``step`` metres for every
+    frame after the first (0 for the first), confidence 1."""
+    import torch
+
+    class FixedSteps:
+        def __init__(self, view) -> None:
+            self.seen = 0
+
+        def __call__(self, sig):
+            self.seen += 1
+            return torch.tensor([step if self.seen > 1 else 0.0]), torch.ones(1)
+
+    return FixedSteps

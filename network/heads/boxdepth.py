@@ -40,8 +40,8 @@ from torch import nn
 
 from layouts import BOX, LayoutSpec
 from layouts.canonical import CanonicalView
-from network.fastops import avg_pool2, mean_row_pairs
-from network.heads.parallax import RATIOS, plane_sweep, relative_costs
+from network.fastops import mean_row_pairs
+from network.heads.parallax import RATIOS, pooled_sweep, relative_costs
 
 BIN_STEP = 0.05  #: metres between the depth bins
 BINS = np.arange(0.05, 1.401, BIN_STEP)  #: back depths behind the rack front the head chooses among, metres
@@ -105,7 +105,7 @@ class BoxDepthHead(nn.Module):
 
 class ParallaxHistory:
     """One sequence's last canonical images and camera steps; `add` gives a frame's plane-sweep costs
-    (`network.heads.parallax.plane_sweep`) against the frames `PARALLAX_BASELINES` back, on the 1/2 map's grid.
+    (`network.heads.parallax.pooled_sweep`) against the frames `PARALLAX_BASELINES` back, on the 1/2 map's grid.
 
     A box's top and side faces lie behind the rack front, so between two frames they move by less than
     the front does (``rho = d / (d + z)`` of it); which swept plane matches tells their depth ``z``. A
@@ -132,7 +132,7 @@ class ParallaxHistory:
             j = min(b, len(self.images) - 1)
             prev = self.images[-1 - j]
             dx = torch.tensor([sum(list(self.steps)[-j:]) if j else 0.0], device=image.device)
-            maps.append(avg_pool2(plane_sweep(image.float(), prev.float(), dx, self.view)))
+            maps.append(pooled_sweep(image.float(), prev.float(), dx, self.view))
         return torch.cat([relative_costs(m) for m in maps], 1)  # pooled first: both steps are linear
 
 

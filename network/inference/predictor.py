@@ -25,10 +25,11 @@ from network.heads.backedge import DepthReader
 from network.heads.boxdepth import BoxDepthReader, ParallaxHistory, frame_head_inputs, front_reading, reading
 from network.inference.decision import apply_box_offset
 from network.inference.fusion import LayoutFusion, check_tau, fuse_sequence, seen_columns
+from network.inference.overlap import always, overlapped
 from network.inference.result import FramePrediction
 from network.inference.roll import PRIME_FRAMES, CameraLeveller, check_angle
 from network.model.decoders import board_peaks
-from network.model.motion import camera_motion, motion_signature
+from network.model.motion import StepReader, motion_signature
 from network.model.net import MVRackLay, head_outputs
 from network.preprocess import (
     DEFAULT_DISTANCE,
@@ -44,9 +45,10 @@ MODES = ("stream", "window")
 HEAD_INPUTS = ("back", "uprights", "box_window", "box_parallax")
 #: frame index -> (intrinsics or None for the default 60 deg camera, camera-to-rack distance in metres)
 CameraFn = Callable[[int], tuple[Intrinsics | None, float]]
-#: one frame's canonical image ``(1, 3, H, W)``, its shelf anchors ``(1, R)`` (None: the row head's) and the
-#: camera's step along the row since the frame before, ``(1,)`` metres (None: the model reads it where it needs it)
-Inputs = tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]
+#: one frame's canonical image ``(1, 3, H, W)``, its shelf anchors ``(1, R)`` (None: the row head's), the camera's
+#: step along the row since the frame before, ``(1,)`` metres, and the image's motion signature (None: the model
+#: reads them where it needs them)
+Inputs = tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None, torch.Tensor | None]
 
 
 def fixed_camera(intrinsics: Intrinsics | None = None, distance: float = DEFAULT_DISTANCE) -> CameraFn:
@@ -170,6 +172,9 @@ class Predictor:
         #: the direct pass's camera steps (metres), motion signatures, canonical images and step confidences not yet used
         self._motion: deque[tuple[float, torch.Tensor, torch.Tensor, float]] = deque()
         self.device = next(model.parameters()).device  # frames go where the weights are (CPU or a GPU)
+        #: whether the next frame is at hand (a live source sets its buffer's): a frame's readers then run beside the
+        #: next frame's network pass (`network.inference.overlap`; never with one CPU thread)
+        self.next_ready: Callable[[], bool] = always
 
     def _decide(self, res: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         """One frame's outputs with the model's box-logit offsets applied (an empty one, a frame the
@@ -212,20 +217,18 @@ class Predictor:
         yield from it
 
     def _inputs(self, frames: Iterable[np.ndarray], streaming: bool) -> Iterator[Inputs]:
-        """Each frame's inputs; the camera's step read once where the readers need it or, ``streaming``, the model."""
-        prev: torch.Tensor | None = None
+        """Each frame's inputs (canonical image, anchors, the camera's step, the image's motion signature); the step
+        and signature read once where the readers need them or, ``streaming``, the model."""
+        steps = StepReader(self.cfg.view)
         for i, rgb in enumerate(self._primed(frames)):
             x = self.preprocess(rgb, i)
-            step = None
+            step = sig = None
             if self._tracks_motion or (streaming and self._model_motion):
                 sig = motion_signature(x)
-                step, conf = (
-                    (x.new_zeros(1), x.new_ones(1)) if prev is None else camera_motion(prev, sig, self.cfg.view)
-                )
-                prev = sig
+                step, conf = steps(sig)
                 if self._tracks_motion:
                     self._motion.append((float(step[0]), sig, x, float(conf[0])))
-            yield x, self._anchors(i), step
+            yield x, self._anchors(i), step, sig
 
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[FramePrediction]:
         """Each frame's `FramePrediction` (logits with the box offset applied, slots, depths), carrying the memory;
@@ -266,7 +269,9 @@ class Predictor:
         history = ParallaxHistory(self.cfg.view) if self.box_parallax else None
         self._motion.clear()
         held: list[tuple[dict[str, torch.Tensor], float, np.ndarray]] = []  # whole_sequence: (out, camera X, slots)
-        for i, out in enumerate(outs):
+
+        def post(i: int, out: dict[str, torch.Tensor]) -> dict[str, torch.Tensor] | None:
+            """Frame ``i``'s readers on its network outputs (on `overlapped`'s worker thread, beside frame i+1)."""
             depth = self.rack_depth
             if reader is not None:
                 back, ups = out.get("back"), out.get("uprights")
@@ -298,10 +303,15 @@ class Predictor:
                         steps.append(step)
                         seen.append(cols)
             if not self.whole_sequence:
-                yield out
-                continue
+                return out
             kept = {k: v for k, v in out.items() if k not in HEAD_INPUTS}
             held.append((kept, 0.0 if boxes is None else boxes.camera_x, torch.isfinite(out["anchors"]).cpu().numpy()))
+            return None
+
+        ahead = self.next_ready if torch.get_num_threads() > 1 else None
+        for done in overlapped(post, enumerate(outs), ahead):
+            if done is not None:
+                yield done
         depth = self.rack_depth if reader is None else reader.depth
         if self.fuse_tau > 0 and held:
             fused = fuse_sequence([{v: o[v] for v in VIEWS} for o, _, _ in held], steps, seen, self.fuse_tau, x_extent)
@@ -315,9 +325,18 @@ class Predictor:
 
     @torch.no_grad()
     def _box_logits(self, out: dict[str, torch.Tensor], i: int) -> torch.Tensor:
-        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.heads.boxdepth`)."""
+        """The box-depth head's ``(R, K+1, D)`` logits on one frame's outputs (`network.heads.boxdepth`), run on the
+        slots with an anchor only (about a third of the frames show fewer shelves than the slots): the rows of the
+        others are zero, which no reader reads (`BoxDepthReader.add` takes the slots with an anchor)."""
         win, extra = frame_head_inputs(out, self.cfg.view, self.camera(i)[1])
-        return self.model.box_logits(win.to(self.device), extra.to(self.device))
+        keep = torch.isfinite(out["anchors"]).nonzero()[:, 0].to(win.device)
+        if len(keep) == len(win):
+            return self.model.box_logits(win.to(self.device), extra.to(self.device))
+        assert self.model.box_depth is not None
+        logits = win.new_zeros((len(win), self.model.box_depth.out.out_channels, extra.shape[-1]))
+        if len(keep):
+            logits[keep] = self.model.box_logits(win[keep].to(self.device), extra[keep].to(self.device)).to(win.device)
+        return logits
 
     def _read_boxes(self, out: dict[str, torch.Tensor], boxes: BoxDepthReader, i: int, step: float) -> None:
         """One frame's head reading added to ``boxes``, and its carried box depths put in ``out``."""
@@ -349,9 +368,9 @@ class Predictor:
         mirrored: deque[Inputs] = deque()  # the mirrored pass's next input, queued once the direct pass is done
 
         def direct() -> Iterator[Inputs]:
-            for x, a, step in self._inputs(frames, streaming):
-                mirrored.append((x.flip(-1), a, None))  # the mirrored pass reads its own motion
-                yield x, a, step
+            for x, a, step, sig in self._inputs(frames, streaming):
+                mirrored.append((x.flip(-1), a, None, None))  # the mirrored pass reads its own motion
+                yield x, a, step, sig
 
         def mirror() -> Iterator[Inputs]:
             while True:  # a pass takes one input per output: the queue never runs dry
@@ -359,9 +378,9 @@ class Predictor:
 
         passes = raw(mirror())
         for out in raw(direct()):
-            x, a, _ = mirrored[-1]
+            x, a, _, _ = mirrored[-1]
             if a is None:  # the row head's: the direct pass's slots, so both passes fill the same shelves
-                mirrored[-1] = (x, out["anchors"][None], None)
+                mirrored[-1] = (x, out["anchors"][None], None, None)
             back = next(passes)
             yield self._decide(
                 {**out, **{v: 0.5 * (out[v] + back[v].flip(-1)) for v in VIEWS}}  # logits averaged, mirrored back
@@ -369,11 +388,11 @@ class Predictor:
 
     def _stream(self, inputs: Iterable[Inputs]) -> Iterator[dict[str, torch.Tensor]]:
         state = None
-        for i, (x, a, step) in enumerate(inputs):
+        for i, (x, a, step, sig) in enumerate(inputs):
             if i < self.trunk_from:
                 yield {}
                 continue
-            out, state = self.model.step(x, state, a, None if state is None else step)
+            out, state = self.model.step(x, state, a, None if state is None else step, signature=sig)
             yield {k: o[0] for k, o in out.items()}
 
     def _window(self, inputs: Iterable[Inputs], recompute: bool = False) -> Iterator[dict[str, torch.Tensor]]:
@@ -381,7 +400,7 @@ class Predictor:
         images: deque[torch.Tensor] = deque(maxlen=t_len)
         anchors: deque[torch.Tensor | None] = deque(maxlen=t_len)
         cached: deque = deque(maxlen=t_len)
-        for x, a, _ in inputs:  # each window's fresh memory reads its own steps
+        for x, a, _, _ in inputs:  # each window's fresh memory reads its own steps
             if recompute:  # the naive form: the whole window through the model again
                 if not images:
                     images.extend([x] * t_len)

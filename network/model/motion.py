@@ -88,22 +88,34 @@ def _profiles(prev: torch.Tensor, cur: torch.Tensor, m: int, bands: int) -> tupl
     valid in both; offset k means ``cur(y, x)`` matches ``prev(y, x + k)`` (the content moved k
     columns left: the camera moved right).
     """
-    n, _, h, w = prev.shape
-    length = fft_length(w + m + 1)  # zero padding: no wrap-around for offsets within +-m
-    # every sum over an overlap is a row-wise correlation of two maps (sums of w, a, b, a*a, b*b, a*b,
-    # where w = valid in both); computed with FFTs in float64 and summed per band before going back
-    gp, mp = prev[:, 0].double(), prev[:, 1].double()  # grey is zero where invalid already
-    gc, mc = cur[:, 0].double(), cur[:, 1].double()
-    fp = torch.fft.rfft(torch.stack([mp, gp, gp * gp], 1), n=length)  # (N, 3, H, F)
-    fc = torch.fft.rfft(torch.stack([mc, gc, gc * gc], 1), n=length).conj()
-    pairs = ((0, 0), (1, 0), (0, 1), (2, 0), (0, 2), (1, 1))  # (prev map, cur map) of each sum
-    prod = torch.stack([fp[:, i] * fc[:, j] for i, j in pairs], 1)  # (N, 6, H, F)
+    length = fft_length(prev.shape[-1] + m + 1)  # zero padding: no wrap-around for offsets within +-m
+    return _correlate(_spectra(prev, length), _spectra(cur, length), length, m, bands)
+
+
+def _spectra(sig: torch.Tensor, length: int) -> torch.Tensor:
+    """Row spectra ``(N, 3, H, F)`` (float64, FFTs of ``length``) of a signature's validity, grey and grey squared:
+    every sum over an overlap of two frames is a row-wise correlation of two such maps (sums of w, a, b, a*a, b*b,
+    a*b, where w = valid in both)."""
+    g, valid = sig[:, 0].double(), sig[:, 1].double()  # grey is zero where invalid already
+    return torch.fft.rfft(torch.stack([valid, g, g * g], 1), n=length)
+
+
+#: (previous frame's map, current frame's map) of the six sums, in `_correlate`'s order
+_PREV_MAPS, _CUR_MAPS = (0, 1, 0, 2, 0, 1), (0, 0, 1, 0, 2, 1)
+
+
+def _correlate(
+    fp: torch.Tensor, fc: torch.Tensor, length: int, m: int, bands: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`_profiles` from the two frames' `_spectra`: the six sums' products summed per band, then back."""
+    n, _, h, _ = fp.shape
+    prod = fp[:, _PREV_MAPS] * fc[:, _CUR_MAPS].conj()  # (N, 6, H, F)
     if h % bands == 0:  # bands of equal height: a sum over a reshape (~3x faster than index_add_)
         per_band_f = prod.view(n, 6, bands, h // bands, -1).sum(3)
     else:
-        per_band_f = prod.new_zeros(n, 6, bands, prod.shape[-1]).index_add_(2, _band_index(h, bands, prev.device), prod)
+        per_band_f = prod.new_zeros(n, 6, bands, prod.shape[-1]).index_add_(2, _band_index(h, bands, fp.device), prod)
     corr = torch.fft.irfft(per_band_f, n=length)  # (N, 6, bands, length): [k] = sum_x prev(x + k) cur(x)
-    offsets = torch.arange(-m, m + 1, device=prev.device) % length
+    offsets = torch.arange(-m, m + 1, device=fp.device) % length
     per_band = corr[..., offsets]  # (N, 6, bands, 2m+1)
 
     def ncc(t: torch.Tensor) -> torch.Tensor:
@@ -169,15 +181,48 @@ def camera_motion(prev: torch.Tensor, cur: torch.Tensor, view: CanonicalView) ->
         raise ValueError(
             f"expected two signatures (N, 2, H, W) of one shape, got {tuple(prev.shape)} and {tuple(cur.shape)}"
         )
-    h, w = prev.shape[-2:]
+    length, m, bands = _sizes(prev.shape[-2], prev.shape[-1], view)
+    return _motion(_spectra(prev, length), _spectra(cur, length), length, m, bands, view)
+
+
+class StepReader:
+    """`camera_motion` along one stream of frames: call it with each frame's signature in turn; each frame's
+    spectra are made once (not again as the previous frame of the next), a tenth of a 256x256 frame's work."""
+
+    def __init__(self, view: CanonicalView) -> None:
+        self.view = view
+        self._prev: torch.Tensor | None = None  #: the last frame's `_spectra`
+
+    def __call__(self, sig: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The camera's step (metres, ``(N,)``) and its confidence from the last frame given to ``sig``'s; for the
+        first frame 0 and 1."""
+        if sig.ndim != 4 or sig.shape[1] != 2:
+            raise ValueError(f"expected a signature (N, 2, H, W), got shape {tuple(sig.shape)}")
+        length, m, bands = _sizes(sig.shape[-2], sig.shape[-1], self.view)
+        spectra, prev = _spectra(sig, length), self._prev
+        self._prev = spectra
+        if prev is None or prev.shape != spectra.shape:
+            return sig.new_zeros(sig.shape[0]), sig.new_ones(sig.shape[0])
+        return _motion(prev, spectra, length, m, bands, self.view)
+
+
+def _sizes(h: int, w: int, view: CanonicalView) -> tuple[int, int, int]:
+    """FFT length, largest offset (pixels) and bands of `camera_motion` on ``h x w`` signatures."""
     m = max(1, min(int(MAX_SHIFT / view.metres_per_pixel), w // 2 - 1))
-    band_prof, whole_prof = _profiles(prev, cur, m, max(1, min(BANDS, h)))
+    return fft_length(w + m + 1), m, max(1, min(BANDS, h))
+
+
+def _motion(
+    fp: torch.Tensor, fc: torch.Tensor, length: int, m: int, bands: int, view: CanonicalView
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`camera_motion` from the two frames' `_spectra`."""
+    band_prof, whole_prof = _correlate(fp, fc, length, m, bands)
     whole, whole_h = (t.cpu().double().numpy() for t in _peak(whole_prof, m))
     shifts, heights = (t.cpu().double().numpy() for t in _peak(band_prof, m))
     read = [
         _front(shifts[i], heights[i], float(whole[i]), 1.0 / view.metres_per_pixel, float(whole_h[i]))
         for i in range(len(whole))
     ]
-    px = torch.tensor([r[0] for r in read], dtype=torch.float32, device=prev.device)
-    conf = torch.tensor([r[1] for r in read], dtype=torch.float32, device=prev.device)
+    px = torch.tensor([r[0] for r in read], dtype=torch.float32, device=fp.device)
+    conf = torch.tensor([r[1] for r in read], dtype=torch.float32, device=fp.device)
     return px * view.metres_per_pixel, conf

@@ -133,16 +133,20 @@ class MVRackLay(nn.Module):
         self,
         images: torch.Tensor,
         anchors: torch.Tensor | None = None,
+        signature: torch.Tensor | None = None,
     ) -> tuple[SlotFeatures, torch.Tensor, torch.Tensor]:
         """Per-frame work for frames ``(N, 3, H, W)``: slot features, row logits ``(N, H)``, anchors ``(N, R)``
-        (the given ones, else the row head's)."""
+        (the given ones, else the row head's). ``signature``: the frames' `motion_signature` where the caller has
+        read it already (the aligned memory needs it; else it is read here)."""
         p1, p2 = self.maps(images)
         heads = frozen.run(self, "rows", row_heads, p1, p2)
         heads = list(heads) if isinstance(heads, tuple) else [heads]  # a session of one output gives a tensor
         rows = heads.pop(0)
         if anchors is None:
             anchors = anchors_from_rows(rows, self.cfg.view, self.cfg.spec.num_slots)
-        sig = motion_signature(images) if self.memory is not None and self.memory.view is not None else None
+        sig = None
+        if self.memory is not None and self.memory.view is not None:
+            sig = motion_signature(images) if signature is None else signature
         fn = slot_maps_windows if self.box_depth is not None else slot_maps
         maps = frozen.run(self, "slots", fn, p1, p2, anchors)
         feats = SlotFeatures(*maps[:3], torch.isfinite(anchors), motion=sig)
@@ -191,18 +195,19 @@ class MVRackLay(nn.Module):
         state: MemoryState | None = None,
         anchors: torch.Tensor | None = None,
         motion: torch.Tensor | None = None,
+        signature: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], MemoryState | None]:
         """Streaming: one frame ``(B, 3, H, W)`` (anchors ``(B, R)`` or the row head's); outputs and the new state.
 
         ``motion`` ``(B,)``: the camera's step along the row since the previous frame, metres (+ =
         toward +X), from another source (odometry, ground truth); by default the aligned memory
-        reads it from the images.
+        reads it from the images. ``signature``: the image's `motion_signature`, where the caller has it.
         """
         if motion is not None:
             motion = torch.as_tensor(motion, dtype=torch.float32, device=image.device).reshape(-1)
             if motion.shape[0] != image.shape[0] or not torch.isfinite(motion).all():
                 raise InputError(f"motion must hold one finite step (metres) per image, got {motion.tolist()}")
-        feats, rows, anchors = self.frame_features(image, anchors)
+        feats, rows, anchors = self.frame_features(image, anchors, signature)
         if self.memory is not None and self.memory.view is not None and frozen.graph_runtime(self, "decode") == "onnx":
             out, state = self._decode(feats, state, motion)
         else:
