@@ -17,6 +17,8 @@ process sets OpenMP's wait policy as the command line does (`mvracklay.threads.q
         --threads 2 --frames 30 --repeats 3 --compete 2
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --precision bf16
     .venv/bin/python benchmarks/bench_infer.py --threads 2 --sizes 256 --modes stream --runtime torch  # TorchScript
+    .venv/bin/python benchmarks/bench_infer.py --threads 2 --checkpoint mvracklay-disc-4-256 --sizes 256 --modes stream \
+        --sequence data/s256/seq_00000 --frames 40   # a generated sequence's frames
     python benchmarks/bench_infer.py --device cuda --checkpoint mvracklay-disc-4   # on a GPU
 """
 
@@ -153,6 +155,20 @@ def _compete(
     }
 
 
+def sequence_frames(folder: Path, size: int, count: int) -> list[np.ndarray]:
+    """``count`` RGB frames of a generated sequence (its ``rgb/*.png``, looped), each resized to ``size`` square."""
+    from PIL import Image
+
+    paths = sorted((folder / "rgb").glob("*.png"))
+    if not paths:
+        raise SystemExit(f"bench_infer.py: error: --sequence {folder}: no rgb/*.png frames (a generated sequence?)")
+    out = []
+    for i in range(count):
+        with Image.open(paths[i % len(paths)]) as im:
+            out.append(np.asarray(im.convert("RGB").resize((size, size), Image.BILINEAR)))
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
@@ -202,6 +218,12 @@ def main() -> int:
         help="the graphs' runtime (network/model/ortgraph.py): auto (default, as commands load models: ONNX Runtime "
         "where installed, unless MVRACKLAY_RUNTIME says otherwise), torch (TorchScript) or onnx",
     )
+    ap.add_argument(
+        "--sequence",
+        type=Path,
+        help="stream this generated sequence's frames (resized to each size, looped to --frames) instead of random "
+        "images: real frames show the shelves the readers work on (random ones show three slots every frame)",
+    )
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args()
     try:
@@ -247,7 +269,11 @@ def main() -> int:
         frozen.set_precision(model, args.precision)
         frozen.set_runtime(model, runtime)
         pred = Predictor(model.to(device), fuse_tau=args.fuse_frames, roll=args.roll, pitch=args.pitch, yaw=args.yaw)
-        frames = [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
+        frames = (
+            sequence_frames(args.sequence, size, args.frames)
+            if args.sequence
+            else [rng.integers(0, 256, (size, size, 3), dtype=np.uint8) for _ in range(args.frames)]
+        )
         for mode in args.modes:
             fps = bench(pred, frames, mode, args.repeats)
             best, med = max(fps), float(np.median(fps))
@@ -265,6 +291,7 @@ def main() -> int:
                 "runtime": frozen.graph_runtime(model) if frozen.graphs_held(model) else "torch",
                 "graphs_built": frozen.graphs_held(model),  # what ran: 0 for the modules alone
                 "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+                "frames_from": str(args.sequence) if args.sequence else "random",
             }
             if args.compete:
                 row.update(_compete(pred, frames, mode, args.repeats, args.compete, best, med, auto))

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
 import secrets
 import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 # The suite runs on both cores at once (pytest-xdist): OpenMP threads that sleep when idle instead of spinning
@@ -48,15 +50,33 @@ def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def tiny_checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A tiny network trained 40 steps on the tiny dataset with `mvracklay train` (seconds): it finds
-    shelf boards and predicts shelves and boxes, so the stages after the network get real content."""
+    shelf boards and predicts shelves and boxes, so the stages after the network get real content. Trained once
+    per run: the parallel workers share it (their tiny datasets are the same bytes)."""
     from tiny_net import TINY_NET
 
     from mvracklay.cli import main
 
-    out = tmp_path_factory.mktemp("tiny_net") / "run"
-    args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "40"]
-    assert main([*args, "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]) == 0
+    shared = os.environ.get("PYTEST_XDIST_WORKER") is not None
+    root = tmp_path_factory.getbasetemp().parent if shared else tmp_path_factory.mktemp("tiny_net")
+    out = root / "tiny_net" / "run"
+    with _locked(root / "tiny_net.lock"):
+        if not (out / "trained").is_file():
+            shutil.rmtree(out, ignore_errors=True)
+            args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "40"]
+            assert main([*args, "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]) == 0
+            (out / "trained").touch()
     return out / "last.pt"
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """An exclusive lock on ``path`` between processes (the parallel workers), held for the block."""
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 @pytest.fixture(scope="module")

@@ -16,8 +16,9 @@ from mvracklay.training.runner import KILL_AFTER_ENV
 ROOT = Path(__file__).resolve().parents[1]
 #: the smoke recipe smaller still: fewer training and held-out sequences, fewer steps, fewer frames scored
 SMALLER = [
-    *("--set", "data.train.sequences=3", "--set", "data.heldout.sequences=1", "--set", "vars.steps=30"),
-    *("--set", "vars.fit_epochs=1"),
+    *("--set", "data.train.sequences=3", "--set", "data.heldout.sequences=1", "--set", "data.tune.sequences=1"),
+    *(x for part in ("tune", "heldout") for x in ("--set", f"data.{part}.size=64")),
+    *("--set", "vars.steps=30", "--set", "vars.fit_epochs=1"),
     *("--set", "stage.evaluate.max-frames=4"),
 ]
 
