@@ -9,10 +9,11 @@ setup:
 demo: setup
 	.venv/bin/python -m mvracklay.demo_job
 
-# the tests in 3 workers (on 2 cores a third overlaps the tests that wait on subprocesses, streams and Ray), a
-# module of an xdist_group on one worker (its fixtures made once), the 10 slowest listed at the end
+# the tests in 3 workers (on 2 cores a third overlaps the tests that wait on subprocesses, streams and Ray), each
+# test file on one worker (its module fixtures made once; the costly session fixtures are made once per run and
+# shared: tests/conftest.py), the 10 slowest listed at the end
 test: setup
-	.venv/bin/python -m pytest -q -p no:cacheprovider -n 3 --dist loadgroup --durations=10
+	.venv/bin/python -m pytest -q -p no:cacheprovider -n 3 --dist loadfile --durations=10
 
 lint: setup
 	.venv/bin/ruff check .

@@ -1,4 +1,4 @@
-"""Shared fixtures: a tiny WareSynth dataset generated once per test session; a local Ray per test module that asks."""
+"""Shared fixtures: a tiny WareSynth dataset per worker; a tiny network, a tiny building and its map made once per run and shared by the workers; a local Ray per test file that asks."""
 
 from __future__ import annotations
 
@@ -56,16 +56,28 @@ def tiny_checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory
 
     from mvracklay.cli import main
 
-    shared = os.environ.get("PYTEST_XDIST_WORKER") is not None
-    root = tmp_path_factory.getbasetemp().parent if shared else tmp_path_factory.mktemp("tiny_net")
-    out = root / "tiny_net" / "run"
-    with _locked(root / "tiny_net.lock"):
-        if not (out / "trained").is_file():
-            shutil.rmtree(out, ignore_errors=True)
-            args = ["train", "--data", str(tiny_dataset), "--out", str(out), "--epochs", "1", "--steps-per-epoch", "40"]
-            assert main([*args, "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]) == 0
-            (out / "trained").touch()
-    return out / "last.pt"
+    with _shared(tmp_path_factory, "tiny_net") as (root, made):
+        if not made:
+            args = ["train", "--data", str(tiny_dataset), "--out", str(root / "run"), "--epochs", "1"]
+            args += ["--steps-per-epoch", "40", "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]
+            assert main(args) == 0
+    return root / "run" / "last.pt"
+
+
+@contextmanager
+def _shared(factory: pytest.TempPathFactory, name: str) -> Iterator[tuple[Path, bool]]:
+    """A folder ``name`` every parallel worker of this run shares (a worker's own without xdist), locked for the
+    block: yields it and whether a worker made its content already (the block makes it; a failed block leaves
+    it to be made again)."""
+    base = factory.getbasetemp().parent if os.environ.get("PYTEST_XDIST_WORKER") else factory.getbasetemp()
+    root = base / name
+    with _locked(base / f"{name}.lock"):
+        done = root / ".made"
+        if not done.is_file():
+            shutil.rmtree(root, ignore_errors=True)
+            root.mkdir(parents=True)
+        yield root, done.is_file()
+        done.touch()
 
 
 @contextmanager
@@ -81,8 +93,8 @@ def _locked(path: Path) -> Iterator[None]:
 
 @pytest.fixture(scope="module")
 def ray_local() -> Iterator[str]:
-    """A local Ray of 2 CPUs, started once for the test module that asks for it (about 5 s) and stopped after
-    it; yields the ``ray`` address to give `mvracklay.parallel.run_tasks` / ``--ray`` (this process stays
+    """A local Ray of 2 CPUs, started once for the test file that asks for it (about 5 s; its tests run on one
+    worker) and stopped after it; yields the ``ray`` address to give `mvracklay.parallel.run_tasks` / ``--ray`` (this process stays
     connected, so any address reaches it). Token authentication stays on, its token kept in the environment
     (nothing written to ~/.ray), its sessions' files in a temporary folder removed after it; the workers import
     this checkout and the test modules (a task's function may be a test module's). Skipped where Ray is not
@@ -118,20 +130,24 @@ TINY_CONFIG = {"camera": {"step": [0.25, 0.3]}}
 
 @pytest.fixture(scope="session")
 def tiny_building(tmp_path_factory) -> Path:
-    """A generated tiny building (`TINY_BUILDING`, seed 3), shared by the building tests of a worker."""
+    """A generated tiny building (`TINY_BUILDING`, seed 3), made once per run (the workers share it: read only)."""
     from layouts.spec import LayoutSpec
     from waresynth.building_generate import generate_building
 
-    root = tmp_path_factory.mktemp("tiny_building") / "b"
-    return generate_building(root, building=TINY_BUILDING, config=TINY_CONFIG, image_size=(32, 24),
-                             spec=LayoutSpec(size=128), seed=3, progress=False)  # fmt: skip
+    with _shared(tmp_path_factory, "tiny_building") as (root, made):
+        if not made:
+            generate_building(root / "b", building=TINY_BUILDING, config=TINY_CONFIG, image_size=(32, 24),
+                              spec=LayoutSpec(size=128), seed=3, progress=False)  # fmt: skip
+    return root / "b"
 
 
 @pytest.fixture(scope="session")
 def tiny_building_map(tiny_building, tmp_path_factory) -> Path:
-    """`tiny_building` mapped from its ground-truth layouts (`mvracklay map --layouts gt`): the MAP folder."""
+    """`tiny_building` mapped from its ground-truth layouts (`mvracklay map --layouts gt`): the MAP folder (once per
+    run, shared, read only)."""
     from mvracklay.building_job import map_building
 
-    out = tmp_path_factory.mktemp("tiny_building_map") / "m"
-    map_building(tiny_building, out, layouts="gt", progress=False)
-    return out
+    with _shared(tmp_path_factory, "tiny_building_map") as (root, made):
+        if not made:
+            map_building(tiny_building, root / "m", layouts="gt", progress=False)
+    return root / "m"

@@ -20,9 +20,6 @@ from stitching.export_gltf import glb_json
 from stitching.rerun_log import read_entities
 from waresynth.building_generate import generate_building
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("building")
-
 RATES = {"removed": 0.12, "added": 0.12, "moved": 0.1, "shifted": 0.12, "replaced": 0.05}
 
 

@@ -23,9 +23,6 @@ from stitching.export_gltf import glb_json
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("building")
-
 
 @pytest.fixture
 def building(tiny_building) -> Path:

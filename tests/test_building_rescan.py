@@ -21,9 +21,6 @@ from waresynth.building_generate import generate_building
 from waresynth.building_schema import load_building
 from waresynth.config import load_config
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("building")
-
 BUILDING = {
     "aisles": 1, "bays": [3, 3], "bay_width": [1.8, 2.2], "levels": [2, 3], "pass_length": 4.0,
     "overlap": [1.5, 1.5], "twice_share": 0.0,

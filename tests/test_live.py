@@ -19,9 +19,6 @@ from mvracklay.live_source import LatestFrames, Spacing, is_live, shown
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("live")
-
 #: the same camera for both runs: no distance or angle read from the frames (the stream and the folder alike)
 FIXED = ["--distance", "2.6", "--roll", "0", "--pitch", "0", "--yaw", "0", "--threads", "1", "--quiet"]
 

@@ -14,9 +14,6 @@ from network.heads.boxdepth import head_inputs
 from network.model import frozen, ortgraph
 from network.model.net import MVRackLay
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("ortgraph")
-
 needs_ort = pytest.mark.skipif(not ortgraph.available(), reason="onnxruntime is not installed")
 ANCHORS = torch.tensor([[40.0, 20.0, float("nan")]])  # slot 2 has none: its logits are the background
 

@@ -18,9 +18,6 @@ from mvracklay.parallel import TaskFailed, check_ray_address, run_tasks, task_ma
 from waresynth.building_generate import generate_building
 from waresynth.generate import generate_dataset
 
-#: one worker runs this module (and the others of its group), so its expensive fixtures are made once
-pytestmark = pytest.mark.xdist_group("ray")
-
 SMALL = dict(image_size=(32, 32), spec=LayoutSpec(size=16), seed=3, progress=False)
 BUILDING = {
     "aisles": 1, "bays": [2, 3], "bay_width": [1.6, 2.0], "levels": [2, 3], "pass_length": 4.0,
