@@ -142,8 +142,9 @@ def viewer_sinks(spawn: bool, serve: int | None) -> tuple[tuple, list[str]]:
     """The Rerun sinks a live run streams its recording to besides the .rrd file, and what to tell the user:
     ``spawn`` starts a viewer and streams into it; ``serve`` (a port) runs Rerun's gRPC server, which keeps the
     recording for viewers that connect later (from another machine: ``rerun --connect rerun+http://HOST:PORT/proxy``)."""
-    import rerun as rr
+    from stitching.rerun_log import sdk
 
+    rr = sdk()
     sinks: list[Any] = []
     said: list[str] = []
     if serve is not None:
@@ -192,7 +193,7 @@ def run_live(
     live = LiveRun(source, on_update)
     try:
         with stop_on_signals(source):
-            res = run_pipeline(source, out, cfg, loaded=loaded, on_frame=live.mapped, sinks=sinks)
+            res = run_pipeline(source, out, cfg, loaded=loaded, on_frame=live.mapped, sinks=sinks, bounded=True)
     finally:
         source.close()
     return LiveResult(res, live.report())

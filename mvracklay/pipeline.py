@@ -93,6 +93,10 @@ def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None,
         return None, None, None
 
 
+#: a live run's bounds (`run_pipeline`'s ``bounded``): box-colour samples kept per place, camera steps kept
+LIVE_COLOUR_SAMPLES = 64
+LIVE_KEEP_STEPS = 1000
+
 #: called with each frame once it is in the map (its layouts written, stitched, logged) and the stitcher
 OnFrame = Callable[[PredictedFrame, Stitcher], None]
 #: a loaded model: ``(checkpoint, model, record)`` (`load_model`)
@@ -107,6 +111,7 @@ def run_pipeline(
     loaded: Loaded | None = None,
     on_frame: OnFrame | None = None,
     sinks: tuple = (),
+    bounded: bool = False,
 ) -> RunResult:
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
 
@@ -114,7 +119,10 @@ def run_pipeline(
     layout folder and the stitcher (`_stream_into_map`); the map is finished and exported (`_export`) into a
     staging folder; that folder is published as OUT. A live run (`mvracklay.live`) passes the model it loaded
     before opening its stream (``loaded``), follows each frame into the map (``on_frame``) and streams the
-    recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file).
+    recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file) and bounds what it keeps per frame
+    (``bounded``: the newest `LIVE_COLOUR_SAMPLES` box-colour samples per place, the last `LIVE_KEEP_STEPS` camera
+    steps in warehouse.json, a thinned camera path in the recording and its .rrd without Rerun's footer), so its memory is bounded by the map, not by
+    the stream's length.
     """
     cfg = cfg or RunConfig()
     cfg.validate()
@@ -136,15 +144,16 @@ def run_pipeline(
     recording = None
     try:
         folder = LayoutFolder.create(stage / "layouts", spec)
-        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening))
+        keep_steps = LIVE_KEEP_STEPS if bounded else 0
+        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
         if cfg.rrd:
             save = stage / "warehouse.rrd"
-            recording = RunRecording(
-                f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks
-            )
+            recording = RunRecording(f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb,
+                                     cfg.map_every, sinks, bounded=bounded)  # fmt: skip
         # a generated sequence's camera rotation is recorded; footage's is read from the frames
         pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
-        colours = BoxColours(pred.cfg.view)  # each box's colour from the frames' pixels
+        # each box's colour from the frames' pixels
+        colours = BoxColours(pred.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
         n, depth, timings = _stream_into_map(
             source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
         )

@@ -32,8 +32,22 @@ def thumbnail(rgb: np.ndarray) -> np.ndarray:
     return np.asarray(Image.fromarray(rgb).resize(size, Image.Resampling.BILINEAR))
 
 
-def decimate(path: list, limit: int = 256) -> list:
-    """At most ``limit`` points of the camera path (first and last kept), so long videos log a bounded path per frame."""
+#: the camera path's points logged with each frame (`decimate`)
+PATH_POINTS = 256
+
+
+def thin(path: list, limit: int | None = None) -> None:
+    """Every other point of ``path`` dropped in place (the first and the newest kept) once it holds over ``2 * limit``
+    (default `PATH_POINTS`): a bounded path over the whole walk, still ``limit`` points or more to decimate from."""
+    limit = limit or PATH_POINTS
+    if len(path) > 2 * limit:
+        path[:] = path[:-1:2] + path[-1:]
+
+
+def decimate(path: list, limit: int | None = None) -> list:
+    """At most ``limit`` (default `PATH_POINTS`) points of the camera path (first and last kept), so long videos log a
+    bounded path per frame."""
+    limit = limit or PATH_POINTS
     if len(path) <= limit:
         return path
     idx = np.unique(np.linspace(0, len(path) - 1, limit).round().astype(int))
@@ -43,7 +57,9 @@ def decimate(path: list, limit: int = 256) -> list:
 class RunRecording:
     """The recording of one run, saved to ``save``; ``camera_yz``: the camera's height and depth in the map frame
     (None: unknown), ``rgb``: log the frames' pixels, ``map_every``: log the growing map every N-th frame;
-    ``sinks``: Rerun sinks streamed to while the run goes (a live run's viewer, `mvracklay.live.viewer_sinks`)."""
+    ``sinks``: Rerun sinks streamed to while the run goes (a live run's viewer, `mvracklay.live.viewer_sinks`);
+    ``bounded``: memory bounded over an endless stream (a live run): the camera path kept thinned (`thin`) rather than
+    whole, the .rrd written without Rerun's footer (its chunk manifest grows in memory with every frame logged)."""
 
     def __init__(
         self,
@@ -54,11 +70,13 @@ class RunRecording:
         rgb: bool = True,
         map_every: int = 1,
         sinks: tuple = (),
+        bounded: bool = False,
     ) -> None:
-        self.rec: Any = rerun_log.start(name, save=save, num_slots=num_slots, sinks=sinks)
+        self.rec: Any = rerun_log.start(name, save=save, num_slots=num_slots, sinks=sinks, footer=not bounded)
         self.num_slots, self.camera_yz, self.rgb, self.map_every = num_slots, camera_yz, rgb, map_every
         self.pending: deque[np.ndarray | None] = deque()  # each frame's thumbnail until its layouts come
         self.path: list[tuple[float, float, float]] = []
+        self.bounded = bounded
 
     def keep(self, rgb: np.ndarray) -> None:
         """A frame as it is read (its thumbnail, when the recording shows RGB)."""
@@ -68,6 +86,8 @@ class RunRecording:
         """One predicted frame: its layouts and reconstruction where the camera stood, and every ``map_every``-th
         frame the map so far."""
         self.path.append(rerun_log.camera_point(offset, *self.camera_yz))
+        if self.bounded:
+            thin(self.path)
         rgb = self.pending.popleft()
         rerun_log.log_frame(self.rec, frame.index, frame.layouts, frame_rec, offset, rgb, decimate(self.path))
         if frame.index % self.map_every == 0:

@@ -13,7 +13,9 @@ not sampled (its face is hidden).
 
 At the end (`BoxColours.paint`) every frame sample goes to the map box of its slot it overlaps
 best (X-extent IoU >= `MIN_IOU`, depth ranges overlapping); a box's colour is the mean of its
-samples within `OUTLIER_RGB` (or 2.5 median deviations) of their median. Frames are kept only as
+samples within `OUTLIER_RGB` (or 2.5 median deviations) of their median. A run keeps every sample by
+default; ``BoxColours(view, per_place=N)`` (a live run) keeps the newest N per place (slot, `PLACE_M` of map X
+and of depth), so the samples are bounded by the map, not by the frames. Frames are kept only as
 copies at most `SAMPLE_WIDTH` pixels wide (every k-th pixel) until their layouts come; the cost
 per frame is that copy, one homography and one median over a few dozen pixels per box (about
 1 ms for 15 boxes). Arrays in, arrays out: nothing here knows the network.
@@ -27,6 +29,7 @@ import numpy as np
 
 from layouts.camera import Intrinsics
 from layouts.canonical import CanonicalView
+from layouts.errors import LayoutError
 from stitching.lift import FrameReconstruction
 from stitching.warehouse_map import WarehouseMap
 
@@ -38,15 +41,21 @@ MIN_POINTS = 0.5  #: share of a face's points inside the frame to keep its sampl
 HIDDEN_OVERLAP = 0.5  #: a box is hidden when a box in front covers this share of its width
 MIN_IOU = 0.3  #: X-extent IoU of a frame sample and a map box to count for it
 OUTLIER_RGB = 16.0  #: samples this close (largest channel difference) to the median always count
+PLACE_M = 0.25  #: a place, for a bounded sample history: this many metres of map X (face centre) and of depth
+COMPACT_ROWS = 4096  #: a bounded history drops the older samples of its full places after this many new ones
 
 
 class BoxColours:
-    """Collects front-face colour samples frame by frame and paints them onto a map's boxes."""
+    """Collects front-face colour samples frame by frame and paints them onto a map's boxes; ``per_place``:
+    samples kept per place (None: all of them; N: the newest N, for endless streams)."""
 
-    def __init__(self, view: CanonicalView) -> None:
-        self.view = view
+    def __init__(self, view: CanonicalView, per_place: int | None = None) -> None:
+        if per_place is not None and (isinstance(per_place, bool) or not isinstance(per_place, int) or per_place < 1):
+            raise LayoutError(f"BoxColours per_place must be None or an integer >= 1, got {per_place!r}")
+        self.view, self.per_place = view, per_place
         self._frames: deque[tuple[np.ndarray, int, tuple[int, int]]] = deque()
         self._rows: list[np.ndarray] = []  # (K, 8): slot, x0, x1, z0, z1 (map), r, g, b
+        self._new = 0  # samples added since the last `_compact`
 
     def keep(self, rgb: np.ndarray) -> None:
         """Hold frame ``rgb`` (uint8 ``(H, W, 3)``) downsized until its reconstruction comes to `add`."""
@@ -74,7 +83,26 @@ class BoxColours:
         if len(rows):
             rows[:, 1:3] += camera_x
             self._rows.append(rows)
+            self._new += len(rows)
+            if self.per_place is not None and self._new >= COMPACT_ROWS:
+                self._compact()
         return len(rows)
+
+    def _compact(self) -> None:
+        """Keep the newest ``per_place`` samples of each place (in their order): at most ``per_place`` times the places seen."""
+        rows = self.samples()
+        self._new = 0
+        key = np.stack(
+            [rows[:, 0], np.floor((rows[:, 1] + rows[:, 2]) / (2 * PLACE_M)), np.floor(rows[:, 3] / PLACE_M)]
+        )
+        _, place = np.unique(key, axis=1, return_inverse=True)
+        place = place.reshape(-1)
+        order = np.argsort(place, kind="stable")  # each place's samples in their order
+        count = np.bincount(place)
+        pos = np.empty(len(rows), int)
+        pos[order] = np.arange(len(rows)) - (np.cumsum(count) - count)[place[order]]
+        newer = count[place] - 1 - pos  # samples of its place after each
+        self._rows = [rows[newer < self.per_place]]
 
     def samples(self) -> np.ndarray:
         """All samples so far, ``(N, 8)``: slot, map x0, x1, z0, z1, r, g, b."""

@@ -23,6 +23,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import sys
 
 import numpy as np
 
@@ -37,10 +38,26 @@ JPEG_QUALITY = 85
 DEFAULT_SLOTS = 3
 
 
-def _rr():
+#: Rerun's log filter while the SDK is first imported: a live run's file sink without a footer (`start`) warns
+#: about it once per run otherwise
+QUIET_FOOTER = "warn,re_log_encoding::rrd::file_sink=error"
+
+
+def sdk():
+    """The Rerun SDK, imported on first use with `QUIET_FOOTER` as its log filter (unless ``RUST_LOG`` is set;
+    the environment left as it was)."""
+    if "rerun" not in sys.modules and "RUST_LOG" not in os.environ:
+        os.environ["RUST_LOG"] = QUIET_FOOTER
+        try:
+            import rerun  # noqa: F401 (its logging reads the filter once, here)
+        finally:
+            del os.environ["RUST_LOG"]
     import rerun as rr
 
     return rr
+
+
+_rr = sdk
 
 
 def start(
@@ -49,20 +66,35 @@ def start(
     spawn: bool = False,
     num_slots: int = DEFAULT_SLOTS,
     sinks: tuple = (),
+    footer: bool = True,
 ):
     """A recording stream writing to ``save`` (an ``.rrd``, with `blueprint` as its default) or to a spawned viewer;
-    ``sinks``: Rerun sinks it also streams to, live (``rr.GrpcSink`` to a viewer, ``rr.GrpcServerSink``)."""
+    ``sinks``: Rerun sinks it also streams to, live (``rr.GrpcSink`` to a viewer, ``rr.GrpcServerSink``);
+    ``footer`` False: the file without its footer, a manifest of every chunk that Rerun keeps in memory until the
+    file is closed (it grows with every frame logged: an endless stream's recording goes without; still a valid
+    .rrd, read in order)."""
     rr = _rr()
     rec = rr.RecordingStream(app_id, recording_id=app_id)
     bp = blueprint(num_slots)
-    if sinks:
-        rec.set_sinks(*([rr.FileSink(str(save))] if save is not None else []), *sinks, default_blueprint=bp)
+    if sinks or not footer:
+        rec.set_sinks(*([_file_sink(str(save), footer)] if save is not None else []), *sinks, default_blueprint=bp)
     elif save is not None:
         rec.save(str(save), default_blueprint=bp)
     elif spawn:
         rec.spawn(default_blueprint=bp)
     log_static(rec)
     return rec
+
+
+def _file_sink(path: str, footer: bool):
+    """A file sink, without the footer when not ``footer`` (SDKs before footers have none: the plain sink)."""
+    rr = _rr()
+    if footer:
+        return rr.FileSink(path)
+    try:
+        return rr.FileSink(path, write_footer=False)
+    except TypeError:
+        return rr.FileSink(path)
 
 
 def blueprint(num_slots: int = DEFAULT_SLOTS):
@@ -182,8 +214,13 @@ def camera_point(
 
 
 def read_entities(path: str | os.PathLike) -> set[str]:
-    """Entity paths stored in an ``.rrd`` (read back with the SDK's own `rerun.chunk.RrdReader`)."""
+    """Entity paths stored in an ``.rrd`` (read back with the SDK's own `rerun.chunk.RrdReader`, in order: a live
+    run's file has no footer)."""
+    import warnings
+
     from rerun.chunk import RrdReader
 
-    store = RrdReader(str(path)).stream().collect()
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*no footer")
+        store = RrdReader(str(path)).stream().collect()
     return {c.entity_path for c in store.stream()}

@@ -274,6 +274,32 @@ def test_box_colours_from_a_larger_frame_downsized():
     assert np.abs(np.subtract(wmap.boxes()[0].colour, FACES[0][5])).max() <= 2
 
 
+def test_a_bounded_sample_history_keeps_the_newest_per_place_and_paints_the_same(monkeypatch):
+    import stitching.box_colours as box_colours
+
+    monkeypatch.setattr(box_colours, "COMPACT_ROWS", 12)
+    frame = _render()
+    whole, bounded = BoxColours(VIEW), BoxColours(VIEW, per_place=4)
+    for colours in (whole, bounded):
+        for _ in range(40):  # the same boxes seen 40 times (a camera walking back and forth)
+            colours.keep(frame)
+            assert colours.add(_frame_rec(), CAMERA_X, _anchors(), INTR, DIST) == 3
+    assert len(whole.samples()) == 120
+    assert len(bounded.samples()) < 3 * 4 + 12  # 3 places: 4 samples each, and those since the last compaction
+    a, b = _face_map(), _face_map()
+    whole.paint(a)
+    bounded.paint(b)
+    assert [x.colour for x in a.boxes()] == [x.colour for x in b.boxes()]
+    newest = BoxColours(VIEW, per_place=1)
+    rows = [[0, 0.1, 0.7, -0.45, -0.05, c, c, c] for c in range(20)]
+    newest._rows, newest._new = [np.array(rows, float)], 20
+    newest._compact()
+    assert newest.samples().tolist() == [rows[-1]]  # one place: its newest sample
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(InputError, match="per_place"):
+            BoxColours(VIEW, per_place=bad)
+
+
 def test_samples_go_to_the_overlapping_box_of_their_slot_and_outliers_are_dropped():
     wmap = _face_map()
     #       slot  x0   x1   z0    z1   r    g    b

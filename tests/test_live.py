@@ -68,6 +68,7 @@ def _send_udp(frames: list[np.ndarray], url: str, fps: float, go: threading.Even
     out.close()
 
 
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")  # a live run's .rrd: no footer, by design
 def test_a_udp_stream_is_mapped_as_the_folder_is_and_ends_when_quiet(
     seq20, tiny_checkpoint, tmp_path, monkeypatch, capsys
 ):
@@ -341,3 +342,77 @@ def test_leaving_the_updates_loop_early_stops_the_run(seq20, tiny_checkpoint, tm
         assert not (tmp_path / "left").exists()  # abandoned: nothing published
     finally:
         stop.set()
+
+
+def test_a_long_live_walk_keeps_what_it_holds_bounded_by_the_map(seq20, tiny_checkpoint, tmp_path, monkeypatch):
+    """A camera walking the row back and forth, fed from Python with the recording on: what a live run keeps per
+    frame stays bounded by the map, not by the frames (the bounds set small, so they are reached here): box-colour
+    samples (the newest per place), camera steps (the last ones; the totals over all), the recording's camera path
+    (thinned) and the arrivals (forgotten once mapped)."""
+    import mvracklay
+    import mvracklay.live as live
+    import mvracklay.pipeline as pipeline
+    import mvracklay.recording as recording
+    import stitching.box_colours as box_colours
+
+    per_place, compact, points, steps = 2, 16, 8, 10
+    monkeypatch.setattr(pipeline, "LIVE_KEEP_STEPS", steps)
+    monkeypatch.setattr(pipeline, "LIVE_COLOUR_SAMPLES", per_place)
+    monkeypatch.setattr(box_colours, "COMPACT_ROWS", compact)
+    monkeypatch.setattr(recording, "PATH_POINTS", points)
+    made: dict[str, object] = {}
+
+    class Colours(box_colours.BoxColours):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made["colours"], self.taken = self, 0
+
+        def add(self, *a, **k):
+            got = super().add(*a, **k)
+            self.taken += got
+            return got
+
+    class Recording(recording.RunRecording):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made["recording"] = self
+
+    class Run(live.LiveRun):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made["source"] = self.source
+
+    monkeypatch.setattr(pipeline, "BoxColours", Colours)
+    monkeypatch.setattr(pipeline, "RunRecording", Recording)
+    monkeypatch.setattr(live, "LiveRun", Run)
+    walk = _frames(seq20)
+    walk += walk[::-1]
+    n, mapped, held, cond = 100, 0, [], threading.Condition()
+
+    def camera():  # the next frame once the map has caught up: none dropped
+        for i in range(n):
+            with cond:
+                cond.wait_for(lambda i=i: mapped >= i - 1, timeout=20)
+            yield walk[i % len(walk)]
+
+    def update(u):
+        nonlocal mapped
+        with cond:
+            mapped += 1
+            cond.notify_all()
+        c = made["colours"]
+        rows = c.samples()
+        places = len({(r[0], np.floor((r[1] + r[2]) / 0.5), np.floor(r[3] / 0.25)) for r in rows})
+        held.append((len(rows), places, len(made["recording"].path), len(u.map.steps), len(made["source"].arrivals)))
+
+    kw = dict(checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0, yaw=0.0, threads=1, idle_timeout=20.0)
+    res = mvracklay.reconstruct_live(camera(), out=tmp_path / "walk", on_update=update, **kw)
+    assert res.report.mapped == n and res.report.dropped == 0 and len(held) == n
+    for rows, places, path, kept, waiting in held:
+        assert rows < per_place * places + compact and path <= 2 * points + 1 and kept <= steps and waiting <= 2
+    colours = made["colours"]
+    assert colours.taken > 3 * len(colours.samples())  # every sample kept would be taken
+    assert not made["source"].arrivals
+    kept = res.run.map.steps
+    assert [s.frame for s in kept] == list(range(n - steps, n)) and res.run.map.meta["step_summary"]["frames"] == n
+    assert "/world/camera/path" in read_entities(tmp_path / "walk" / "warehouse.rrd")  # without its footer: whole
