@@ -2,8 +2,8 @@
 
 Streaming prediction has two halves per frame: the network's parts (ONNX Runtime or torch graphs, two CPU threads)
 and the readers of their outputs (the parallax maps, the box-depth head, the rack depth, the fusion), which are
-mostly small single-threaded operations. Run one after the other they keep 2 cores about 1.55 busy; with a frame's
-readers on a worker thread while the next frame goes through the network, about 1.8, and 256x256 streaming gains
+mostly small single-threaded operations. Run one after the other they keep 2 cores about 1.57 busy; with a frame's
+readers on a worker thread while the next frame goes through the network, about 1.73, and 256x256 streaming gains
 about a tenth in frames/s (`benchmarks/bench_infer.py`). The results are the same: the readers see the frames in
 order, on one thread, with the same thread count.
 """
