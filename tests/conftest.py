@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fcntl
 import os
 import secrets
 import shutil
@@ -83,6 +82,8 @@ def _shared(factory: pytest.TempPathFactory, name: str) -> Iterator[tuple[Path, 
 @contextmanager
 def _locked(path: Path) -> Iterator[None]:
     """An exclusive lock on ``path`` between processes (the parallel workers), held for the block."""
+    import fcntl  # POSIX: the suite runs on Linux
+
     with open(path, "a") as f:
         fcntl.flock(f, fcntl.LOCK_EX)
         try:
