@@ -10,11 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from layouts.errors import InputError
 from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
 from mvracklay.options import DEVICES
 from mvracklay.parallel import RAY_HELP
 from mvracklay.settings import (
     InferenceSettings,
+    check_range,
     json_out_setting,
     nested,
     precision_setting,
@@ -91,6 +93,25 @@ class GenerateSettings:
         metavar="SCAN", type=Path,
     )  # fmt: skip
     quiet: bool = quiet_setting("hide the progress bar", alias=True)
+
+    def validate(self) -> None:
+        """One line naming the options when a value is out of its range or options do not go together."""
+        check_range(GenerateSettings, self)  # --sequences, --frames, --size, ... within their ranges
+        if self.shard is not None and self.format != "native":
+            raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
+        if self.rescan is not None and self.building is None:
+            raise InputError(
+                "--rescan SCAN: a rescan is of a building; add --building (generate OUT --building --rescan SCAN)"
+            )
+        if self.building is None:
+            return
+        if self.shard is not None or self.format != "native":
+            raise InputError("--building writes a whole building in one folder: without --shard and --format")
+        defaults = GenerateSettings()
+        if (self.sequences, self.frames) != (defaults.sequences, defaults.frames):
+            raise InputError(
+                "--building: the passes and their frames come from the building config, not --sequences / --frames"
+            )
 
 
 @dataclass(frozen=True)

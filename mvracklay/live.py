@@ -138,6 +138,16 @@ def stop_on_signals(source: LiveSource) -> Iterator[None]:
             signal.signal(s, prev)
 
 
+def check_viewer(spawn: bool, serve: bool, rrd: bool, live: bool) -> None:
+    """One line when the viewer options (``--spawn``, ``--serve``) cannot go with the run's other options."""
+    if spawn and not rrd:
+        raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
+    if serve and not live:
+        raise InputError("--serve serves a live run's recording; a file run's: rerun OUT/warehouse.rrd")
+    if serve and not rrd:
+        raise InputError("--serve serves the recording; it cannot be combined with --no-rrd")
+
+
 def viewer_sinks(spawn: bool, serve: int | None) -> tuple[tuple, list[str]]:
     """The Rerun sinks a live run streams its recording to besides the .rrd file, and what to tell the user:
     ``spawn`` starts a viewer and streams into it; ``serve`` (a port) runs Rerun's gRPC server, which keeps the

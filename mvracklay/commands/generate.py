@@ -6,9 +6,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from layouts.errors import InputError
 from mvracklay.command_settings import GenerateSettings
-from mvracklay.settings import add_options, check_range
+from mvracklay.settings import add_options
 
 if TYPE_CHECKING:
     from layouts.spec import LayoutSpec
@@ -40,7 +39,7 @@ def run(args: GenerateSettings) -> int:
     from waresynth.dataset import open_dataset
     from waresynth.generate import generate_dataset
 
-    check_range(GenerateSettings, args)  # --sequences, --frames, --size, ... within their ranges
+    args.validate()
     from layouts.publish import refuse_overlap
 
     if args.config is not None and Path(args.config).exists():
@@ -52,19 +51,6 @@ def run(args: GenerateSettings) -> int:
         from waresynth.generate import parse_shard
 
         shard = parse_shard(args.shard)
-        if args.format != "native":
-            raise InputError("--format exports a whole dataset: export after `mvracklay merge-shards`, not per shard")
-    if args.rescan is not None and args.building is None:
-        raise InputError(
-            "--rescan SCAN: a rescan is of a building; add --building (generate OUT --building --rescan SCAN)"
-        )
-    if args.building is not None and (shard is not None or args.format != "native"):
-        raise InputError("--building writes a whole building in one folder: without --shard and --format")
-    defaults = type(args)()
-    if args.building is not None and (args.sequences, args.frames) != (defaults.sequences, defaults.frames):
-        raise InputError(
-            "--building: the passes and their frames come from the building config, not --sequences / --frames"
-        )
     config = args.config
     if args.supersample is not None:
         from waresynth.config import load_config

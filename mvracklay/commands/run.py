@@ -104,19 +104,15 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
 
 def run(args: argparse.Namespace) -> int:
     from mvracklay.frames import open_source
+    from mvracklay.live import check_viewer
     from mvracklay.live_source import is_live
     from mvracklay.outputs import OUTPUTS, check_apart, check_out, run_summary, spawn_viewer
-    from mvracklay.pipeline import run_pipeline
+    from mvracklay.pipeline import resolve_checkpoint, run_pipeline
 
     if args.out is None:
         raise InputError("--out is required (on the command line or as 'out' in the --config file)")
-    if args.spawn and args.no_rrd:
-        raise InputError("--spawn opens OUT/warehouse.rrd; it cannot be combined with --no-rrd")
     live = is_live(args.input)
-    if args.serve is not None and not live:
-        raise InputError("--serve serves a live run's recording; a file run's: rerun OUT/warehouse.rrd")
-    if args.serve is not None and args.no_rrd:
-        raise InputError("--serve serves the recording; it cannot be combined with --no-rrd")
+    check_viewer(args.spawn, args.serve is not None, not args.no_rrd, live)
     cfg = from_args(
         RunConfig,
         args,
@@ -133,8 +129,6 @@ def run(args: argparse.Namespace) -> int:
         OUTPUTS,
         {"INPUT": args.input, "--camera": args.camera, "--config": args.config, "--checkpoint": args.checkpoint},
     )
-    from mvracklay.pipeline import resolve_checkpoint
-
     resolve_checkpoint(cfg.checkpoint)  # fail before decoding anything
     if live:
         return _run_live(args, cfg)
