@@ -105,13 +105,14 @@ def test_camera_shift_ignores_the_static_edge_of_the_source_image():
 
 @pytest.mark.parametrize("bands", [2, 3])  # bands of equal height (summed over a reshape) and not (index_add_)
 def test_band_profiles_are_the_normalised_correlation_over_pixels_valid_in_both(bands):
-    from network.model.motion import _profiles
+    from network.model.motion import _correlate, _spectra, fft_length
 
     g = torch.Generator().manual_seed(11)
     frames = torch.rand(2, 3, 16, 40, generator=g)
     sig = motion_signature(frames)
     sig[0, :, :, :5] = 0.0  # the first frame's 5 left columns outside its source image
-    band, whole = _profiles(sig[:1], sig[1:], 6, bands)
+    n = fft_length(40 + 6 + 1)
+    band, whole = _correlate(_spectra(sig[:1], n), _spectra(sig[1:], n), n, 6, bands)
     first = slice(0, -(-16 // bands))  # the first band's rows
     for k in (-6, -1, 0, 3, 6):
         p, c = (sig[0, :, :, k:], sig[1, :, :, : 40 - k]) if k >= 0 else (sig[0, :, :, : 40 + k], sig[1, :, :, -k:])

@@ -35,9 +35,13 @@ def plane_sweep(cur: torch.Tensor, prev: torch.Tensor, dx: torch.Tensor, view: C
     ``dx`` ``(N,)``: the camera's step from ``prev`` to ``cur`` (metres, + = toward +X). Cost is
     the mean absolute colour difference after shifting ``prev`` by ``rho * dx``, averaged over 3x3.
     """
-    rho = torch.tensor(RATIOS, device=cur.device, dtype=torch.float32)
-    shift = dx.float().to(cur.device)[:, None] * rho[None, :] / view.metres_per_pixel  # (N, K) pixels
-    return box_mean3(shifted_costs(cur, prev, shift))
+    return box_mean3(shifted_costs(cur, prev, _plane_shifts(dx, view, cur.device)))
+
+
+def _plane_shifts(dx: torch.Tensor, view: CanonicalView, device: torch.device) -> torch.Tensor:
+    """``(N, K)`` pixels each swept plane moves by for camera steps ``dx`` ``(N,)`` (metres): ``rho * dx``."""
+    rho = torch.tensor(RATIOS, device=device, dtype=torch.float32)
+    return dx.float().to(device)[:, None] * rho[None, :] / view.metres_per_pixel
 
 
 def shifted_costs(cur: torch.Tensor, prev: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
@@ -80,9 +84,7 @@ def pooled_sweep(cur: torch.Tensor, prev: torch.Tensor, dx: torch.Tensor, view: 
     h, w = cur.shape[-2:]
     if h % 2 or w % 2 or h < 4 or w < 4:
         return avg_pool2(plane_sweep(cur, prev, dx, view))
-    rho = torch.tensor(RATIOS, device=cur.device, dtype=torch.float32)
-    shift = dx.float().to(cur.device)[:, None] * rho[None, :] / view.metres_per_pixel
-    summed = _summed_costs(cur, prev, shift)
+    summed = _summed_costs(cur, prev, _plane_shifts(dx, view, cur.device))
     return _pooled_box3(_pooled_box3(summed, -2), -1) / (4.0 * prev.shape[1])
 
 

@@ -81,17 +81,6 @@ def _band_index(h: int, bands: int, device: torch.device) -> torch.Tensor:
     return (torch.arange(h, device=device) * bands) // h
 
 
-def _profiles(prev: torch.Tensor, cur: torch.Tensor, m: int, bands: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Normalised cross-correlation of signatures ``cur`` against ``prev`` moved by -m..m columns.
-
-    Returns per band ``(N, bands, 2m+1)`` and for the whole image ``(N, 2m+1)``, over the pixels
-    valid in both; offset k means ``cur(y, x)`` matches ``prev(y, x + k)`` (the content moved k
-    columns left: the camera moved right).
-    """
-    length = fft_length(prev.shape[-1] + m + 1)  # zero padding: no wrap-around for offsets within +-m
-    return _correlate(_spectra(prev, length), _spectra(cur, length), length, m, bands)
-
-
 def _spectra(sig: torch.Tensor, length: int) -> torch.Tensor:
     """Row spectra ``(N, 3, H, F)`` (float64, FFTs of ``length``) of a signature's validity, grey and grey squared:
     every sum over an overlap of two frames is a row-wise correlation of two such maps (sums of w, a, b, a*a, b*b,
@@ -107,7 +96,10 @@ _PREV_MAPS, _CUR_MAPS = (0, 1, 0, 2, 0, 1), (0, 0, 1, 0, 2, 1)
 def _correlate(
     fp: torch.Tensor, fc: torch.Tensor, length: int, m: int, bands: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """`_profiles` from the two frames' `_spectra`: the six sums' products summed per band, then back."""
+    """Normalised cross-correlation of two frames from their `_spectra`: the current frame against the previous
+    one moved by -m..m columns, per band ``(N, bands, 2m+1)`` and for the whole image ``(N, 2m+1)``, over the
+    pixels valid in both; offset k means ``cur(y, x)`` matches ``prev(y, x + k)`` (the content moved k columns
+    left: the camera moved right). The six sums' products are summed per band before going back."""
     n, _, h, _ = fp.shape
     prod = fp[:, _PREV_MAPS] * fc[:, _CUR_MAPS].conj()  # (N, 6, H, F)
     if h % bands == 0:  # bands of equal height: a sum over a reshape (~3x faster than index_add_)
