@@ -1,4 +1,4 @@
-"""Shared fixtures: a tiny WareSynth dataset per worker; a tiny network, a tiny building and its map made once per run and shared by the workers; a local Ray per test file that asks."""
+"""Shared fixtures: a tiny WareSynth dataset per worker; the fixed tiny network (tests/data), a tiny building and its map, copied or made once per run and shared by the workers; a local Ray per test file that asks."""
 
 from __future__ import annotations
 
@@ -28,8 +28,6 @@ if _ROOT not in sys.path:
 
 from hypothesis import settings  # noqa: E402
 
-from layouts.spec import LayoutSpec  # noqa: E402
-
 # Property tests assert behaviour, not speed: a loaded CI machine must not fail them on timing.
 settings.register_profile("project", deadline=None)
 settings.load_profile("project")
@@ -37,30 +35,25 @@ settings.load_profile("project")
 
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """3 sequences x 8 frames, 128x128 images, layouts D=64, seed 7 (a few seconds)."""
-    from waresynth.generate import generate_dataset
+    """3 sequences x 8 frames, 128x128 images, layouts D=64, seed 7 (`tiny_net.TINY_DATASET`; a few seconds)."""
+    from tiny_net import tiny_dataset
 
-    out = tmp_path_factory.mktemp("waresynth") / "tiny"
-    return generate_dataset(
-        out, num_sequences=3, frames=8, image_size=(128, 128), spec=LayoutSpec(size=64), seed=7, progress=False
-    )
+    return tiny_dataset(tmp_path_factory.mktemp("waresynth") / "tiny")
 
 
 @pytest.fixture(scope="session")
-def tiny_checkpoint(tiny_dataset: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A tiny network trained 40 steps on the tiny dataset with `mvracklay train` (seconds): it finds
-    shelf boards and predicts shelves and boxes, so the stages after the network get real content. Trained once
-    per run: the parallel workers share it (their tiny datasets are the same bytes)."""
-    from tiny_net import TINY_NET
-
-    from mvracklay.cli import main
+def tiny_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The fixed tiny network (`tiny_net.TINY_CHECKPOINT`: 40 steps of `mvracklay train` on the tiny dataset, fp16
+    weights): it finds shelf boards and predicts shelves and boxes, so the stages after the network get real
+    content. Data, not trained here: the same weights on every CPU. A copy per run, shared by the workers (a command
+    that writes beside its checkpoint cannot touch the file in the tests)."""
+    from tiny_net import TINY_CHECKPOINT
 
     with _shared(tmp_path_factory, "tiny_net") as (root, made):
         if not made:
-            args = ["train", "--data", str(tiny_dataset), "--out", str(root / "run"), "--epochs", "1"]
-            args += ["--steps-per-epoch", "40", "--frames-per-step", "4", "--lr", "3e-3", *TINY_NET]
-            assert main(args) == 0
-    return root / "run" / "last.pt"
+            for src in (TINY_CHECKPOINT, TINY_CHECKPOINT.with_suffix(".json")):
+                shutil.copyfile(src, root / src.name)
+    return root / TINY_CHECKPOINT.name
 
 
 @contextmanager
