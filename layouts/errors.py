@@ -1,7 +1,8 @@
 """Error types for bad input, raised with a one-line message naming the culprit.
 
 Every component raises a subclass of `InputError` for bad user input (files, arguments,
-configs); the CLI prints its message as one line and exits non-zero.
+configs); the CLI prints its message as one line and exits non-zero. `ContractError` is the
+other kind: data the code built breaks the schema its own readers check (a defect, never bad input).
 """
 
 
@@ -11,6 +12,11 @@ class InputError(ValueError):
 
 class LayoutError(InputError):
     """Bad layout data, spec or file."""
+
+
+class ContractError(AssertionError):
+    """A defect: something built here breaks its declared schema; raised before it is published, naming the
+    element (an `AssertionError`, so no handler of bad input turns it into a user's mistake)."""
 
 
 def first_problem(errors: list[dict]) -> str:
