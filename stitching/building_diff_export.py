@@ -144,12 +144,14 @@ def write_changes(
     from layouts.fileio import atomic_write_json, atomic_write_text
     from layouts.locations import rows_csv
     from stitching.building_diff import CHANGE_COLUMNS
+    from stitching.building_schema import check_changes
 
     os.makedirs(out, exist_ok=True)
     rows = d.rows()
-    atomic_write_text(os.path.join(out, "changes.csv"), rows_csv(rows, CHANGE_COLUMNS))
     doc = {"columns": list(CHANGE_COLUMNS), "changes": rows, "counts": d.counts(),
            "locations": [vars(loc) for loc in d.locations]}  # fmt: skip
+    check_changes(doc, os.path.join(out, "changes.json"), built=True)  # a defect raised before anything is written
+    atomic_write_text(os.path.join(out, "changes.csv"), rows_csv(rows, CHANGE_COLUMNS))
     if evaluation is not None:
         doc["evaluation"] = evaluation
     atomic_write_json(os.path.join(out, "changes.json"), doc)
