@@ -27,6 +27,16 @@ def _umask() -> int:
     return mask
 
 
+def user_cache_dir(*parts: str) -> Path | None:
+    """``$XDG_CACHE_HOME/mvracklay/PARTS``, else ``~/.cache/mvracklay/PARTS``: where the toolkit keeps what it
+    makes for itself outside a work tree (ONNX parts, recipe runs); None with no home folder to find."""
+    try:
+        base = os.environ.get("XDG_CACHE_HOME", "").strip() or Path.home() / ".cache"
+    except RuntimeError:
+        return None
+    return Path(base).joinpath("mvracklay", *parts)
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes, fsync: bool = False) -> None:
     """Write ``data`` to ``path`` atomically (temp file + rename in the same folder)."""
     path = Path(path)

@@ -36,6 +36,12 @@ def cpu_has_native_bf16(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> bool | 
     return bool(flags & {"avx512_bf16", "amx_bf16"})
 
 
+def auto_precision(cpuinfo: str | os.PathLike = "/proc/cpuinfo") -> str:
+    """What ``precision = "auto"`` trains in: bf16 where the CPU computes it natively (AVX512-BF16 or AMX,
+    `cpu_has_native_bf16`), else fp32 (emulated bf16 is 18-24x slower). Checkpoints stay fp32 either way."""
+    return "bf16" if cpu_has_native_bf16(cpuinfo) else "fp32"
+
+
 def forward_autocast(device_type: str, precision: str) -> torch.autocast:
     """The context training's forward passes run in: bf16 autocast for ``precision`` bf16, else a no-op.
 

@@ -17,7 +17,7 @@ from network.model.config import ModelConfig
 from network.model.discriminator import build_discriminators
 from network.model.net import MVRackLay
 from network.training.toy import ToySequence
-from network.training.train_config import TrainConfig
+from network.training.train_config import TrainConfig, retired_options_off
 from network.training.trainer import Trainer
 
 SPEC = LayoutSpec(num_slots=2, size=16)
@@ -180,28 +180,28 @@ def test_warm_start_from_racklay_reproduces_it_then_trains_the_convlstm(tmp_path
 def test_stop_at_pauses_inside_the_schedule_and_resume_continues(tmp_path):
     data = seqs(1, 5)
     run = tmp_path / "run"
-    # stop after the first step (a budget far below one step's time); the schedule spans 10 minutes / 300 steps
-    tcfg = TrainConfig(
-        frames_per_step=4, steps_per_epoch=3, epochs=100, minutes=10, stop_minutes=1e-6, seed=1, threads=1
-    )
+    # pause after the first step, inside the first epoch; the schedule spans 100 epochs x 3 steps
+    tcfg = TrainConfig(frames_per_step=4, steps_per_epoch=3, epochs=100, stop_step=1, seed=1, threads=1)
     t1 = Trainer(tiny("mvracklay-4"), tcfg, data, data, run, progress=False)
     t1.fit()
     assert t1.step == 1 and t1._progress() < 0.01  # paused early, far from the schedule's end
     assert t1.opt.param_groups[0]["lr"] > 0.99 * tcfg.lr
     t2 = Trainer(
         tiny("mvracklay-4"),
-        TrainConfig(**{**tcfg.__dict__, "stop_minutes": 0.0, "epochs": 2}),
+        TrainConfig(**{**tcfg.__dict__, "stop_step": 0, "epochs": 2}),
         data,
         data,
         run,
         resume=True,
         progress=False,
     )
-    assert t2.step == 1 and t2.epoch == 1
+    assert (t2.step, t2.epoch, t2.epoch_step) == (1, 0, 1)  # at the same place inside the epoch
     t2.fit()
-    assert t2.step == 4 and load_checkpoint(run / "last.pt")[1]["step"] == 4
+    assert t2.step == 6 and load_checkpoint(run / "last.pt")[1]["step"] == 6
     with pytest.raises(InputError, match="--stop-at"):
-        TrainConfig(stop_minutes=-1.0).validate()
+        TrainConfig(stop_step=-1).validate()
+    # a record of an earlier version with a pause point in minutes still reads
+    assert "stop_minutes" not in retired_options_off({"stop_minutes": 80.0}, "x")
 
 
 def test_native_bf16_is_read_from_the_cpu_flags(tmp_path):

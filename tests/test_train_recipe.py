@@ -65,12 +65,76 @@ def test_the_shipped_recipes_check_and_dry_run(tmp_path, capsys) -> None:
         assert ("train --data" in out) != (name in ("distance-reader", "look-256")), name
         assert all("--resume" in line for line in out.splitlines() if line.strip().startswith("train --data"))
     rc, out, _ = dry_run(
-        "budget-256", tmp_path / "b", capsys, "--set", "stage.stage2.minutes=0.3", "--set", "precision=fp32"
+        "budget-256", tmp_path / "b", capsys, "--set", "stage.stage2.epochs=1", "--set", "precision=fp32"
     )
-    assert "--minutes 0.3" in out and "--precision fp32" in out and "--pass-minutes <budget>" in out
+    assert "--epochs 1" in out and "--precision fp32" in out and "--pass-minutes <budget>" in out
     assert "<budget> = (120 - minutes spent - 1.5) / (1 + 1.3)" in out  # fp32's fit ratio
     assert "racklay256-stage1.pt + stage2 + rack-heads + box-depth" in out
     assert not (tmp_path / "b").exists()  # a dry run writes nothing
+
+
+def test_the_shipped_recipes_train_in_steps_and_in_bf16_where_native(tmp_path, capsys) -> None:
+    """A busy machine slows a shipped recipe without weakening it: no network stage stops at a wall minute;
+    the recipes that train a network run in the CPU's native precision (the smoke check stays fp32)."""
+    for name in shipped_recipes():
+        rc, out, err = dry_run(name, tmp_path / name, capsys)
+        assert rc == 0, err
+        lines = [ln.strip() for ln in out.splitlines()]
+        trains = [ln for ln in lines if ln.startswith(("train --data", "fit-look"))]
+        assert not any(" --minutes " in ln for ln in trains), name
+        assert all(" --epochs " in ln for ln in trains if ln.startswith("train")), name
+        if any(ln.startswith("train --data") for ln in lines) and name != "smoke":
+            assert load_recipe(name).precision == "auto", name
+            assert all(" --precision " in ln for ln in trains), name
+    rc, out, _ = dry_run("mixed-128", tmp_path / "m", capsys, "--set", "precision=fp32")
+    stage1 = next(ln for ln in out.splitlines() if "--variant racklay" in ln)
+    assert "--epochs 31" in stage1 and "--stop-at 5170" in stage1 and "--precision fp32" in stage1
+
+
+def test_auto_precision_is_bf16_only_where_the_cpu_computes_it(tmp_path) -> None:
+    from network.precision import auto_precision
+
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512_bf16\n")
+    assert auto_precision(info) == "bf16"
+    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 amx_tile amx_bf16\n")
+    assert auto_precision(info) == "bf16"
+    info.write_text("processor\t: 0\nflags\t\t: fpu sse2 avx2 avx512f fma\n")
+    assert auto_precision(info) == "fp32"
+    assert auto_precision(tmp_path / "missing") == "fp32"  # unknown: the safe one
+
+
+def test_a_recipe_without_out_keeps_its_run_in_the_cache_folder_and_goes_on_there(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    """No --out: the run folder is $XDG_CACHE_HOME/mvracklay/train/NAME; a second start skips what the first
+    finished (its state file is there), a start with the folder gone does it all again."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    recipe = tmp_path / "two.toml"
+    recipe.write_text(
+        '[vars]\nsrc = "{recipe_dir}/w.pt"\n'
+        '[[stages]]\nstage = "copy"\nid = "first"\n[stages.options]\nfrom = "{src}"\nto = "{out}/a.pt"\n'
+        '[[stages]]\nstage = "copy"\nid = "second"\n[stages.options]\nfrom = "{out}/a.pt"\nto = "{out}/b.pt"\n'
+    )
+    (tmp_path / "w.pt").write_bytes(b"weights")
+    run = tmp_path / "cache" / "mvracklay" / "train" / "two"
+    assert main(["train", "--recipe", str(recipe), "--quiet"]) == 0
+    assert (run / "b.pt").read_bytes() == b"weights" and (run / "recipe-state.json").is_file()
+    (tmp_path / "w.pt").unlink()  # the first stage could not run again: a second start must skip it
+    capsys.readouterr()
+    assert main(["train", "--recipe", str(recipe), "--quiet"]) == 0
+    assert str(run) in capsys.readouterr().out
+    (tmp_path / "w.pt").write_bytes(b"new")
+    import shutil
+
+    shutil.rmtree(run)  # the state gone: everything again
+    assert main(["train", "--recipe", str(recipe), "--quiet"]) == 0
+    assert (run / "b.pt").read_bytes() == b"new"
+
+
+def test_plain_training_still_needs_out(capsys) -> None:
+    assert main(["train", "--data", "d"]) == 2
+    assert "--out is required" in capsys.readouterr().err
 
 
 def test_a_recipe_file_runs_by_path_and_empty_values_leave_the_stage_default(tmp_path, capsys) -> None:

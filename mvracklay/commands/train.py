@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from mvracklay.training.train_network import TrainSettings
 
     add_options(p, TrainSettings)
+    out = next(a for a in p._actions if "--out" in a.option_strings)
+    out.required = False  # a recipe's run folder defaults to the user's cache folder (checked in `run` otherwise)
+    out.help = f"{out.help}; with --recipe by default $XDG_CACHE_HOME/mvracklay/train/RECIPE (~/.cache/...)"
     g = p.add_argument_group("recipe")
     g.add_argument(
         "--recipe",
@@ -62,15 +65,18 @@ def run(args: argparse.Namespace) -> int:
     if args.recipe is None:
         if args.set or args.dry_run:
             raise InputError("--set and --dry-run go with --recipe")
+        if args.out is None:
+            raise InputError("--out is required: the run folder (or the weights file with --export)")
         from mvracklay.settings import from_args
         from mvracklay.training.train_network import TrainSettings
         from mvracklay.training.train_network import run as train
 
         return train(from_args(TrainSettings, args))
     _refuse_training_options(args)
-    from mvracklay.training.runner import run_recipe
+    from mvracklay.training.runner import default_run_folder, run_recipe
 
-    return run_recipe(args.recipe, Path(args.out), list(args.set), dry_run=args.dry_run, quiet=args.quiet)
+    out = Path(args.out) if args.out is not None else default_run_folder(args.recipe)
+    return run_recipe(args.recipe, out, list(args.set), dry_run=args.dry_run, quiet=args.quiet)
 
 
 def _refuse_training_options(args: argparse.Namespace) -> None:

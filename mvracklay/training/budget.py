@@ -38,13 +38,6 @@ def run(args: BudgetSettings) -> int:
     raise InputError("the budget stage adds up a recipe's minutes: it runs inside `mvracklay train --recipe` only")
 
 
-def default_precision() -> str:
-    """bf16 where the CPU computes it natively (AVX512-BF16 or AMX), else fp32 (emulated bf16 is 18-24x slower)."""
-    from network.precision import cpu_has_native_bf16
-
-    return "bf16" if cpu_has_native_bf16() else "fp32"
-
-
 def _train_minutes(record: Path) -> float:
     if not record.is_file():
         raise InputError(f"{record}: missing (the budget counts its train_wall_minutes)")

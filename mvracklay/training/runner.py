@@ -23,7 +23,7 @@ from typing import Any, TextIO
 from layouts.errors import InputError
 from mvracklay.training import budget as budget_mod
 from mvracklay.training.plan import Step, check_steps, describe_recipe, generate_argv, shell_line, stage_step
-from mvracklay.training.recipe import Context, load_recipe
+from mvracklay.training.recipe import Context, find_recipe, load_recipe
 from mvracklay.training.stages import call_stage, run_settings
 from mvracklay.training.state import State
 
@@ -42,10 +42,23 @@ class Row:
     outputs: list[str] = field(default_factory=list)
 
 
+def default_run_folder(recipe_arg: str) -> Path:
+    """A recipe's run folder when ``--out`` is not given: ``$XDG_CACHE_HOME/mvracklay/train/NAME`` (else
+    ``~/.cache/...``), outside any work tree, so a later start on the same machine goes on where it stopped."""
+    from layouts.fileio import user_cache_dir
+
+    folder = user_cache_dir("train", find_recipe(recipe_arg).stem)
+    if folder is None:
+        raise InputError(f"--recipe {recipe_arg}: no home folder to keep the run in; give --out RUN")
+    return folder
+
+
 def run_recipe(recipe_arg: str, out: Path, overrides: list[str], dry_run: bool = False, quiet: bool = False) -> int:
     """Load, check and run (or with ``dry_run`` only print) a recipe into the run folder ``out``."""
+    from network.precision import auto_precision  # torch: imported when a recipe runs
+
     recipe = load_recipe(recipe_arg, overrides)
-    precision = budget_mod.default_precision() if recipe.precision == "auto" else recipe.precision
+    precision = auto_precision() if recipe.precision == "auto" else recipe.precision
     ctx = Context(recipe, out, precision)
     steps = check_steps(ctx, out, quiet)
     runner = Runner(ctx, out, steps, quiet, overrides)

@@ -92,14 +92,15 @@ class TrainSettings:
     steps_per_epoch: int = _opt("--steps-per-epoch", "optimiser steps per epoch", _T.steps_per_epoch, type=int)
     minutes: float = _opt(
         "--minutes",
-        "budget: wall-clock minutes spent in optimiser steps (data loading and validation not counted; 0 = none)",
+        "a cap in wall-clock minutes spent in optimiser steps, for a quick run (data loading and validation not "
+        "counted; 0 = none); the schedule then ends at the cap if it comes before --epochs x --steps-per-epoch",
         _T.minutes, type=float,
     )  # fmt: skip
-    stop_at: float = _opt(
+    stop_at: int = _opt(
         "--stop-at",
-        "pause (saving last.pt) after MIN step-minutes while the learning-rate schedule still spans --minutes; "
-        "--resume continues it (0 = no pause)",
-        _T.stop_minutes, type=float, metavar="MIN",
+        "pause (saving last.pt) after STEPS optimiser steps while the learning-rate schedule still spans "
+        "--epochs x --steps-per-epoch; --resume continues it (0 = no pause)",
+        _T.stop_step, type=int, metavar="STEPS",
     )  # fmt: skip
     frames_per_step: int = _opt("--frames-per-step", "frames per batch (all variants)", _T.frames_per_step, type=int)
     lr: float = _opt("--lr", "peak learning rate (one-cycle schedule)", _T.lr, type=float)
@@ -261,7 +262,7 @@ def _check_arguments(args: TrainSettings) -> None:
         raise InputError("--data is required for training")
     if args.layout_size < 8 or args.layout_size > 1024:
         raise InputError(f"--layout-size must be in [8, 1024], got {args.layout_size}")
-    for name in ("lr", "minutes", "stop_at"):
+    for name in ("lr", "minutes"):
         if not math.isfinite(getattr(args, name)):
             raise InputError(f"--{name} must be finite")
     if not math.isfinite(args.dist_timeout) or args.dist_timeout <= 0:
@@ -289,7 +290,7 @@ def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
         steps_per_epoch=args.steps_per_epoch,
         epochs=args.epochs,
         minutes=args.minutes,
-        stop_minutes=args.stop_at,
+        stop_step=args.stop_at,
         lr=args.lr,
         class_weights=tuple(args.class_weights),
         dice_weight=args.dice_weight,

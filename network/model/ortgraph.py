@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from layouts.errors import InputError
-from layouts.fileio import atomic_write_bytes
+from layouts.fileio import atomic_write_bytes, user_cache_dir
 
 #: names the folder of the exported parts (`cache_dir`); ``off`` (or ``0``) caches nothing
 CACHE_ENV = "MVRACKLAY_ONNX_CACHE"
@@ -74,11 +74,7 @@ def cache_dir() -> Path | None:
         return None
     if given:
         return Path(given).expanduser()
-    try:
-        base = os.environ.get("XDG_CACHE_HOME", "").strip() or Path.home() / ".cache"
-    except RuntimeError:  # no home folder to find: nothing cached
-        return None
-    return Path(base) / "mvracklay" / "onnx"
+    return user_cache_dir("onnx")  # None with no home folder to find: nothing cached
 
 
 @functools.cache

@@ -14,6 +14,9 @@ from network.precision import check_precision
 
 #: options of earlier versions (record key -> flag) that no shipped weights use: records name them at 0
 RETIRED_OPTIONS = {"prefix_frames": "--prefix-frames", "seen_weight": "--seen-weight"}
+#: keys of earlier versions dropped when read whatever their value: the pause point in minutes (a pause leaves
+#: the weights as they were; ``stop_step`` took its place)
+DROPPED_OPTIONS = ("stop_minutes",)
 
 
 @dataclass
@@ -24,11 +27,9 @@ class TrainConfig:
     steps_per_epoch: int = 200
     epochs: int = 40
     minutes: float = (
-        0.0  #: budget in wall-clock minutes of optimiser steps (0 = none; loading and validation not counted)
+        0.0  #: a wall-clock cap in minutes of optimiser steps (0 = none): a quick run's; recipes budget in steps
     )
-    stop_minutes: float = (
-        0.0  #: pause once this many step-minutes are done (0 = none); the schedule still spans `minutes`
-    )
+    stop_step: int = 0  #: pause once this many optimiser steps are done (0 = none); the schedule still spans them all
     lr: float = 1e-3
     lr_floor: float = 0.05
     weight_decay: float = 1e-5
@@ -62,11 +63,12 @@ class TrainConfig:
                 raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
         if self.checkpoint_every < 0:
             raise InputError(f"--checkpoint-every must be >= 0, got {self.checkpoint_every}")
+        if self.stop_step < 0:
+            raise InputError(f"--stop-at must be a number of steps >= 0, got {self.stop_step}")
         if self.device not in ("auto", "cpu", "cuda"):
             raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
         for name in (
             "minutes",
-            "stop_minutes",
             "lr",
             "dice_weight",
             "row_weight",
@@ -77,8 +79,7 @@ class TrainConfig:
         ):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
-                flag = {"stop_minutes": "stop-at"}.get(name, name.replace("_", "-"))
-                raise InputError(f"--{flag} must be a finite number >= 0, got {v}")
+                raise InputError(f"--{name.replace('_', '-')} must be a finite number >= 0, got {v}")
         check_jpeg(self.jpeg, tuple(self.jpeg_quality), ("--jpeg", "--jpeg-quality"))
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
@@ -105,7 +106,7 @@ class TrainConfig:
 def retired_options_off(d: dict[str, Any], source: str) -> dict[str, Any]:
     """``d`` (a record's train config) without the `RETIRED_OPTIONS` it names at 0; one line naming the first
     that is on (a run trained with it cannot be resumed the same way)."""
-    d = dict(d)
+    d = {k: v for k, v in d.items() if k not in DROPPED_OPTIONS}
     for name, flag in RETIRED_OPTIONS.items():
         v = d.pop(name, 0)
         if v != 0:

@@ -3,8 +3,8 @@
 A run folder holds ``last.pt`` / ``best.pt`` (+ ``.json`` records) and ``metrics.jsonl`` (one
 JSON object per epoch: step, wall and CPU minutes, mean losses, validation Table I). Epochs are
 ``steps_per_epoch`` optimiser steps over randomly drawn windows; the learning rate follows a
-cosine from ``lr`` to ``lr * lr_floor`` over the run (by steps or by the minute budget, whichever
-is further along). ``resume=True`` continues from ``last.pt`` with its optimiser state, step count
+cosine from ``lr`` to ``lr * lr_floor`` over the run's ``epochs x steps_per_epoch`` steps (or a minute
+cap, ``minutes``, whichever is further along); ``stop_step`` pauses the run inside that schedule. ``resume=True`` continues from ``last.pt`` with its optimiser state, step count
 and elapsed time; a checkpoint taken inside an epoch (``checkpoint_every``, Ctrl-C) resumes at the
 same place in the epoch's seeded window order, so a killed and resumed run trains on the same
 windows as an uninterrupted one.
@@ -261,13 +261,14 @@ class Trainer:
         return lr
 
     def _out_of_time(self) -> bool:
-        t = self.tcfg
-        return (t.minutes > 0 and self.wall_s >= 60 * t.minutes) or (
-            t.stop_minutes > 0 and self.wall_s >= 60 * t.stop_minutes
-        )
+        return self.tcfg.minutes > 0 and self.wall_s >= 60 * self.tcfg.minutes
+
+    def _paused(self) -> bool:
+        """The pause step reached (the schedule still spans every step; --resume without it goes on)."""
+        return self.tcfg.stop_step > 0 and self.step >= self.tcfg.stop_step
 
     def _done(self) -> bool:
-        return self._out_of_time() or self.epoch >= self.tcfg.epochs
+        return self._out_of_time() or self._paused() or self.epoch >= self.tcfg.epochs
 
     # ------------------------------------------------------------------ one step
     def _autocast(self) -> torch.autocast:
@@ -404,6 +405,10 @@ class Trainer:
                         self.epoch_sums[k] = self.epoch_sums.get(k, 0.0) + v
                     self._timed(w0, c0)
                     bar.set_postfix(loss=f"{res['total']:.3f}", lr=f"{lr:.1e}")
+                    if self._paused() and self.epoch_step < self.tcfg.steps_per_epoch:
+                        self._sync_fingerprints()  # inside an epoch: saved where it is, to go on at this window
+                        self._save("last", metrics)
+                        return self._record(metrics)
                     if self._out_of_time():
                         break
                     if every and self.step % every == 0 and self.epoch_step < self.tcfg.steps_per_epoch:
