@@ -1,7 +1,8 @@
 """What changed between two scans of a building: per location the boxes added, removed, moved (from -> to) and
 shifted along their level, and the change of free space, each with a confidence.
 
-Both maps are `BuildingMap`s of the same building (any route poses, camera distances or passes): their boxes
+Both maps are `BuildingMap`s of the same building (any route poses, camera distances or passes; two maps whose
+location codes or floor plans differ are refused, `building_difference`): their boxes
 are compared in the building frame, per face and level, in four rounds (`DiffConfig`):
 
 1. **the same box**: an old and a new box (of similar size) whose centres lie within ``same`` along the
@@ -29,10 +30,14 @@ from scipy.optimize import linear_sum_assignment
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap, FaceMap, Location
+from stitching.building_route import FacePlan
 from stitching.free_space import shelf_free_space
 from stitching.warehouse_map import MapBox, MapShelf
 
 CHANGES = ("added", "removed", "moved", "shifted")
+#: how far two scans' floor plans may differ and still be one building's (metres): a face's front line, its
+#: ends along X, each board's height (a plan measured again by hand)
+SAME_FRONT, SAME_END, SAME_LEVEL = 0.25, 0.5, 0.15
 CHANGE_COLUMNS = (
     "location", "change", "other_location", "boxes", "size", "box_ids", "old_box_ids", "x", "old_x", "note",
     "confidence",
@@ -113,6 +118,50 @@ class BuildingDiff:
         return {k: sum(1 for c in self.changes if c.change == k) for k in CHANGES}
 
 
+def _faces(keys: Any) -> str:
+    return ", ".join(f"{a:02d}-{s}" for a, s in sorted(keys)) or "none"
+
+
+def _plan_difference(a: FacePlan, b: FacePlan) -> str | None:
+    name = f"face {a.aisle:02d}-{a.side}"
+    if abs(a.front_z - b.front_z) > SAME_FRONT:
+        return f"{name}'s front line lies at z {a.front_z:g} in the old map, {b.front_z:g} in the new"
+    for end in ("x_min", "x_max"):
+        u, v = getattr(a, end), getattr(b, end)
+        if u is not None and v is not None and abs(u - v) > SAME_END:
+            return f"{name}'s {end} is {u:g} in the old map, {v:g} in the new"
+    if a.levels_m and b.levels_m:
+        if len(a.levels_m) != len(b.levels_m):
+            return f"{name} has {len(a.levels_m)} levels in the old map, {len(b.levels_m)} in the new"
+        for k, (u, v) in enumerate(zip(a.levels_m, b.levels_m), start=1):
+            if abs(u - v) > SAME_LEVEL:
+                return f"{name}'s level {k} board is {u:g} m high in the old map, {v:g} m in the new"
+    return None
+
+
+def building_difference(old: BuildingMap, new: BuildingMap) -> str | None:
+    """Why ``old`` and ``new`` cannot be two scans of one building, or None: their location codes differ, or
+    their floor plans (the route's faces, each face's front line, ends and boards' heights within `SAME_FRONT`,
+    `SAME_END`, `SAME_LEVEL`) do; maps without a floor plan: a face both mapped whose front line differs, or
+    no face in common."""
+    if (old.code, old.positions) != (new.code, new.positions):
+        return (
+            f"their location codes differ ({old.code!r} with {old.positions} positions a level, {new.code!r} with "
+            f"{new.positions}); map both with the same --code and --positions"
+        )
+    if old.plan and new.plan:
+        a, b = {f.key: f for f in old.plan}, {f.key: f for f in new.plan}
+        if set(a) != set(b):
+            return f"their floor plans list other faces (old: {_faces(a)}; new: {_faces(b)})"
+        plans = [(a[k], b[k]) for k in sorted(a)]
+    else:
+        a, b = {f.key: f for f in old.faces}, {f.key: f for f in new.faces}
+        if not set(a) & set(b):
+            return f"no rack face in common (old: {_faces(a)}; new: {_faces(b)})"
+        plans = [(FacePlan(*k, a[k].front_z), FacePlan(*k, b[k].front_z)) for k in sorted(set(a) & set(b))]
+    return next((said for pa, pb in plans if (said := _plan_difference(pa, pb))), None)
+
+
 def _seen(bmap: BuildingMap) -> dict[str, tuple[FaceMap, MapShelf, Location]]:
     return {loc.code: (f, s, loc) for f, s, loc in bmap.locations()}
 
@@ -157,6 +206,9 @@ def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None
     """The changes from ``old`` to ``new`` (see the module docstring)."""
     if not isinstance(old, BuildingMap) or not isinstance(new, BuildingMap):
         raise InputError("diff: both maps must be building maps (`mvracklay map`'s building.json)")
+    said = building_difference(old, new)
+    if said:
+        raise InputError(f"{old.source} and {new.source} are maps of different buildings: {said}")
     cfg = config or DiffConfig.for_maps(old, new)
     seen_old, seen_new = _seen(old), _seen(new)
     old_boxes = [b for b in _boxes(old) if _covered(b, seen_new)]

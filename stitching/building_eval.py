@@ -22,6 +22,7 @@ from scipy.optimize import linear_sum_assignment
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap
+from stitching.building_schema import check_change_rows, check_inventory
 from stitching.geometry import Cuboid, iou_matrix
 
 
@@ -77,9 +78,15 @@ def truth_stacks(truth: dict[str, Any]) -> dict[tuple[int, str, int], list[tuple
 
 
 def evaluate_building(
-    bmap: BuildingMap, truth: dict[str, Any], truth_rows: list[dict[str, str]], iou_threshold: float = 0.5
+    bmap: BuildingMap,
+    truth: dict[str, Any],
+    truth_rows: list[dict[str, str]],
+    iou_threshold: float = 0.5,
+    source: str = "ground_truth/inventory.csv",
 ) -> BuildingEval:
-    """Locations and boxes of ``bmap`` against a building's ground truth (its JSON and inventory rows)."""
+    """Locations and boxes of ``bmap`` against a building's ground truth (its JSON and inventory rows, read from
+    ``source``: refused in one line when they break the inventory's schema)."""
+    check_inventory(truth_rows, source)
     counted = {r["location"]: r for r in truth_rows if r.get("pass")}
     all_codes = {r["location"] for r in truth_rows}
     rows = {r["location"]: r for r in bmap.inventory()}
@@ -121,10 +128,14 @@ def evaluate_building(
     return BuildingEval(len(counted), exact, missed, invented, tp, fp, fn, float(np.mean(ious)) if ious else 0.0, wrong)
 
 
-def evaluate_changes(found: list[dict[str, Any]], truth: list[dict[str, str]]) -> dict[str, dict[str, float]]:
-    """Precision and recall per change category of diff rows against a rescan's ``changes.csv`` rows: a change
-    is right where the truth has the same category at the same location (for a move, from the same location
-    too), each truth row matched at most once."""
+def evaluate_changes(
+    found: list[dict[str, Any]], truth: list[dict[str, str]], source: str = "--truth"
+) -> dict[str, dict[str, float]]:
+    """Precision and recall per change category of diff rows against a rescan's ``changes.csv`` rows (read from
+    ``source``: refused in one line when they break the changes' schema): a change is right where the truth has
+    the same category at the same location (for a move, from the same location too), each truth row matched at
+    most once."""
+    check_change_rows(truth, source)
     from collections import Counter
 
     def key(r: dict) -> tuple[str, str, str]:

@@ -300,4 +300,5 @@ def fuse_building(
         )  # fmt: skip
         for p in placed
     ]
-    return BuildingMap(faces, placements, code, positions, dict(meta or {}))
+    plan = tuple(f for _, f in sorted(route.faces.items()))
+    return BuildingMap(faces, placements, code, positions, dict(meta or {}), plan)

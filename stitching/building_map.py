@@ -24,6 +24,8 @@ from typing import Any
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, atomic_write_text, load_json
 from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, inventory_csv
+from stitching.building_route import FacePlan, plan_dict, plan_face
+from stitching.building_schema import check_building, check_inventory
 from stitching.free_space import ShelfFreeSpace, shelf_free_space
 from stitching.geometry import Cuboid
 from stitching.warehouse_map import MapShelf, WarehouseMap
@@ -62,6 +64,10 @@ class FaceMap:
     bays: dict[str, int] = field(default_factory=dict)  #: rack id -> bay number
 
     @property
+    def key(self) -> tuple[int, str]:
+        return (self.aisle, self.side)
+
+    @property
     def sign(self) -> float:
         """+1 for an R face, -1 for an L face: building X = sign * face X, building Z = front + sign * face Z."""
         return 1.0 if self.side == "R" else -1.0
@@ -97,6 +103,9 @@ class BuildingMap:
     code: str = DEFAULT_CODE
     positions: int = 1
     meta: dict[str, Any] = field(default_factory=dict)
+    #: the floor plan (the route's faces, mapped or not): what makes two maps maps of one building; () unknown
+    plan: tuple[FacePlan, ...] = ()
+    source: str = field(default="building map", compare=False, repr=False)  #: the file it was read from
 
     def face(self, aisle: int, side: str) -> FaceMap:
         for f in self.faces:
@@ -158,6 +167,7 @@ class BuildingMap:
             "code": self.code,
             "positions": self.positions,
             "meta": self.meta,
+            **({"plan": [plan_dict(f) for f in self.plan]} if self.plan else {}),
             "passes": [
                 {
                     "name": p.name,
@@ -201,6 +211,7 @@ class BuildingMap:
             raise InputError(f"{source}: not a building map (format must be {BUILDING_FORMAT!r})")
         if d.get("version") != BUILDING_VERSION:
             raise InputError(f"{source}: building map version {d.get('version')!r} is not supported")
+        check_building(d, source)  # the declared schema: finite, in range, unique, each record with its shelf
         try:
             faces = []
             for f in d["faces"]:
@@ -233,14 +244,17 @@ class BuildingMap:
                 for p in d["passes"]
             ]
             positions = int(d["positions"])
-            return cls(
-                faces, passes, check_code_format(str(d["code"]), positions), positions, dict(d.get("meta") or {})
-            )
+            plan = tuple(plan_face(f) for f in d.get("plan") or ())
+            return cls(faces, passes, check_code_format(str(d["code"]), positions), positions,
+                       dict(d.get("meta") or {}), plan, source)  # fmt: skip
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise InputError(f"{source}: malformed building map ({type(e).__name__}: {e})") from None
 
     def save(self, path: str | os.PathLike) -> None:
-        atomic_write_json(path, self.to_dict())
+        """Write ``building.json`` (atomic), held to its schema first (a map that breaks it: `ContractError`)."""
+        doc = self.to_dict()
+        check_building(doc, str(path), built=True)
+        atomic_write_json(path, doc)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> BuildingMap:
@@ -257,6 +271,7 @@ def _finite(v: Any) -> float:
 def write_inventory(bmap: BuildingMap, out_dir: str | os.PathLike) -> list[dict[str, Any]]:
     """``inventory.csv`` and ``inventory.json`` (the same rows) in ``out_dir``, atomically; returns the rows."""
     rows = bmap.inventory()
+    check_inventory(rows, os.path.join(out_dir, "inventory.csv"), built=True)
     atomic_write_text(os.path.join(out_dir, "inventory.csv"), inventory_csv(rows))
     atomic_write_json(
         os.path.join(out_dir, "inventory.json"),

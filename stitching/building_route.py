@@ -17,12 +17,21 @@ from dataclasses import dataclass, field, replace
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, model_validator
 
 from layouts.errors import InputError, first_problem
 from layouts.fileio import load_json
 
 Finite = Annotated[float, Field(allow_inf_nan=False, ge=-1e5, le=1e5)]
+Aisle = Annotated[StrictInt, Field(ge=1, le=9999)]
+Side = Annotated[str, Field(pattern="^[LR]$")]
+Level = Annotated[StrictInt, Field(ge=1, le=99)]
+
+
+def _rising(values: list[Any] | None, name: str) -> None:
+    for a, b in zip(values or [], (values or [])[1:]):
+        if b <= a:
+            raise ValueError(f"{name} must rise from the lowest up, each once, got {list(values or [])}")
 
 
 class _Start(BaseModel):
@@ -35,27 +44,41 @@ class _Start(BaseModel):
 class _Pass(BaseModel):
     model_config = ConfigDict(extra="ignore")
     sequence: str = Field(min_length=1)
-    aisle: Annotated[StrictInt, Field(ge=1, le=9999)]
-    side: str = Field(pattern="^[LR]$")
+    aisle: Aisle
+    side: Side
     start: _Start
     height: Annotated[float, Field(allow_inf_nan=False, gt=0, le=100)] | None = None
-    levels: list[Annotated[StrictInt, Field(ge=1, le=99)]] | None = None
-    first_level: Annotated[StrictInt, Field(ge=1, le=99)] = 1
+    levels: list[Level] | None = None
+    first_level: Level = 1
+
+    @model_validator(mode="after")
+    def _order(self) -> _Pass:
+        _rising(self.levels, "levels")
+        return self
 
 
-class _Face(BaseModel):
+class PlanFace(BaseModel):
+    """A face of the floor plan (the route's ``faces``; a building map keeps them as its ``plan``)."""
+
     model_config = ConfigDict(extra="ignore")
-    aisle: Annotated[StrictInt, Field(ge=1, le=9999)]
-    side: str = Field(pattern="^[LR]$")
+    aisle: Aisle
+    side: Side
     front_z: Finite
     x_min: Finite | None = None
     x_max: Finite | None = None
     levels_m: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=100)]] | None = None
 
+    @model_validator(mode="after")
+    def _order(self) -> PlanFace:
+        if self.x_min is not None and self.x_max is not None and self.x_min >= self.x_max:
+            raise ValueError(f"x_min {self.x_min} must lie below x_max {self.x_max}")
+        _rising(self.levels_m, "levels_m (the boards' heights)")
+        return self
+
 
 class _Route(BaseModel):
     model_config = ConfigDict(extra="ignore")
-    faces: list[_Face] = Field(min_length=1)
+    faces: list[PlanFace] = Field(min_length=1)
     passes: list[_Pass] = Field(min_length=1)
 
 
@@ -123,12 +146,11 @@ def parse_route(doc: Any, source: str = "route") -> Route:
     for f in r.faces:
         if (f.aisle, f.side) in faces:
             raise InputError(f"{source}: face {f.aisle:02d}-{f.side} is listed twice")
-        if f.x_min is not None and f.x_max is not None and f.x_min >= f.x_max:
-            raise InputError(f"{source}: face {f.aisle:02d}-{f.side} has x_min >= x_max")
-        faces[(f.aisle, f.side)] = FacePlan(f.aisle, f.side, f.front_z, f.x_min, f.x_max, tuple(f.levels_m or ()))
+        faces[(f.aisle, f.side)] = plan_face(f)
     passes, names = [], set()
-    for p in r.passes:
-        if (p.aisle, p.side) not in faces:
+    for k, p in enumerate(r.passes):
+        face = faces.get((p.aisle, p.side))
+        if face is None:
             raise InputError(
                 f"{source}: pass {p.sequence!r} is on face {p.aisle:02d}-{p.side}, which faces does not list"
             )
@@ -136,10 +158,30 @@ def parse_route(doc: Any, source: str = "route") -> Route:
             raise InputError(f"{source}: pass {p.sequence!r} is listed twice")
         names.add(p.sequence)
         levels = tuple(p.levels) if p.levels else None
+        n = len(face.levels_m)
+        key, top = ("levels", max(levels)) if levels else ("first_level", p.first_level)
+        if n and top > n:
+            raise InputError(
+                f"{source}: passes[{k}].{key}: level {top} of pass {p.sequence!r} is above the {n} levels of "
+                f"face {face.aisle:02d}-{face.side} (its levels_m)"
+            )
         passes.append(
             PassPose(p.sequence, p.aisle, p.side, p.start.x, p.start.z, p.start.heading_deg, levels, p.first_level)
         )
     return Route(faces, passes, source)
+
+
+def plan_face(f: PlanFace | dict[str, Any]) -> FacePlan:
+    """A face of the floor plan from its record (a route's ``faces`` entry, a building map's ``plan`` entry)."""
+    f = f if isinstance(f, PlanFace) else PlanFace.model_validate(f)
+    return FacePlan(f.aisle, f.side, f.front_z, f.x_min, f.x_max, tuple(f.levels_m or ()))
+
+
+def plan_dict(f: FacePlan) -> dict[str, Any]:
+    """The record of a face of the floor plan, as a route holds it (unknown fields left out)."""
+    out: dict[str, Any] = {"aisle": f.aisle, "side": f.side, "front_z": f.front_z}
+    out.update({k: v for k, v in (("x_min", f.x_min), ("x_max", f.x_max)) if v is not None})
+    return out | ({"levels_m": list(f.levels_m)} if f.levels_m else {})
 
 
 def load_route(path: str | os.PathLike) -> Route:
