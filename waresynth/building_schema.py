@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, f
 
 from layouts.errors import InputError, first_problem
 from layouts.fileio import load_json
+from layouts.locations import check_code_format
 
 #: the default building: what each key means is in docs/waresynth.md ("Buildings")
 BUILDING_DEFAULTS: dict[str, Any] = {
@@ -105,11 +106,11 @@ class BuildingDoc(BaseModel):
     @field_validator("code")
     @classmethod
     def _code(cls, v: str) -> str:
+        """A format whose fields tell every location apart (`layouts.locations.check_code_format`)."""
         try:
-            v.format(aisle=1, side="L", bay=1, level=1, position=1)
-        except (KeyError, IndexError, ValueError) as e:
-            raise ValueError(f"a format string of aisle, side, bay, level and position, got {v!r} ({e})") from None
-        return v
+            return check_code_format(v)
+        except InputError as e:
+            raise ValueError(str(e)) from None
 
     @model_validator(mode="after")
     def _whole(self) -> BuildingDoc:
