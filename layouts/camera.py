@@ -11,6 +11,10 @@ import numpy as np
 from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 
+#: the fields of view (degrees, each way) a pinhole camera may have: a focal length beyond them is a typo or a unit
+#: mistake (1e308, 1e-300), not a lens
+FOV_RANGE_DEG = (0.1, 179.0)
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -39,6 +43,23 @@ class Intrinsics:
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise LayoutError(f"Intrinsics.{name} must be an integer in [1, 16384], got {v!r}")
             object.__setattr__(self, name, int(v))
+        self._check_physical()
+
+    def _check_physical(self) -> None:
+        """The range check of a camera, wherever it comes from (a ``--camera`` file or option, a meta.json, a
+        checkpoint's record, the API): each field of view within `FOV_RANGE_DEG` and the principal point inside
+        the image; anything else describes no camera and only yields divisions by zero or empty views later."""
+        low, high = FOV_RANGE_DEG
+        for f, size, name, way in (("fx", self.width, "horizontal", "wide"), ("fy", self.height, "vertical", "high")):
+            fov = math.degrees(2 * math.atan(size / (2 * getattr(self, f))))
+            if not low <= fov <= high:
+                raise LayoutError(
+                    f"{f} = {getattr(self, f):g} gives a {name} field of view of {fov:.3g} deg for an image {size} "
+                    f"pixels {way}; a camera's lies within [{low:g}, {high:g}] deg"
+                )
+        for c, size, way in (("cx", self.width, "wide"), ("cy", self.height, "high")):
+            if not 0.0 <= getattr(self, c) <= size:
+                raise LayoutError(f"{c} = {getattr(self, c):g} is outside the image ({size} pixels {way})")
 
     @classmethod
     def from_fov(cls, width: int, height: int, hfov_deg: float) -> Intrinsics:

@@ -47,11 +47,8 @@ _ASPECT_TOL = 0.01
 
 
 def check_camera_fits(intr: Intrinsics, width: int, height: int, where: str) -> None:
-    """Refuse a camera record that cannot describe ``width x height`` frames: its principal point outside its
-    own image, or its image of another aspect ratio (scaling it would stretch the camera)."""
-    for name, v, size, side in (("cx", intr.cx, intr.width, "wide"), ("cy", intr.cy, intr.height, "high")):
-        if not 0.0 <= v <= size:
-            raise InputError(f"{where}: {name} = {v:g} is outside the image ({size} pixels {side})")
+    """Refuse a camera record that cannot describe ``width x height`` frames: its image of another aspect ratio
+    (scaling it would stretch the camera). Its own ranges (fields of view, principal point) are `Intrinsics`'s."""
     if (intr.width, intr.height) == (width, height):
         return
     ratio, frames = intr.width / intr.height, width / height

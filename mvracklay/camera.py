@@ -54,8 +54,8 @@ def load_camera(path: str | os.PathLike, width: int, height: int) -> Intrinsics:
 
 def camera_from_record(record: dict[str, Any], width: int, height: int, source: str) -> Intrinsics:
     """The one check of a camera, from a ``--camera`` file or typed as fx,fy,cx,cy: `Intrinsics` fields (width
-    and height default to the frames'), the principal point inside the image and the frames' aspect ratio
-    (`check_camera_fits`), scaled to the frame size."""
+    and height default to the frames'; fields of view and principal point in their physical ranges) and the
+    frames' aspect ratio (`check_camera_fits`), scaled to the frame size."""
     intr = Intrinsics.from_dict({"width": width, "height": height, **record}, source)
     check_camera_fits(intr, width, height, source)
     return intr if (intr.width, intr.height) == (width, height) else intr.scaled(width, height)

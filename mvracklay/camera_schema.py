@@ -5,8 +5,10 @@ refer to) and optionally the lens's distortion (OpenCV's k1, k2, p1, p2, k3), at
 under ``"intrinsics"`` (the lens typically beside it), and nothing else. Refused, in one line naming the file
 and the field: unknown keys, a key given both inside and beside ``"intrinsics"``, fx, fy, cx or cy missing,
 numbers that are not finite or not numbers, focal lengths <= 0, an image size outside [1, 16384] pixels,
-a lens coefficient beyond +-2. Whether the camera fits the frames (principal point inside its image, the same
-aspect ratio) is `layouts.camera_record.check_camera_fits`'s, for files and inline cameras alike.
+a lens coefficient beyond +-2. The camera's physical ranges (each field of view within
+`layouts.camera.FOV_RANGE_DEG`, the principal point inside its image) are `layouts.Intrinsics`'s, and whether it
+fits the frames (the same aspect ratio) `layouts.camera_record.check_camera_fits`'s, for files and inline cameras
+alike.
 """
 
 from __future__ import annotations

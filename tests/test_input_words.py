@@ -1,0 +1,77 @@
+"""What a wrong input is told: one line naming the file or argument and the problem, exit status 2, in words
+that say what the input is (a folder, a text file, a cut file), never a traceback nor a message cut short;
+an unphysical camera refused where every camera is built; no secret of a stream URL printed or recorded."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from layouts import Intrinsics
+from layouts.errors import InputError
+from mvracklay.cli import main
+
+QUIET = ["--quiet", "--no-rrd", "--threads", "1"]
+
+
+def one_line(capsys: pytest.CaptureFixture[str], rc: int, command: str, *needles: str) -> str:
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert rc == 2, err
+    assert len(lines) == 1 and lines[0].startswith(f"mvracklay {command}: error: "), err
+    for n in needles:
+        assert n in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def seq(tiny_dataset: Path) -> Path:
+    return tiny_dataset / "seq_00000"
+
+
+# --- cameras ---------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "fields, problem",
+    [
+        ({"fx": 1e308}, "fx = 1e+308 gives a horizontal field of view of 0 deg"),
+        ({"fy": 1e308}, "fy = 1e+308 gives a vertical field of view of 0 deg"),
+        ({"fx": 1e-300}, "fx = 1e-300 gives a horizontal field of view of 180 deg"),
+        ({"cx": 1e308}, "cx = 1e+308 is outside the image (128 pixels wide)"),
+        ({"cy": -3.0}, "cy = -3 is outside the image (128 pixels high)"),
+    ],
+)
+def test_an_unphysical_camera_file_is_one_line(seq, tiny_checkpoint, tmp_path, capsys, fields, problem):
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"fx": 110.0, "fy": 110.0, "cx": 64.0, "cy": 64.0, **fields}))
+    argv = ["--out", str(tmp_path / "o"), "--camera", str(cam), "--checkpoint", str(tiny_checkpoint), "--quiet"]
+    one_line(capsys, main(["run", str(seq), *argv, "--no-rrd"]), "run", f"--camera {cam}: {problem}")
+    one_line(capsys, main(["predict", str(seq), *argv]), "predict", f"--camera {cam}: {problem}")
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_unphysical_inline_camera_and_meta_json_are_one_line(seq, tiny_checkpoint, tmp_path, capsys):
+    out = ["--out", str(tmp_path / "o"), "--checkpoint", str(tiny_checkpoint), "--quiet"]
+    rc = main(["predict", str(seq), *out, "--camera", "1e308,1e308,64,64"])
+    one_line(capsys, rc, "predict", "--camera 1e308,1e308,64,64: fx = 1e+308 gives a horizontal field of view")
+    bad = tmp_path / "seq"
+    shutil.copytree(seq, bad)
+    meta = json.loads((bad / "meta.json").read_text())
+    meta["intrinsics"]["fy"] = 1e308
+    (bad / "meta.json").write_text(json.dumps(meta))
+    before = (bad / "meta.json").read_bytes()
+    one_line(capsys, main(["run", str(bad), *out, "--no-rrd"]), "run", f"{bad / 'meta.json'}: fy = 1e+308 gives")
+    assert (bad / "meta.json").read_bytes() == before and not (tmp_path / "o").exists()
+
+
+def test_intrinsics_refuse_unphysical_values_wherever_they_are_built():
+    with pytest.raises(InputError, match=r"^fx = 1e\+308 gives a horizontal field of view of 0 deg .*\[0.1, 179\]"):
+        Intrinsics(1e308, 1e308, 32.0, 32.0, 64, 64)
+    with pytest.raises(InputError, match=r"^ckpt \(intrinsics\): cx = 65 is outside the image \(64 pixels wide\)$"):
+        Intrinsics.from_dict(
+            {"fx": 50.0, "fy": 50.0, "cx": 65.0, "cy": 32.0, "width": 64, "height": 64}, "ckpt (intrinsics)"
+        )
+    assert Intrinsics.from_fov(64, 64, 170.0).hfov_deg == pytest.approx(170.0)  # the generator's widest
+    assert Intrinsics(20000.0, 20000.0, 32.0, 32.0, 64, 64).hfov_deg > 0.1  # a long telephoto is a camera
