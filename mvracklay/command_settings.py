@@ -35,11 +35,18 @@ class GenerateSettings:
         "--sequences", "sequences (one scene + camera path each)", 10, metavar="N", type=int, range=(1, 100000)
     )
     frames: int = setting("--frames", "frames per sequence", 50, metavar="F", type=int, range=(1, 100000))
-    size: int = setting("--size", "image width and height in pixels", 256, metavar="S", type=int, range=(16, 8192))
-    layout_size: int = setting(
-        "--layout-size", "layout resolution (pixels per side)", 128, metavar="D", type=int, range=(1, 4096)
+    #: None: not given (256, 128 and 3; a rescan takes SCAN's)
+    size: int | None = setting(
+        "--size", "image width and height in pixels (default 256; --rescan: SCAN's)", metavar="S", type=int,
+        range=(16, 8192),
+    )  # fmt: skip
+    layout_size: int | None = setting(
+        "--layout-size", "layout resolution, pixels per side, at least 8 (default 128; --rescan: SCAN's)",
+        metavar="D", type=int, range=(8, 4096),
+    )  # fmt: skip
+    slots: int | None = setting(
+        "--slots", "shelf slots per layout (default 3; --rescan: SCAN's)", metavar="R", type=int, range=(1, 16)
     )
-    slots: int = setting("--slots", "shelf slots per layout", 3, metavar="R", type=int, range=(1, 16))
     seed: int = setting("--seed", "dataset seed (same seed + config -> same bytes)", 0, type=int, range=(0, 2**63 - 1))
     config: Path | None = setting(
         "--config",

@@ -42,7 +42,7 @@ def generate_building(
     *,
     building: dict[str, Any] | str | os.PathLike | None = None,
     image_size: tuple[int, int] | None = None,
-    spec: LayoutSpec | None = None,
+    spec: LayoutSpec | dict[str, int] | None = None,
     seed: int = 0,
     config: dict[str, Any] | str | os.PathLike | None = None,
     workers: int = 1,
@@ -56,7 +56,8 @@ def generate_building(
     config (a dict, a JSON file or None for `waresynth.building_schema.BUILDING_DEFAULTS`); ``config``: the
     generator config, as for `waresynth.generate.generate_dataset`; ``image_size`` None: 256 x 256.
     ``rescan``: a building dataset to scan again after changes (its racks, configs, spec and image size; the
-    options given must agree with them, `waresynth.building_rescan.open_rescan`); ``tasks``: where the passes
+    options given must agree with them, `waresynth.building_rescan.open_rescan`; ``spec`` may then be a dict of
+    the spec's fields given, e.g. ``{"size": 64}``); ``tasks``: where the passes
     are written (`waresynth.generate.write_dataset`)."""
     if rescan is not None:
         return _rescan(out_dir, rescan, building, image_size, spec, seed, config, workers, overwrite, progress, stats,
@@ -73,11 +74,12 @@ def generate_building(
 
 
 def _rescan(out_dir: str | os.PathLike, rescan: str | os.PathLike, building: dict[str, Any] | str | os.PathLike | None,
-            image_size: tuple[int, int] | None, spec: LayoutSpec | None, seed: int,
+            image_size: tuple[int, int] | None, spec: LayoutSpec | dict[str, int] | None, seed: int,
             config: dict[str, Any] | str | os.PathLike | None, workers: int, overwrite: bool, progress: bool,
             stats: list[dict[str, Any]] | None, tasks: TaskMap | None = None) -> Path:  # fmt: skip
     """``generate_building(..., rescan=OUT)``: OUT's stock changed by ``seed``, scanned by passes of its own."""
-    seed, workers, _, _ = check_writer_args(seed, workers, spec, (256, 256) if image_size is None else image_size)
+    layout = spec if isinstance(spec, LayoutSpec) else None  # a dict: only the spec's fields given
+    seed, workers, _, _ = check_writer_args(seed, workers, layout, (256, 256) if image_size is None else image_size)
     refuse_overlap([out_dir], {"--rescan": rescan}, "OUT")
     r = open_rescan(rescan, building=building, config=config, spec=spec, image_size=image_size)
     changed, changes = apply_changes(r.stock, r.building["changes"], seed, r.config)

@@ -111,11 +111,12 @@ def open_rescan(
     *,
     building: dict[str, Any] | str | os.PathLike | None,
     config: dict[str, Any] | str | os.PathLike | None,
-    spec: LayoutSpec | None,
+    spec: LayoutSpec | dict[str, Any] | None,
     image_size: tuple[int, int] | None,
 ) -> Rescan:
-    """Read and check a rescan of ``source``: the options given (None: OUT's) must keep OUT's racks (one line
-    naming what differs); OUT's stock is planned again and must match its ``ground_truth/building.json``."""
+    """Read and check a rescan of ``source``: the options given (None: OUT's; ``spec`` a `LayoutSpec` or a dict
+    of the fields given) must keep OUT's racks (one line naming what differs); OUT's stock is planned again and
+    must match its ``ground_truth/building.json``."""
     source = Path(source)
     m = _read(source)
     try:
@@ -141,8 +142,11 @@ def open_rescan(
             )
         cfg = given
     own_spec = LayoutSpec.from_dict(m["spec"], f"{source / 'manifest.json'}: spec")
-    if spec is not None and spec.to_dict() != own_spec.to_dict():
-        raise InputError(f"--rescan {source}: the layout spec (--slots / --layout-size) differs from its own")
+    given = spec.to_dict() if isinstance(spec, LayoutSpec) else dict(spec or {})
+    differ = {k: v for k, v in given.items() if own_spec.to_dict().get(k) != v}
+    if differ:
+        said = ", ".join(f"{k} {v} (its own {own_spec.to_dict().get(k)})" for k, v in differ.items())
+        raise InputError(f"--rescan {source}: the layout spec (--slots / --layout-size) differs from its own: {said}")
     size = m["image_size"]
     if not (isinstance(size, list) and len(size) == 2 and all(_int(v) for v in size)):
         raise InputError(f"{source / 'manifest.json'}: image_size must be [width, height], got {size!r}")

@@ -28,6 +28,7 @@ DESCRIPTION = (
 
 
 SETTINGS = GenerateSettings
+DEFAULT_SIZE = 256  #: image width and height without --size (a rescan: SCAN's)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,7 +62,8 @@ def run(args: GenerateSettings) -> int:
             config = read_manifest(args.rescan)[1].get("config")
         config = load_config(config)  # the file checked under its own name first
         config["sensor"]["supersample"] = args.supersample
-    spec = LayoutSpec(num_slots=args.slots, size=args.layout_size)
+    given = {k: v for k, v in (("num_slots", args.slots), ("size", args.layout_size)) if v is not None}
+    spec = LayoutSpec(**given)
     tasks = None
     if args.ray is not None:  # one Ray task per sequence or pass (mvracklay.parallel)
         from mvracklay.parallel import connect, task_map
@@ -69,12 +71,13 @@ def run(args: GenerateSettings) -> int:
         connect(args.ray, args.workers)  # a cluster not found: one line before anything is written
         tasks = task_map(workers=args.workers, ray=args.ray)
     if args.building is not None:
-        return _building(args, spec, config, tasks)
+        return _building(args, spec, given, config, tasks)
+    size = args.size or DEFAULT_SIZE
     root = generate_dataset(
         args.out,
         num_sequences=args.sequences,
         frames=args.frames,
-        image_size=(args.size, args.size),
+        image_size=(size, size),
         spec=spec,
         seed=args.seed,
         config=config,
@@ -90,7 +93,7 @@ def run(args: GenerateSettings) -> int:
     print(
         f"{root}{what}: {sum(counts.values())} sequences x {args.frames} frames "
         f"(train {counts['train']}, val {counts['val']}, test {counts['test']}), "
-        f"images {args.size}x{args.size}, layouts {spec.shape}"
+        f"images {size}x{size}, layouts {spec.shape}"
     )
     if args.format != "native":
         from waresynth.exporters import export_dataset
@@ -105,8 +108,11 @@ def run(args: GenerateSettings) -> int:
     return 0
 
 
-def _building(args: GenerateSettings, spec: LayoutSpec, config: object, tasks: TaskMap | None) -> int:
-    """``--building [FILE]``: every pass of a building (`waresynth.building_generate`)."""
+def _building(
+    args: GenerateSettings, spec: LayoutSpec, given: dict[str, int], config: object, tasks: TaskMap | None
+) -> int:
+    """``--building [FILE]``: every pass of a building (`waresynth.building_generate`); a rescan takes SCAN's
+    image size and layout spec where the options are not given, and refuses those given that differ."""
     from waresynth.building_generate import generate_building
 
     if args.building:
@@ -114,17 +120,11 @@ def _building(args: GenerateSettings, spec: LayoutSpec, config: object, tasks: T
 
         if Path(args.building).exists():
             refuse_overlap([args.out], {"--building": args.building}, "OUT")
-    size, given_spec = (args.size, args.size), spec
-    if args.rescan is not None:  # the options left at their defaults take SCAN's values
-        defaults = type(args)()
-        size = None if args.size == defaults.size else size
-        if (args.slots, args.layout_size) == (defaults.slots, defaults.layout_size):
-            given_spec = None
     root = generate_building(
         args.out,
         building=args.building or None,
-        image_size=size,
-        spec=given_spec,
+        image_size=None if args.size is None else (args.size, args.size),
+        spec=spec if args.rescan is None else given,
         rescan=args.rescan,
         seed=args.seed,
         config=config,
