@@ -31,6 +31,8 @@ EFFECTS = {
     "lens": {"sensor": {"lens_k1": [-0.2, -0.05], "lens_k2": [-0.02, 0.02]}},
     "jpeg": {"sensor": {"compression": ["jpeg"], "jpeg_quality": [20, 90], "jpeg_subsampling": ["4:4:4", "4:2:0"]}},
     "h264": {"sensor": {"compression": ["h264"], "h264_quality": [15, 40], "h264_blur": [0.4, 1.0]}},
+    "h264_stream": {"sensor": {"compression": ["h264_stream"], "stream_mbps": [1.0, 4.0]}},
+    "h265_stream": {"sensor": {"compression": ["h265_stream"], "stream_mbps": [1.0, 4.0]}},
     "textures": {
         "boxes": {"textures": ["wrap", "printed", "stained"]},
         "floor": {"textures": ["lines", "stained"]},
@@ -155,6 +157,37 @@ def test_compression_quality_shows_as_artefacts():
     assert grad[1] < 0.8 * grad[0]  # the stand-in's blur and 4:2:0 chroma soften the frame
 
 
+@pytest.mark.parametrize("codec", ["h264_stream", "h265_stream"])
+def test_a_streamed_sequence_shows_its_bit_rate_and_its_frames_depend_on_the_ones_before(codec):
+    """H.264 / H.265 through PyAV: the frames of a sequence go through one stream in order (each after the
+    first predicted from the ones before), a lower bit rate costs more, and the same frames give the same bytes."""
+    intr = Intrinsics.from_fov(128, 96, 60.0)
+    scene = build_scene(np.random.default_rng(4), _cfg(), intr, 3)
+    plain = Renderer(scene, intr, noise_seed=4)
+    clean = [plain.render(p, np.random.default_rng(k)).rgb for k, p in enumerate(scene.camera.positions)]
+    err, runs = {}, []
+    for mbps in (1.0, 8.0, 8.0):
+        look = {"compression": codec, "stream_mbps": mbps}
+        sensor = SensorLook(look, intr, 1.0, 4)
+        runs.append([sensor.compress(f.copy(), np.random.default_rng(0)) for f in clean])
+        err[mbps] = np.mean([np.abs(a.astype(float) - b).mean() for a, b in zip(runs[-1], clean)])
+    for a, b in zip(runs[1], runs[2]):
+        np.testing.assert_array_equal(a, b)  # the same frames, the same bytes
+    assert err[1.0] > 1.3 * err[8.0] > 0
+    alone = SensorLook({"compression": codec, "stream_mbps": 8.0}, intr, 1.0, 4).compress(clean[2].copy(), None)
+    assert not np.array_equal(alone, runs[1][2])  # in the stream it was predicted from frames 0 and 1
+    assert all(f.shape == clean[0].shape and f.dtype == np.uint8 for f in runs[0])
+
+
+def test_the_wide_look_streams_a_share_of_its_sequences_at_phone_and_robot_rates():
+    cfg = load_config("wide_look")
+    assert {"h264_stream", "h265_stream"} <= set(cfg["sensor"]["compression"])
+    assert cfg["sensor"]["stream_mbps"] == [1, 8]
+    looks = [draw_look(np.random.default_rng(s), cfg, INTR, np.zeros(3)) for s in range(60)]
+    streamed = [lk for lk in looks if lk.get("compression", "none").endswith("_stream")]
+    assert 10 < len(streamed) < 50 and all(1 <= lk["stream_mbps"] <= 8 for lk in streamed)
+
+
 def test_a_lens_is_recorded_and_undistorting_the_frame_gives_the_pinhole_view(tmp_path):
     from waresynth.dataset import open_dataset
     from waresynth.generate import generate_dataset
@@ -219,6 +252,8 @@ def test_motion_blur_probability_blurs_a_share_of_the_sequences():
         ({"sensor": {"jpeg_quality": [50.5, 90]}}, "sensor.jpeg_quality"),
         ({"sensor": {"jpeg_subsampling": ["4:1:1"]}}, "sensor.jpeg_subsampling"),
         ({"sensor": {"h264_blur": [0, 4]}}, "sensor.h264_blur"),
+        ({"sensor": {"stream_mbps": [0, 4]}}, "sensor.stream_mbps"),
+        ({"sensor": {"compression": ["h266_stream"]}}, "sensor.compression"),
         ({"boxes": {"textures": ["tiles"]}}, "boxes.textures"),
         ({"rack": {"board_textures": ["bricks"]}}, "rack.board_textures"),
     ],

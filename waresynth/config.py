@@ -114,6 +114,7 @@ _BOUNDS: dict[str, tuple[float, float, bool]] = {
     "sensor.jpeg_quality": (1, 100, True),
     "sensor.h264_quality": (1, 100, True),
     "sensor.h264_blur": (0.0, 3.0, False),
+    "sensor.stream_mbps": (0.05, 100.0, False),
 }
 #: keys that take one number or a [low, high] range drawn per sequence (the default's type is the number)
 _NUMBER_OR_RANGE = frozenset({"camera.hfov_deg"})

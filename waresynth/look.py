@@ -1,11 +1,13 @@
 """The camera's and the building's look of a frame: light level, white balance, vignetting, signal-dependent
-sensor noise, tone curve, lens distortion and JPEG / H.264-like compression.
+sensor noise, tone curve, lens distortion and compression: JPEG, an H.264-like stand-in, or a real H.264 / H.265
+stream (`waresynth.stream_codec`).
 
 `draw_look` draws a sequence's look from the scene's generator after everything else, each value only from
 a range that is not one value, so a neutral config (the default) draws nothing and renders the bytes it
 always did; `SensorLook` applies it to each frame's linear colours (8-bit levels, before the tone curve)
 and compresses the result. Per-frame draws (the noise window, the JPEG quality) come from the frame's
-noise generator, so a sequence's seed fixes every byte.
+noise generator, so a sequence's seed fixes every byte; a streamed sequence's frames go through one encoder
+in the order they are rendered.
 """
 
 from __future__ import annotations
@@ -21,12 +23,13 @@ from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from layouts.lens import Lens
 from waresynth.draws import uniform
+from waresynth.stream_codec import CODECS, VideoStream
 
 #: the colour temperature (K) the camera is balanced for: lights at it render untinted
 BALANCED_K = 6500.0
 #: Pillow's ``subsampling`` codes of the JPEG chroma subsampling names
 SUBSAMPLING = {"4:4:4": 0, "4:2:2": 1, "4:2:0": 2}
-COMPRESSIONS = ("none", "jpeg", "h264")
+COMPRESSIONS = ("none", "jpeg", "h264", *CODECS)
 #: the new keys' values that reproduce a dataset written before they existed (`waresynth.generate` resumes)
 NEUTRAL: dict[str, dict[str, Any]] = {
     "lighting": {
@@ -52,6 +55,7 @@ NEUTRAL: dict[str, dict[str, Any]] = {
         "jpeg_subsampling": ["4:2:0"],
         "h264_quality": [25, 50],
         "h264_blur": [0.5, 0.5],
+        "stream_mbps": [1.0, 8.0],
     },
 }
 
@@ -131,6 +135,8 @@ def draw_look(rng: np.random.Generator, cfg: dict[str, Any], intr: Intrinsics, x
     elif look["compression"] == "h264":
         look["h264_blur"] = uniform(rng, sc["h264_blur"])
         look["quality"] = [int(q) for q in sc["h264_quality"]]
+    elif look["compression"] in CODECS:
+        look["stream_mbps"] = uniform(rng, sc["stream_mbps"])
     if look["lens_k1"] or look["lens_k2"]:
         _check_lens(Lens(k1=look["lens_k1"], k2=look["lens_k2"]), intr)
     return _active(look)
@@ -184,6 +190,7 @@ class SensorLook:
         self.shot = float(look.get("shot_noise", 0.0))
         self.read = float(look.get("read_noise", 0.0))
         self.gamma = float(look.get("gamma", 1.0))
+        self._stream: VideoStream | None = None  #: a streamed sequence's codec, made at its first frame
         n = 3 * self.w * self.h
         self._unit = None
         if self.shot > 0 or self.read > 0:
@@ -214,11 +221,16 @@ class SensorLook:
             c += half
 
     def compress(self, rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """The frame through the sequence's codec: JPEG at a quality drawn per frame, or the H.264-like
-        stand-in (a slight Gaussian blur, then JPEG with 4:2:0 chroma at the lower ``h264_quality``)."""
+        """The frame through the sequence's codec: JPEG at a quality drawn per frame, the H.264-like
+        stand-in (a slight Gaussian blur, then JPEG with 4:2:0 chroma at the lower ``h264_quality``), or the
+        next frame of an H.264 / H.265 stream at the sequence's ``stream_mbps`` (frames in the order sent)."""
         kind = self.look.get("compression", "none")
         if kind == "none":
             return rgb
+        if kind in CODECS:
+            if self._stream is None:
+                self._stream = VideoStream(kind, self.w, self.h, float(self.look["stream_mbps"]))
+            return self._stream.send(rgb)
         img = Image.fromarray(rgb)
         if kind == "jpeg":
             sub = SUBSAMPLING[self.look["jpeg_subsampling"]]
