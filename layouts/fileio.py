@@ -104,9 +104,36 @@ def nan_to_null(obj: Any) -> Any:
     return obj
 
 
+def _not_numpy(path: Path, want: str) -> None:
+    """Refuse, in words, a file that is not ``want`` (".npy array" or ".npz archive") before `np.load` reads it
+    (it takes any bytes it does not know for a pickle): a folder, an empty file, the other NumPy format, text or
+    other bytes. A real pickle is left to the loader, which refuses it as one."""
+    if path.is_dir():
+        raise LayoutError(f"{path}: is a folder, not a {want}")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(6)
+    except FileNotFoundError:
+        raise LayoutError(f"{path}: file not found") from None
+    except OSError as e:
+        raise LayoutError(f"{path}: cannot be read ({e.strerror or type(e).__name__})") from None
+    found = (
+        ".npz archive" if head.startswith((b"PK\x03\x04", b"PK\x05\x06")) else
+        ".npy array" if head.startswith(b"\x93NUMPY") else
+        want if head.startswith(b"\x80") else None
+    )  # fmt: skip
+    if not head:
+        raise LayoutError(f"{path}: an empty file, not a {want}")
+    if found is None:
+        raise LayoutError(f"{path}: not a {want} (its first bytes are no NumPy format's)")
+    if found != want:
+        raise LayoutError(f"{path}: expected a {want}, found a {found}")
+
+
 def load_npy(path: str | os.PathLike) -> np.ndarray:
     """Load a ``.npy`` without pickle; any problem becomes one line naming the file."""
     path = Path(path)
+    _not_numpy(path, ".npy array")
     try:
         arr = np.load(path, allow_pickle=False)
     except FileNotFoundError:
@@ -125,6 +152,7 @@ def load_npy(path: str | os.PathLike) -> np.ndarray:
 def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
     """Load an ``.npz`` without pickle into a dict; ``keys`` must all be present."""
     path = Path(path)
+    _not_numpy(path, ".npz archive")
     try:
         with np.load(path, allow_pickle=False) as z:
             if not hasattr(z, "files"):
