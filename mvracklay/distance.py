@@ -3,7 +3,7 @@
 In order: ``--distance`` (given); the camera height ``--camera-height`` with the floor line read from the
 first frames; a generated sequence's recorded distances; else read from the first frames' sizes by the
 shipped distance reader (`network.inference.distance`). Without a reader file (a copy made without the
-weights) the default distance is used, and said.
+weights), or from frames too small to read (`MIN_READ_SIDE`), the default distance is used, and said.
 
 A wrong distance scales the whole map: every length (box sizes, positions along the row, shelf heights)
 is off by the same factor. Counts, the order of boxes and free *fractions* are unchanged by the scale.
@@ -31,6 +31,10 @@ from network.inference.distance import (
     read_distance,
 )
 from network.preprocess import DEFAULT_DISTANCE
+
+#: pixels a frame's shorter side must have for its distance to be read: the reader resamples each frame to its
+#: 128-pixel view, and from fewer pixels it reads noise (the default distance is used, and said)
+MIN_READ_SIDE = 32
 
 
 def default_distance(record: dict[str, Any]) -> float:
@@ -101,14 +105,24 @@ class FrameDistances:
 
     def _read(self, frames: list[np.ndarray]) -> DistanceReading:
         path = self.reader_path or distance_reader_path()
+        height, width = min(f.shape[0] for f in frames), min(f.shape[1] for f in frames)
+        if min(height, width) < MIN_READ_SIDE:
+            return self._default(
+                f"frames of {width}x{height} pixels are too small to read the distance from (under {MIN_READ_SIDE} "
+                f"a side)"
+            )
         if not path.is_file():
-            said = f"no distance reader ({path} is absent): the default {self.default:.2f} m is used; pass --distance"
-            self.warnings.append(said)
-            print(f"{self.prog}: warning: {said}", file=sys.stderr)
-            return DistanceReading(self.default, "default")
+            return self._default(f"no distance reader ({path} is absent)")
         reader, _ = load_reader(path)
         reading = read_distance(reader, frames, self.intr, self.camera_height, start=self.default)
         if reading.note:
             self.warnings.append(reading.note)
             print(f"{self.prog}: warning: {reading.note}", file=sys.stderr)
         return reading
+
+    def _default(self, why: str) -> DistanceReading:
+        """The default distance where none can be read, said with ``why``."""
+        said = f"{why}: the default {self.default:.2f} m is used; pass --distance"
+        self.warnings.append(said)
+        print(f"{self.prog}: warning: {said}", file=sys.stderr)
+        return DistanceReading(self.default, "default", note=said)

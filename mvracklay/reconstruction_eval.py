@@ -122,6 +122,9 @@ def open_sequences(path: Path, split: str | None = None, limit: int = 0) -> list
 
     if (path / "manifest.json").is_file():
         seqs = open_dataset(path).sequences(split)
+        if not seqs:  # nothing scored is no score: never the pooled 1.000 of an empty sum
+            where = "" if split is None else f" in split {split!r}"
+            raise InputError(f"{path}: no sequence{where} to evaluate")
     else:
         seq = open_sequence(path)
         if seq is None:
