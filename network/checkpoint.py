@@ -88,20 +88,45 @@ def save_with_head(
     save_updated(path, payload, record, weights, drop=f"{name}.", model_config=cfg.to_dict(), **{key: info})
 
 
-def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Load ``(payload, record)`` safely; any problem is one line naming the file."""
+def first_sentence(e: BaseException) -> str:
+    """An error's first sentence, whole (never cut mid-word): what a one-line message quotes of it."""
+    text = " ".join(str(e).split())
+    head = text.split(". ")[0].rstrip(".")
+    return head or type(e).__name__
+
+
+def torch_load(path: str | os.PathLike, what: str = "checkpoint") -> Any:
+    """``torch.load(weights_only=True)`` of a file, each way it can be wrong said as one line naming it: a folder
+    or a missing file, an empty file, bytes that are no PyTorch archive (text), pickled objects (refused, never
+    run), a cut or damaged archive. ``what`` names the kind of file in the messages."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a {what} file")
     if not path.is_file():
-        raise InputError(f"{path}: checkpoint not found")
+        raise InputError(f"{path}: {what} not found")
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if not head:
+        raise InputError(f"{path}: an empty file, not a {what}")
+    archive = head.startswith((b"PK\x03\x04", b"PK\x05\x06"))  # torch.save's zip; b"\x80": its legacy pickle
+    if not archive and not head.startswith(b"\x80"):
+        raise InputError(f"{path}: not a {what}: not a PyTorch archive")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            payload = torch.load(path, map_location="cpu", weights_only=True)
+            return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - unpickling errors, truncation, zip errors: all bad input
-        msg = str(e).strip().splitlines()[0][:160] if str(e).strip() else type(e).__name__
         if "weights_only" in str(e) or "Unsupported global" in str(e):
             raise InputError(f"{path}: holds pickled Python objects, refused (only plain state dicts load)") from None
-        raise InputError(f"{path}: not a readable checkpoint ({type(e).__name__}: {msg})") from None
+        if archive:
+            raise InputError(f"{path}: truncated or corrupted {what} ({first_sentence(e)})") from None
+        raise InputError(f"{path}: not a readable {what} ({type(e).__name__}: {first_sentence(e)})") from None
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Load ``(payload, record)`` safely (`torch_load`); any problem is one line naming the file."""
+    path = Path(path)
+    payload = torch_load(path)
     if not isinstance(payload, dict) or "model" not in payload or "record_json" not in payload:
         raise InputError(f"{path}: not an MVRackLay checkpoint (no model state or record)")
     if not isinstance(payload["record_json"], str):

@@ -231,7 +231,7 @@ CASES = [
         lambda d, t: truncated_checkpoint(t / "bad.pt", t / "marker"),
         lambda d, t: _run(d, t, t / "bad.pt"),
         "bad.pt",
-        "not a readable checkpoint",
+        "truncated or corrupted checkpoint",
     ),
     (
         "ckpt-pickle-evaluate",
@@ -245,7 +245,7 @@ CASES = [
         lambda d, t: truncated_checkpoint(t / "bad.pt", t / "marker"),
         _evaluate,
         "bad.pt",
-        "not a readable checkpoint",
+        "truncated or corrupted checkpoint",
     ),
     (
         "ckpt-pickle-predict",
@@ -259,7 +259,7 @@ CASES = [
         lambda d, t: truncated_checkpoint(t / "bad.pt", t / "marker"),
         _predict,
         "bad.pt",
-        "not a readable checkpoint",
+        "truncated or corrupted checkpoint",
     ),
     # a manifest pointing outside its dataset
     (

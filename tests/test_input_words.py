@@ -75,3 +75,63 @@ def test_intrinsics_refuse_unphysical_values_wherever_they_are_built():
         )
     assert Intrinsics.from_fov(64, 64, 170.0).hfov_deg == pytest.approx(170.0)  # the generator's widest
     assert Intrinsics(20000.0, 20000.0, 32.0, 32.0, 64, 64).hfov_deg > 0.1  # a long telephoto is a camera
+
+
+# --- words -----------------------------------------------------------------------------------------------------
+def _folder(p: Path, good: Path) -> None:
+    p.mkdir()
+
+
+def _text(p: Path, good: Path) -> None:
+    p.write_text("hello, this is not a model\n")
+
+
+def _cut(p: Path, good: Path) -> None:
+    p.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+
+
+def _empty(p: Path, good: Path) -> None:
+    p.write_bytes(b"")
+
+
+@pytest.mark.parametrize(
+    "make, said",
+    [
+        (_folder, "is a folder, not a checkpoint file"),
+        (_text, "not a checkpoint: not a PyTorch archive"),
+        (_cut, "truncated or corrupted checkpoint (PytorchStreamReader failed reading zip archive: failed finding"),
+        (_empty, "an empty file, not a checkpoint"),
+    ],
+    ids=["folder", "text", "truncated", "empty"],
+)
+@pytest.mark.parametrize("command", ["run", "predict", "evaluate"])
+def test_a_checkpoint_that_is_none_is_said_as_such(seq, tiny_checkpoint, tmp_path, capsys, make, said, command):
+    ckpt = tmp_path / "model.pt"
+    make(ckpt, tiny_checkpoint)
+    out = ["--out", str(tmp_path / "o")] if command != "evaluate" else ["--data", str(seq.parent), "--split", "all"]
+    argv = [command, *([str(seq)] if command != "evaluate" else []), *out, "--checkpoint", str(ckpt), "--quiet"]
+    line = one_line(capsys, main(argv), command, f"{ckpt}: ", said)
+    assert line.endswith((said, ")"))  # whole words, never a message cut mid-sentence
+    assert "KeyError" not in line and "file not found" not in line and not (tmp_path / "o").exists()
+
+
+def test_a_text_or_misnamed_npz_is_said_as_such(seq, tmp_path, capsys):
+    import numpy as np
+
+    from layouts.fileio import load_npy, load_npz
+
+    bad = tmp_path / "seq"
+    shutil.copytree(seq, bad)
+    layout = bad / "layouts" / "000001.npz"
+    layout.write_text("top,front\n1,2\n")
+    rc = main(["reconstruct", str(bad), "--out", str(tmp_path / "o"), "--quiet", "--no-rrd"])
+    one_line(capsys, rc, "reconstruct", f"{layout}: not a .npz archive (its first bytes are no NumPy format's)")
+    assert not (tmp_path / "o").exists()
+    np.save(tmp_path / "a.npy", np.zeros(3))
+    for path, load, said in [
+        (tmp_path / "a.npy", load_npz, "expected a .npz archive, found a .npy array"),  # was a TypeError
+        (tmp_path, load_npz, "is a folder, not a .npz archive"),
+        (layout, load_npy, "not a .npy array"),
+    ]:
+        with pytest.raises(InputError, match="^" + str(path) + ": " + said.replace(".", r"\.")):
+            load(path)

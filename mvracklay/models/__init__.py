@@ -68,6 +68,8 @@ def resolve_checkpoint(
             )
         return path
     path = checkpoint_arg(os.fspath(name_or_path))
+    if path.is_dir():
+        raise InputError(f"{option} {name_or_path}: is a folder, not a checkpoint file")
     if not path.is_file():
         raise InputError(f"{option} {name_or_path}: file not found (nor a shipped model: {', '.join(SHIPPED)})")
     return path

@@ -104,23 +104,21 @@ def load_reader(path: str | os.PathLike) -> tuple[DistanceReader, dict[str, Any]
     """A reader saved by `save_reader` (``weights_only``: no pickled code runs), in eval mode."""
     import json
 
+    from network.checkpoint import check_finite, first_sentence, torch_load
+
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: distance reader not found")
+    payload = torch_load(path, "distance reader")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
         record = json.loads(payload["record"])
         if record.get("format") != FORMAT:
             raise ValueError(f"format {record.get('format')!r}")
         reader = DistanceReader(DistanceReaderConfig.from_dict(record["config"]))
-        from network.checkpoint import check_finite
-
         check_finite(payload["state"], path)
         reader.load_state_dict(payload["state"])
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - any unreadable file is one line
-        raise InputError(f"{path}: not a distance reader ({type(e).__name__}: {e})") from None
+        raise InputError(f"{path}: not a distance reader ({type(e).__name__}: {first_sentence(e)})") from None
     return reader.eval(), record
 
 

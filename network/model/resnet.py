@@ -79,13 +79,10 @@ def load_imagenet_weights(encoder: ResNet18Encoder, path: str | os.PathLike) -> 
     Strict on the encoder's keys and shapes: a missing or unexpected key, or a shape that
     differs (e.g. a non-standard width), is one `InputError` naming the file.
     """
+    from network.checkpoint import torch_load
+
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: ImageNet weights file not found")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001 - any unpickling/format failure is bad input
-        raise InputError(f"{path}: not a loadable plain state dict ({type(e).__name__}: {_first_line(e)})") from None
+    state = torch_load(path, "ImageNet weights")
     if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
         state = state["state_dict"]
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
@@ -107,8 +104,3 @@ def load_imagenet_weights(encoder: ResNet18Encoder, path: str | os.PathLike) -> 
             f"(ImageNet weights need encoder width 64)"
         )
     encoder.load_state_dict({k: state[k].to(own[k].dtype) for k in own}, strict=True)
-
-
-def _first_line(e: BaseException) -> str:
-    s = str(e).strip().splitlines()
-    return s[0][:200] if s else ""
