@@ -146,7 +146,7 @@ def building_difference(old: BuildingMap, new: BuildingMap) -> str | None:
     no face in common."""
     if (old.code, old.positions) != (new.code, new.positions):
         return (
-            f"their location codes differ ({old.code!r} with {old.positions} positions a level, {new.code!r} with "
+            f"their location codes differ ({old.code!r}, positions {old.positions} against {new.code!r}, positions "
             f"{new.positions}); map both with the same --code and --positions"
         )
     if old.plan and new.plan:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator, model_validator
 
 from layouts.errors import InputError, first_problem
 from layouts.fileio import load_json
@@ -28,10 +28,13 @@ Side = Annotated[str, Field(pattern="^[LR]$")]
 Level = Annotated[StrictInt, Field(ge=1, le=99)]
 
 
-def _rising(values: list[Any] | None, name: str) -> None:
+def _rising(values: list[Any] | None) -> list[Any] | None:
+    """Levels or boards' heights: from the lowest up, each once (a repeated or turned-round list puts boxes on
+    the wrong level)."""
     for a, b in zip(values or [], (values or [])[1:]):
         if b <= a:
-            raise ValueError(f"{name} must rise from the lowest up, each once, got {list(values or [])}")
+            raise ValueError(f"must rise from the lowest up, each once, got {list(values or [])}")
+    return values
 
 
 class _Start(BaseModel):
@@ -51,10 +54,7 @@ class _Pass(BaseModel):
     levels: list[Level] | None = None
     first_level: Level = 1
 
-    @model_validator(mode="after")
-    def _order(self) -> _Pass:
-        _rising(self.levels, "levels")
-        return self
+    _levels = field_validator("levels")(_rising)
 
 
 class PlanFace(BaseModel):
@@ -68,11 +68,12 @@ class PlanFace(BaseModel):
     x_max: Finite | None = None
     levels_m: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=100)]] | None = None
 
+    _levels = field_validator("levels_m")(_rising)
+
     @model_validator(mode="after")
-    def _order(self) -> PlanFace:
+    def _ends(self) -> PlanFace:
         if self.x_min is not None and self.x_max is not None and self.x_min >= self.x_max:
             raise ValueError(f"x_min {self.x_min} must lie below x_max {self.x_max}")
-        _rising(self.levels_m, "levels_m (the boards' heights)")
         return self
 
 
