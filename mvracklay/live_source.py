@@ -55,9 +55,34 @@ def is_live(text: str | Path) -> bool:
     return s.isdigit() and not Path(s).exists()
 
 
+#: query and fragment parameters whose values are secrets (their names compared lower-case, ``-`` read as ``_``;
+#: a name ending in ``_`` and one of them, as ``client_secret`` or ``x_amz_signature``, is one too)
+SECRET_PARAMS = frozenset(
+    {"password", "pass", "pwd", "passwd", "token", "access_token", "key", "api_key", "apikey", "secret", "auth",
+     "sig", "signature", "credential", "credentials"}
+)  # fmt: skip
+_PARAM = re.compile(r"(^|[&;?])([^&;?=]*)=([^&;?]*)")
+
+
+def _secret_name(name: str) -> bool:
+    from urllib.parse import unquote_plus
+
+    n = unquote_plus(name).strip().lower().replace("-", "_")
+    return n in SECRET_PARAMS or any(n.endswith(f"_{s}") for s in SECRET_PARAMS)
+
+
 def shown(url: str) -> str:
-    """``url`` as printed and recorded: a password in it (``rtsp://user:pass@host``) left out."""
-    return re.sub(r"^([a-zA-Z][a-zA-Z0-9+.-]*://)[^/@]*@", r"\1", url)
+    """``url`` as printed and recorded, every secret in it left out: a ``user:password@`` before the host, and the
+    values of the query's and fragment's `SECRET_PARAMS` (``?password=...&fps=5`` -> ``?password=***&fps=5``; the
+    other parameters kept as given). Every message and record that names a source shows it through here."""
+    url = re.sub(r"^([a-zA-Z][a-zA-Z0-9+.-]*://)[^/?#]*@", r"\1", url)  # up to the authority's last @, as FFmpeg
+    base, h, fragment = url.partition("#")
+    head, q, query = base.partition("?")
+
+    def hide(text: str) -> str:
+        return _PARAM.sub(lambda m: f"{m[1]}{m[2]}=***" if _secret_name(m[2]) and m[3] else m[0], text)
+
+    return f"{head}{q}{hide(query)}{h}{hide(fragment)}"
 
 
 def _device(text: str) -> tuple[str, str | None]:

@@ -135,3 +135,81 @@ def test_a_text_or_misnamed_npz_is_said_as_such(seq, tmp_path, capsys):
     ]:
         with pytest.raises(InputError, match="^" + str(path) + ": " + said.replace(".", r"\.")):
             load(path)
+
+
+# --- a secret in a stream URL ----------------------------------------------------------------------------------
+def test_a_url_shows_no_secret():
+    from mvracklay.live_source import shown
+
+    assert shown("rtsp://admin:s3cr@t@10.0.0.5:554/live?fps=5") == "rtsp://10.0.0.5:554/live?fps=5"
+    assert (
+        shown("http://h/x?user=cam&PassWord=a;api-key=b&client_secret=c&keyframes=1&Signature=d#access_token=e&s=1")
+        == "http://h/x?user=cam&PassWord=***;api-key=***&client_secret=***&keyframes=1&Signature=***#access_token=***&s=1"
+    )
+    for name in ("password", "token", "key", "secret", "auth", "access_token", "sig", "signature", "api_key", "apikey",
+                 "pass", "pwd", "TOKEN", "X-Amz-Signature", "pass%77ord"):  # fmt: skip
+        assert shown(f"srt://h:9000?mode=caller&{name}=hunter2") == f"srt://h:9000?mode=caller&{name}=***", name
+    assert shown("udp://127.0.0.1:5000?pkt_size=1316") == "udp://127.0.0.1:5000?pkt_size=1316"
+
+
+def _mpegts(frames: list) -> bytes:
+    import io
+
+    import av
+
+    buf = io.BytesIO()
+    with av.open(buf, "w", format="mpegts") as out:
+        stream = out.add_stream("mpeg2video", rate=10)
+        stream.height, stream.width = frames[0].shape[:2]
+        stream.pix_fmt = "yuv420p"
+        for rgb in frames:
+            out.mux(stream.encode(av.VideoFrame.from_ndarray(rgb, format="rgb24")))
+        out.mux(stream.encode())
+    return buf.getvalue()
+
+
+def test_a_password_in_a_stream_url_is_neither_printed_nor_recorded(seq, tiny_checkpoint, tmp_path, capsys):
+    import socket
+    import threading
+    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+    import numpy as np
+    from PIL import Image
+
+    body = _mpegts([np.asarray(Image.open(p).convert("RGB")) for p in sorted((seq / "rgb").glob("*.png"))[:6]])
+
+    class Clip(BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - the stream, whatever the query
+            self.send_response(200)
+            self.send_header("Content-Type", "video/mp2t")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, *args):
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Clip)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    port = server.server_address[1]
+    secret = "?user=cam&password=hunter2&Token=t0k3n&fps=10"
+    url = f"http://viewer:pa55@127.0.0.1:{port}/live.ts{secret}"
+    out = tmp_path / "o"
+    try:
+        rc = main(["run", url, "--out", str(out), "--checkpoint", str(tiny_checkpoint), *QUIET])
+    finally:
+        server.shutdown()
+        server.server_close()
+    said = capsys.readouterr()
+    assert rc == 0, said.err
+    meta = json.loads((out / "warehouse.json").read_text())["meta"]
+    assert meta["input"] == f"http://127.0.0.1:{port}/live.ts?user=cam&password=***&Token=***&fps=10"
+    for text in [said.out, said.err, *(p.read_bytes().decode("latin-1") for p in out.rglob("*") if p.is_file())]:
+        assert "hunter2" not in text and "t0k3n" not in text and "pa55" not in text
+    with socket.socket() as s:  # a port nothing listens on: the failure names the URL without its secrets
+        s.bind(("127.0.0.1", 0))
+        closed = s.getsockname()[1]
+    rc = main(["run", f"tcp://127.0.0.1:{closed}{secret}", "--out", str(tmp_path / "o2"), "--checkpoint",
+               str(tiny_checkpoint), *QUIET])  # fmt: skip
+    line = one_line(capsys, rc, "run", f"tcp://127.0.0.1:{closed}?user=cam&password=***&Token=***&fps=10: ")
+    assert "hunter2" not in line and "t0k3n" not in line
