@@ -22,7 +22,7 @@ from scipy.optimize import linear_sum_assignment
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap
-from stitching.building_schema import check_change_rows, check_inventory
+from stitching.building_schema import check_change_rows, check_inventory, check_truth
 from stitching.geometry import Cuboid, iou_matrix
 
 
@@ -54,8 +54,12 @@ class BuildingEval:
         return {**asdict(self), "exact_share": self.exact_share, "precision": self.precision, "recall": self.recall}
 
 
-def truth_stacks(truth: dict[str, Any]) -> dict[tuple[int, str, int], list[tuple[str, Cuboid]]]:
-    """(aisle, side, level) -> [(location code, stack cuboid in the building frame)] from ``building.json``."""
+def truth_stacks(
+    truth: dict[str, Any], source: str = "ground_truth/building.json"
+) -> dict[tuple[int, str, int], list[tuple[str, Cuboid]]]:
+    """(aisle, side, level) -> [(location code, stack cuboid in the building frame)] from ``building.json``
+    (read from ``source``: refused in one line when it breaks its schema, `check_truth`)."""
+    check_truth(truth, source)
     out: dict[tuple[int, str, int], list[tuple[str, Cuboid]]] = {}
     try:
         for rack in truth["racks"]:

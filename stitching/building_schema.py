@@ -1,6 +1,7 @@
 """The declared schemas of the building formats: the building map (``building.json``), its inventory rows
-(``inventory.csv`` / ``.json``) and the changes between two scans (``changes.csv`` / ``.json``); the route
-file's is in `stitching.building_route`.
+(``inventory.csv`` / ``.json``), the changes between two scans (``changes.csv`` / ``.json``) and a generated
+building's ground truth (``ground_truth/building.json``, as far as it is read); the route file's is in
+`stitching.building_route`.
 
 Each ``check_*`` refuses, in one `InputError` line naming the source and the field path
 (``faces[2].front_z``), a document whose figures would be printed as answers but cannot be true:
@@ -29,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, Validat
 from layouts.errors import ContractError, InputError, first_problem
 from layouts.locations import NOT_SCANNED, check_code_format, location_code
 from stitching.building_route import Aisle, Level, PlanFace, Side
-from stitching.map_schema import Coord, Count, MapDoc, Unit
+from stitching.map_schema import Coord, Count, MapDoc, Size, Unit, Yaw
 
 #: metres a mapped face's front line may differ from its floor plan's (rounding in the file)
 PLAN_TOLERANCE = 1e-3
@@ -304,3 +305,51 @@ class ChangesDoc(_Doc):
 def check_changes(doc: Any, source: str, built: bool = False) -> None:
     """Refuse a parsed ``changes.json`` that breaks `ChangesDoc` (`_refuse`)."""
     _refuse(_doc_problem(ChangesDoc, doc), source, "changes", built)
+
+
+# ----------------------------------------------------------------------------------------- ground truth
+class TruthBox(_Doc):
+    center: tuple[Coord, Coord, Coord]
+    size: tuple[Size, Size, Size]
+    yaw: Yaw
+    stack: Count
+
+
+class TruthPosition(_Doc):
+    location: Name
+    boxes: list[TruthBox]
+
+
+class TruthLevel(_Doc):
+    level: Level
+    positions: list[TruthPosition]
+
+
+class TruthRack(_Doc):
+    aisle: Aisle
+    side: Side
+    levels: list[TruthLevel]
+
+
+class TruthDoc(_Doc):
+    """A generated building's ``ground_truth/building.json``: racks -> levels -> positions -> boxes."""
+
+    racks: list[TruthRack]
+
+    @model_validator(mode="after")
+    def _unique(self) -> TruthDoc:
+        seen: set[str] = set()
+        for i, r in enumerate(self.racks):
+            for j, lv in enumerate(r.levels):
+                for k, pos in enumerate(lv.positions):
+                    if pos.location in seen:
+                        raise ValueError(
+                            f"racks[{i}].levels[{j}].positions[{k}]: location {pos.location!r} is listed twice"
+                        )
+                    seen.add(pos.location)
+        return self
+
+
+def check_truth(doc: Any, source: str) -> None:
+    """Refuse a parsed ground-truth ``building.json`` that breaks `TruthDoc` (`_refuse`)."""
+    _refuse(_doc_problem(TruthDoc, doc), source, "ground truth", False)

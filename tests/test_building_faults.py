@@ -275,6 +275,15 @@ def test_truth_files_are_held_to_their_schema(tiny_building, tiny_building_map):
             evaluate_building(bmap, truth, bad, source="gt.csv")
     with pytest.raises(InputError, match="row 2: location .* is listed twice"):
         check_inventory([rows[0], rows[0]], "inventory.csv")
+    assert evaluate_building(bmap, truth, rows).recall == 1.0  # the ground truth itself passes
+    box = truth["racks"][0]["levels"][0]["positions"][0]["boxes"][0]
+    for k, v, needle in [("center", [0, 0, 1e308], "center.2"), ("size", [0.4, -1, 0.3], "size.1")]:
+        bad = copy.deepcopy(truth)
+        bad["racks"][0]["levels"][0]["positions"][0]["boxes"][0] = {**box, k: v}
+        with pytest.raises(
+            InputError, match=rf"building.json: malformed ground truth: racks\[0\].*boxes\[0\].{needle}"
+        ):
+            evaluate_building(bmap, bad, rows)
     found = [{"location": "a", "change": "added"}]
     for row, needle in [({"location": "a", "change": "exploded"}, "row 1: change"),
                         ({"location": "a", "change": "moved"}, "row 1: other_location"),
