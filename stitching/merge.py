@@ -9,7 +9,10 @@ the camera path, one `StepRecord` per frame (``MergeConfig.keep_steps = None``, 
 (`stitching.xindex.XIndex`), so a frame's cost depends on what is near it, not on how much of the
 row is already mapped (time grows linearly with the frame count on a long aisle).
 
-Each map box is a `stitching.fused_box.FusedBox` (its fusion rules are described there).
+Each map box is a `stitching.fused_box.FusedBox` (its fusion rules are described there). `build` stands each
+on its shelf (`_on_shelf`: the footprint's centre over the shelf's fused depth, the part beyond it cut off, no box
+longer than its rack or taller than the clear height) and keeps one of any two covering half of each other, by
+the definitions the map's schema checks (`stitching.map_schema`), so every map it builds is one its readers take.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from layouts.errors import LayoutError
 from layouts.spec import LayoutSpec
 from stitching.fused_box import FusedBox, dedup_boxes
 from stitching.lift import FrameBox, FrameReconstruction
+from stitching.map_schema import DUPLICATE_SHARE, Footprint, footprint_extent, overlap_share
 from stitching.path_record import StepStats, UntrustedFrames
 from stitching.registration import Registration
 from stitching.shift import MotionPrior, ShiftConfig
@@ -33,6 +37,7 @@ from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, Wareh
 from stitching.xindex import XIndex
 
 MAX_HELD = 64  #: untrusted frames held back at most; older ones of a longer stretch are left out of the map
+MIN_SIZE = 1e-3  #: metres; a box cut to its shelf thinner than this stands on no shelf
 
 
 @dataclass(frozen=True)
@@ -299,7 +304,7 @@ class MapBuilder(Registration):
                 rack_partial.append(_partial_run(seen_bins, a, b, margin))
         # Board heights from the fused clear heights: H_0 = 0, H_{r+1} = H_r + clear_r + thickness.
         boards = np.concatenate([[0.0], np.cumsum(self.clear + self.board_thickness)])[:R]
-        boxes_out: list[list[tuple[float, FusedBox]]] = [[] for _ in range(len(rack_ranges))]
+        placed: list[list[list[_Placed]]] = [[[] for _ in range(R)] for _ in rack_ranges]
         rack_starts = [x0 for x0, _ in rack_ranges]
         for r in range(R):
             for m in dedup_boxes(self.boxes[r], cfg.match_score):
@@ -308,13 +313,12 @@ class MapBuilder(Registration):
                 mean_conf = m.conf / m.n_obs
                 if m.n_full == 0 and (m.nl == 0 or m.nr == 0) and mean_conf < 0.3:
                     continue
-                cx = (m.x0 + m.x1) / 2
                 if not rack_ranges:
                     continue
-                k = _nearest_range(rack_ranges, rack_starts, cx)
-                if m.x1 <= rack_ranges[k][0] or m.x0 >= rack_ranges[k][1]:
-                    continue  # wholly beside the racks: on no shelf (`stitching.map_schema`)
-                boxes_out[k].append((cx, m))
+                k = _nearest_range(rack_ranges, rack_starts, (m.x0 + m.x1) / 2)
+                p = _on_shelf(m, rack_ranges[k], (float(self.zr[r][0]), float(self.zr[r][1])), float(self.clear[r]))
+                if p is not None:
+                    placed[k][r].append(p)
         shares = [self.untrusted.share(x0, x1) for x0, x1 in rack_ranges]
         for k, (x0, x1) in enumerate(rack_ranges):
             rid = f"rack_{k:02d}"
@@ -324,19 +328,18 @@ class MapBuilder(Registration):
                     continue
                 sid = f"{rid}/shelf_{r:02d}"
                 board, clear = float(boards[r]), float(self.clear[r])
-                items = sorted(((cx, m) for cx, m in boxes_out[k] if m.slot == r), key=lambda t: (t[0], t[1].z0))
                 boxes = []
-                for j, (_, m) in enumerate(items):
-                    cx, cz, w, d, yaw = m.cuboid_params()
+                for j, p in enumerate(_without_duplicates(placed[k][r])):
+                    m = p.box
                     conf = m.conf / m.n_obs * min(1.0, m.n_obs / 3)
                     if m.n_full == 0:
                         conf *= 0.7
                     boxes.append(
                         MapBox(
                             f"{sid}/box_{j:03d}",
-                            (cx, -(board + m.h / 2), cz),
-                            (w, m.h, d),
-                            yaw,
+                            (p.cx, -(board + p.h / 2), p.cz),
+                            (p.w, p.h, p.d),
+                            p.yaw,
                             float(conf),
                             m.n_obs,
                         )
@@ -351,6 +354,85 @@ class MapBuilder(Registration):
         meta.setdefault("registration", self.untrusted.to_dict(shares, len(self._held) + self._held_dropped))
         seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
         return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
+
+
+@dataclass(frozen=True)
+class _Placed:
+    """A map box as it stands on its shelf: its footprint (centre, size, yaw) and height in the map."""
+
+    box: FusedBox
+    cx: float
+    cz: float
+    w: float
+    d: float
+    yaw: float
+    h: float
+
+    @property
+    def footprint(self) -> Footprint:
+        return self.cx, self.cz, self.w, self.d, self.yaw
+
+
+def _on_shelf(m: FusedBox, xr: tuple[float, float], zr: tuple[float, float], clear: float) -> _Placed | None:
+    """Box ``m`` stood on the shelf spanning ``xr`` x ``zr`` (clear height ``clear``, 0 = unknown), or None when it
+    stands on no shelf. A box stands on its shelf: its footprint's centre lies over the shelf's depth (one beyond it
+    would fall) and its footprint overlaps the rack's X range (`stitching.map_schema.footprint_extent`, the extent
+    the schema checks); the part reaching past the shelf's depth is cut off, a box longer than the rack is cut to
+    it (a blob over the rack's end, not one box) and none is taller than the clear height to the next board."""
+    cx, cz, w, d, yaw = m.cuboid_params()
+    (x0, x1), (z0, z1) = xr, zr
+    bx0, bx1, bz0, bz1 = footprint_extent(cx, cz, w, d, yaw)
+    if not z0 <= cz <= z1 or bx1 <= x0 or bx0 >= x1:
+        return None
+    lo, hi = max(bz0, z0), min(bz1, z1)
+    if hi - lo < bz1 - bz0:
+        (w, d), cz = _fit(w, d, yaw, hi - lo, along_z=True), (lo + hi) / 2
+    bx0, bx1, _, _ = footprint_extent(cx, cz, w, d, yaw)
+    if bx1 - bx0 > x1 - x0:
+        lo, hi = max(bx0, x0), min(bx1, x1)
+        (w, d), cx = _fit(w, d, yaw, hi - lo, along_z=False), (lo + hi) / 2
+    if min(w, d) < MIN_SIZE:
+        return None
+    return _Placed(m, cx, cz, w, d, yaw, min(m.h, clear) if clear > 0 else m.h)
+
+
+def _fit(w: float, d: float, yaw: float, room: float, along_z: bool) -> tuple[float, float]:
+    """``(w, d)`` shrunk so that the footprint reaches at most ``room`` along Z (``along_z``) or X: the side
+    lying most along that axis gives way first, both in proportion when it alone cannot."""
+    c, s = abs(math.cos(yaw)), abs(math.sin(yaw))
+    kw, kd = (s, c) if along_z else (c, s)  # what each side adds to the reach along the axis
+    reach = w * kw + d * kd
+    if reach <= room:
+        return w, d
+    if kd >= kw and room - w * kw > 0:
+        return w, (room - w * kw) / kd
+    if kw > kd and room - d * kd > 0:
+        return (room - d * kd) / kw, d
+    f = max(room, 0.0) / reach
+    return w * f, d * f
+
+
+def _without_duplicates(placed: list[_Placed]) -> list[_Placed]:
+    """One shelf's boxes in X order, less those covering more than `map_schema.DUPLICATE_SHARE` (less a margin
+    the file's rounding cannot cross) of a better-observed box's footprint: the same box twice."""
+    kept: list[_Placed] = []
+    spans: list[tuple[float, float]] = []
+    index = XIndex()
+    widest = 0.0
+    for p in sorted(placed, key=lambda p: (-p.box.n_obs, _x_order(p))):
+        x0, x1, _, _ = footprint_extent(*p.footprint)
+        near = (kept[i] for i in index.query(x0 - widest, x1) if spans[i][1] > x0 and spans[i][0] < x1)
+        if all(overlap_share(p.footprint, q.footprint) <= DUPLICATE_SHARE - 0.01 for q in near):
+            index.add(len(kept), x0)
+            kept.append(p)
+            spans.append((x0, x1))
+            widest = max(widest, x1 - x0)
+    return sorted(kept, key=_x_order)
+
+
+def _x_order(p: _Placed) -> tuple[float, float]:
+    """Where a box comes in its shelf's X order (its ids): the middle of its X edges, then its near edge."""
+    return (p.box.x0 + p.box.x1) / 2, p.box.z0
 
 
 def _partial_run(seen: np.ndarray, a: int, b: int, margin: int) -> str | None:

@@ -171,10 +171,14 @@ class WarehouseMap:
 
     # ----------------------------------------------------------- JSON
     def to_dict(self) -> dict[str, Any]:
+        """The map as written to ``warehouse.json``, held to its schema first (`stitching.map_schema.check_built`:
+        a map that breaks it raises `layouts.errors.ContractError`, so no writer publishes what readers refuse)."""
+        from stitching.map_schema import check_built
+
         def r6(v):
             return [round(float(x), 6) for x in v]
 
-        return {
+        doc = {
             "format": MAP_FORMAT,
             "version": MAP_VERSION,
             "frame": "X along the row from the first camera X, Y down from slot 0's board top, Z about rack mid-depth (metres)",
@@ -229,6 +233,8 @@ class WarehouseMap:
                 for r in self.racks
             ],
         }
+        check_built(doc)
+        return doc
 
     @classmethod
     def from_dict(cls, d: Any, source: str = "warehouse map") -> WarehouseMap:
@@ -240,7 +246,7 @@ class WarehouseMap:
             )
         from stitching.map_schema import check_map
 
-        check_map(d, source)  # the declared schema: finite, in range, ids unique, boxes inside their shelf
+        check_map(d, source)  # the declared schema: finite, in range, ids unique, boxes on their shelf
         try:
             racks = []
             for r in d["racks"]:

@@ -374,6 +374,8 @@ def _mutate(doc: dict, where: str, value) -> dict:
     key = where.split(".")[1]
     if key == "dup":
         shelf["boxes"].append(dict(box))
+    elif key == "twin":  # the same box again under another id
+        shelf["boxes"].append({**box, "id": f"{box['id']}_again"})
     elif key == "outside":
         box["center"][0] = shelf["x_range"][1] + 5.0
     else:
@@ -392,6 +394,16 @@ MAP_FAULTS = {
     "slot 1e400": ("shelf.slot", "1e400", "out of range"),
     "observations 1e400": ("box.observations", "1e400", "out of range"),
     "box ids repeated": ("box.dup", None, "appears more than once"),
+    # a row map edited by hand: each names the element, racks[i].shelves[j](.boxes[k])
+    "the same box twice": ("box.twin", None, ("].boxes[", "covers 100% of box", "the same box twice")),
+    "a 50 m box": ("box.size", [50.0, 0.3, 0.3], ("].boxes[0]: box", "along X: longer than its shelf")),
+    "a box 50 m deep": ("box.size", [0.3, 0.3, 50.0], ("].boxes[0]: box", "reaches", "than its shelf (")),  # turned
+    "a box 50 m tall": ("box.size", [0.3, 50.0, 0.3], ("].boxes[0]: box", "taller than its shelf's clear height")),
+    "shelf outside its rack": (
+        "shelf.x_range",
+        lambda v: [v[1] + 1.0, v[1] + 3.0],
+        ("].x_range: shelf", "outside its rack"),
+    ),
 }
 
 
@@ -404,7 +416,7 @@ def test_free_space_refuses_an_impossible_map(fault, map_doc, tmp_path, capsys):
     path = tmp_path / "warehouse.json"
     path.write_text(text)
     rc = main(["free-space", str(path), "--box", "0.4x0.3x0.3"])
-    one_line(capsys, rc, "free-space", str(path), needle)
+    one_line(capsys, rc, "free-space", str(path), *(needle if isinstance(needle, tuple) else (needle,)))
     assert path.read_text() == text
 
 
