@@ -15,6 +15,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from layouts.errors import InputError
+
 #: the codec names of `waresynth.look`'s ``compression`` and PyAV's encoder and decoder for each
 CODECS = {"h264_stream": ("libx264", "h264"), "h265_stream": ("libx265", "hevc")}
 #: the frame rate a sequence streams at (the live maps' 10 fps) and its key-frame interval in frames
@@ -36,6 +38,8 @@ class VideoStream:
         import av
 
         encoder, decoder = CODECS[kind]
+        if encoder not in av.codecs_available:
+            raise InputError(f"config: sensor.compression {kind}: this PyAV's FFmpeg has no {encoder} encoder")
         self.enc = av.CodecContext.create(encoder, "w")
         self.enc.width, self.enc.height, self.enc.pix_fmt = width, height, "yuv420p"
         self.enc.time_base, self.enc.framerate = Fraction(1, FPS), Fraction(FPS, 1)
