@@ -16,6 +16,10 @@ are being staged (a full disk, a quota, a filesystem turned read-only), is one l
 the stage removed and OUT as it was. `refuse_overlap` refuses an output that is,
 lies inside or holds an input. Stale stages of processes no longer alive are removed when the next
 stage is made.
+
+`lock` holds OUT for one command at a time (a second writer into the same OUT is one line, not a race
+the last one wins); `staged` is the whole path in one block: stage, write, publish, or on failure
+discard and say it in one line. Every command that writes an output folder goes through them.
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 from layouts.errors import InputError
@@ -197,14 +202,105 @@ def is_write_failure(e: BaseException, where: str | os.PathLike) -> bool:
 
 def write_failed(e: OSError, out: str | os.PathLike, what: str = "--out", tail: str = "") -> InputError:
     """The one line for a write that failed while a command's outputs were staged (`is_write_failure`),
-    ``--out OUT: cannot write there (No space left on device); the earlier outputs are kept``; the caller
+    ``--out OUT: cannot write there (No space left on device); the earlier outputs are kept``, with the file
+    and the room left when known (``No space left on device: warehouse.rrd, 327680 bytes free``); the caller
     removes its stage, so that OUT keeps them whole. ``tail``: other words on what is kept."""
+    if isinstance(e.filename, (str, os.PathLike)) and e.strerror:
+        name = Path(e.filename).name
+        free = ""
+        if e.errno in (errno.ENOSPC, errno.EDQUOT):
+            try:
+                free = f", {shutil.disk_usage(_existing_ancestor(Path(e.filename))).free} bytes free"
+            except OSError:
+                pass
+        e = OSError(e.errno, f"{e.strerror}: {name}{free}")
     return _cannot(what, Path(out), e, tail or "; the earlier outputs are kept")
 
 
 def discard(st: str | os.PathLike) -> None:
     """Remove a stage after a failed or interrupted command (OUT stays as it was)."""
     shutil.rmtree(st, ignore_errors=True)
+
+
+def _busy(what: str, out: Path) -> InputError:
+    return InputError(f"{what} {out}: another command is writing there now; wait for it to end or give another {what}")
+
+
+@contextmanager
+def lock(out: str | os.PathLike, what: str = "--out", make: bool = False) -> Iterator[None]:
+    """OUT held by this command for the block: a second command writing into the same OUT meanwhile is refused
+    in one line (both would stage, and the last to publish would win). An existing OUT is locked itself
+    (``flock`` on the folder); a missing one through ``.OUT.lock`` beside it, removed at the end. ``make``: OUT
+    is made first and locked itself (a command that writes into OUT before it publishes, like `map`'s passes),
+    and removed again at the end while still empty. Filesystems without locks (some network mounts) go unlocked."""
+    import fcntl
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    made = False
+    try:
+        if make and not out.is_dir():
+            out.mkdir(parents=True)
+            made = True
+        target = out if out.is_dir() else out.parent / f".{out.name}.lock"
+        if target == out:
+            fd = os.open(target, os.O_RDONLY | os.O_DIRECTORY)
+        else:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o666)
+    except FileExistsError:  # made meanwhile by another command
+        raise _busy(what, out) from None
+    except OSError as e:
+        raise _cannot(what, out, e) from None
+    held = False
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise _busy(what, out) from None
+        except OSError:
+            pass  # no locks on this filesystem
+        try:
+            held = os.path.samestat(os.fstat(fd), os.stat(target))
+        except OSError:
+            pass
+        if not held:  # the lock file removed (or OUT replaced) meanwhile by the command that held it
+            raise _busy(what, out)
+        yield
+    finally:
+        if held and target != out:
+            try:
+                target.unlink()
+            except OSError:
+                pass
+        if made:
+            try:
+                out.rmdir()  # only when empty: the command left nothing there
+            except OSError:
+                pass
+        os.close(fd)  # the lock goes with the descriptor
+
+
+@contextmanager
+def staged(
+    out: str | os.PathLike, managed: Iterable[str] | None = None, what: str = "--out", locked: bool = True
+) -> Iterator[Path]:
+    """The one way an output folder is written: OUT held (`lock`, unless the caller holds it: ``locked`` False), a
+    stage made (`stage`) and yielded to be filled, then published (`publish`, ``managed`` as there). When the
+    block fails, the stage is removed and OUT is as it was; a failed write into the stage (a full disk) is one line
+    (`write_failed`)."""
+    out = Path(out)
+    with lock(out, what) if locked else nullcontext():
+        st = stage(out, what)
+        try:
+            yield st
+        except BaseException as e:
+            discard(st)
+            if is_write_failure(e, st):
+                raise write_failed(e, out, what) from None
+            raise
+        publish(st, out, managed, what)
 
 
 def _overlap(a: Path, b: Path) -> bool:

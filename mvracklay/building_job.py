@@ -3,11 +3,13 @@
 Input: a folder holding ``route.json`` (a generated building, `mvracklay generate --building`) or a route file
 of one's own (`stitching.building_route`): each pass's ``sequence`` names its sequence folder, image folder or
 video, relative to the route file. Each pass is mapped as a row on its own (``--layouts gt``: its ground-truth
-layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/NAME/``, a task per pass on the
-local machine's processes or on a Ray cluster (`mvracklay.parallel`); a pass whose row map is there from an
-earlier run with the same settings is not mapped again. Then the passes are placed by the route, registered
-where they overlap and fused, and ``MAP/building.json``, ``building.glb``, ``building.rrd``, ``inventory.csv``
-and ``inventory.json`` are written, each atomically.
+layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/FOLDER/`` (`pass_folder`: never a
+path out of MAP), a task per pass on the local machine's processes or on a Ray cluster (`mvracklay.parallel`); a
+pass whose row map is there from an earlier run with the same settings is not mapped again. Then the passes are
+placed by the route, registered where they overlap and fused, and ``MAP/building.json``, ``building.glb``,
+``building.rrd``, ``inventory.csv`` and ``inventory.json`` are staged and swapped in whole (`layouts.publish`).
+MAP follows `mvracklay run`'s rules: never an input, inside one or holding one; missing, empty or an earlier
+map's folder unless ``overwrite``; one command at a time (`layouts.publish.lock`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +26,7 @@ from typing import Any
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.locations import DEFAULT_CODE, check_code_format
+from layouts.publish import lock, refuse_overlap, staged
 from stitching.building_map import BuildingMap, write_inventory
 from stitching.building_route import Route, load_route, perturb
 from stitching.warehouse_map import WarehouseMap
@@ -30,6 +34,9 @@ from stitching.warehouse_map import WarehouseMap
 ROUTE = "route.json"
 PASSES = "passes"
 OUTPUTS = ("building.json", "building.glb", "building.rrd", "inventory.csv", "inventory.json")
+#: what a pass's folder holds besides the run's outputs: the settings it was mapped with
+PASS_RECORD = "pass.json"
+_PLAIN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
 @dataclass
@@ -95,8 +102,9 @@ def map_pass(task: PassTask) -> float:
         stitcher = Stitcher(folder.spec)
         for i in folder.indices():
             stitcher.push(folder.read(i), i)
-        out.mkdir(parents=True, exist_ok=True)
-        stitcher.map(None, {"layouts": "gt", "source": task.source}).save(out / "warehouse.json")
+        with staged(out, ("warehouse.json", PASS_RECORD)) as st:
+            stitcher.map(None, {"layouts": "gt", "source": task.source}).save(st / "warehouse.json")
+            _record(task, st)
     else:
         from mvracklay.frames import open_source
         from mvracklay.pipeline import run_pipeline
@@ -104,27 +112,74 @@ def map_pass(task: PassTask) -> float:
 
         cfg = RunConfig(**task.run)
         run_pipeline(open_source(task.source, prog="mvracklay map"), out, cfg)
-    atomic_write_json(out / "pass.json", {"key": task.key, "source": task.source, "layouts": task.layouts})
+        _record(task, out)
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
+def _record(task: PassTask, folder: Path) -> None:
+    """The settings a pass was mapped with (`PASS_RECORD`), so a later run with the same ones reuses it."""
+    atomic_write_json(folder / PASS_RECORD, {"key": task.key, "source": task.source, "layouts": task.layouts})
+
+
 def _done(task: PassTask) -> bool:
     out = Path(task.out)
     try:
-        return (out / "warehouse.json").is_file() and load_json(out / "pass.json").get("key") == task.key
+        return (out / "warehouse.json").is_file() and load_json(out / PASS_RECORD).get("key") == task.key
     except (InputError, AttributeError):
         return False
 
 
+def pass_folder(index: int, sequence: str) -> str:
+    """The folder of the route's ``index``-th pass under MAP/passes: its sequence's name when that is one plain
+    name (a generated building's ``seq_00003``), else ``pass_NNN-NAME`` of the path's last part (an absolute path,
+    ``../../x``, ``a/b``): a pass's outputs never land outside MAP, least of all in its own input."""
+    if _PLAIN.match(sequence):
+        return sequence
+    tail = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(sequence).name).strip("._") or "pass"
+    return f"pass_{index:03d}-{tail}"
+
+
 def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: dict[str, Any]) -> list[PassTask]:
-    tasks = []
-    for pose in route.passes:
+    tasks, folders = [], {}
+    for k, pose in enumerate(route.passes):
         src = str((base / pose.sequence).resolve())
         key = hashlib.sha256(json.dumps([src, layouts, run], sort_keys=True, default=str).encode()).hexdigest()[:16]
-        tasks.append(PassTask(pose.sequence, src, str(out / PASSES / pose.sequence), layouts, run, key))
+        name = pass_folder(k, pose.sequence)
+        if folders.setdefault(name, pose.sequence) != pose.sequence:  # two passes' names alike once made plain
+            name = f"pass_{k:03d}-{name}"
+        tasks.append(PassTask(pose.sequence, src, str(out / PASSES / name), layouts, run, key))
     return tasks
+
+
+def _is_map_folder(folder: Path) -> bool:
+    """Whether ``folder`` is an earlier `map_building`'s output: its building.json a building map, or none yet
+    and the passes mapped so far (an interrupted map, to go on from)."""
+    from stitching.building_map import BUILDING_FORMAT
+
+    building = folder / "building.json"
+    if not building.exists():
+        return (folder / PASSES).is_dir()
+    try:
+        doc = json.loads(building.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and doc.get("format") == BUILDING_FORMAT
+
+
+def check_map_out(out: Path, source: str | os.PathLike, tasks: list[PassTask], run: dict[str, Any],
+                  overwrite: bool) -> None:  # fmt: skip
+    """Refuse a MAP that is, lies inside or holds an input (DATASET, a pass's footage, the checkpoint), or that
+    holds other files than an earlier map's unless ``overwrite`` (`mvracklay.outputs.check_out`)."""
+    from mvracklay.outputs import check_out
+
+    inputs: dict[str, str | os.PathLike | None] = {"DATASET": source}
+    inputs.update({f"pass {t.name!r}": t.source for t in tasks})
+    ckpt = run.get("checkpoint")
+    inputs["--checkpoint"] = str(ckpt) if ckpt and Path(str(ckpt)).exists() else None
+    refuse_overlap([out], inputs)
+    check_out(out, overwrite, outputs=(*OUTPUTS, PASSES), earlier=_is_map_folder, command="map")
 
 
 def map_building(
@@ -141,13 +196,15 @@ def map_building(
     ray: str | None = None,
     rrd: bool = True,
     progress: bool = True,
+    overwrite: bool = False,
 ) -> BuildingResult:
     """Map every pass of the route at ``source`` into ``out`` and fuse them (see the module docstring).
 
     ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network; ``run``:
     `mvracklay.settings.RunConfig` fields, e.g. ``checkpoint``); ``pose_noise``: (metres, degrees) added to the
     route's poses, seeded by ``seed``; ``code`` / ``positions``: the location code format and positions per
-    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1)."""
+    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1); ``overwrite``: write
+    into an ``out`` holding other files (only the map's outputs there are replaced)."""
     from mvracklay.parallel import run_tasks
     from stitching.building_export import export_building_glb, write_building_rrd
     from stitching.building_fuse import fuse_building
@@ -161,32 +218,33 @@ def map_building(
     positions = int(positions or bcfg.get("positions") or 1)
     check_code_format(code, positions)
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
     run = dict(run or {})
     if layouts == "net":
         run.setdefault("rrd", False)
         run.setdefault("progress", False)
     tasks = pass_tasks(route, base, out, layouts, run)
-    todo = [t for t in tasks if not _done(t)]
-    peak = 0.0
-    for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
-                           progress="map passes" if progress else None):  # fmt: skip
-        peak = max(peak, mb)
-    if pose_noise is not None:
-        route = perturb(route, pose_noise[0], pose_noise[1], seed)
-    maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
-    placed = [place_pass(pose, route.faces[pose.key], maps[pose.sequence]) for pose in route.passes]
-    meta = {
-        "source": str(source), "layouts": layouts, "passes": len(tasks),
-        "pose_noise": list(pose_noise) if pose_noise else None, "seed": seed,
-    }  # fmt: skip
-    bmap = fuse_building(route, placed, code, positions, meta=meta)
-    bmap.save(out / "building.json")
-    export_building_glb(bmap, out / "building.glb")
-    if rrd:
-        write_building_rrd(bmap, maps, out / "building.rrd")
-    rows = write_inventory(bmap, out)
+    check_map_out(out, source, tasks, run, overwrite)
+    with lock(out, make=True):  # the passes are written into MAP/passes before the building is published
+        todo = [t for t in tasks if not _done(t)]
+        peak = 0.0
+        for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
+                               progress="map passes" if progress else None):  # fmt: skip
+            peak = max(peak, mb)
+        if pose_noise is not None:
+            route = perturb(route, pose_noise[0], pose_noise[1], seed)
+        maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
+        placed = [place_pass(pose, route.faces[pose.key], maps[pose.sequence]) for pose in route.passes]
+        meta = {
+            "source": str(source), "layouts": layouts, "passes": len(tasks),
+            "pose_noise": list(pose_noise) if pose_noise else None, "seed": seed,
+        }  # fmt: skip
+        bmap = fuse_building(route, placed, code, positions, meta=meta)
+        with staged(out, OUTPUTS, locked=False) as st:  # the building's files swapped in whole
+            bmap.save(st / "building.json")
+            export_building_glb(bmap, st / "building.glb")
+            if rrd:
+                write_building_rrd(bmap, maps, st / "building.rrd")
+            rows = write_inventory(bmap, st)
     if progress:
         print(
             f"mvracklay map: {len(todo)} of {len(tasks)} passes mapped, the rest kept from {out / PASSES}",

@@ -161,6 +161,17 @@ def add_quiet_option(p: argparse.ArgumentParser, help_text: str = "no progress b
     p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
 
 
+def add_overwrite_option(p: argparse.ArgumentParser, outputs: str, command: str) -> None:
+    """``--overwrite`` (`run`, `reconstruct`, `map`, `diff`): write into an output folder holding other files,
+    replacing only the command's ``outputs`` there (`mvracklay.outputs.check_out`)."""
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help=f"write into an output folder holding other files (only {outputs} there are replaced); without it the "
+        f"folder must be missing, empty or an earlier {command}'s output folder",
+    )
+
+
 def add_spawn_option(p: argparse.ArgumentParser, rrd: str = "OUT/warehouse.rrd", live: bool = False) -> None:
     """``--spawn``: open the Rerun viewer on the written recording when done (needs the .rrd); ``live``: a live
     source's run streams into the viewer as it maps."""

@@ -1,36 +1,50 @@
-"""What the commands write, and how: staged on OUT's filesystem and moved in only when complete (`staging_dir`,
-`publish`, both `layouts.publish`) and the Rerun viewer opened on a written recording (`spawn_viewer`). Imports no torch: `mvracklay reconstruct` uses it too."""
+"""What the commands write, and where: which OUT a command may write into (`check_out`, `check_apart`; the staging
+and publishing itself is `layouts.publish.staged`) and the Rerun viewer opened on a written recording
+(`spawn_viewer`). Imports no torch: `mvracklay reconstruct`, `map` and `diff` use it too."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from layouts.errors import InputError
 from layouts.publish import check_writable, is_stage_name, refuse_overlap, stage
-from layouts.publish import publish as publish_stage
 
 #: what `mvracklay run` writes into OUT
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
+
+
+def _format_of(path: Path) -> object:
+    """The ``format`` a JSON file declares (None: no such file, not JSON, or none declared)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return None
+    return data.get("format") if isinstance(data, dict) else None
 
 
 def _is_map(path: Path) -> bool:
     """Whether ``path`` is a warehouse.json written by `mvracklay run` or `reconstruct`."""
     from stitching.warehouse_map import MAP_FORMAT
 
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return False
-    return isinstance(data, dict) and data.get("format") == MAP_FORMAT
+    return _format_of(path) == MAP_FORMAT
 
 
-def check_out(out: Path, overwrite: bool = False, untouched: tuple[str, ...] = ()) -> None:
-    """Refuse an OUT that is neither missing, empty nor an earlier run's output folder (only `OUTPUTS` in it,
-    its warehouse.json a map), unless ``overwrite``: then only the command's own outputs are replaced.
-    ``untouched``: outputs the command leaves alone (reconstruct's layouts/), alone in OUT they count as empty."""
+def check_out(
+    out: Path,
+    overwrite: bool = False,
+    untouched: tuple[str, ...] = (),
+    outputs: tuple[str, ...] = OUTPUTS,
+    earlier: Callable[[Path], bool] | None = None,
+    command: str = "run",
+) -> None:
+    """Refuse an OUT that is neither missing, empty nor an earlier output folder of the command (only ``outputs``
+    in it, ``earlier(OUT)`` true; default: run's `OUTPUTS`, its warehouse.json a map), unless ``overwrite``: then
+    only the command's own outputs are replaced. ``untouched``: outputs the command leaves alone (reconstruct's
+    layouts/), alone in OUT they count as empty; ``command``: its name in the message."""
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
     check_writable(out)
@@ -39,13 +53,14 @@ def check_out(out: Path, overwrite: bool = False, untouched: tuple[str, ...] = (
     names = {p.name for p in out.iterdir() if not is_stage_name(p.name)}
     if names <= set(untouched):
         return
-    if names <= set(OUTPUTS) and _is_map(out / "warehouse.json"):
-        return  # an earlier run's (or reconstruct's) output folder
-    other = sorted(names - set(OUTPUTS))
+    earlier = earlier or (lambda folder: _is_map(folder / "warehouse.json"))
+    if names <= set(outputs) and earlier(out):
+        return  # an earlier output folder of the command
+    other = sorted(names - set(outputs))
     what = f"holds other files ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''})" if other else "has no map"
     raise InputError(
-        f"--out {out}: {what}, not an earlier run's output folder; give --overwrite to replace the outputs there "
-        "(nothing else is touched) or another --out"
+        f"--out {out}: {what}, not an earlier {command}'s output folder; give --overwrite to replace the outputs "
+        "there (nothing else is touched) or another --out"
     )
 
 
@@ -60,15 +75,6 @@ def staging_dir(out: Path) -> Path:
     """A fresh staging folder on OUT's filesystem (`layouts.publish.stage`: beside a missing OUT, inside an
     existing one); stale ones of processes no longer alive are removed."""
     return stage(out)
-
-
-def publish(stage_dir: Path, out: Path, managed: tuple[str, ...] = OUTPUTS) -> None:
-    """Move the staged outputs into OUT, replacing those of an earlier run (`layouts.publish.publish`).
-
-    Of the ``managed`` names, an earlier run's output this run did not write is removed (it would
-    be stale); nothing else in OUT is touched. A failed move leaves the earlier outputs whole.
-    """
-    publish_stage(stage_dir, out, managed)
 
 
 def spawn_viewer(rrd: Path) -> None:

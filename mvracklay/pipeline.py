@@ -6,14 +6,13 @@
 
 Frames stream through: each is decoded, predicted (one encoder pass, ConvLSTM state carried),
 written to ``OUT/layouts/``, stitched into the growing map and logged to Rerun, then dropped.
-Everything is written into a staging folder beside OUT and moved into OUT only when the run
-succeeds, so a failed run leaves OUT as it was.
+Everything is written into a staging folder on OUT's filesystem and moved into OUT only when the run
+succeeds (`layouts.publish.staged`: OUT held by one command at a time), so a failed run leaves OUT as it was.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from tqdm import tqdm
 from layouts import Intrinsics, LayoutSpec
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
-from layouts.publish import is_write_failure, write_failed
+from layouts.publish import staged
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.camera import run_camera
@@ -35,7 +34,7 @@ from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource
 from mvracklay.inference import PredictedFrame, make_predictor, predict_frames
-from mvracklay.outputs import OUTPUTS, publish, staging_dir
+from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
 from mvracklay.settings import RunConfig
@@ -140,44 +139,40 @@ def run_pipeline(
     origin, cam_y, cam_z = _map_origin(source)
     seconds["load"] = time.perf_counter() - t0
 
-    stage = staging_dir(out)
     recording = None
-    try:
-        folder = LayoutFolder.create(stage / "layouts", spec)
-        keep_steps = LIVE_KEEP_STEPS if bounded else 0
-        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
-        if cfg.rrd:
-            save = stage / "warehouse.rrd"
-            recording = RunRecording(f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb,
-                                     cfg.map_every, sinks, bounded=bounded)  # fmt: skip
-        # a generated sequence's camera rotation is recorded; footage's is read from the frames
-        pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
-        # each box's colour from the frames' pixels
-        colours = BoxColours(pred.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
-        n, depth, timings = _stream_into_map(
-            source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
-        )
-        seconds.update(timings)
+    with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
+        try:
+            folder = LayoutFolder.create(stage / "layouts", spec)
+            keep_steps = LIVE_KEEP_STEPS if bounded else 0
+            stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
+            if cfg.rrd:
+                save = stage / "warehouse.rrd"
+                recording = RunRecording(f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb,
+                                         cfg.map_every, sinks, bounded=bounded)  # fmt: skip
+            # a generated sequence's camera rotation is recorded; footage's is read from the frames
+            pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
+            # each box's colour from the frames' pixels
+            colours = BoxColours(pred.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
+            n, depth, timings = _stream_into_map(
+                source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
+            )
+            seconds.update(timings)
 
-        t1 = time.perf_counter()
-        lev = pred.leveller
-        read = lev.read_angles() if lev is not None else {}
-        meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
-        # the camera used: where its intrinsics came from and the lens the frames were undistorted through
-        meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
-        wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
-        colours.paint(wmap)
-        _export(wmap, stage, recording, n, cfg.progress)
-        recording = None
-        publish(stage, out)
-        seconds["export"] = time.perf_counter() - t1
-    except BaseException as e:
-        if recording is not None:
-            recording.abort()
-        shutil.rmtree(stage, ignore_errors=True)
-        if is_write_failure(e, stage):  # a full disk while staging: one line, the earlier outputs whole
-            raise write_failed(e, out) from None
-        raise
+            t1 = time.perf_counter()
+            lev = pred.leveller
+            read = lev.read_angles() if lev is not None else {}
+            meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
+            # the camera used: where its intrinsics came from and the lens the frames were undistorted through
+            meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
+            wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
+            colours.paint(wmap)
+            _export(wmap, stage, recording, n, cfg.progress)
+            recording = None
+        except BaseException:
+            if recording is not None:
+                recording.abort()
+            raise
+    seconds["export"] = time.perf_counter() - t1
     warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
     path_said = registration_warning(wmap.meta.get("registration"), n)
     for said in [*angle_warnings(read, width=intr.width), *([path_said] if path_said else [])]:

@@ -88,18 +88,19 @@ class RunRecording:
         self.path.append(rerun_log.camera_point(offset, *self.camera_yz))
         if self.bounded:
             thin(self.path)
+        self.rec.check()  # a failed write into the .rrd (a full disk) ends the run here, not after every frame
         rgb = self.pending.popleft()
         rerun_log.log_frame(self.rec, frame.index, frame.layouts, frame_rec, offset, rgb, decimate(self.path))
         if frame.index % self.map_every == 0:
             rerun_log.log_map(self.rec, stitcher.map(), frame.index, self.num_slots)
 
     def close(self, wmap: WarehouseMap, frames: int) -> None:
-        """The finished map (unless the last frame logged it already), written out."""
+        """The finished map (unless the last frame logged it already), written out and read back
+        (`stitching.rerun_log.Recording.disconnect`: a failed write is an `OSError` naming the file)."""
         if (frames - 1) % self.map_every:
             rerun_log.log_map(self.rec, wmap, frames - 1, self.num_slots)
-        self.rec.flush()
         self.rec.disconnect()
 
     def abort(self) -> None:
         """Stop recording without finishing (a failed run)."""
-        self.rec.disconnect()
+        self.rec.abort()

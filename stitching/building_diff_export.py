@@ -18,6 +18,8 @@ from stitching.building_map import BuildingMap
 from stitching.export_gltf import Part, write_parts_glb
 from stitching.geometry import Cuboid
 
+#: what `write_changes` writes
+CHANGE_FILES = ("changes.csv", "changes.json", "changes.glb", "changes.rrd")
 COLOURS = {"added": (40, 170, 60), "removed": (210, 40, 40), "moved": (40, 90, 210), "shifted": (240, 150, 20)}
 EDGE = 0.02  #: metres: the thickness of a removed box's outline and of an arrow's shaft
 
@@ -107,10 +109,9 @@ def write_changes_rrd(new: BuildingMap, old: BuildingMap, d: BuildingDiff, path:
     """``changes.rrd``: ``building/boxes`` (the new scan), ``changes/<kind>`` boxes, ``changes/arrows``."""
     import rerun as rr
 
-    from stitching.rerun_log import _boxes
+    from stitching.rerun_log import _boxes, recording
 
-    rec = rr.RecordingStream("mvracklay-changes", recording_id="mvracklay-changes")
-    rec.save(str(path))
+    rec = recording("mvracklay-changes", path)  # written by us and read back when closed
     rec.log("/", rr.ViewCoordinates.RDF, static=True)
     boxes = [f.to_building(b.cuboid) for f, shelf, _ in new.locations() for b in shelf.boxes]
     rec.log("building/boxes", _boxes(boxes, (170, 170, 170)), static=True)
@@ -133,6 +134,18 @@ def write_changes_rrd(new: BuildingMap, old: BuildingMap, d: BuildingDiff, path:
         rec.log("changes/arrows", rr.Arrows3D(origins=origins, vectors=vectors, colors=[COLOURS["moved"]]), static=True)
     rec.flush()
     rec.disconnect()
+
+
+def is_changes_folder(folder: str | os.PathLike) -> bool:
+    """Whether ``folder`` holds an earlier `write_changes`'s output (its changes.json a dict of columns and changes)."""
+    import json
+
+    try:
+        with open(os.path.join(folder, "changes.json"), encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and {"columns", "changes"} <= set(doc)
 
 
 def write_changes(

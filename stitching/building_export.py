@@ -101,10 +101,9 @@ def write_building_rrd(bmap: BuildingMap, pass_maps: dict[str, WarehouseMap], pa
     them) for every pass, then ``building/boxes`` and ``building/shelves`` labelled by location code."""
     import rerun as rr
 
-    from stitching.rerun_log import _boxes
+    from stitching.rerun_log import _boxes, recording
 
-    rec = rr.RecordingStream("mvracklay-building", recording_id="mvracklay-building")
-    rec.save(str(path))
+    rec = recording("mvracklay-building", path)  # written by us and read back when closed
     rec.log("/", rr.ViewCoordinates.RDF, static=True)
     for p in bmap.passes:
         wmap = pass_maps.get(p.name)

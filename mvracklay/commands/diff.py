@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.options import add_overwrite_option
 
 NAME = "diff"
 HELP = "what changed between two building maps: boxes added, removed, moved, shifted, per location"
@@ -16,7 +17,8 @@ DESCRIPTION = (
     "A location the new scan did not see is `not scanned`, never `removed`. Prints the changes and writes "
     "DIR/changes.csv and changes.json (the columns of a generated rescan's ground_truth/changes.csv, plus "
     "confidence; the JSON also per location), DIR/changes.glb and changes.rrd (added green, removed a red "
-    "outline, moved blue with an arrow from where it stood, shifted orange)."
+    "outline, moved blue with an arrow from where it stood, shifted orange). DIR may be missing, empty or an earlier "
+    "diff's folder (--overwrite: any other), never a map compared or inside one; a failed diff leaves it as it was."
 )
 GROUP = "use"
 ORDER = 15
@@ -27,6 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("old", metavar="OLD_MAP", help="the earlier scan's building map (folder or building.json)")
     p.add_argument("new", metavar="NEW_MAP", help="the later scan's building map")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder of the changes")
+    add_overwrite_option(p, "the changes files", "diff")
     p.add_argument(
         "--truth",
         type=Path,
@@ -65,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from layouts.locations import read_rows
+    from layouts.publish import refuse_overlap, staged
     from mvracklay.outputs import check_out
     from stitching.building_diff import DiffConfig, diff_buildings, format_diff
-    from stitching.building_diff_export import write_changes
+    from stitching.building_diff_export import CHANGE_FILES, is_changes_folder, write_changes
     from stitching.building_eval import evaluate_changes
     from stitching.building_map import BuildingMap
 
@@ -79,20 +83,22 @@ def run(args: argparse.Namespace) -> int:
     for name, v in given.items():
         if not 0 <= v <= 5:
             raise InputError(f"--{name.replace('_', '-')} must be in [0, 5] metres, got {v}")
-    old = BuildingMap.load(building_path(args.old, "OLD_MAP"))
-    new = BuildingMap.load(building_path(args.new, "NEW_MAP"))
+    old_path, new_path = building_path(args.old, "OLD_MAP"), building_path(args.new, "NEW_MAP")
+    refuse_overlap([args.out], {"OLD_MAP": args.old, "NEW_MAP": args.new, "--truth": args.truth})
+    check_out(args.out, args.overwrite, outputs=CHANGE_FILES, earlier=is_changes_folder, command="diff")
+    old, new = BuildingMap.load(old_path), BuildingMap.load(new_path)
     truth = None
     if args.truth is not None:
         if not args.truth.is_file():
             raise InputError(f"--truth {args.truth}: file not found")
         truth = read_rows(args.truth.read_text(), ("location", "change"), f"--truth {args.truth}")
-    check_out(args.out, overwrite=True)
     d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
     print(format_diff(d, args.limit))
     scores = evaluate_changes(d.rows(), truth) if truth is not None else None
     for cat, s in (scores or {}).items():
         print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
               f"{s['truth']} true)")  # fmt: skip
-    written = write_changes(old, new, d, args.out, rrd=not args.no_rrd, evaluation=scores)
+    with staged(args.out, CHANGE_FILES) as stage:  # DIR held, the changes swapped in whole
+        written = write_changes(old, new, d, stage, rrd=not args.no_rrd, evaluation=scores)
     print("wrote " + ", ".join(str(args.out / n) for n in written))
     return 0

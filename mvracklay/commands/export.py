@@ -15,8 +15,8 @@ DESCRIPTION = (
     "<split>.txt lists and data.yaml. racklay: the authors' RackLay/MVRackLay layout, img/ and topLayouts/ "
     "(top and front 0/115/255 .npy stacks of --slots slots) and splits/warehouse/ with RackLay and MVRackLay "
     "lists of absolute image paths (copy them under their code's splits/warehouse/). The export is built "
-    "beside OUT and moved into place when complete; the same dataset always gives the same bytes (the "
-    "racklay lists name OUT's absolute path)."
+    "in a staging folder on OUT's filesystem and moved into place when complete, one export into OUT at a time; "
+    "the same dataset always gives the same bytes (the racklay lists name OUT's absolute path)."
 )
 GROUP = "data"
 ORDER = 22

@@ -9,6 +9,7 @@ from layouts.errors import InputError
 from mvracklay.options import (
     add_device_option,
     add_json_out_option,
+    add_overwrite_option,
     add_quiet_option,
     add_spawn_option,
     add_threads_option,
@@ -25,7 +26,9 @@ DESCRIPTION = (
     "--building` or a folder / route file of one's own (route.json: the floor plan's faces and each pass's "
     "video or folder, start pose and levels; docs/buildings.md). Writes MAP/building.json, building.glb, "
     "building.rrd, inventory.csv and inventory.json (one row per location; `not scanned` where no pass saw it), "
-    "and each pass's row map under MAP/passes/, which a later run with the same settings reuses."
+    "and each pass's row map under MAP/passes/, which a later run with the same settings reuses. MAP may be missing, "
+    "empty or an earlier map's folder (--overwrite: any other), never an input or inside one; a failed map leaves "
+    "the building's files there as they were."
 )
 GROUP = "use"
 ORDER = 14
@@ -36,6 +39,7 @@ INTERRUPTED = "the passes mapped so far are kept in MAP/passes; run it again to 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", metavar="DATASET", help="a building dataset folder (route.json inside) or a route file")
     p.add_argument("--out", type=Path, required=True, metavar="MAP", help="output folder of the building map")
+    add_overwrite_option(p, "the building map's files and MAP/passes", "map")
     p.add_argument(
         "--layouts",
         choices=("net", "gt"),
@@ -108,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
     res = map_building(
         args.dataset, args.out, layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed,
         code=args.code, positions=args.positions, workers=args.workers, ray=args.ray, rrd=not args.no_rrd,
-        progress=not args.quiet,
+        progress=not args.quiet, overwrite=args.overwrite,
     )  # fmt: skip
     print(summary(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))

@@ -3,17 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from layouts.errors import InputError
-from mvracklay.options import add_quiet_option, add_spawn_option
+from mvracklay.options import add_overwrite_option, add_quiet_option, add_spawn_option
 from mvracklay.reconstruction import open_sequence, reconstruct_folder, resolve_layouts, stitch_settings
-
-if TYPE_CHECKING:
-    pass
 
 NAME = "reconstruct"
 HELP = "stitch per-frame layouts of a sequence into a 3D map: warehouse.json, .glb and .rrd"
@@ -40,12 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="'gt' for SEQ_DIR/layouts (or SEQ_DIR itself when it is a layout folder), or a layout folder",
     )
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into an OUT holding other files (only the map files there are replaced); without it OUT "
-        "must be missing, empty or an earlier run's output folder",
-    )
+    add_overwrite_option(p, "the map files", "run")
     p.add_argument(
         "--board-thickness", type=float, default=0.06, help="metres between a clear height and the next board top"
     )
@@ -68,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from layouts.publish import is_write_failure, write_failed
-    from mvracklay.outputs import check_apart, check_out, publish, spawn_viewer, staging_dir
+    from layouts.publish import staged
+    from mvracklay.outputs import check_apart, check_out, spawn_viewer
     from stitching.path_record import registration_warning
 
     seq_dir = Path(args.seq_dir)
@@ -98,25 +88,18 @@ def run(args: argparse.Namespace) -> int:
     check_apart(
         final_out, MAP_OUTPUTS, {"layouts": folder.root, "meta.json": seq_dir / "meta.json", "rgb": seq_dir / "rgb"}
     )
-    out = staging_dir(final_out)  # outputs appear in OUT only when the whole run succeeded
-    try:
+    with staged(final_out, MAP_OUTPUTS) as out:  # outputs appear in OUT only when the whole run succeeded
         wmap, t_stitch = reconstruct_folder(
             folder, indices, out, seq, config, not args.no_rrd, not args.no_rgb, args.map_every, not args.quiet
         )
-        said = registration_warning(wmap.meta.get("registration"), len(indices))
-        if said:
-            print(f"mvracklay reconstruct: warning: {said}", file=sys.stderr)
-        fps = len(indices) / t_stitch if t_stitch > 0 else float("inf")
-        print(
-            f"{len(indices)} frames -> {len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes "
-            f"(stitching {fps:.0f} frames/s)"
-        )
-    except BaseException as e:
-        shutil.rmtree(out, ignore_errors=True)
-        if is_write_failure(e, out):  # a full disk while staging: one line, the earlier outputs whole
-            raise write_failed(e, final_out) from None
-        raise
-    publish(out, final_out, managed=MAP_OUTPUTS)
+    said = registration_warning(wmap.meta.get("registration"), len(indices))
+    if said:
+        print(f"mvracklay reconstruct: warning: {said}", file=sys.stderr)
+    fps = len(indices) / t_stitch if t_stitch > 0 else float("inf")
+    print(
+        f"{len(indices)} frames -> {len(wmap.racks)} racks, {len(wmap.shelves())} shelves, {len(wmap.boxes())} boxes "
+        f"(stitching {fps:.0f} frames/s)"
+    )
     print(
         f"wrote {final_out / 'warehouse.json'}, {final_out / 'warehouse.glb'}"
         + ("" if args.no_rrd else f", {final_out / 'warehouse.rrd'}")

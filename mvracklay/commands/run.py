@@ -9,6 +9,7 @@ from layouts.errors import InputError
 from mvracklay.options import (
     add_device_option,
     add_help_all_option,
+    add_overwrite_option,
     add_precision_option,
     add_quiet_option,
     add_spawn_option,
@@ -52,12 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="sequence folder, image folder, video file, or live: a camera (/dev/video0 or 0) or a stream URL",
     )
     p.add_argument("--out", type=Path, help="output folder (required)")
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into an OUT holding other files (only run's outputs there are replaced); without it OUT "
-        "must be missing, empty or an earlier run's output folder",
-    )
+    add_overwrite_option(p, "run's outputs", "run")
     add_options(p, RunConfig, only=("checkpoint", "camera", "distance", "camera_height"))  # mvracklay.settings
     p.add_argument(
         "--quality",

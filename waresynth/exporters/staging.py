@@ -13,7 +13,16 @@ from tqdm import tqdm
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from layouts.publish import check_writable, discard, is_stage_name, is_write_failure, publish, stage, write_failed
+from layouts.publish import (
+    check_writable,
+    discard,
+    is_stage_name,
+    is_write_failure,
+    lock,
+    publish,
+    stage,
+    write_failed,
+)
 
 #: version of the COCO and YOLO exports (`export.json`)
 EXPORT_VERSION = 1
@@ -111,15 +120,16 @@ def run_staged(
         raise InputError(f"{out}: output folder must lie outside the dataset folder {dataset.root}")
     if not dataset.sequences():
         raise InputError(f"{dataset.root}: dataset has no sequences")
-    stage = Staging(out, overwrite)
-    try:
-        build(dataset, stage.tmp, progress)
-    except BaseException as e:
-        stage.abort()
-        if is_write_failure(e, stage.tmp):  # a full disk while staging: one line, the earlier export whole
-            raise write_failed(e, out, "output folder") from None
-        raise
-    return stage.commit()
+    with lock(out, "output folder"):  # one export into OUT at a time
+        stage = Staging(out, overwrite)
+        try:
+            build(dataset, stage.tmp, progress)
+        except BaseException as e:
+            stage.abort()
+            if is_write_failure(e, stage.tmp):  # a full disk while staging: one line, the earlier export whole
+                raise write_failed(e, out, "output folder") from None
+            raise
+        return stage.commit()
 
 
 def source_record(dataset: Any) -> dict[str, Any]:
