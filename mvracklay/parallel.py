@@ -21,6 +21,11 @@ The libraries are plain functions on data; a command fans their work out through
 * ``progress``: a progress bar of finished items with this description (None: none).
 * ``retries``: how often Ray runs a task again whose worker or node was lost (default 3, as Ray's).
 
+Connecting is bounded in time: a cluster that does not answer within `connect_timeout` seconds (30, or
+``MVRACKLAY_RAY_TIMEOUT``) is one line naming the address given, never a retry loop: the host is resolved and
+its port reached first, each under the deadline, and only then is Ray asked to connect, its own retries held
+to the time left.
+
 Errors: the first task that raises ends the run and its exception is raised from the iteration as itself
 (an `InputError` stays one, and the CLI prints it as one line; from Ray with a note naming the task and its
 traceback there); the tasks not yet started are cancelled. A task Ray could not run (a worker or node lost, out of memory) is `TaskFailed`, one
@@ -35,9 +40,16 @@ from __future__ import annotations
 import importlib.util
 import logging
 import multiprocessing as mp
+import os
 import re
+import socket
+import tempfile
+import threading
+import time
 from collections.abc import Callable, Hashable, Iterable, Iterator
+from contextlib import contextmanager
 from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from layouts.errors import InputError
@@ -53,6 +65,9 @@ RAY_HELP = (
 )
 INSTALL = "pip install 'mvracklay[ray]' (or 'ray>=2.60')"
 _HOST_PORT = re.compile(r"^(ray://)?[A-Za-z0-9_.\-\[\]:]+:(\d{1,5})$")
+#: seconds a connection to a Ray cluster may take, unless ``MVRACKLAY_RAY_TIMEOUT`` says otherwise
+CONNECT_TIMEOUT_S = 30.0
+TIMEOUT_ENV = "MVRACKLAY_RAY_TIMEOUT"
 
 
 class TaskFailed(RuntimeError):
@@ -153,26 +168,52 @@ def import_ray() -> Any:
     return ray
 
 
-def connect(address: str, num_cpus: int | None = None) -> None:
+def connect_timeout() -> float:
+    """Seconds a connection to a Ray cluster may take: ``MVRACKLAY_RAY_TIMEOUT`` when set, else `CONNECT_TIMEOUT_S`."""
+    text = os.environ.get(TIMEOUT_ENV, "").strip()
+    if not text:
+        return CONNECT_TIMEOUT_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value <= 3600:
+        raise InputError(f"{TIMEOUT_ENV} must be a number of seconds in (0, 3600], got {text!r}")
+    return value
+
+
+def connect(address: str, num_cpus: int | None = None, timeout_s: float | None = None) -> None:
     """Connect this process to the Ray cluster at ``address`` (`check_ray_address`), once: ``local`` starts one of
-    ``num_cpus`` CPUs here. Already connected: kept as it is. A cluster not found is one line."""
+    ``num_cpus`` CPUs here. Already connected: kept as it is. A cluster not found, or not answering within
+    ``timeout_s`` seconds (default `connect_timeout`), is one line naming ``address``."""
     address = check_ray_address(address, "--ray")
+    timeout_s = connect_timeout() if timeout_s is None else float(timeout_s)
     ray = import_ray()
     if ray.is_initialized():
         return
     if address.startswith("ray://") and importlib.util.find_spec("grpc") is None:
         raise InputError(f"--ray {address}: Ray Client needs its extra: pip install 'ray[client]'")
+    deadline = time.monotonic() + timeout_s
+    target = os.environ.get("RAY_ADDRESS", "").strip() if address == "auto" else address
+    if target not in ("auto", "local") and _HOST_PORT.match(target):
+        reach(target, timeout_s, f"--ray {address}")
     quiet = {"include_dashboard": False, "logging_level": "ERROR", "configure_logging": True}
     try:
         if address == "local":
             # Ray starts a local cluster with token authentication on and makes a token itself when there is none
-            # (~/.ray/auth_token; no network); the notice that it did so is left out of the output.
+            # (~/.ray/auth_token; no network): made here first, readable by its owner only (`private_token`); the
+            # notice that Ray turned authentication on is left out of the output.
+            private_token()
             logging.getLogger("ray._private.authentication.authentication_token_setup").setLevel(logging.ERROR)
             ray.init(num_cpus=num_cpus, **quiet)
-        elif address.startswith("ray://"):
-            ray.init(address=address, logging_level="ERROR")
         else:
-            ray.init(address=address, **quiet)
+            # Ray retries a cluster that does not answer about once a second for this many tries (read at each call)
+            left = max(1, int(deadline - time.monotonic()))
+            with _environ(RAY_gcs_server_port_wait_time_s=str(left)):
+                if address.startswith("ray://"):
+                    ray.init(address=address, logging_level="ERROR")
+                else:
+                    ray.init(address=address, **quiet)
     except (ConnectionError, TimeoutError, RuntimeError, ValueError) as e:
         first = (str(e).strip().splitlines() or [type(e).__name__])[0]
         hint = (
@@ -181,6 +222,115 @@ def connect(address: str, num_cpus: int | None = None) -> None:
             else " (a cluster with token authentication also needs RAY_AUTH_MODE=token and its token here)"
         )
         raise InputError(f"--ray {address}: cannot connect to a Ray cluster{hint}: {first}") from None
+
+
+def reach(address: str, timeout_s: float, name: str = "--ray") -> None:
+    """Check that something answers at ``address`` (``HOST:PORT`` or ``ray://HOST:PORT``) within ``timeout_s``
+    seconds, the host name resolved and a TCP connection opened, each under the deadline; else one `InputError`
+    line naming ``name`` and the address as given (Ray itself would retry for minutes, naming another address)."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    host = host.strip("[]")
+    deadline = time.monotonic() + timeout_s
+    said = f"{name}: no Ray cluster answered within {timeout_s:g} s"
+    found: list = []
+    problem: list[str] = []
+
+    def resolve() -> None:
+        try:
+            found.extend(socket.getaddrinfo(host, int(port), type=socket.SOCK_STREAM))
+        except (OSError, UnicodeError) as e:
+            problem.append(f"host {host} not found: {e.strerror or e}" if isinstance(e, OSError) else str(e))
+
+    looking = threading.Thread(target=resolve, name="ray-resolve", daemon=True)  # getaddrinfo has no timeout
+    looking.start()
+    looking.join(timeout_s)
+    if looking.is_alive():
+        raise InputError(f"{said} (resolving host {host} did not finish)")
+    if not found:
+        raise InputError(f"{said} ({problem[0] if problem else f'host {host} not found'})")
+    why = "timed out"
+    for family, kind, proto, _, sockaddr in found:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        try:
+            with socket.socket(family, kind, proto) as s:
+                s.settimeout(left)
+                s.connect(sockaddr)
+                if os.environ.get("RAY_USE_TLS", "0").strip().lower() in ("0", "false", ""):
+                    s.settimeout(max(0.01, deadline - time.monotonic()))
+                    if not _speaks_grpc(s):
+                        why = "the port answers, but not as a Ray cluster's (gRPC) does"
+                        continue
+            return
+        except TimeoutError:
+            why = "timed out"
+        except OSError as e:
+            why = (e.strerror or type(e).__name__).lower()
+    raise InputError(f"{said} ({why})")
+
+
+def _speaks_grpc(s: socket.socket) -> bool:
+    """Whether the server on ``s`` answers as a gRPC server (a Ray head's GCS, a Ray Client server) does: HTTP/2,
+    whose first frame is its SETTINGS, sent in reply to the client's preface (before any authentication)."""
+    s.sendall(b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))  # preface, SETTINGS
+    head = b""
+    while len(head) < 9:
+        part = s.recv(9 - len(head))
+        if not part:
+            return False
+        head += part
+    return head[3] == 4 and not head[4] & 1  # a SETTINGS frame, not an acknowledgement
+
+
+@contextmanager
+def _environ(**values: str) -> Iterator[None]:
+    """Environment variables set for the duration of a ``with`` block (any the user set are kept as they are)."""
+    values = {k: v for k, v in values.items() if k not in os.environ}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for k in values:
+            os.environ.pop(k, None)
+
+
+def private_token() -> Path | None:
+    """The token file a local Ray reads (``~/.ray/auth_token``), readable by its owner only: made here (a random
+    token, the way Ray makes one; the folder 0700, the file 0600, written whole) when Ray would make it itself,
+    with the permissions of any file, and an existing one readable by others narrowed to 0600. None when the
+    token comes from elsewhere (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH``), authentication is off
+    (``RAY_AUTH_MODE=disabled``) or there is no home folder."""
+    if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH"):
+        return None
+    if os.environ.get("RAY_AUTH_MODE", "").strip().lower() == "disabled":
+        return None
+    try:
+        path = Path.home() / ".ray" / "auth_token"
+    except RuntimeError:
+        return None
+    try:
+        if path.is_file():
+            if path.stat().st_mode & 0o077:
+                path.chmod(0o600)
+            return path
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+        import secrets
+
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".auth_token.", suffix=".tmp")  # made 0600
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(secrets.token_hex(32))
+                f.flush()
+                os.fsync(f.fileno())
+            os.link(tmp, path)  # never over a token another process has just made
+        except FileExistsError:
+            pass
+        finally:
+            os.unlink(tmp)
+    except OSError as e:
+        raise InputError(f"--ray local: cannot make Ray's token file {path} ({e.strerror or e})") from None
+    return path
 
 
 def shutdown() -> None:

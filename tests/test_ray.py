@@ -1,12 +1,17 @@
 """Work as Ray tasks (`mvracklay.parallel`, ``--ray``): one local Ray of 2 CPUs for the module; a dataset and a
 building generated through it hold the same bytes as from local processes, and the building's passes mapped
 through it give the same building map; a task's error comes back as itself;
-bad addresses and a missing Ray are one line."""
+bad addresses, a missing Ray and a cluster that does not answer are one line, within the deadline, naming the address
+given; the token of a local Ray is readable by its owner only."""
 
 from __future__ import annotations
 
 import os
+import socket
+import stat
 import sys
+import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -14,7 +19,7 @@ import pytest
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from mvracklay.parallel import TaskFailed, check_ray_address, run_tasks, task_map
+from mvracklay.parallel import TaskFailed, check_ray_address, connect, private_token, run_tasks, task_map
 from waresynth.building_generate import generate_building
 from waresynth.generate import generate_dataset
 
@@ -113,3 +118,92 @@ def test_a_worker_that_writes_elsewhere_is_one_line(tmp_path):
 
     with pytest.raises(InputError, match="every worker sees at the same path"):
         generate_dataset(tmp_path / "d", num_sequences=1, frames=1, tasks=elsewhere, **SMALL)
+
+
+# --- a cluster that does not answer, and the local token ----------------------------------------------------------
+def _closed_port() -> int:
+    with socket.socket() as s:  # a loopback port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def not_connected(monkeypatch):
+    """This process as one not yet connected to Ray (the module's local Ray, if started, is left as it is: the
+    addresses below are refused before Ray is asked)."""
+    ray = pytest.importorskip("ray")
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setenv("MVRACKLAY_RAY_TIMEOUT", "3")
+
+
+@pytest.mark.parametrize("where", ["closed", "nosuchhost.invalid:6379"])
+def test_a_cluster_that_does_not_answer_is_one_line_naming_the_address_given(
+    not_connected, tmp_path, capfd, where, tiny_building
+):
+    address = f"127.0.0.1:{_closed_port()}" if where == "closed" else where
+    runs = {
+        "generate": ["generate", str(tmp_path / "gen"), "--sequences", "1", "--frames", "1", "--ray", address],
+        "map": ["map", str(tiny_building), "--out", str(tmp_path / "map"), "--layouts", "gt", "--ray", address],
+    }
+    for command, argv in runs.items():
+        start = time.monotonic()
+        rc = main(argv)
+        assert time.monotonic() - start < 30  # the 3 s deadline, never Ray's retries of minutes
+        err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]  # Ray's own log included
+        assert rc == 2 and len(err) == 1, err
+        why = "connection refused" if where == "closed" else "host nosuchhost.invalid not found"
+        assert err[0].startswith(f"mvracklay {command}: error: --ray {address}: no Ray cluster answered within 3 s")
+        assert why in err[0]
+    assert not (tmp_path / "gen").exists() and not (tmp_path / "map").exists()
+
+
+@pytest.mark.parametrize("reply", [b"", b"HTTP/1.1 400 Bad Request\r\n\r\n"], ids=["silent", "not-grpc"])
+def test_a_port_that_answers_but_not_as_ray_is_one_line_within_the_deadline(not_connected, reply):
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+    held = []
+
+    def serve():
+        conn, _ = server.accept()
+        held.append(conn)
+        if reply:
+            conn.recv(64)
+            conn.sendall(reply)
+            conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    address = f"127.0.0.1:{server.getsockname()[1]}"
+    try:
+        with pytest.raises(InputError, match=f"^--ray {address}: no Ray cluster answered within 1 s") as e:
+            connect(address, timeout_s=1)
+    finally:
+        server.close()
+        for c in held:
+            c.close()
+    assert ("timed out" if not reply else "not as a Ray cluster's (gRPC) does") in str(e.value)
+
+
+def test_a_bad_deadline_is_one_line(not_connected, monkeypatch):
+    monkeypatch.setenv("MVRACKLAY_RAY_TIMEOUT", "soon")
+    with pytest.raises(
+        InputError, match="^MVRACKLAY_RAY_TIMEOUT must be a number of seconds in \\(0, 3600\\], got 'soon'"
+    ):
+        connect(f"127.0.0.1:{_closed_port()}")
+
+
+def test_the_token_of_a_local_ray_is_readable_by_its_owner_only(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    for k in ("RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH", "RAY_AUTH_MODE"):
+        monkeypatch.delenv(k, raising=False)
+    token = private_token()  # what `connect("local")` makes before Ray would make it, readable by all
+    assert token == tmp_path / ".ray" / "auth_token"
+    assert stat.S_IMODE(token.stat().st_mode) == 0o600 and stat.S_IMODE(token.parent.stat().st_mode) == 0o700
+    text = token.read_text()
+    assert len(text) == 64 and int(text, 16) >= 0 and [p.name for p in token.parent.iterdir()] == ["auth_token"]
+    assert private_token() == token and token.read_text() == text  # kept
+    token.chmod(0o644)  # as an earlier Ray made it
+    assert private_token() == token and stat.S_IMODE(token.stat().st_mode) == 0o600 and token.read_text() == text
+    monkeypatch.setenv("HOME", str(tmp_path / "other"))
+    monkeypatch.setenv("RAY_AUTH_TOKEN", "given")  # a token from elsewhere: nothing written
+    assert private_token() is None and not (tmp_path / "other").exists()
