@@ -38,20 +38,27 @@ def layout_digest(folder: Path) -> str:
     return h.hexdigest()
 
 
-def _cli(*args: str) -> None:
-    env = {**os.environ, **PINNED}
-    subprocess.run([sys.executable, "-m", "mvracklay", *args], cwd=ROOT, env=env, check=True,
-                   capture_output=True, text=True)  # fmt: skip
+#: the three commands in one pinned interpreter (torch and the models imported once): generate a sequence, `run`
+#: with the default model and `predict` with the 256x256 one
+COMMANDS = r"""
+import sys
+from pathlib import Path
+from mvracklay.cli import main
+tmp = Path(sys.argv[1])
+data = tmp / "data"
+assert main(["generate", str(data), "--sequences", "1", "--frames", "6", "--size", "256", "--seed", "11"]) == 0
+seq = next(p for p in sorted(data.iterdir()) if p.is_dir() and (p / "meta.json").is_file())
+assert main(["run", str(seq), "--out", str(tmp / "run"), "--no-rrd", "--threads", "1", "--quiet"]) == 0
+assert main(["predict", str(seq), "--checkpoint", "mvracklay-disc-4-256", "--out", str(tmp / "pred256"),
+             "--threads", "1", "--quiet"]) == 0
+"""
 
 
 def compute(tmp: Path) -> dict[str, str]:
     """The digests: `run` with the default model and `predict` with the 256x256 one, 6 frames, seed 11."""
-    data = tmp / "data"
-    _cli("generate", str(data), "--sequences", "1", "--frames", "6", "--size", "256", "--seed", "11")
-    seq = next(p for p in sorted(data.iterdir()) if p.is_dir() and (p / "meta.json").is_file())
-    _cli("run", str(seq), "--out", str(tmp / "run"), "--no-rrd", "--threads", "1", "--quiet")
-    _cli("predict", str(seq), "--checkpoint", "mvracklay-disc-4-256",
-         "--out", str(tmp / "pred256"), "--threads", "1", "--quiet")  # fmt: skip
+    env = {**os.environ, **PINNED}
+    subprocess.run([sys.executable, "-c", COMMANDS, str(tmp)], cwd=ROOT, env=env, check=True, capture_output=True,
+                   text=True)  # fmt: skip
     return {"run_default": layout_digest(tmp / "run" / "layouts"), "predict_256": layout_digest(tmp / "pred256")}
 
 
