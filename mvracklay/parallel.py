@@ -194,7 +194,7 @@ def connect(address: str, num_cpus: int | None = None, timeout_s: float | None =
     if address.startswith("ray://") and importlib.util.find_spec("grpc") is None:
         raise InputError(f"--ray {address}: Ray Client needs its extra: pip install 'ray[client]'")
     deadline = time.monotonic() + timeout_s
-    target = os.environ.get("RAY_ADDRESS", "").strip() if address == "auto" else address
+    target = _auto_address() if address == "auto" else address
     if target not in ("auto", "local") and _HOST_PORT.match(target):
         reach(target, timeout_s, f"--ray {address}")
     quiet = {"include_dashboard": False, "logging_level": "ERROR", "configure_logging": True}
@@ -222,6 +222,20 @@ def connect(address: str, num_cpus: int | None = None, timeout_s: float | None =
             else " (a cluster with token authentication also needs RAY_AUTH_MODE=token and its token here)"
         )
         raise InputError(f"--ray {address}: cannot connect to a Ray cluster{hint}: {first}") from None
+
+
+def _auto_address() -> str:
+    """Where ``--ray auto`` connects: ``RAY_ADDRESS``, else the cluster ``ray start`` last started here (its address
+    file); "" when neither says."""
+    given = os.environ.get("RAY_ADDRESS", "").strip()
+    if given:
+        return given
+    try:
+        from ray._private.utils import read_ray_address
+
+        return (read_ray_address() or "").strip()
+    except Exception:  # noqa: BLE001 - another Ray's layout: Ray finds the address itself
+        return ""
 
 
 def reach(address: str, timeout_s: float, name: str = "--ray") -> None:

@@ -157,6 +157,15 @@ def test_a_cluster_that_does_not_answer_is_one_line_naming_the_address_given(
     assert not (tmp_path / "gen").exists() and not (tmp_path / "map").exists()
 
 
+def test_auto_at_a_cluster_gone_is_one_line(not_connected, tmp_path, monkeypatch):
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setenv("RAY_TMPDIR", str(tmp_path))  # where `ray start` leaves the address of its cluster
+    (tmp_path / "ray").mkdir()
+    (tmp_path / "ray" / "ray_current_cluster").write_text(f"127.0.0.1:{_closed_port()}\n")  # stopped since
+    with pytest.raises(InputError, match=r"^--ray auto: no Ray cluster answered within 3 s \(connection refused\)$"):
+        connect("auto")
+
+
 @pytest.mark.parametrize("reply", [b"", b"HTTP/1.1 400 Bad Request\r\n\r\n"], ids=["silent", "not-grpc"])
 def test_a_port_that_answers_but_not_as_ray_is_one_line_within_the_deadline(not_connected, reply):
     server = socket.socket()
