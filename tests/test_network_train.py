@@ -112,7 +112,7 @@ def test_corrupt_or_pickled_checkpoints_are_refused(tmp_path):
     data = good.read_bytes()
     trunc = tmp_path / "trunc.pt"
     trunc.write_bytes(data[: len(data) // 2])
-    with pytest.raises(InputError, match=r"trunc\.pt: not a readable checkpoint"):
+    with pytest.raises(InputError, match=r"trunc\.pt: truncated or corrupted checkpoint"):
         load_model(trunc)
     sentinel = tmp_path / "pwned"
     evil = tmp_path / "evil.pt"
