@@ -381,13 +381,15 @@ def _on_shelf(m: FusedBox, xr: tuple[float, float], zr: tuple[float, float], cle
     it (a blob over the rack's end, not one box) and none is taller than the clear height to the next board."""
     cx, cz, w, d, yaw = m.cuboid_params()
     (x0, x1), (z0, z1) = xr, zr
-    bx0, bx1, bz0, bz1 = footprint_extent(cx, cz, w, d, yaw)
-    if not z0 <= cz <= z1 or bx1 <= x0 or bx0 >= x1:
+    if not z0 <= cz <= z1:
         return None
+    _, _, bz0, bz1 = footprint_extent(cx, cz, w, d, yaw)
     lo, hi = max(bz0, z0), min(bz1, z1)
     if hi - lo < bz1 - bz0:
         (w, d), cz = _fit(w, d, yaw, hi - lo, along_z=True), (lo + hi) / 2
     bx0, bx1, _, _ = footprint_extent(cx, cz, w, d, yaw)
+    if bx1 <= x0 or bx0 >= x1:
+        return None
     if bx1 - bx0 > x1 - x0:
         lo, hi = max(bx0, x0), min(bx1, x1)
         (w, d), cx = _fit(w, d, yaw, hi - lo, along_z=False), (lo + hi) / 2
