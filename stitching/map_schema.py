@@ -164,6 +164,13 @@ class MapDoc(_Doc):
                 seen.add(str(i))
         return self
 
+    @model_validator(mode="after")
+    def _standing(self) -> MapDoc:
+        said = next(_geometry(self), None)
+        if said:
+            raise ValueError(said)  # says where: racks[i].shelves[j](.boxes[k])
+        return self
+
 
 def _box_problem(b: BoxDoc, s: ShelfDoc) -> str | None:
     """What keeps box ``b`` from standing on shelf ``s``, or None."""
@@ -223,10 +230,10 @@ def _geometry(doc: MapDoc) -> Iterator[str]:
 def _problem(doc: Any) -> str | None:
     """The first way a parsed map breaks the schema, as ``where: what``, or None."""
     try:
-        parsed = MapDoc.model_validate(doc)
+        MapDoc.model_validate(doc)
     except ValidationError as e:
         return first_problem(e.errors())
-    return next(_geometry(parsed), None)
+    return None
 
 
 def check_map(doc: Any, source: str) -> None:
