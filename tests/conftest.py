@@ -1,4 +1,4 @@
-"""Shared fixtures: a tiny WareSynth dataset per worker; the fixed tiny network (tests/data), a tiny building and its map, copied or made once per run and shared by the workers; a local Ray per test file that asks."""
+"""Shared fixtures: a tiny WareSynth dataset, the fixed tiny network (tests/data), a tiny building and its map, made or copied once per run and shared by the workers; a local Ray per test file that asks."""
 
 from __future__ import annotations
 
@@ -35,10 +35,14 @@ settings.load_profile("project")
 
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """3 sequences x 8 frames, 128x128 images, layouts D=64, seed 7 (`tiny_net.TINY_DATASET`; a few seconds)."""
+    """3 sequences x 8 frames, 128x128 images, layouts D=64, seed 7 (`tiny_net.TINY_DATASET`; a few seconds), made
+    once per run (the workers share it: read only)."""
     from tiny_net import tiny_dataset
 
-    return tiny_dataset(tmp_path_factory.mktemp("waresynth") / "tiny")
+    with _shared(tmp_path_factory, "tiny_dataset") as (root, made):
+        if not made:
+            tiny_dataset(root / "tiny")
+    return root / "tiny"
 
 
 @pytest.fixture(scope="session")
