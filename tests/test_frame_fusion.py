@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -148,7 +146,9 @@ def test_predictor_fuses_its_decided_logits_with_the_motion_it_reads(monkeypatch
 
 
 @pytest.mark.parametrize("command", ["evaluate", "predict", "run", "eval-reconstruction"])
-def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_checkpoint, tmp_path):
+def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_checkpoint, tmp_path, capsys):
+    from mvracklay.cli import main
+
     seq = str(sorted(p for p in tiny_dataset.iterdir() if p.is_dir())[0])
     ck = ["--checkpoint", str(tiny_checkpoint)]
     argv = {
@@ -157,11 +157,9 @@ def test_fuse_frames_option_fails_with_one_line(command, tiny_dataset, tiny_chec
         "run": [seq, *ck, "--out", str(tmp_path / "run")],
         "eval-reconstruction": [str(tiny_dataset), *ck],
     }[command]
-    r = subprocess.run(
-        [sys.executable, "-m", "mvracklay", command, *argv, "--fuse-frames", "-1"], capture_output=True, text=True
-    )
-    assert r.returncode != 0
-    assert "--fuse-frames" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert main([command, *argv, "--fuse-frames", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "--fuse-frames" in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "pred").exists() and not (tmp_path / "run").exists()  # nothing written
 
 
