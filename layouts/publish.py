@@ -226,50 +226,68 @@ def _busy(what: str, out: Path) -> InputError:
     return InputError(f"{what} {out}: another command is writing there now; wait for it to end or give another {what}")
 
 
-@contextmanager
-def lock(out: str | os.PathLike, what: str = "--out", make: bool = False) -> Iterator[None]:
-    """OUT held by this command for the block: a second command writing into the same OUT meanwhile is refused
-    in one line (both would stage, and the last to publish would win). An existing OUT is locked itself
-    (``flock`` on the folder); a missing one through ``.OUT.lock`` beside it, removed at the end. ``make``: OUT
-    is made first and locked itself (a command that writes into OUT before it publishes, like `map`'s passes),
-    and removed again at the end while still empty. Filesystems without locks (some network mounts) go unlocked."""
+def _take(target: Path, out: Path, what: str) -> int:
+    """An open descriptor of ``target`` (OUT itself, or the lock file beside a missing OUT) holding its lock."""
     import fcntl
 
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{what} {out}: exists and is not a folder")
-    made = False
     try:
-        if make and not out.is_dir():
-            out.mkdir(parents=True)
-            made = True
-        target = out if out.is_dir() else out.parent / f".{out.name}.lock"
         if target == out:
             fd = os.open(target, os.O_RDONLY | os.O_DIRECTORY)
         else:
             target.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(target, os.O_RDWR | os.O_CREAT, 0o666)
-    except FileExistsError:  # made meanwhile by another command
-        raise _busy(what, out) from None
     except OSError as e:
         raise _cannot(what, out, e) from None
-    held = False
     try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise _busy(what, out) from None
-        except OSError:
-            pass  # no locks on this filesystem
-        try:
-            held = os.path.samestat(os.fstat(fd), os.stat(target))
-        except OSError:
-            pass
-        if not held:  # the lock file removed (or OUT replaced) meanwhile by the command that held it
-            raise _busy(what, out)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise _busy(what, out) from None
+    except OSError:
+        pass  # no locks on this filesystem
+    try:
+        held = os.path.samestat(os.fstat(fd), os.stat(target))
+    except OSError:
+        held = False
+    if not held:  # the lock file removed (or OUT replaced) meanwhile by the command that held it
+        os.close(fd)
+        raise _busy(what, out)
+    return fd
+
+
+@contextmanager
+def lock(out: str | os.PathLike, what: str = "--out", make: bool = False) -> Iterator[None]:
+    """OUT held by this command for the block: a second command writing into the same OUT meanwhile is refused
+    in one line (both would stage, and the last to publish would win). An existing OUT is locked itself
+    (``flock`` on the folder); a missing one through ``.OUT.lock`` beside it, removed at the end. ``make``: a
+    missing OUT is made (under the lock beside it) and locked itself, for a command that writes into OUT before it
+    publishes (`map`'s passes); removed again at the end while still empty. Filesystems without locks (some
+    network mounts) go unlocked."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    made = False
+    if make and not out.is_dir():
+        with lock(out, what):
+            try:
+                out.mkdir(parents=True)
+            except FileExistsError:
+                raise _busy(what, out) from None
+            except OSError as e:
+                raise _cannot(what, out, e) from None
+            made = True
+            try:
+                fd = _take(out, out, what)
+            except BaseException:
+                out.rmdir()
+                raise
+    target = out if out.is_dir() else out.parent / f".{out.name}.lock"
+    if not made:
+        fd = _take(target, out, what)
+    try:
         yield
     finally:
-        if held and target != out:
+        if target != out:
             try:
                 target.unlink()
             except OSError:
