@@ -290,3 +290,12 @@ def test_truth_files_are_held_to_their_schema(tiny_building, tiny_building_map):
                         ({"change": "added"}, "row 1: location")]:  # fmt: skip
         with pytest.raises(InputError, match=f"--truth: malformed changes: {needle}"):
             evaluate_changes(found, [row])
+
+
+def test_diff_refuses_a_malformed_truth_before_it_compares(tiny_building_map, tmp_path, capsys):
+    truth = tmp_path / "truth.csv"
+    truth.write_text("location,change\n01-R-01-1,exploded\n")
+    rc = main(["diff", str(tiny_building_map), str(tiny_building_map), "--out", str(tmp_path / "out"), "--no-rrd",
+               "--truth", str(truth)])  # fmt: skip
+    one_line(capsys, rc, "diff", f"--truth {truth}: malformed changes: row 1: change")
+    assert not (tmp_path / "out").exists()

@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from stitching.building_diff_export import CHANGE_FILES, is_changes_folder, write_changes
     from stitching.building_eval import evaluate_changes
     from stitching.building_map import BuildingMap
+    from stitching.building_schema import check_change_rows
 
     given = {
         k: v
@@ -92,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.truth.is_file():
             raise InputError(f"--truth {args.truth}: file not found")
         truth = read_rows(args.truth.read_text(), ("location", "change"), f"--truth {args.truth}")
+        check_change_rows(truth, f"--truth {args.truth}")
     d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
     print(format_diff(d, args.limit))
     scores = evaluate_changes(d.rows(), truth) if truth is not None else None
