@@ -3,7 +3,8 @@ sequence of a WareSynth dataset, with the route record and the building's ground
 
 ``OUT`` is a WareSynth dataset (manifest.json, one folder per pass, all in the test split; every reader of a
 dataset reads it) plus ``OUT/route.json`` (`waresynth.building.route`) and ``OUT/ground_truth/building.json``
-and ``inventory.csv`` (`waresynth.building_truth`). As for any dataset, the same seed and configs give the same
+and ``inventory.csv`` (`waresynth.building_truth`), and ``OUT/locations.csv``: the location list a warehouse
+management system would export (`layouts.location_list`: codes and spans, no contents). As for any dataset, the same seed and configs give the same
 bytes whatever the worker count, and a re-run skips the complete passes.
 
 ``rescan=OUT`` writes the same building after a seeded change set (`waresynth.building_changes`), scanned by
@@ -19,6 +20,7 @@ from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, atomic_write_text
+from layouts.location_list import ListedLocation, write_location_list
 from layouts.locations import inventory_csv
 from layouts.publish import refuse_overlap
 from layouts.spec import LayoutSpec
@@ -35,6 +37,21 @@ from waresynth.generate import check_writer_args, write_dataset
 ROUTE = "route.json"
 GROUND_TRUTH = "ground_truth"
 CHANGES = "changes.csv"  #: a rescan's changes, in GROUND_TRUTH
+LOCATIONS = "locations.csv"  #: the location list (codes and spans, no contents)
+
+
+def listed_locations(doc: dict[str, Any]) -> list[ListedLocation]:
+    """The location list of a ground truth (``building.json``'s content): a level's span is its bay's (its
+    positions' where a level has several), along building X."""
+    out = []
+    for r in doc["racks"]:
+        for lv in r["levels"]:
+            many = len(lv["positions"]) > 1
+            for pos in lv["positions"]:
+                lo, hi = (pos["x_min"], pos["x_max"]) if many else (r["x_min"], r["x_max"])
+                out.append(ListedLocation(pos["location"], r["aisle"], r["side"], r["bay"], lv["level"], lo, hi,
+                                          pos["position"]))  # fmt: skip
+    return out
 
 
 def generate_building(
@@ -116,6 +133,7 @@ def _write(root: Path, plan: Building, manifest: dict[str, Any], overwrite: bool
         doc, rows = ground_truth(plan)
         atomic_write_json(root / GROUND_TRUTH / "building.json", doc)
         atomic_write_text(root / GROUND_TRUTH / "inventory.csv", inventory_csv(rows))
+        write_location_list(listed_locations(doc), root / LOCATIONS)
         if changes is not None:
             atomic_write_text(root / GROUND_TRUTH / CHANGES, changes)
 
