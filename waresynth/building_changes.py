@@ -2,7 +2,8 @@
 
 `apply_changes` takes a planned `Building` (its faces' racks and stacks) and returns a changed copy and the
 list of `Change` records; `changes_rows` / `changes_csv` turn them into ``ground_truth/changes.csv``
-(docs/waresynth.md, "Rescans"). Rates (`waresynth.building_schema.CHANGE_DEFAULTS`) are shares of the
+(docs/waresynth.md, "Rescans"), `location_change_rows` / `location_changes_csv` the per-location counts before and
+after into ``ground_truth/location_changes.csv`` (`layouts.location_changes`). Rates (`waresynth.building_schema.CHANGE_DEFAULTS`) are shares of the
 building's stacks before the changes: ``round(rate x stacks)`` stacks are removed, moved, shifted and replaced
 (each stack at most once), and ``round(added x stacks)`` new stacks added. A change that finds no room (a move with no location to take it, a shift with no
 free length along its position) is left out, so the counts are at most the rates'. Everything is drawn from
@@ -25,10 +26,11 @@ from typing import Any
 import numpy as np
 
 from layouts.errors import InputError
+from layouts.location_changes import TRUTH_COLUMNS, UNCHANGED, count_change
 from layouts.locations import rows_csv
 from waresynth.building import Building, Face
 from waresynth.building_schema import CHANGE_DEFAULTS, change_rates
-from waresynth.building_truth import board_positions, box_id, location_code, position_of
+from waresynth.building_truth import board_positions, box_id, ground_truth, location_code, position_of
 from waresynth.draws import choice, colour, uniform
 from waresynth.row_plan import RackPlan, StackPlan, board_span, clear_heights
 from waresynth.scene import PATTERNS, Material
@@ -309,3 +311,20 @@ def changes_rows(before: Building, after: Building, changes: list[Change]) -> li
 def changes_csv(rows: list[dict[str, Any]]) -> str:
     """``changes.csv`` as text: a header (`CHANGES_COLUMNS`), then one row per changed stack."""
     return rows_csv([{k: r[k] for k in CHANGES_COLUMNS} for r in rows], CHANGES_COLUMNS)
+
+
+def location_change_rows(before: Building, after: Building) -> list[dict[str, Any]]:
+    """``location_changes.csv``'s rows (`layouts.location_changes.TRUTH_COLUMNS`), building order: each location
+    whose stack count differs between ``before`` and ``after``, with both counts and its category."""
+    counts = {r["location"]: int(r["boxes"]) for r in ground_truth(before)[1]}
+    rows = []
+    for r in ground_truth(after)[1]:
+        old, new = counts.get(r["location"], 0), int(r["boxes"])
+        if (kind := count_change(old, new)) != UNCHANGED:
+            rows.append({"location": r["location"], "before": old, "after": new, "change": kind})
+    return rows
+
+
+def location_changes_csv(rows: list[dict[str, Any]]) -> str:
+    """``location_changes.csv`` as text: a header (`TRUTH_COLUMNS`), then one row per location whose count changed."""
+    return rows_csv(rows, TRUTH_COLUMNS)

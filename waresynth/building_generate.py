@@ -8,8 +8,8 @@ management system would export (`layouts.location_list`: codes and spans, no con
 bytes whatever the worker count, and a re-run skips the complete passes.
 
 ``rescan=OUT`` writes the same building after a seeded change set (`waresynth.building_changes`), scanned by
-passes and cameras of its own (`waresynth.building_rescan`), with ``ground_truth/changes.csv`` beside the rest
-and ``rescan_of`` in the manifest; the same seed and OUT give the same bytes.
+passes and cameras of its own (`waresynth.building_rescan`), with ``ground_truth/changes.csv`` and
+``location_changes.csv`` beside the rest and ``rescan_of`` in the manifest; the same seed and OUT give the same bytes.
 """
 
 from __future__ import annotations
@@ -26,7 +26,13 @@ from layouts.publish import refuse_overlap
 from layouts.spec import LayoutSpec
 from layouts.tasks import TaskMap
 from waresynth.building import Building, pass_row, plan_building, replan_passes, route
-from waresynth.building_changes import apply_changes, changes_csv, changes_rows
+from waresynth.building_changes import (
+    apply_changes,
+    changes_csv,
+    changes_rows,
+    location_change_rows,
+    location_changes_csv,
+)
 from waresynth.building_rescan import open_rescan, pass_seed
 from waresynth.building_schema import load_building
 from waresynth.building_truth import ground_truth
@@ -37,6 +43,7 @@ from waresynth.generate import check_writer_args, write_dataset
 ROUTE = "route.json"
 GROUND_TRUTH = "ground_truth"
 CHANGES = "changes.csv"  #: a rescan's changes, in GROUND_TRUTH
+LOCATION_CHANGES = "location_changes.csv"  #: a rescan's changed counts per location, in GROUND_TRUTH
 LOCATIONS = "locations.csv"  #: the location list (codes and spans, no contents)
 
 
@@ -104,7 +111,8 @@ def _rescan(out_dir: str | os.PathLike, rescan: str | os.PathLike, building: dic
     manifest = {**_manifest(seed, r.config, r.building, r.spec, r.image_size, plan), "rescan_of": r.record}
     rows = changes_rows(r.stock, changed, changes)
     return _write(Path(out_dir), plan, manifest, overwrite, r.spec, r.config, r.image_size, workers, progress, stats,
-                  changes_csv(rows), tasks)  # fmt: skip
+                  {CHANGES: changes_csv(rows),
+                   LOCATION_CHANGES: location_changes_csv(location_change_rows(r.stock, changed))}, tasks)  # fmt: skip
 
 
 def _manifest(seed: int, cfg: dict[str, Any], bcfg: dict[str, Any], spec: LayoutSpec, size: tuple[int, int],
@@ -124,9 +132,10 @@ def _manifest(seed: int, cfg: dict[str, Any], bcfg: dict[str, Any], spec: Layout
 
 def _write(root: Path, plan: Building, manifest: dict[str, Any], overwrite: bool, spec: LayoutSpec,
            cfg: dict[str, Any], size: tuple[int, int], workers: int, progress: bool,
-           stats: list[dict[str, Any]] | None, changes: str | None = None,
+           stats: list[dict[str, Any]] | None, changes: dict[str, str] | None = None,
            tasks: TaskMap | None = None) -> Path:  # fmt: skip
-    """The dataset of ``plan``'s passes with the route and the ground truth (and ``changes.csv``) beside it."""
+    """The dataset of ``plan``'s passes with the route and the ground truth (and a rescan's ``changes``: file name
+    -> text) beside it."""
 
     def beside(root: Path) -> None:  # the route and the ground truth next to the manifest
         atomic_write_json(root / ROUTE, route(plan))
@@ -134,8 +143,8 @@ def _write(root: Path, plan: Building, manifest: dict[str, Any], overwrite: bool
         atomic_write_json(root / GROUND_TRUTH / "building.json", doc)
         atomic_write_text(root / GROUND_TRUTH / "inventory.csv", inventory_csv(rows))
         write_location_list(listed_locations(doc), root / LOCATIONS)
-        if changes is not None:
-            atomic_write_text(root / GROUND_TRUTH / CHANGES, changes)
+        for name, text in (changes or {}).items():
+            atomic_write_text(root / GROUND_TRUTH / name, text)
 
     plans = {p.name: (pass_row(plan, p), p.camera) for p in plan.passes}
     return write_dataset(root, manifest, overwrite, spec, cfg, size, workers, progress, stats, plans, beside, tasks)
