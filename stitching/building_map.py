@@ -23,11 +23,12 @@ from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, atomic_write_text, load_json
-from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, inventory_csv
+from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, rows_csv
 from stitching.building_route import FacePlan, plan_dict, plan_face
 from stitching.building_schema import check_building, check_inventory
 from stitching.free_space import ShelfFreeSpace, shelf_free_space
 from stitching.geometry import Cuboid
+from stitching.recount import MAP_INVENTORY_COLUMNS, RECOUNT, recount_cell, shelf_evidence, uncertain_bays
 from stitching.warehouse_map import MapShelf, WarehouseMap
 
 BUILDING_FORMAT = "mvracklay-building-map"
@@ -133,9 +134,10 @@ class BuildingMap:
 
     # ----------------------------------------------------------- inventory
     def inventory(self) -> list[dict[str, Any]]:
-        """One row per location (`INVENTORY_COLUMNS`), building order; ``boxes`` is ``not scanned`` where no pass
-        saw the location (its free-space columns empty, confidence 0)."""
+        """One row per location (`stitching.recount.MAP_INVENTORY_COLUMNS`), building order; ``boxes`` is ``not
+        scanned`` where no pass saw the location (its free-space columns empty, confidence 0)."""
         rows = []
+        odd = {s.id for f in self.faces for r in f.map.racks if r.id in uncertain_bays(f.map.racks) for s in r.shelves}
         for _f, shelf, loc in self.locations():
             row: dict[str, Any] = {
                 "location": loc.code, "aisle": loc.aisle, "side": loc.side, "bay": loc.bay, "level": loc.level,
@@ -143,7 +145,7 @@ class BuildingMap:
             }  # fmt: skip
             if not loc.scanned:
                 row.update({k: "" for k in INVENTORY_COLUMNS[6:]})
-                row.update({"boxes": NOT_SCANNED, "confidence": 0.0})
+                row.update({"boxes": NOT_SCANNED, "confidence": 0.0, RECOUNT: ""})
             else:
                 fs: ShelfFreeSpace = shelf_free_space(shelf)
                 row.update({
@@ -153,6 +155,10 @@ class BuildingMap:
                     "confidence": round(fs.confidence * min(1.0, loc.seen), 4),
                     "last_seen": loc.passes[-1], "pass": ";".join(loc.passes),
                 })  # fmt: skip
+                said = shelf_evidence(
+                    shelf, row["confidence"], row["partial"] == "true", uncertain_boundary=shelf.id in odd
+                )
+                row[RECOUNT] = recount_cell(said)
             rows.append(row)
         return rows
 
@@ -272,9 +278,9 @@ def write_inventory(bmap: BuildingMap, out_dir: str | os.PathLike) -> list[dict[
     """``inventory.csv`` and ``inventory.json`` (the same rows) in ``out_dir``, atomically; returns the rows."""
     rows = bmap.inventory()
     check_inventory(rows, os.path.join(out_dir, "inventory.csv"), built=True)
-    atomic_write_text(os.path.join(out_dir, "inventory.csv"), inventory_csv(rows))
+    atomic_write_text(os.path.join(out_dir, "inventory.csv"), rows_csv(rows, MAP_INVENTORY_COLUMNS))
     atomic_write_json(
         os.path.join(out_dir, "inventory.json"),
-        {"columns": list(INVENTORY_COLUMNS), "code": bmap.code, "locations": rows},
+        {"columns": list(MAP_INVENTORY_COLUMNS), "code": bmap.code, "locations": rows},
     )
     return rows

@@ -208,6 +208,7 @@ class InventoryRow(_Doc):
     confidence: Cell
     last_seen: Cell
     pass_: Cell = Field(alias="pass")
+    recount: StrictStr | None = None  #: a map's rows: ``true`` / ``false``, empty where not scanned (truth: none)
 
     @model_validator(mode="after")
     def _values(self) -> InventoryRow:
@@ -215,7 +216,11 @@ class InventoryRow(_Doc):
             _named(k, _number, getattr(self, k), 1, 9999, True)
         _named("confidence", _number, self.confidence, 0, 1)
         if self.boxes == NOT_SCANNED:
+            if self.recount:
+                raise ValueError(f"recount: empty where the location was not scanned, got {self.recount!r}")
             return self
+        if self.recount is not None and self.recount not in ("true", "false"):
+            raise ValueError(f"recount: true or false, got {self.recount!r}")
         _named("boxes", _number, self.boxes, 0, 1e6, True)
         _named("occupancy", _number, self.occupancy, 0, 1)
         for k in ("free_length_m", "free_area_m2", "free_volume_m3"):

@@ -135,9 +135,10 @@ def _building(path: Path, args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2, sort_keys=True))
         return 0
     if args.csv:
-        from layouts.locations import inventory_csv
+        from layouts.locations import rows_csv
+        from stitching.recount import MAP_INVENTORY_COLUMNS
 
-        print(inventory_csv(rows), end="")
+        print(rows_csv(rows, MAP_INVENTORY_COLUMNS), end="")
         return 0
     if found is not None:
         print(format_fits(found, args.box))
