@@ -23,8 +23,9 @@ import numpy as np
 from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from waresynth.config import draw_hfov
-from waresynth.draws import integer, uniform
+from waresynth.draws import uniform
 from waresynth.generate import sequence_seeds
+from waresynth.rack_build import face_kind, lay_bays, rack_ends
 from waresynth.row_plan import CameraPlan, RackPlan, RowPlan, visible_levels
 from waresynth.scene_builder import (
     sample_levels,
@@ -61,6 +62,7 @@ class Face:
     front_z: float
     bays: list[tuple[float, float]]  #: bay b (from 1) spans bays[b - 1] along building X
     row: RowPlan  #: in the face's row frame, racks ``rack_BB`` (BB = bay) in row-frame X order
+    build: str = "apart"  #: how its racks are built (`waresynth.rack_build.KINDS`)
 
     @property
     def sign(self) -> float:
@@ -96,18 +98,21 @@ class Building:
 
 
 def _face_row(rng: np.random.Generator, cfg: dict[str, Any], bcfg: dict[str, Any], side: str,
-              bays: list[tuple[float, float]], depth: float) -> RowPlan:  # fmt: skip
-    """The face's row: levels, uprights, density, materials and every bay's stacks, drawn in bay order."""
+              bays: list[tuple[float, float]], depth: float, kind: str = "apart",
+              touch: list[bool] | None = None) -> RowPlan:  # fmt: skip
+    """The face's row: levels, uprights, density, materials and every bay's stacks, drawn in bay order
+    (``kind`` and ``touch``: how its racks are built, `waresynth.rack_build.lay_bays`)."""
     levels, thickness, top = sample_levels(rng, {**cfg, "rack": {**cfg["rack"], "levels": bcfg["levels"]}})
     density, preset, rack_mat, board_mat, uw = sample_row_look(rng, cfg)
     row = RowPlan(levels, thickness, top, depth, uw, density, preset, rack_mat, board_mat)
     sign = 1.0 if side == "R" else -1.0
     for b, (x0, x1) in enumerate(bays, start=1):
         lo, hi = sorted((sign * x0, sign * x1))
-        stacks = sample_rack_stacks(rng, cfg, preset, lo, hi, 0.0, depth, levels, thickness, top, uw)
-        row.racks.append(RackPlan(f"rack_{b:02d}", lo, hi, stacks))
+        shared = rack_ends(kind, touch or [], b, side == "L")
+        stacks = sample_rack_stacks(rng, cfg, preset, lo, hi, 0.0, depth, levels, thickness, top, uw, shared)
+        row.racks.append(RackPlan(f"rack_{b:02d}", lo, hi, stacks, shared))
     row.racks.sort(key=lambda r: r.x_min)
-    row.gaps = [(a.x_max, b.x_min) for a, b in zip(row.racks, row.racks[1:])]
+    row.gaps = [(a.x_max, b.x_min) for a, b in zip(row.racks, row.racks[1:]) if b.x_min > a.x_max]
     return row
 
 
@@ -146,12 +151,10 @@ def plan_building(bcfg: dict[str, Any], cfg: dict[str, Any], seed: int, image_si
         z = front_r + depth_r
     for k, (a, side, front, depth) in enumerate(face_specs):
         rng = np.random.default_rng(np.random.SeedSequence([seed, 0xFACE, k]))
-        x, bays = float(bcfg["cross_aisle"]), []
-        for _ in range(integer(rng, bcfg["bays"])):
-            w = uniform(rng, bcfg["bay_width"])
-            bays.append((x, x + w))
-            x += w + uniform(rng, bcfg["bay_gap"])
-        building.faces.append(Face(a, side, front, bays, _face_row(rng, cfg, bcfg, side, bays, depth)))
+        kind, runs = face_kind(bcfg, seed, k)
+        bays, touch = lay_bays(rng, bcfg, kind, runs)
+        row = _face_row(rng, cfg, bcfg, side, bays, depth, kind, touch)
+        building.faces.append(Face(a, side, front, bays, row, kind))
     _plan_passes(building, layout, cfg, seed, image_size, num_slots)
     return building
 
@@ -205,7 +208,7 @@ def pass_row(building: Building, p: Pass) -> RowPlan:
     face = building.faces[p.face]
     keep = {f"rack_{b:02d}" for b in range(min(p.bays) - 1, max(p.bays) + 2)}
     racks = [r for r in face.row.racks if r.id in keep]
-    gaps = [(a.x_max, b.x_min) for a, b in zip(racks, racks[1:])]
+    gaps = [(a.x_max, b.x_min) for a, b in zip(racks, racks[1:]) if b.x_min > a.x_max]
     return replace(face.row, racks=racks, gaps=gaps)
 
 

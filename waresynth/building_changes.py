@@ -32,7 +32,7 @@ from waresynth.building import Building, Face
 from waresynth.building_schema import CHANGE_DEFAULTS, change_rates
 from waresynth.building_truth import board_positions, box_id, ground_truth, location_code, position_of
 from waresynth.draws import choice, colour, uniform
-from waresynth.row_plan import RackPlan, StackPlan, board_span, clear_heights
+from waresynth.row_plan import RackPlan, StackPlan, clear_heights
 from waresynth.scene import PATTERNS, Material
 
 MIN_SHIFT = 0.15  #: m a shifted stack's centre moves along X at least
@@ -98,7 +98,7 @@ def _window(building: Building, b: Board, j: int | None) -> tuple[float, float]:
     """Row-frame X range a stack's centre may take on board ``b``: its usable span, or position ``j``'s part."""
     face, rack = building.faces[b.face], _rack(building, b)
     if j is None:
-        return board_span(rack.x_min, rack.x_max, face.row.upright_width)
+        return rack.board_span(face.row.upright_width)
     b0, cut = board_positions(face, rack, building.config["positions"])
     lo, hi = sorted((face.sign * (b0 + j * cut), face.sign * (b0 + (j + 1) * cut)))
     return lo + 1e-6, hi - 1e-6  # the centre strictly inside, whichever way the face runs
@@ -117,7 +117,7 @@ def _centres(building: Building, b: Board, hx: float, window: tuple[float, float
     """Row-frame X segments where a footprint of half width ``hx`` may be centred on board ``b``: on the usable
     span, `GAP` from every stack there, the centre in ``window`` and (``avoid``) at least `MIN_SHIFT` from it."""
     face, rack = building.faces[b.face], _rack(building, b)
-    lo, hi = board_span(rack.x_min, rack.x_max, face.row.upright_width)
+    lo, hi = rack.board_span(face.row.upright_width)
     free = [(lo, hi)]
     for st in rack.stacks[b.level]:
         a, c = st.x - _half_x(st) - GAP, st.x + _half_x(st) + GAP

@@ -4,7 +4,8 @@ A building file is a JSON object overriding any subset of `BUILDING_DEFAULTS` (k
 comments). Ranges are ``[low, high]`` drawn per face or per bay by the building's seed; lengths in metres.
 `load_building` refuses, in one line naming the file and the key, unknown keys, values of the wrong type,
 numbers outside their range and ``[low, high]`` with low > high. ``changes`` (a rescan's change rates) is not
-among the defaults: a building config holds it only for ``--rescan``.
+among the defaults: a building config holds it only for ``--rescan``. Nor are ``rack_build`` and ``run_bays``
+(how the racks are built, `waresynth.rack_build`): without them every rack stands apart.
 """
 
 from __future__ import annotations
@@ -43,7 +44,9 @@ BUILDING_DEFAULTS: dict[str, Any] = {
 CHANGE_DEFAULTS: dict[str, float] = {"removed": 0.05, "added": 0.05, "moved": 0.03, "shifted": 0.05, "replaced": 0.02}
 #: the keys that fix the racks, stacks and location codes: a rescan keeps them
 RACK_KEYS = ("aisles", "bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "cross_aisle",
-             "positions", "code")  # fmt: skip
+             "positions", "code", "rack_build", "run_bays")  # fmt: skip
+#: the keys a building config may hold beside `BUILDING_DEFAULTS`
+OPTIONAL_KEYS = ("rack_build", "run_bays", "changes")
 
 Share = Annotated[float, Field(strict=True, ge=0, le=1)]
 Length = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=1000)]
@@ -51,7 +54,7 @@ Count = Annotated[StrictInt, Field(ge=1, le=99)]
 
 
 def _ordered(v: Any) -> Any:
-    if v[0] > v[1]:
+    if v is not None and v[0] > v[1]:
         raise ValueError(f"[low, high] with low <= high, got {list(v)}")
     return v
 
@@ -71,6 +74,22 @@ class ChangesDoc(BaseModel):
     def _once(self) -> ChangesDoc:
         if self.removed + self.moved + self.shifted + self.replaced > 1.0 + 1e-9:
             raise ValueError("removed + moved + shifted + replaced must stay at most 1 (a stack changes once)")
+        return self
+
+
+class RackBuildDoc(BaseModel):
+    """The shares of faces built each way (`waresynth.rack_build.KINDS`); missing ones are 0, their sum above 0."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    apart: Share = 0.0
+    run: Share = 0.0
+    units: Share = 0.0
+
+    @model_validator(mode="after")
+    def _some(self) -> RackBuildDoc:
+        if self.apart + self.run + self.units <= 0:
+            raise ValueError("apart, run and units shares must not all be 0")
         return self
 
 
@@ -98,10 +117,12 @@ class BuildingDoc(BaseModel):
     positions: Annotated[StrictInt, Field(ge=1, le=20)]
     code: str
     changes: ChangesDoc | None = None  #: a rescan's change rates (only with --rescan)
+    rack_build: RackBuildDoc | None = None  #: shares of faces built apart, as runs, as units
+    run_bays: tuple[Count, Count] | None = None  #: bays of one run or one line of units, between gaps
 
-    _pairs = field_validator("bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "overlap")(
-        _ordered
-    )
+    _pairs = field_validator(
+        "bays", "bay_width", "bay_gap", "levels", "depth", "aisle_width", "back_gap", "overlap", "run_bays"
+    )(_ordered)
 
     @field_validator("code")
     @classmethod
@@ -142,7 +163,8 @@ def load_building(building: dict[str, Any] | str | os.PathLike | None) -> dict[s
         errors = e.errors()
         if errors[0]["type"] == "extra_forbidden":
             loc = errors[0]["loc"]
-            known = CHANGE_DEFAULTS if len(loc) > 1 else [*BUILDING_DEFAULTS, "changes"]
+            nested = {"changes": CHANGE_DEFAULTS, "rack_build": RackBuildDoc.model_fields}
+            known = nested.get(str(loc[0]), []) if len(loc) > 1 else [*BUILDING_DEFAULTS, *OPTIONAL_KEYS]
             raise InputError(f"{src}: unknown key {'.'.join(map(str, loc))!r} (known: {', '.join(known)})") from None
         raise InputError(f"{src}: {first_problem(errors)}") from None
     return cfg

@@ -5,7 +5,9 @@ A location is one position of one level of one bay of one face: its code is the 
 format (default ``{aisle:02d}-{side}-{bay:02d}-{level:02d}``, e.g. ``01-L-03-02``), levels counted from 1 at
 the floor, positions from 1 along +X (a level's usable length cut in ``positions`` equal parts; a box belongs
 to the position holding its stack's centre). Codes come from the rack positions alone, never from what a pass
-saw, so they are the same in every scan.
+saw, so they are the same in every scan. Each rack records its span (its location column: its own uprights
+whole, half of a frame it shares, `waresynth.rack_build`) and its two upright frames' X ranges (``uprights``);
+``racking`` lists each face's build and every upright frame along it once, lowest X first.
 """
 
 from __future__ import annotations
@@ -15,12 +17,12 @@ from typing import Any
 
 from layouts.locations import covered_length, location_code
 from waresynth.building import Building, Face
-from waresynth.row_plan import RackPlan, board_span, clear_heights
+from waresynth.row_plan import RackPlan, clear_heights
 
 
 def board_positions(face: Face, rack: RackPlan, n: int) -> tuple[float, float]:
     """(building X where the rack's usable board starts, one position's length) for ``n`` positions."""
-    lo, hi = board_span(rack.x_min, rack.x_max, face.row.upright_width)
+    lo, hi = rack.board_span(face.row.upright_width)
     b0, b1 = sorted((face.sign * lo, face.sign * hi))
     return b0, (b1 - b0) / n
 
@@ -37,6 +39,21 @@ def box_id(location: str, stack: int, stack_level: int) -> str:
 
 def _r(v: float) -> float:
     return round(float(v), 6) + 0.0
+
+
+def upright_frames(face: Face, rack: RackPlan) -> list[list[float]]:
+    """The building X ranges of a rack's two upright frames, lowest X first."""
+    half, out = face.row.upright_width / 2, []
+    for c in rack.upright_centres(face.row.upright_width):
+        lo, hi = sorted((face.sign * (c - half), face.sign * (c + half)))
+        out.append([_r(lo), _r(hi)])
+    return sorted(out)
+
+
+def face_racking(face: Face) -> dict[str, Any]:
+    """A face's ``racking`` record: its aisle, side, build and every upright frame along it once (X ranges)."""
+    frames = sorted({tuple(f) for rack in face.row.racks for f in upright_frames(face, rack)})
+    return {"aisle": face.aisle, "side": face.side, "build": face.build, "uprights": [list(f) for f in frames]}
 
 
 def _seen_by(building: Building, k: int) -> dict[tuple[int, int], list[str]]:
@@ -103,13 +120,14 @@ def ground_truth(building: Building) -> tuple[dict[str, Any], list[dict[str, Any
                 "id": f"{face.aisle:02d}-{face.side}-{bay:02d}",
                 "aisle": face.aisle, "side": face.side, "bay": bay, "x_min": _r(x0), "x_max": _r(x1),
                 "z_min": _r(z0), "z_max": _r(z1), "height": _r(face.row.top + 0.08), "scene_id": rack.id,
-                "levels": levels,
+                "uprights": upright_frames(face, rack), "levels": levels,
             })  # fmt: skip
     doc = {
         "frame": "building: metres, X along the aisles, Y down (floor 0), Z across",
         "code": building.config["code"],
         "aisles": building.aisles,
         "racks": racks,
+        "racking": [face_racking(f) for f in building.faces],
     }
     return doc, rows
 

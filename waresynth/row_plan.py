@@ -29,12 +29,26 @@ class StackPlan:
 
 @dataclass
 class RackPlan:
-    """One rack of a row as planned: its id, X range and the stacks of each board (lowest first)."""
+    """One rack of a row as planned: its id, X range and the stacks of each board (lowest first).
+
+    ``shared``: its (lower X, higher X) ends whose upright frame it shares with the neighbour there (bays of a
+    continuous run): that frame stands centred on the end, one for both bays. An end not shared has the rack's
+    own upright inside its span, flush with the end (a free-standing rack, or a shelving unit bolted to the
+    next one: two uprights back to back at the joint)."""
 
     id: str
     x_min: float
     x_max: float
     stacks: list[list[StackPlan]]
+    shared: tuple[bool, bool] = (False, False)
+
+    def upright_centres(self, upright_width: float) -> tuple[float, float]:
+        """Row-frame X of its two upright frames' centre lines (`upright_centres`)."""
+        return upright_centres(self.x_min, self.x_max, upright_width, self.shared)
+
+    def board_span(self, upright_width: float) -> tuple[float, float]:
+        """The X range of its boards that boxes may stand on (`board_span`)."""
+        return board_span(self.x_min, self.x_max, upright_width, self.shared)
 
 
 @dataclass
@@ -103,9 +117,21 @@ def clear_heights(levels: list[float], thickness: float, top: float) -> list[flo
     return out
 
 
-def board_span(x_min: float, x_max: float, upright_width: float) -> tuple[float, float]:
-    """The X range of a rack's boards that boxes may stand on (between the uprights)."""
-    return x_min + upright_width + 0.03, x_max - upright_width - 0.03
+def upright_centres(x_min: float, x_max: float, upright_width: float,
+                    shared: tuple[bool, bool] = (False, False)) -> tuple[float, float]:  # fmt: skip
+    """The centre lines of a rack's two upright frames: on a shared end (`RackPlan.shared`) the end itself,
+    else half an upright inside it."""
+    half = upright_width / 2
+    return (x_min if shared[0] else x_min + half), (x_max if shared[1] else x_max - half)
+
+
+def board_span(x_min: float, x_max: float, upright_width: float,
+               shared: tuple[bool, bool] = (False, False)) -> tuple[float, float]:  # fmt: skip
+    """The X range of a rack's boards that boxes may stand on (between the uprights' inner faces, 3 cm clear);
+    a shared end's upright stands half inside the rack (`upright_centres`)."""
+    lo = x_min + upright_width / 2 + 0.03 if shared[0] else x_min + upright_width + 0.03
+    hi = x_max - upright_width / 2 - 0.03 if shared[1] else x_max - upright_width - 0.03
+    return lo, hi
 
 
 def visible_levels(intr: Intrinsics, cam_height: float, distance: float, levels: list[float], thickness: float,

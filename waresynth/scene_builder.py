@@ -31,6 +31,7 @@ from waresynth.row_plan import (
     level_in_window,
     level_visible,
     slot_half_height,
+    upright_centres,
     visible_levels,
 )
 from waresynth.scene import PATTERNS, Z_FRONT, Box, Camera, Material, Part, Rack, Scene, Shelf
@@ -152,9 +153,10 @@ def sample_rack_stacks(
     thickness: float,
     top: float,
     uw: float,
+    shared: tuple[bool, bool] = (False, False),
 ) -> list[list[StackPlan]]:
-    """The stacks of every board of one rack, lowest first."""
-    lo, hi = board_span(x_min, x_max, uw)
+    """The stacks of every board of one rack, lowest first (``shared``: `RackPlan.shared`)."""
+    lo, hi = board_span(x_min, x_max, uw, shared)
     clears = clear_heights(levels, thickness, top)
     return [sample_stacks(rng, cfg, preset, ch, lo, hi, z_front, depth) for ch in clears]
 
@@ -172,8 +174,10 @@ def _build_rack_parts(
     record: bool,
     stacks: list[list[StackPlan]],
     shared_instance: int = 0,
+    shared: tuple[bool, bool] = (False, False),
+    frames: tuple[bool, bool] = (True, True),
 ) -> None:
-    """Uprights, top beams, boards and the planned boxes of one rack (the mapped row or a background rack)."""
+    """Uprights (``frames``: which of its two; ``shared``: `RackPlan.shared`), top beams, boards and boxes of a rack."""
     rack_sem, shelf_sem, box_sem = semantics
     x0, x1, zf, dp = rack.x_min, rack.x_max, rack.z_front, rack.depth
     beam = 0.08
@@ -182,11 +186,13 @@ def _build_rack_parts(
     # Uprights stand 3 mm proud of the boards and beams are slimmer, so no two faces are coplanar
     # (coplanar faces would make the semantic/instance ids at their overlap arbitrary).
     proud = 0.003
-    for x in (x0 + uw / 2, x1 - uw / 2):
+    xs = upright_centres(x0, x1, uw, shared)
+    for x in (x for x, own in zip(xs, frames) if own):
         for z in (zf + uw / 2, zf + dp - uw / 2):
             b.cuboid((x, -height / 2, z), (uw + 2 * proud, height, uw + 2 * proud), rack_sem, rid, rack_mat)
     for z in (zf + uw / 2, zf + dp - uw / 2):
-        b.cuboid(((x0 + x1) / 2, -(top + beam / 2), z), (x1 - x0 - 2 * uw, beam, uw * 0.8), rack_sem, rid, rack_mat)
+        bx, bw = ((xs[0] + xs[1]) / 2, xs[1] - xs[0] - uw) if any(shared) else ((x0 + x1) / 2, x1 - x0 - 2 * uw)
+        b.cuboid((bx, -(top + beam / 2), z), (bw, beam, uw * 0.8), rack_sem, rid, rack_mat)
     clears = clear_heights(levels, thickness, top)
     for k, (lv, ch) in enumerate(zip(levels, clears)):
         sid = f"{rack.id}/shelf_{k:02d}"
@@ -291,11 +297,12 @@ def _build_row(b: _Builder, plan: RowPlan) -> _Row:
     row = _Row(plan.levels, plan.thickness, plan.top, plan.depth, plan.upright_width, plan.preset, plan.density)
     rack_mat = b.material(plan.rack_material)
     row.board_mat = b.material(plan.board_material)
-    for rp in plan.racks:
+    for k, rp in enumerate(plan.racks):
         rack = Rack(rp.id, rp.x_min, rp.x_max, Z_FRONT, plan.depth, b.instance(rp.id, sem.RACK))
+        lead = not rp.shared[0] or k == 0 or not plan.racks[k - 1].shared[1]  # a shared frame is built once
         _build_rack_parts(
             b, rack, plan.levels, plan.thickness, plan.top, plan.upright_width, rack_mat, row.board_mat,
-            (sem.RACK, sem.SHELF, sem.BOX), True, rp.stacks,
+            (sem.RACK, sem.SHELF, sem.BOX), True, rp.stacks, shared=rp.shared, frames=(lead, True),
         )  # fmt: skip
         row.racks.append(rack)
     row.gaps = list(plan.gaps)
