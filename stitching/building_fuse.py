@@ -13,15 +13,23 @@ Per face (its frame, `stitching.building_map`):
   another pass whose X extent overlaps an kept one's by half the narrower is the same box seen again.
 * **Locations**: a level cut along X into ``positions`` equal parts, each a shelf whose id is its code; the
   passes whose view held part of it, and the share held, decide whether it was scanned.
+* **With a location list** (`layouts.location_list`, ``listed``): codes, bays, levels and spans come from the
+  list, never from what the passes found: each listed location is a shelf over its listed span (a face's bay
+  the union of its locations), the fused boxes of its level go to the listed location holding their centre,
+  and a box that no listed location holds is kept aside (`BuildingMap.outside`), never given a code. Every
+  listed location gets a record (``not scanned`` where no pass's view held it), on faces no pass saw too.
 """
 
 from __future__ import annotations
 
 import statistics
 from collections.abc import Sequence
+from typing import Any
 
+from layouts.errors import InputError
+from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, check_code_format, covered_length, location_code
-from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement
+from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement, listed_code_format
 from stitching.building_register import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
 from stitching.building_route import FacePlan, Route
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
@@ -257,6 +265,97 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
     return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
 
 
+def _shelf_facts(
+    lv: int, a: float, b: float, heights: dict[int, float], thickness: float, passes: list[PlacedPass]
+) -> tuple[float, float, tuple[float, float], float]:
+    """(board, clear height, Z range, confidence) of level ``lv`` over face X ``[a, b]``: the plan's heights,
+    else what the passes whose racks overlap it saw."""
+    seen = [
+        (p, s)
+        for p in passes
+        for r in p.racks
+        if min(r.hi + p.offset, b) > max(r.lo + p.offset, a)
+        for s in r.shelves
+        if s.level == lv
+    ]
+    board = heights.get(lv)
+    if board is None:
+        board = (
+            statistics.median(heights.get(min(p.levels), 0.0) + s.board - _lowest_board(p) for p, s in seen)
+            if seen
+            else max(heights.values(), default=0.0) + DEFAULT_CLEAR * (lv - max(heights, default=0))
+        )
+    above = [h for k, h in heights.items() if k > lv]
+    clear = min(above) - board - thickness if above else (
+        statistics.median(s.clear for _, s in seen) if seen else DEFAULT_CLEAR
+    )  # fmt: skip
+    zs = [s.z_range for _, s in seen] or [s.z_range for p in passes for r in p.racks for s in r.shelves]
+    z = (statistics.median(v[0] for v in zs), statistics.median(v[1] for v in zs)) if zs else (0.0, 1.0)
+    return board, max(clear, 0.05), z, max((s.confidence for _, s in seen), default=0.0)
+
+
+def _fuse_listed(
+    face: FacePlan, passes: list[PlacedPass], listed: list[ListedLocation], order: dict[str, int]
+) -> tuple[FaceMap, list[dict[str, Any]]]:
+    """A face whose locations the list gives (see the module docstring); returns it and the boxes outside every
+    listed location of it (building frame)."""
+    heights = _board_heights(face, passes)
+    thickness = statistics.median(p.board_thickness for p in passes) if passes else 0.06
+    views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
+    span = {e.code: tuple(sorted((face.sign * e.start_m, face.sign * e.end_m))) for e in listed}
+    kept: dict[str, list[tuple[PlacedBox, float, list[str]]]] = {e.code: [] for e in listed}
+    outside = []
+    for lv in sorted({b.level for p in passes for r in p.racks for b in r.boxes}):
+        mine = [e for e in listed if e.level == lv]
+        for bx, x, names in _fuse_boxes([(p, b) for p in passes for r in p.racks for b in r.boxes if b.level == lv]):
+            home = [e for e in mine if span[e.code][0] <= x < span[e.code][1]]
+            if home:
+                kept[home[0].code].append((bx, x, names))
+                continue
+            board = heights.get(lv, 0.0)
+            outside.append({
+                "face": f"{face.aisle:02d}-{face.side}", "level": lv, "x": round(face.sign * x, 4) + 0.0,
+                "center": [round(face.sign * x, 4) + 0.0, round(-(board + bx.rel), 4),
+                           round(face.front_z + face.sign * bx.z, 4)],
+                "size": [round(v, 4) for v in bx.size], "confidence": round(bx.confidence, 4), "passes": names,
+            })  # fmt: skip
+    racks, locations, bays = [], {}, {}
+    for bay in sorted({e.bay for e in listed}):
+        entries = sorted((e for e in listed if e.bay == bay), key=lambda e: (e.level, span[e.code]))
+        lo, hi = min(span[e.code][0] for e in entries), max(span[e.code][1] for e in entries)
+        shelves = []
+        for e in entries:
+            a, b = span[e.code]
+            board, clear, z_range, conf = _shelf_facts(e.level, a, b, heights, thickness, passes)
+            boxes = [
+                MapBox(
+                    f"{e.code}/box_{k:02d}",
+                    (x, -(board + bx.rel), bx.z),
+                    bx.size,
+                    bx.yaw,
+                    bx.confidence,
+                    bx.observations,
+                    bx.colour,
+                )  # fmt: skip
+                for k, (bx, x, _) in enumerate(kept[e.code])
+            ]
+            shelves.append(MapShelf(e.code, e.level - 1, board, clear, (a, b), z_range, conf, boxes, None))
+            saw = sorted(
+                (n for n, p in ((p.pose.sequence, p) for p in passes) if e.level in p.levels
+                 and covered_length(views[n], a, b) > 1e-6),
+                key=order.__getitem__,
+            )  # fmt: skip
+            seen = covered_length([iv for n in saw for iv in views[n]], a, b) / (b - a)
+            locations[e.code] = Location(e.code, e.aisle, e.side, e.bay, e.level, e.position, saw, min(seen, 1.0))
+        rack_id = f"{face.aisle:02d}-{face.side}-{bay:02d}"
+        racks.append(MapRack(rack_id, (lo, hi), shelves, None))
+        bays[rack_id] = bay
+    racks.sort(key=lambda r: r.x_range)
+    seen_x = sorted(iv for v in views.values() for iv in v)
+    wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
+    return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays), outside
+
+
 def _lowest_board(p: PlacedPass) -> float:
     return min((s.board for r in p.racks for s in r.shelves), default=0.0)
 
@@ -268,6 +367,15 @@ def _face_depth(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, floa
     return (statistics.median(z[0] for z in zs), statistics.median(z[1] for z in zs))
 
 
+def check_listed(listed: Sequence[ListedLocation], route: Route, source: str) -> None:
+    """Refuse, in one line naming ``source``, a location list with a location on a face the floor plan lacks."""
+    lacking = [e for e in listed if e.face not in route.faces]
+    if lacking:
+        e = lacking[0]
+        raise InputError(f"{source}: location {e.code!r} is on face {e.aisle:02d}-{e.side}, which the route's "
+                         f"floor plan ({route.source}) does not list")  # fmt: skip
+
+
 def fuse_building(
     route: Route,
     placed: list[PlacedPass],
@@ -275,17 +383,30 @@ def fuse_building(
     positions: int = 1,
     route_sigma: float = 0.3,
     meta: dict | None = None,
+    listed: Sequence[ListedLocation] | None = None,
+    listed_source: str = "location list",
 ) -> BuildingMap:
-    """Register the placed passes face by face and fuse them into one building map (faces in plan order)."""
+    """Register the placed passes face by face and fuse them into one building map (faces in plan order); with
+    ``listed`` (a location list, read from ``listed_source``) its codes and spans (see the module docstring)."""
+    if listed is not None:
+        positions = max(e.position for e in listed)
+        code = listed_code_format(positions)
+        check_listed(listed, route, listed_source)
     check_code_format(code, positions)
     order = {p.pose.sequence: k for k, p in enumerate(placed)}
-    faces = []
+    faces, outside = [], []
     for key, plan in sorted(route.faces.items()):
         mine = [p for p in placed if p.pose.key == key]
-        if not mine:
-            continue
-        register_face(mine, plan, route_sigma)
-        faces.append(_fuse_face(plan, mine, code, positions, order))
+        if mine:
+            register_face(mine, plan, route_sigma)
+        if listed is not None:
+            face_list = [e for e in listed if e.face == key]
+            if face_list or mine:  # a face the list lacks: every box its passes saw lies outside
+                face, out = _fuse_listed(plan, mine, face_list, order)
+                faces.append(face)
+                outside += out
+        elif mine:
+            faces.append(_fuse_face(plan, mine, code, positions, order))
     placements = [
         PassPlacement(
             p.pose.sequence,
@@ -301,4 +422,7 @@ def fuse_building(
         for p in placed
     ]
     plan = tuple(f for _, f in sorted(route.faces.items()))
-    return BuildingMap(faces, placements, code, positions, dict(meta or {}), plan)
+    bmap = BuildingMap(faces, placements, code, positions, dict(meta or {}), plan)
+    if listed is not None:
+        bmap.location_list, bmap.outside = listed_source, outside
+    return bmap

@@ -12,6 +12,11 @@ A face's map is a `WarehouseMap` in its face frame: each rack one bay (id ``AA-S
 ``BuildingMap.code`` (default `layouts.locations.DEFAULT_CODE`); bays are numbered from 1 along building +X on both sides, by the
 racks' positions alone, so a code names the same slot in every scan. A location no pass saw is ``not scanned``
 (its inventory row says so), never empty.
+
+A map made with a location list (``location_list``: where it came from) takes its codes, bays and spans from
+that list instead (`stitching.building_fuse`), and keeps the boxes outside every listed location aside
+(``outside``: face, level, building X and centre, size, passes); `BuildingMap.listed` gives its locations back as
+a list, so a later scan keeps its codes.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, atomic_write_text, load_json
+from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, rows_csv
 from stitching.building_route import FacePlan, plan_dict, plan_face
 from stitching.building_schema import check_building, check_inventory
@@ -107,6 +113,8 @@ class BuildingMap:
     #: the floor plan (the route's faces, mapped or not): what makes two maps maps of one building; () unknown
     plan: tuple[FacePlan, ...] = ()
     source: str = field(default="building map", compare=False, repr=False)  #: the file it was read from
+    location_list: str | None = None  #: the location list its codes came from (None: from the racks found)
+    outside: list[dict[str, Any]] = field(default_factory=list)  #: boxes outside every listed location
 
     def face(self, aisle: int, side: str) -> FaceMap:
         for f in self.faces:
@@ -128,6 +136,14 @@ class BuildingMap:
             if t[2].code == code:
                 return t
         raise InputError(f"no location {code!r} in the building map")
+
+    def listed(self) -> list[ListedLocation]:
+        """Its locations as a location list: codes, places and spans along building X (building order)."""
+        out = []
+        for f, shelf, loc in self.locations():
+            lo, hi = sorted((f.sign * shelf.x_range[0] + 0.0, f.sign * shelf.x_range[1] + 0.0))
+            out.append(ListedLocation(loc.code, loc.aisle, loc.side, loc.bay, loc.level, lo, hi, loc.position))
+        return out
 
     def box_count(self) -> int:
         return sum(len(f.map.boxes()) for f in self.faces)
@@ -174,6 +190,7 @@ class BuildingMap:
             "positions": self.positions,
             "meta": self.meta,
             **({"plan": [plan_dict(f) for f in self.plan]} if self.plan else {}),
+            **({"location_list": self.location_list, "outside": self.outside} if self.location_list else {}),
             "passes": [
                 {
                     "name": p.name,
@@ -251,8 +268,10 @@ class BuildingMap:
             ]
             positions = int(d["positions"])
             plan = tuple(plan_face(f) for f in d.get("plan") or ())
+            listed = d.get("location_list")
             return cls(faces, passes, check_code_format(str(d["code"]), positions), positions,
-                       dict(d.get("meta") or {}), plan, source)  # fmt: skip
+                       dict(d.get("meta") or {}), plan, source, None if listed is None else str(listed),
+                       [dict(b) for b in d.get("outside") or []])  # fmt: skip
         except (KeyError, TypeError, ValueError, AttributeError) as e:
             raise InputError(f"{source}: malformed building map ({type(e).__name__}: {e})") from None
 
@@ -281,6 +300,13 @@ def write_inventory(bmap: BuildingMap, out_dir: str | os.PathLike) -> list[dict[
     atomic_write_text(os.path.join(out_dir, "inventory.csv"), rows_csv(rows, MAP_INVENTORY_COLUMNS))
     atomic_write_json(
         os.path.join(out_dir, "inventory.json"),
-        {"columns": list(MAP_INVENTORY_COLUMNS), "code": bmap.code, "locations": rows},
-    )
+        {"columns": list(MAP_INVENTORY_COLUMNS), "code": bmap.code, "locations": rows}
+        | ({"location_list": bmap.location_list, "outside_listed_locations": bmap.outside} if bmap.location_list
+           else {}),
+    )  # fmt: skip
     return rows
+
+
+def listed_code_format(positions: int) -> str:
+    """The nominal code format of a map whose codes come from a location list (its codes need not follow it)."""
+    return DEFAULT_CODE + ("-{position:02d}" if positions > 1 else "")

@@ -9,7 +9,8 @@ Each ``check_*`` refuses, in one `InputError` line naming the source and the fie
 * every number finite and within range (lengths and coordinates within `map_schema.MAX_METRES`, shares
   in [0, 1], counts >= 0, aisles, bays, levels and positions from 1);
 * faces, passes and location codes unique; each location's code the one ``code`` gives its aisle, side, bay,
-  level and position; each shelf of a face's map with its location record and each record with its shelf;
+  level and position (unless the codes came from a location list, ``location_list``); each shelf of a face's
+  map with its location record and each record with its shelf;
 * each pass on a face of the map, each location's passes among the map's passes;
 * the floor plan (``plan``: the route's faces, the building's identity) listing each mapped face at its
   front line;
@@ -100,6 +101,8 @@ class BuildingDoc(_Doc):
     passes: list[PassDoc]
     faces: list[FaceDoc]
     plan: list[PlanFace] | None = None  #: the floor plan (maps written before it was kept lack it)
+    location_list: StrictStr | None = None  #: where its codes came from (they need not follow ``code``)
+    outside: list[dict[str, Any]] | None = None  #: boxes outside every listed location
 
     @model_validator(mode="after")
     def _whole(self) -> BuildingDoc:
@@ -129,7 +132,7 @@ class BuildingDoc(_Doc):
                 if loc.position > self.positions:
                     raise ValueError(f"{where}.position: {loc.position} exceeds positions ({self.positions})")
                 want = location_code(self.code, f.aisle, f.side, loc.bay, loc.level, loc.position)
-                if loc.location != want:
+                if loc.location != want and self.location_list is None:
                     raise ValueError(f"{where}: location {loc.location!r} is not the code of its place ({want!r})")
                 unknown = [p for p in loc.passes if p not in names]
                 if unknown:

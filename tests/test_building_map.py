@@ -182,3 +182,98 @@ def test_a_route_file_of_ones_own(building, tmp_path):
     rows = {r["location"]: r for r in res.inventory}
     truth = {r["location"]: r for r in _truth(building)[1] if r["pass"]}
     assert set(rows) <= set(truth) and all(rows[c]["boxes"] == int(truth[c]["boxes"]) for c in rows)
+
+
+def _listed(building: Path):
+    from layouts.location_list import read_location_list
+
+    return read_location_list(building / "locations.csv")
+
+
+def test_location_list_gives_codes_and_every_row(building, mapped):
+    """Codes from the list, never from detection order: renamed codes come back as listed, every listed location
+    has a row, and the counts are the ground truth's."""
+    listed = _listed(building)
+    renamed = [replace(e, code=f"WH1.{k:04d}") for k, e in enumerate(listed)]
+    route, placed = _placed(building, mapped)
+    bmap = fuse_building(route, placed, listed=renamed, listed_source="wms.csv")
+    rows = bmap.inventory()
+    assert sorted(r["location"] for r in rows) == sorted(e.code for e in renamed)
+    truth = {r["location"]: r for r in _truth(building)[1]}
+    by_code = {e.code: old.code for e, old in zip(renamed, listed)}
+    for r in rows:
+        t = truth[by_code[r["location"]]]
+        assert (r["aisle"], r["side"], r["bay"], r["level"]) == (
+            int(t["aisle"]),
+            t["side"],
+            int(t["bay"]),
+            int(t["level"]),
+        )
+        assert r["boxes"] == (int(t["boxes"]) if t["pass"] else NOT_SCANNED)
+    assert bmap.outside == [] and bmap.location_list == "wms.csv"
+    again = BuildingMap.from_dict(bmap.to_dict())  # held to the schema although the codes follow no format
+    assert [t[2].code for t in again.locations()] == [t[2].code for t in bmap.locations()]
+
+
+def test_location_list_not_scanned_and_outside(building, mapped):
+    """A pass left out of the route: the locations only it saw are `not scanned` rows, never absent; a box
+    outside every listed location is reported with its position, never coded."""
+    listed = _listed(building)
+    route, placed = _placed(building, mapped)
+    truth = _truth(building)[1]
+    face = placed[0].pose.key  # every pass of a face left out (each location of the tiny building has two)
+    gone = {p.pose.sequence for p in placed if p.pose.key == face}
+    route.passes = [p for p in route.passes if p.sequence not in gone]
+    bmap = fuse_building(route, [p for p in placed if p.pose.sequence not in gone], listed=listed)
+    rows = {r["location"]: r for r in bmap.inventory()}
+    only_gone = [r["location"] for r in truth if r["pass"] and set(r["pass"].split(";")) <= gone]
+    assert only_gone and all(rows[c]["boxes"] == NOT_SCANNED for c in only_gone)
+    assert set(rows) == {e.code for e in listed}
+    # a bay the list lacks: its boxes lie outside every listed location
+    full = {r["location"]: r for r in truth}
+    held = next(e for e in listed if full[e.code]["pass"] and int(full[e.code]["boxes"]) > 0)
+    gap = [e for e in listed if e.face != held.face or e.bay != held.bay]
+    route, placed = _placed(building, mapped)
+    bmap = fuse_building(route, placed, listed=gap)
+    lost = [e for e in listed if e.face == held.face and e.bay == held.bay]
+    want = sum(int(full[e.code]["boxes"]) for e in lost if full[e.code]["pass"])
+    out = bmap.outside
+    assert len(out) == want and {o["face"] for o in out} == {f"{held.aisle:02d}-{held.side}"}
+    assert all(held.start_m - 0.01 <= o["x"] <= held.end_m + 0.01 for o in out)
+    assert {e.code for e in lost}.isdisjoint(r["location"] for r in bmap.inventory())
+
+
+def test_locations_from_an_earlier_map_keep_codes(building, mapped, tmp_path, capsys):
+    """``map --locations OLD_MAP``: the earlier map's codes, even where they follow no format; the model line."""
+    old = BuildingMap.load(mapped / "building.json")
+    listed = old.listed()
+    assert [e.code for e in listed] == [t[2].code for t in old.locations()]
+    from layouts.location_list import write_location_list
+
+    wms = tmp_path / "wms.csv"
+    write_location_list([replace(e, code="B-" + e.code) for e in listed], wms)
+    first = tmp_path / "first"
+    assert main(["map", str(building), "--out", str(first), "--layouts", "gt", "--locations", str(wms),
+                 "--no-rrd", "--quiet"]) == 0  # fmt: skip
+    assert "0 boxes outside every listed location" in capsys.readouterr().out
+    rescan = tmp_path / "rescan"
+    assert main(["map", str(building), "--out", str(rescan), "--layouts", "gt", "--locations", str(first),
+                 "--no-rrd", "--quiet"]) == 0  # fmt: skip
+    rows = read_inventory((rescan / "inventory.csv").read_text())
+    assert [r["location"] for r in rows] == ["B-" + e.code for e in listed]
+    assert [r["boxes"] for r in rows] == [str(r["boxes"]) for r in old.inventory()]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("code,aisle,side,bay,level,start_m,end_m\nA,9,L,1,1,0,1\n")
+    assert main(["map", str(building), "--out", str(tmp_path / "x"), "--layouts", "gt", "--locations", str(bad),
+                 "--quiet"]) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bad.csv" in err and "09-L" in err
+
+
+def test_model_for_the_frames_size(building):
+    from mvracklay.building_job import choose_model, frame_size
+
+    assert choose_model(256) == "mvracklay-disc-4-256" and choose_model(480) == "mvracklay-disc-4-256"
+    assert choose_model(128) == "mvracklay-disc-4" and choose_model(96) == "mvracklay-disc-4"
+    route = load_route(building / "route.json")
+    assert frame_size(route, building) == 24  # the tiny building's 32 x 24 frames

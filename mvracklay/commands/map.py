@@ -61,6 +61,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "else {aisle:02d}-{side}-{bay:02d}-{level:02d}",
     )
     p.add_argument("--positions", type=int, metavar="N", help="positions per level (default: the building's, else 1)")
+    p.add_argument(
+        "--locations",
+        metavar="FILE",
+        help="the WMS's location list (CSV: code,aisle,side,bay,level,start_m,end_m[,position]) or an earlier map "
+        "(its folder or building.json): codes and spans from it, a row for every listed location, boxes outside "
+        "them reported apart",
+    )
     p.add_argument("--workers", type=int, default=1, metavar="W", help="passes mapped at once (local processes)")
     p.add_argument("--ray", metavar="ADDRESS", help=_ray_help())
     p.add_argument("--no-rrd", action="store_true", help="do not write building.rrd")
@@ -112,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
     res = map_building(
         args.dataset, args.out, layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed,
         code=args.code, positions=args.positions, workers=args.workers, ray=args.ray, rrd=not args.no_rrd,
-        progress=not args.quiet, overwrite=args.overwrite,
+        progress=not args.quiet, overwrite=args.overwrite, locations=args.locations,
     )  # fmt: skip
     print(summary(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))
