@@ -1,5 +1,6 @@
-"""What changed between two scans of a building: per location the boxes added, removed, moved (from -> to) and
-shifted along their level, and the change of free space, each with a confidence.
+"""What changed between two scans of a building: per location first its count before and after (emptied, filled,
+count changed: `layouts.location_changes`) with a confidence and ``recount`` where either scan's row is uncertain;
+then the boxes added, removed, moved (from -> to) and shifted along their level, and the change of free space.
 
 Both maps are `BuildingMap`s of the same building (any route poses, camera distances or passes; two maps whose
 location codes or floor plans differ are refused, `building_difference`): their boxes
@@ -10,7 +11,8 @@ are compared in the building frame, per face and level, in four rounds (`DiffCon
 2. **shifted**: of the rest, an old and a new box of similar size in the same location, one to one, nearest
    first;
 3. **moved**: of the rest, building-wide, an old and a new box of the same size (within ``move_tol``) and
-   colour (where both scans saw it) in different locations, one to one by size (Hungarian);
+   colour (where both scans saw it) in different locations, one to one by size (Hungarian); a move needs both
+   ends confident (neither location's row flagged ``recount``), else it is a removal and an addition;
 4. **removed** / **added**: what is left of the old / the new scan.
 
 Where one scan did not see a box's place (its location not scanned by the other scan), the box is not
@@ -28,6 +30,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from layouts.errors import InputError
+from layouts.location_changes import UNCHANGED, count_change
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap, FaceMap, Location
 from stitching.building_route import FacePlan
@@ -38,6 +41,8 @@ CHANGES = ("added", "removed", "moved", "shifted")
 #: how far two scans' floor plans may differ and still be one building's (metres): a face's front line, its
 #: ends along X, each board's height (a plan measured again by hand)
 SAME_FRONT, SAME_END, SAME_LEVEL = 0.25, 0.5, 0.15
+#: ``location_changes.csv``: one row per location, its count before and after and its category
+LOCATION_COLUMNS = ("location", "status", "before", "after", "change", "confidence", "recount")
 CHANGE_COLUMNS = (
     "location", "change", "other_location", "boxes", "size", "box_ids", "old_box_ids", "x", "old_x", "note",
     "confidence",
@@ -94,10 +99,17 @@ class Change:
 
 @dataclass
 class LocationChange:
-    """One location's summary: counts of each change, the free length's change, or ``not scanned``."""
+    """One location's summary: its count before and after and their category (`layouts.location_changes`), with
+    the lower of the two rows' confidences and ``recount`` where either row is flagged; counts of each box change,
+    the free length's change; or ``not scanned``."""
 
     location: str
     status: str  #: "changed", "unchanged", "not scanned" (the new scan did not see it), "new" (only in the new)
+    before: int | None = None  #: box stacks in the old scan (None: not scanned there)
+    after: int | None = None
+    change: str = ""  #: emptied | filled | count changed | unchanged ("" where either scan did not see it)
+    confidence: float = 0.0
+    recount: bool = False
     added: int = 0
     removed: int = 0
     moved_in: int = 0
@@ -116,6 +128,12 @@ class BuildingDiff:
 
     def counts(self) -> dict[str, int]:
         return {k: sum(1 for c in self.changes if c.change == k) for k in CHANGES}
+
+    def location_rows(self) -> list[dict[str, Any]]:
+        """``location_changes.csv``'s rows (`LOCATION_COLUMNS`), one per location."""
+        return [{"location": c.location, "status": c.status, "before": "" if c.before is None else c.before,
+                 "after": "" if c.after is None else c.after, "change": c.change, "confidence": round(c.confidence, 4),
+                 "recount": "true" if c.recount else "false"} for c in self.locations]  # fmt: skip
 
 
 def _faces(keys: Any) -> str:
@@ -211,6 +229,8 @@ def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None
         raise InputError(f"{old.source} and {new.source} are maps of different buildings: {said}")
     cfg = config or DiffConfig.for_maps(old, new)
     seen_old, seen_new = _seen(old), _seen(new)
+    rows_old, rows_new = {r["location"]: r for r in old.inventory()}, {r["location"]: r for r in new.inventory()}
+    unsure = {c for rows in (rows_old, rows_new) for c, r in rows.items() if r.get("recount") == "true"}
     old_boxes = [b for b in _boxes(old) if _covered(b, seen_new)]
     new_boxes = [b for b in _boxes(new) if _covered(b, seen_old)]
 
@@ -232,7 +252,8 @@ def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None
         )
         rr, cc = linear_sum_assignment(cost)
         moved = [(old_boxes[i], new_boxes[j]) for i, j in zip(rr, cc)
-                 if old_boxes[i].code != new_boxes[j].code and _similar(old_boxes[i].box, new_boxes[j].box, cfg.move_tol, cfg.colour_tol)]  # fmt: skip
+                 if old_boxes[i].code != new_boxes[j].code and _similar(old_boxes[i].box, new_boxes[j].box, cfg.move_tol, cfg.colour_tol)
+                 and not {old_boxes[i].code, new_boxes[j].code} & unsure]  # fmt: skip
         drop(moved)
     changes = []
     for o, n in shifted:
@@ -249,20 +270,30 @@ def diff_buildings(old: BuildingMap, new: BuildingMap, config: DiffConfig | None
         changes.append(Change(n.code, "added", "", n.box.size, [n.box.id], [], n.x, None, n.weight * w))
     order = {code: k for k, code in enumerate(sorted(set(seen_old) | set(seen_new)))}
     changes.sort(key=lambda c: (order[c.location], CHANGES.index(c.change), c.x if c.x is not None else c.old_x))
-    return BuildingDiff(changes, _per_location(seen_old, seen_new, changes))
+    return BuildingDiff(changes, _per_location(seen_old, seen_new, changes, rows_old, rows_new))
 
 
-def _per_location(seen_old: dict, seen_new: dict, changes: list[Change]) -> list[LocationChange]:
+def _count(row: dict[str, Any] | None) -> int | None:
+    return None if row is None or row["boxes"] == NOT_SCANNED else int(row["boxes"])
+
+
+def _per_location(
+    seen_old: dict, seen_new: dict, changes: list[Change], rows_old: dict, rows_new: dict
+) -> list[LocationChange]:
     out = []
     for code in sorted(set(seen_old) | set(seen_new)):
         o, n = seen_old.get(code), seen_new.get(code)
+        ro, rn = rows_old.get(code), rows_new.get(code)
+        before, after = _count(ro), _count(rn)
+        flagged = any(r is not None and r.get("recount") == "true" for r in (ro, rn))
         if n is None or not n[2].scanned:
-            out.append(LocationChange(code, NOT_SCANNED))
+            out.append(LocationChange(code, NOT_SCANNED, before, None))
             continue
         if o is None or not o[2].scanned:
-            out.append(LocationChange(code, "new"))
+            out.append(LocationChange(code, "new", None, after, "", float(rn["confidence"]), flagged))
             continue
-        lc = LocationChange(code, "unchanged")
+        conf = min(float(ro["confidence"]), float(rn["confidence"]))
+        lc = LocationChange(code, "unchanged", before, after, count_change(before, after), conf, flagged)
         for c in changes:
             if c.location == code:
                 kind = {"added": "added", "removed": "removed", "shifted": "shifted", "moved": "moved_in"}[c.change]
@@ -276,13 +307,32 @@ def _per_location(seen_old: dict, seen_new: dict, changes: list[Change]) -> list
     return out
 
 
+def format_locations(d: BuildingDiff, limit: int = 40) -> list[str]:
+    """The locations whose count changed (one line each: before -> after, category, confidence, recount)."""
+    moved = [c for c in d.locations if c.change not in ("", UNCHANGED)]
+    if not moved:
+        return ["no location's count changed"]
+    head = f"{'location':<14} {'before':>6} {'after':>6} {'change':<14} {'conf':>5} recount"
+    lines = [head, "-" * len(head)]
+    for c in moved[:limit]:
+        lines.append(f"{c.location:<14} {c.before:>6} {c.after:>6} {c.change:<14} {c.confidence:>5.2f} "
+                     f"{'yes' if c.recount else '-'}")  # fmt: skip
+    if len(moved) > limit:
+        lines.append(f"... and {len(moved) - limit} more (location_changes.csv lists all)")
+    kinds = {k: sum(1 for c in moved if c.change == k) for k in ("emptied", "filled", "count changed")}
+    lines.append(", ".join(f"{v} {k}" for k, v in kinds.items()) + f" ({sum(c.recount for c in moved)} to recount)")
+    return lines
+
+
 def format_diff(d: BuildingDiff, limit: int = 40) -> str:
-    """A plain-text table of the changes (one line each), then the counts."""
+    """The locations whose count changed, then a plain-text table of the box changes (one line each), then the
+    counts."""
+    lines = [*format_locations(d, limit), ""]
     if not d.changes:
-        lines = ["no change"]
+        lines += ["no box changed"]
     else:
         head = f"{'location':<14} {'change':<8} {'from':<14} {'size (m)':<19} {'x':>7} {'old_x':>7} {'conf':>5}"
-        lines = [head, "-" * len(head)]
+        lines += [head, "-" * len(head)]
         for c in d.changes[:limit]:
             r = c.row()
             lines.append(

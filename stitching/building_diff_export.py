@@ -19,7 +19,7 @@ from stitching.export_gltf import Part, write_parts_glb
 from stitching.geometry import Cuboid
 
 #: what `write_changes` writes
-CHANGE_FILES = ("changes.csv", "changes.json", "changes.glb", "changes.rrd")
+CHANGE_FILES = ("location_changes.csv", "changes.csv", "changes.json", "changes.glb", "changes.rrd")
 COLOURS = {"added": (40, 170, 60), "removed": (210, 40, 40), "moved": (40, 90, 210), "shifted": (240, 150, 20)}
 EDGE = 0.02  #: metres: the thickness of a removed box's outline and of an arrow's shaft
 
@@ -152,11 +152,12 @@ def write_changes(
     old: BuildingMap, new: BuildingMap, d: BuildingDiff, out: str | os.PathLike, rrd: bool = True,
     evaluation: dict | None = None,
 ) -> list[str]:  # fmt: skip
-    """``changes.csv`` (`CHANGE_COLUMNS`), ``changes.json`` (rows, counts, per location, ``evaluation`` when
-    given), ``changes.glb`` and (``rrd``) ``changes.rrd`` in ``out``, each atomically; returns their names."""
+    """``location_changes.csv`` (`LOCATION_COLUMNS`: per location its count before and after), ``changes.csv``
+    (`CHANGE_COLUMNS`), ``changes.json`` (rows, counts, per location, ``evaluation`` when given), ``changes.glb``
+    and (``rrd``) ``changes.rrd`` in ``out``, each atomically; returns their names."""
     from layouts.fileio import atomic_write_json, atomic_write_text
     from layouts.locations import rows_csv
-    from stitching.building_diff import CHANGE_COLUMNS
+    from stitching.building_diff import CHANGE_COLUMNS, LOCATION_COLUMNS
     from stitching.building_schema import check_changes
 
     os.makedirs(out, exist_ok=True)
@@ -164,12 +165,13 @@ def write_changes(
     doc = {"columns": list(CHANGE_COLUMNS), "changes": rows, "counts": d.counts(),
            "locations": [vars(loc) for loc in d.locations]}  # fmt: skip
     check_changes(doc, os.path.join(out, "changes.json"), built=True)  # a defect raised before anything is written
+    atomic_write_text(os.path.join(out, "location_changes.csv"), rows_csv(d.location_rows(), LOCATION_COLUMNS))
     atomic_write_text(os.path.join(out, "changes.csv"), rows_csv(rows, CHANGE_COLUMNS))
     if evaluation is not None:
         doc["evaluation"] = evaluation
     atomic_write_json(os.path.join(out, "changes.json"), doc)
     export_changes_glb(new, old, d, os.path.join(out, "changes.glb"))
-    written = ["changes.csv", "changes.json", "changes.glb"]
+    written = ["location_changes.csv", "changes.csv", "changes.json", "changes.glb"]
     if rrd:
         write_changes_rrd(new, old, d, os.path.join(out, "changes.rrd"))
         written.append("changes.rrd")

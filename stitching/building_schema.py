@@ -29,6 +29,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, ValidationError, model_validator
 
 from layouts.errors import ContractError, InputError, first_problem
+from layouts.location_changes import count_change
 from layouts.locations import NOT_SCANNED, check_code_format, location_code
 from stitching.building_route import Aisle, Level, PlanFace, Side
 from stitching.map_schema import Coord, Count, MapDoc, Size, Unit, Yaw
@@ -288,6 +289,19 @@ class LocationChangeDoc(_Doc):
     moved_out: Count
     shifted: Count
     free_length_change_m: Annotated[float, Field(allow_inf_nan=False, ge=-1e4, le=1e4)] | None
+    before: Count | None = None  #: box stacks in the old scan (None: not scanned there)
+    after: Count | None = None
+    change: StrictStr = Field("", pattern="^(|emptied|filled|count changed|unchanged)$")
+    confidence: Unit = 0.0
+    recount: bool = False
+
+    @model_validator(mode="after")
+    def _counts(self) -> LocationChangeDoc:
+        if self.change and (self.before is None or self.after is None):
+            raise ValueError(f"change: {self.change!r} needs both counts (before, after)")
+        if self.change and count_change(self.before, self.after) != self.change:
+            raise ValueError(f"change: {self.change!r} is not the change from {self.before} to {self.after}")
+        return self
 
 
 class ChangesDoc(_Doc):

@@ -1,8 +1,11 @@
 """``mvracklay diff``: a tiny building and its rescan after seeded changes, both mapped from their ground-truth
-layouts; every change category found, none where nothing changed, unseen locations never ``removed``."""
+layouts; every change category found, none where nothing changed, unseen locations never ``removed``; per
+location the counts before and after (emptied, filled, count changed) as the rescan's truth has them, moves only
+between confident rows; ``--expected``: a map against the WMS's counts."""
 
 from __future__ import annotations
 
+import copy
 import csv
 import json
 from dataclasses import replace
@@ -11,12 +14,15 @@ from pathlib import Path
 import pytest
 from conftest import TINY_BUILDING
 
+from layouts.location_changes import LOCATION_CHANGES, count_change
+from layouts.locations import NOT_SCANNED
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
-from stitching.building_diff import CHANGES, diff_buildings
+from stitching.building_diff import CHANGES, diff_buildings, format_diff
 from stitching.building_eval import evaluate_changes
 from stitching.building_map import BuildingMap
 from stitching.export_gltf import glb_json
+from stitching.location_counts import evaluate_location_changes, read_location_truth
 from stitching.rerun_log import read_entities
 from waresynth.building_generate import generate_building
 
@@ -102,7 +108,7 @@ def test_cli_writes_the_changes(scans, tmp_path, capsys):
     assert "moved" in said and "precision" in said
     rows = _truth(out / "changes.csv")
     doc = json.loads((out / "changes.json").read_text())
-    assert len(rows) == len(doc["changes"]) > 0 and set(doc["evaluation"]) == set(CHANGES)
+    assert len(rows) == len(doc["changes"]) > 0 and set(doc["evaluation"]) == {*CHANGES, "locations"}
     names = {n.get("name") for n in glb_json(out / "changes.glb")["nodes"]}
     assert any(str(n).startswith("change_000") for n in names)
     assert {"/changes/added", "/changes/removed", "/changes/moved"} <= read_entities(out / "changes.rrd")
@@ -114,3 +120,100 @@ def test_the_same_map_twice_is_no_change(scans):
     bmap = _load(scans["new"])
     d = diff_buildings(bmap, replace(bmap))
     assert d.changes == [] and d.counts() == dict.fromkeys(CHANGES, 0)
+
+
+def test_per_location_categories_on_a_hand_made_pair(scans):
+    old = _load(scans["old"])
+    new = copy.deepcopy(old)
+    shelves = {loc.code: s for _, s, loc in new.locations()}
+    emptied = next(c for c, s in shelves.items() if len(s.boxes) == 1)
+    fewer = next(c for c, s in shelves.items() if len(s.boxes) >= 2)
+    shelves[emptied].boxes.clear()
+    shelves[fewer].boxes.pop()
+    d = diff_buildings(old, new)
+    by = {c.location: c for c in d.locations}
+    assert (by[emptied].before, by[emptied].after, by[emptied].change) == (1, 0, "emptied")
+    assert by[fewer].change == "count changed" and by[fewer].after < by[fewer].before
+    assert {c.location for c in d.locations if c.change in LOCATION_CHANGES} == {emptied, fewer}
+    assert all(0 < by[c].confidence <= 1 and not by[c].recount for c in (emptied, fewer))
+    back = {c.location: c.change for c in diff_buildings(new, old).locations}
+    assert (back[emptied], back[fewer]) == ("filled", "count changed")
+    said = format_diff(d)
+    assert said.splitlines()[0].startswith("location") and said.index(emptied) < said.index("size (m)")
+
+
+def test_a_move_needs_both_ends_confident(scans):
+    old, new = _load(scans["old"]), _load(scans["new"])
+    mv = next(c for c in diff_buildings(old, new).changes if c.change == "moved")
+    _, shelf, _ = new.location(mv.location)
+    shelf.boxes[:] = [replace(b, confidence=0.1) for b in shelf.boxes]  # its new place now uncertain: recount
+    d = diff_buildings(old, new)
+    assert not any(c.change == "moved" and mv.location in (c.location, c.other_location) for c in d.changes)
+    kinds = {(c.change, c.location) for c in d.changes}
+    assert ("removed", mv.other_location) in kinds and ("added", mv.location) in kinds
+    assert next(c for c in d.locations if c.location == mv.location).recount
+
+
+def test_location_changes_against_the_rescans_truth(scans):
+    truth = read_location_truth(scans["truth"].parent / "location_changes.csv")
+    before = {r["location"]: int(r["boxes"]) for r in _truth(scans["old_data"] / "ground_truth/inventory.csv")}
+    after = {r["location"]: int(r["boxes"]) for r in _truth(scans["new_data"] / "ground_truth/inventory.csv")}
+    assert {r["location"] for r in truth} == {c for c in after if before[c] != after[c]}
+    assert all(r["change"] == count_change(before[r["location"]], after[r["location"]]) for r in truth)
+    d = diff_buildings(_load(scans["old"]), _load(scans["new"]))
+    scores = evaluate_location_changes(d.location_rows(), truth)
+    assert sum(scores[k]["truth"] for k in LOCATION_CHANGES) == len(truth) > 0
+    assert all(scores[k]["precision"] == 1.0 and scores[k]["recall"] == 1.0 for k in LOCATION_CHANGES), scores
+    rows = d.location_rows()
+    assert {r["location"] for r in rows} == set(after) and all(r["recount"] in ("true", "false") for r in rows)
+
+
+def _wms(path: Path, rows: list[tuple[str, int]]) -> Path:
+    path.write_text("location,expected\n" + "".join(f"{c},{n}\n" for c, n in rows))
+    return path
+
+
+def test_expected_lists_the_exceptions(scans, tmp_path, capsys):
+    bmap = _load(scans["old"])
+    rows = bmap.inventory()
+    assert all(r["boxes"] != NOT_SCANNED for r in rows)
+    differs, dropped, unseen = rows[0], rows[1], rows[2]
+    _, _, loc = bmap.location(unseen["location"])
+    loc.passes, loc.seen = [], 0.0
+    (tmp_path / "m").mkdir()
+    bmap.save(tmp_path / "m" / "building.json")
+    listed = [(r["location"], r["boxes"] + (r is differs)) for r in rows if r is not dropped]
+    wms = _wms(tmp_path / "wms.csv", [*listed, ("99-L-01-01", 4)])
+    out = tmp_path / "x"
+    assert main(["diff", str(tmp_path / "m"), "--expected", str(wms), "--out", str(out)]) == 0
+    got = {(r["location"], r["exception"]): r for r in _truth(out / "exceptions.csv")}
+    assert set(got) == {(differs["location"], "count differs"), (dropped["location"], "not in the WMS"),
+                        (unseen["location"], "not scanned"), ("99-L-01-01", "missing from the map")}  # fmt: skip
+    assert got[differs["location"], "count differs"]["expected"] == str(differs["boxes"] + 1)
+    assert "4 exceptions of" in capsys.readouterr().out
+    exact = _wms(tmp_path / "exact.csv", [(r["location"], r["boxes"]) for r in _load(scans["old"]).inventory()])
+    assert main(["diff", str(scans["old"]), "--expected", str(exact), "--out", str(out)]) == 0
+    assert _truth(out / "exceptions.csv") == []
+
+
+@pytest.mark.parametrize(
+    "text, said",
+    [
+        ("code,count\n01-L-01-01,1\n", "header must hold"),
+        ("", "header must hold"),
+        ("location,expected\n01-L-01-01,-1\n", "line 2"),
+        ("location,expected\n01-L-01-01,two\n", "line 2"),
+        ("location,expected\n01-L-01-01,1\n01-L-01-01,2\n", "listed twice"),
+        ("location,expected\n", "no location"),
+        (b"\xff\xfe\x00location", "UTF-8"),
+    ],
+)
+def test_a_malformed_expected_is_one_line(scans, tmp_path, capsys, text, said):
+    wms = tmp_path / "wms.csv"
+    wms.write_bytes(text if isinstance(text, bytes) else text.encode())
+    assert main(["diff", str(scans["old"]), "--expected", str(wms), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--expected {wms}" in err and said in err, err
+    assert not (tmp_path / "x").exists()
+    assert main(["diff", str(scans["old"]), str(scans["new"]), "--expected", str(wms), "--out", str(tmp_path)]) == 2
+    assert "NEW_MAP" in capsys.readouterr().err

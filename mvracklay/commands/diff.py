@@ -9,16 +9,18 @@ from layouts.errors import InputError
 from mvracklay.options import add_overwrite_option
 
 NAME = "diff"
-HELP = "what changed between two building maps: boxes added, removed, moved, shifted, per location"
+HELP = "what changed between two building maps per location (emptied, filled, count changed), or a map against the WMS"
 DESCRIPTION = (
     "Compares two building maps of the same building (`mvracklay map`'s output folders or building.json; any "
-    "route poses, camera distances or passes): per location the boxes added, removed, moved (from -> to) and "
+    "route poses, camera distances or passes): per location first its count before and after (emptied, filled, "
+    "count changed, with a confidence and recount where either row is flagged; DIR/location_changes.csv), then the boxes added, removed, moved (from -> to) and "
     "shifted along their level, and the change of free length, each change with a confidence from both maps. "
     "A location the new scan did not see is `not scanned`, never `removed`. Prints the changes and writes "
     "DIR/changes.csv and changes.json (the columns of a generated rescan's ground_truth/changes.csv, plus "
     "confidence; the JSON also per location), DIR/changes.glb and changes.rrd (added green, removed a red "
     "outline, moved blue with an arrow from where it stood, shifted orange). DIR may be missing, empty or an earlier "
-    "diff's folder (--overwrite: any other), never a map compared or inside one; a failed diff leaves it as it was."
+    "diff's folder (--overwrite: any other), never a map compared or inside one; a failed diff leaves it as it was. "
+    "With --expected WMS_CSV and one map: the exceptions against the counts the WMS expects (DIR/exceptions.csv)."
 )
 GROUP = "use"
 ORDER = 15
@@ -27,14 +29,17 @@ INTERRUPTED = "DIR left as it was"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("old", metavar="OLD_MAP", help="the earlier scan's building map (folder or building.json)")
-    p.add_argument("new", metavar="NEW_MAP", help="the later scan's building map")
+    p.add_argument("new", metavar="NEW_MAP", nargs="?", help="the later scan's building map (none with --expected)")
+    p.add_argument("--expected", type=Path, metavar="WMS_CSV",
+                   help="the counts the WMS expects (CSV: location, expected): list the map's exceptions")  # fmt: skip
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder of the changes")
     add_overwrite_option(p, "the changes files", "diff")
     p.add_argument(
         "--truth",
         type=Path,
         metavar="CHANGES_CSV",
-        help="a generated rescan's ground_truth/changes.csv: print precision and recall per change category",
+        help="a generated rescan's ground_truth/changes.csv: print precision and recall per change category (per "
+        "location too, from location_changes.csv beside it)",
     )
     p.add_argument(
         "--same",
@@ -75,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from stitching.building_eval import evaluate_changes
     from stitching.building_map import BuildingMap
     from stitching.building_schema import check_change_rows
+    from stitching.location_counts import score_locations
 
     given = {
         k: v
@@ -84,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
     for name, v in given.items():
         if not 0 <= v <= 5:
             raise InputError(f"--{name.replace('_', '-')} must be in [0, 5] metres, got {v}")
+    if args.expected is not None:
+        return _expected(args)
+    if args.new is None:
+        raise InputError("diff: NEW_MAP is missing (or give --expected WMS_CSV to compare one map with the WMS)")
     old_path, new_path = building_path(args.old, "OLD_MAP"), building_path(args.new, "NEW_MAP")
     refuse_overlap([args.out], {"OLD_MAP": args.old, "NEW_MAP": args.new, "--truth": args.truth})
     check_out(args.out, args.overwrite, outputs=CHANGE_FILES, earlier=is_changes_folder, command="diff")
@@ -97,10 +107,36 @@ def run(args: argparse.Namespace) -> int:
     d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
     print(format_diff(d, args.limit))
     scores = evaluate_changes(d.rows(), truth) if truth is not None else None
+    beside = args.truth.parent / "location_changes.csv" if truth is not None else None
+    per_location = score_locations(d.location_rows(), beside) if beside is not None and beside.is_file() else None
     for cat, s in (scores or {}).items():
         print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
               f"{s['truth']} true)")  # fmt: skip
+    if per_location is not None:
+        scores["locations"] = per_location
     with staged(args.out, CHANGE_FILES) as stage:  # DIR held, the changes swapped in whole
         written = write_changes(old, new, d, stage, rrd=not args.no_rrd, evaluation=scores)
     print("wrote " + ", ".join(str(args.out / n) for n in written))
+    return 0
+
+
+def _expected(args: argparse.Namespace) -> int:
+    """``diff MAP --expected WMS_CSV``: the map's exceptions against the WMS's expected counts."""
+    from layouts.publish import refuse_overlap, staged
+    from mvracklay.outputs import check_out
+    from stitching import location_counts as lc
+    from stitching.building_map import BuildingMap
+
+    if args.new is not None:
+        raise InputError("diff --expected compares one map with the WMS: give OLD_MAP alone, not NEW_MAP too")
+    path = building_path(args.old, "MAP")
+    refuse_overlap([args.out], {"MAP": args.old, "--expected": args.expected})
+    earlier = lambda d: (d / "exceptions.csv").is_file()  # noqa: E731
+    check_out(args.out, args.overwrite, outputs=lc.EXCEPTION_FILES, earlier=earlier, command="diff")
+    expected = lc.read_expected(args.expected)
+    rows = lc.expected_exceptions(BuildingMap.load(path), expected)
+    print(lc.format_exceptions(rows, len(expected), args.limit))
+    with staged(args.out, lc.EXCEPTION_FILES) as stage:  # DIR held, the exceptions swapped in whole
+        lc.write_exceptions(rows, stage)
+    print(f"wrote {args.out / 'exceptions.csv'}")
     return 0
