@@ -168,3 +168,24 @@ def test_generated_building_records_its_racking(tmp_path):
         assert len(r["uprights"]) == {"run": 4, "units": 6}[r["build"]]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["building"]["rack_build"] == {"run": 1, "units": 1}
+
+
+def test_changed_stock_stays_clear_of_shared_uprights():
+    """A rescan's moved, shifted and added stacks stand between the uprights of runs and units too."""
+    from waresynth.building_changes import apply_changes
+    from waresynth.building_schema import change_rates
+
+    plan = _plan({"run": 1.0, "units": 1.0}, seed=2)
+    rates = {**change_rates(None), "added": 0.3, "moved": 0.2, "shifted": 0.3}
+    changed, changes = apply_changes(plan, rates, 7, load_config(None))
+    assert changes
+    doc, _ = ground_truth(changed)
+    assert {r["build"] for r in doc["racking"]} == {"run", "units"}
+    for rack in doc["racks"]:
+        (_, l1), (r0, _) = rack["uprights"]
+        for lv in rack["levels"]:
+            for pos in lv["positions"]:
+                for b in pos["boxes"]:
+                    w, _, d = b["size"]
+                    half = 0.5 * (abs(np.cos(b["yaw"])) * w + abs(np.sin(b["yaw"])) * d)
+                    assert l1 < b["center"][0] - half and b["center"][0] + half < r0
