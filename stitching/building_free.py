@@ -1,7 +1,9 @@
 """Where a box fits across a building: every scanned location with a gap for it, nearest first.
 
 A location fits a ``w x d x h`` box as a row map's shelf does (`stitching.free_space.fits`: clear height, depth,
-a free gap along X wide enough, never in unknown length); locations no pass saw are never offered. Ranked by the
+a gap along X inside the uprights and clear of every box, the neighbouring positions' included, wide enough for
+the box and its margin, never in unknown length); only the map's own locations are offered (a fit on a shelf
+without a location record is none), and never one no pass saw. Ranked by the
 walk from ``near`` (a location code), else in building order: along the aisle within one aisle, else out to
 the nearer end of the racks (where the cross aisles are), across, and back in. The box centre's ranges are given
 in building X.
@@ -14,13 +16,14 @@ from dataclasses import asdict, dataclass
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap
-from stitching.free_space import fits, shelf_free_space
+from stitching.free_space import fits, rack_of, shelf_free_space
 
 
 @dataclass
 class LocationFit:
     location: str
     rotated: bool  #: the box turned 90 degrees (its depth along the aisle)
+    along_x: float  #: the box's extent along the aisle in this placement
     centres: list[tuple[float, float]]  #: building X ranges for the box's centre
     free_length: float
     distance: float | None  #: metres walked from ``near`` (`walk`); None without ``near``
@@ -62,16 +65,18 @@ def building_fits(
     for face in bmap.faces:
         shelves = {s.id: s for s in face.map.shelves()}
         for f in fits(face.map, w, d, h, margin):
-            loc = face.locations[f.shelf]
-            if not loc.scanned:
+            loc = face.locations.get(f.shelf)
+            if loc is None or loc.code != f.shelf or not loc.scanned:
                 continue
             shelf = shelves[f.shelf]
-            fs = shelf_free_space(shelf)
+            fs = shelf_free_space(shelf, rack_of(face.map, shelf))
             centres = [tuple(sorted((face.sign * a + 0.0, face.sign * b + 0.0))) for a, b in f.centres]
             dist = None
             if origin is not None:
                 dist = walk(origin, _centre(bmap, f.shelf), ends)
-            found.append(LocationFit(f.shelf, f.rotated, sorted(centres), fs.free_length, dist, fs.confidence))
+            found.append(
+                LocationFit(f.shelf, f.rotated, f.along_x, sorted(centres), fs.free_length, dist, fs.confidence)
+            )
     order = {loc.code: k for k, (_, _, loc) in enumerate(bmap.locations())}
     if origin is not None:
         return sorted(found, key=lambda r: (r.distance, order[r.location], r.rotated))

@@ -32,7 +32,7 @@ from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, rows_csv
 from stitching.building_route import FacePlan, plan_dict, plan_face
 from stitching.building_schema import check_building, check_inventory
-from stitching.free_space import ShelfFreeSpace, shelf_free_space
+from stitching.free_space import ShelfFreeSpace, rack_of, shelf_free_space
 from stitching.geometry import Cuboid
 from stitching.recount import MAP_INVENTORY_COLUMNS, RECOUNT, recount_cell, shelf_evidence, uncertain_bays
 from stitching.warehouse_map import MapShelf, WarehouseMap
@@ -154,7 +154,7 @@ class BuildingMap:
         scanned`` where no pass saw the location (its free-space columns empty, confidence 0)."""
         rows = []
         odd = {s.id for f in self.faces for r in f.map.racks if r.id in uncertain_bays(f.map.racks) for s in r.shelves}
-        for _f, shelf, loc in self.locations():
+        for f, shelf, loc in self.locations():
             row: dict[str, Any] = {
                 "location": loc.code, "aisle": loc.aisle, "side": loc.side, "bay": loc.bay, "level": loc.level,
                 "position": loc.position,
@@ -163,7 +163,7 @@ class BuildingMap:
                 row.update({k: "" for k in INVENTORY_COLUMNS[6:]})
                 row.update({"boxes": NOT_SCANNED, "confidence": 0.0, RECOUNT: ""})
             else:
-                fs: ShelfFreeSpace = shelf_free_space(shelf)
+                fs: ShelfFreeSpace = shelf_free_space(shelf, rack_of(f.map, shelf))
                 row.update({
                     "boxes": fs.boxes, "occupancy": round(fs.occupancy, 4), "free_length_m": round(fs.free_length, 4),
                     "free_area_m2": round(fs.free_area, 4), "free_volume_m3": round(fs.free_volume, 4),

@@ -13,8 +13,9 @@ shelf boards, and boxes in the colours the frames saw.
   under the board's front and back edges. Boards are slabs ``board_thickness`` thick under each
   shelf's board top.
 * Every node carries glTF ``extras``: a rack its ``id``, ``x_range`` and ``partial``; a shelf its
-  slot, board and clear height, confidence, ``partial`` and free space (`stitching.free_space`:
-  ``free_length``, ``free_fraction`` of its length, ``occupancy``); a box its ``size`` (w, h, d),
+  slot, board and clear height, confidence, ``partial`` and free space (`stitching.free_space`, over the
+  clear span inside the uprights: ``clear_length``, ``free_length``, ``free_fraction`` of the clear length,
+  ``occupancy``, the share of it under a box); a box its ``size`` (w, h, d),
   ``yaw``, ``confidence``, ``observations``, ``partial`` (its shelf's) and ``colour`` with
   ``colour_source`` ("frames", or "default" for a box no frame gave a colour).
 * Materials are explicit PBR (metallic 0, roughness 0.8) with opaque RGBA base colours (alpha
@@ -40,14 +41,13 @@ import numpy as np
 from layouts.classes import BOX, CLASS_COLOURS
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from stitching.free_space import shelf_free_space
+from stitching.free_space import UPRIGHT_WIDTH, shelf_free_space
 from stitching.geometry import Cuboid
 from stitching.warehouse_map import MapRack, MapShelf, WarehouseMap
 
 #: The glTF conversion: map (Y down, Z forward) -> glTF (Y up), a 180 degree rotation about X.
 Y_UP = np.diag([1.0, -1.0, -1.0])
 
-UPRIGHT_WIDTH = 0.08  #: metres along X of an upright's section (a typical pallet-rack upright)
 UPRIGHT_DEPTH = 0.08  #: metres along Z of an upright's section
 BEAM_HEIGHT = 0.10  #: metres of a beam's face under the board
 BEAM_DEPTH = 0.05  #: metres along Z of a beam
@@ -146,8 +146,8 @@ def rack_frame(rack: MapRack, board_thickness: float) -> tuple[list[Part], dict[
     return uprights, beams
 
 
-def _shelf_extras(s: MapShelf) -> dict[str, Any]:
-    fs = shelf_free_space(s)
+def _shelf_extras(s: MapShelf, rack: MapRack | None = None) -> dict[str, Any]:
+    fs = shelf_free_space(s, rack)
     extras = {
         "id": s.id,
         "kind": "shelf",
@@ -159,6 +159,7 @@ def _shelf_extras(s: MapShelf) -> dict[str, Any]:
         "confidence": _r(s.confidence),
         "partial": getattr(s, "partial", None),
         "boxes": len(s.boxes),
+        "clear_length": _r(fs.length),
         "free_length": _r(fs.free_length),
         "free_fraction": _r(fs.free_length / fs.length) if fs.length > 0 else 0.0,
         "occupancy": _r(fs.occupancy),
@@ -182,7 +183,7 @@ def scene_parts(wmap: WarehouseMap) -> list[Part]:
         for s in rack.shelves:
             x0, x1 = s.x_range
             board = _box_xyz((x0, x1), (-s.board_height, -s.board_height + t), s.z_range)
-            parts.append(Part(s.id, "shelf", rack.id, board, RACK_COLOURS["shelf"], _shelf_extras(s)))
+            parts.append(Part(s.id, "shelf", rack.id, board, RACK_COLOURS["shelf"], _shelf_extras(s, rack)))
             parts.extend(beams.get(s.id, []))
             for b in s.boxes:
                 colour = getattr(b, "colour", None)

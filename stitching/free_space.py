@@ -1,25 +1,29 @@
 """Free space per shelf, and where a box of a given size fits.
 
-Per shelf (its X range x depth range x clear height in the map):
+A shelf's *clear span* is the part of its X range a box can stand on: a rack's ``x_range`` runs from the
+outer face of its first upright to that of its last, so each end of the shelf that is an end of its rack
+moves in by `UPRIGHT_INSET` (the upright's width, `UPRIGHT_WIDTH`, and the clearance a box keeps from it,
+`UPRIGHT_CLEARANCE`, as the ground truth's usable board does); an end where a partial rack is cut stays where
+the view ended, and a position's end inside a level (a building's locations) is no upright. Per shelf:
 
-* ``gaps``: the X intervals not covered by any box's footprint extent along X (a box anywhere
-  in the depth blocks that X), ``free_length`` their total;
-* ``free_area``: shelf area minus the boxes' footprint areas (clipped to the shelf);
-* ``free_volume``: shelf volume (area x clear height) minus the boxes' volumes (clipped);
-* ``occupancy``: occupied footprint area / shelf area;
+* ``length``: the clear span's length; ``gaps``: the X intervals of it under no box (a box anywhere in the
+  depth blocks that X; boxes of the neighbouring positions of the same level, standing over the boundary,
+  count too), ``free_length`` their total;
+* ``occupancy``: the share of the (known) clear length under a box, a length share as in the ground truth;
+* ``free_area`` / ``free_volume``: the clear span's area (x clear height) minus the boxes' footprints
+  (volumes), clipped to it;
 * ``confidence``: the shelf's confidence times the mean confidence of its boxes (1 if none).
 
-A partial shelf (``MapShelf.partial``: its rack runs on past the X range the camera saw) has
-``length`` = the seen length, and the gap running to each cut end is ``unknown``, not free: a box
-there may have been seen only in part, and what lies past the cut was never seen. ``free_length``,
-``free_area``, ``free_volume`` and ``occupancy`` cover the rest of the seen part (``unknown_length``
-is left out), the confidence is scaled by `PARTIAL_CONFIDENCE` per cut end, and `fits` never places
-a box in unknown length.
+A partial shelf (``MapShelf.partial``: its rack runs on past the X range the camera saw) has the gap running
+to each cut end ``unknown``, not free: a box there may have been seen only in part, and what lies past the cut
+was never seen. ``free_length``, ``free_area``, ``free_volume`` and ``occupancy`` cover the rest (``unknown_length``
+is left out), the confidence is scaled by `PARTIAL_CONFIDENCE` per cut end, and `fits` never places a box in
+unknown length.
 
-`fits(w, d, h)` lists, per shelf, the gaps where a ``w x d x h`` box stands: ``h`` must be at most
-the clear height minus ``margin``, the box may turn 90 degrees (``w`` along X or ``d`` along X),
-its depth must fit the shelf depth, and the gap must be at least its X size plus ``2 * margin``.
-Each returned interval is the range of X positions for the box's *centre*.
+`fits(w, d, h)` lists, per shelf, the gaps where a ``w x d x h`` box stands: ``h`` must be at most the clear
+height minus ``margin``, the box may turn 90 degrees (``w`` along X or ``d`` along X), its depth must fit the
+shelf depth, and the gap must be at least its X size plus ``2 * margin``, so the box and its margin stand clear
+of the uprights and of every box. Each returned interval is the range of X positions for the box's *centre*.
 """
 
 from __future__ import annotations
@@ -29,8 +33,13 @@ from dataclasses import asdict, dataclass, field
 
 from layouts.errors import InputError
 from stitching.geometry import clip_convex, polygon_area
-from stitching.warehouse_map import MapShelf, WarehouseMap, cut_sides
+from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, cut_sides
 
+UPRIGHT_WIDTH = (
+    0.08  #: metres along X of an upright's section (a typical pallet-rack upright; the map does not measure it)
+)
+UPRIGHT_CLEARANCE = 0.03  #: metres a box keeps from an upright (the beams' connectors), as the ground truth's board
+UPRIGHT_INSET = UPRIGHT_WIDTH + UPRIGHT_CLEARANCE  #: metres from a rack's end to where a box can stand
 PARTIAL_CONFIDENCE = 0.7  #: free-space confidence factor per cut end of a partial shelf
 #: the legend line `format_table` prints under a table with partial shelves
 PARTIAL_LEGEND = (
@@ -82,9 +91,29 @@ class Fit:
         }
 
 
-def _gaps(shelf: MapShelf) -> list[tuple[float, float]]:
+def clear_span(shelf: MapShelf, rack: MapRack | None = None) -> tuple[float, float]:
+    """The X range of ``shelf`` a box can stand on (see the module docstring); ``rack``: the shelf's rack (default:
+    the shelf spans its rack, as in a row map)."""
     lo, hi = shelf.x_range
-    spans = sorted(b.cuboid.x_range() for b in shelf.boxes)
+    r0, r1 = rack.x_range if rack is not None else shelf.x_range
+    cut_lo, cut_hi = cut_sides(shelf.partial)
+    if abs(lo - r0) < 1e-6 and not cut_lo:
+        lo += UPRIGHT_INSET
+    if abs(hi - r1) < 1e-6 and not cut_hi:
+        hi -= UPRIGHT_INSET
+    return (lo, hi) if hi > lo else ((lo + hi) / 2, (lo + hi) / 2)
+
+
+def _level_boxes(shelf: MapShelf, rack: MapRack | None) -> list[MapBox]:
+    """The boxes standing on ``shelf``'s level: its own, and its rack's other shelves' on the same slot."""
+    others = [b for s in (rack.shelves if rack is not None else []) if s is not shelf and s.slot == shelf.slot
+              for b in s.boxes]  # fmt: skip
+    return list(shelf.boxes) + others
+
+
+def _gaps(span: tuple[float, float], boxes: list[MapBox]) -> list[tuple[float, float]]:
+    lo, hi = span
+    spans = sorted(b.cuboid.x_range() for b in boxes)
     gaps, cur = [], lo
     for a, b in spans:
         if a > cur:
@@ -97,27 +126,37 @@ def _gaps(shelf: MapShelf) -> list[tuple[float, float]]:
     return [(a, b) for a, b in gaps if b - a > 1e-9]
 
 
-def _split_gaps(shelf: MapShelf) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
-    """``(free gaps, unknown gaps)``: a partial shelf's gaps running to a cut end are unknown."""
-    lo, hi = shelf.x_range
+def _split_gaps(
+    shelf: MapShelf, rack: MapRack | None = None
+) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    """``(free gaps, unknown gaps)`` of the clear span: a partial shelf's gaps running to a cut end are unknown."""
+    lo, hi = span = clear_span(shelf, rack)
     cut_lo, cut_hi = cut_sides(shelf.partial)
     free, unknown = [], []
-    for a, b in _gaps(shelf):
+    for a, b in _gaps(span, _level_boxes(shelf, rack)):
         (unknown if (cut_lo and a <= lo + 1e-9) or (cut_hi and b >= hi - 1e-9) else free).append((a, b))
     return free, unknown
 
 
-def shelf_free_space(shelf: MapShelf) -> ShelfFreeSpace:
-    """Free length, area, volume and occupancy of one shelf (of its known part when partial)."""
-    x0, x1 = shelf.x_range
+def rack_of(wmap: WarehouseMap, shelf: MapShelf) -> MapRack | None:
+    """The rack holding ``shelf`` (None when no rack of ``wmap`` does)."""
+    return next((r for r in wmap.racks if any(s is shelf for s in r.shelves)), None)
+
+
+def shelf_free_space(shelf: MapShelf, rack: MapRack | None = None) -> ShelfFreeSpace:
+    """Free length, area, volume and occupancy of one shelf's clear span (of its known part when partial);
+    ``rack``: the shelf's rack (default: the shelf spans its rack, as in a row map)."""
+    x0, x1 = clear_span(shelf, rack)
     z0, z1 = shelf.z_range
     length, depth = max(x1 - x0, 0.0), max(z1 - z0, 0.0)
-    gaps, unknown = _split_gaps(shelf)
+    gaps, unknown = _split_gaps(shelf, rack)
     unknown_length = sum((b - a for a, b in unknown), 0.0)
-    area = (length - unknown_length) * depth  # the known part: boxes never reach into unknown gaps
+    free_length = sum((b - a for a, b in gaps), 0.0)
+    known = length - unknown_length
+    area = known * depth  # the known part: boxes never reach into unknown gaps
     rect = [(x0, z0), (x1, z0), (x1, z1), (x0, z1)]
     occ_area = occ_vol = 0.0
-    for b in shelf.boxes:
+    for b in _level_boxes(shelf, rack):
         a = polygon_area(clip_convex(b.cuboid.footprint(), rect)) if area > 0 else 0.0
         occ_area += a
         occ_vol += a * min(b.size[1], shelf.clear_height)
@@ -129,10 +168,10 @@ def shelf_free_space(shelf: MapShelf) -> ShelfFreeSpace:
         length=length,
         depth=depth,
         clear_height=shelf.clear_height,
-        free_length=sum(b - a for a, b in gaps),
+        free_length=free_length,
         free_area=max(area - occ_area, 0.0),
         free_volume=max(area * shelf.clear_height - occ_vol, 0.0),
-        occupancy=min(occ_area / area, 1.0) if area > 0 else 0.0,
+        occupancy=min(max(known - free_length, 0.0) / known, 1.0) if known > 1e-9 else 0.0,
         boxes=len(shelf.boxes),
         confidence=conf,
         gaps=gaps,
@@ -144,7 +183,7 @@ def shelf_free_space(shelf: MapShelf) -> ShelfFreeSpace:
 
 def free_space(wmap: WarehouseMap) -> list[ShelfFreeSpace]:
     """Free space of every shelf of the map, in rack/shelf order."""
-    return [shelf_free_space(s) for s in wmap.shelves()]
+    return [shelf_free_space(s, r) for r in wmap.racks for s in r.shelves]
 
 
 def parse_box(text: str) -> tuple[float, float, float]:
@@ -165,11 +204,11 @@ def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) 
         if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
             raise InputError(f"fits: {name} must be a finite number >= 0, got {v!r}")
     out: list[Fit] = []
-    for shelf in wmap.shelves():
+    for rack, shelf in ((r, s) for r in wmap.racks for s in r.shelves):
         if h > shelf.clear_height - margin:
             continue
         depth = shelf.z_range[1] - shelf.z_range[0]
-        gaps = _split_gaps(shelf)[0]  # never in unknown length
+        gaps = _split_gaps(shelf, rack)[0]  # inside the uprights, clear of boxes, never in unknown length
         for along, across, rotated in ((w, d, False), (d, w, True)):
             if rotated and w == d:
                 continue

@@ -97,7 +97,11 @@ def test_extras_of_racks_shelves_and_boxes(glb):
         assert e["free_length"] == pytest.approx(fs.free_length, abs=1e-4)
         assert e["free_fraction"] == pytest.approx(fs.free_length / fs.length, abs=1e-4)
         assert e["partial"] == getattr(s, "partial", None)
-    assert nodes["rack_00/shelf_00"]["extras"]["free_length"] == pytest.approx(2.0 - 0.6 - 0.5)
+        assert e["clear_length"] == pytest.approx(fs.length, abs=1e-4) and e["occupancy"] == pytest.approx(
+            fs.occupancy, abs=1e-4
+        )
+    # 2 m inside the uprights (0.11 m each end), boxes over 0.6 m and 0.5 m of it
+    assert nodes["rack_00/shelf_00"]["extras"]["free_length"] == pytest.approx(2.0 - 0.22 - 0.6 - 0.5)
     for b in wmap.boxes():
         e = nodes[b.id]["extras"]
         assert e["id"] == b.id and e["size"] == pytest.approx(list(b.size), abs=1e-4)

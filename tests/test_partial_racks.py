@@ -10,7 +10,16 @@ import pytest
 
 from layouts import InputError
 from mvracklay.cli import main
-from stitching.free_space import PARTIAL_CONFIDENCE, PARTIAL_LEGEND, fits, format_table, free_space, shelf_free_space
+from stitching.free_space import (
+    PARTIAL_CONFIDENCE,
+    PARTIAL_LEGEND,
+    UPRIGHT_INSET,
+    clear_span,
+    fits,
+    format_table,
+    free_space,
+    shelf_free_space,
+)
 from stitching.merge import _partial_run
 from stitching.pipeline import reconstruct
 from stitching.synthetic import make_sequence
@@ -63,7 +72,9 @@ def test_unseen_length_is_not_free(short_map):
     for r in rows:
         shelf = short_map.shelf(r.shelf)
         lo, hi = shelf.x_range
-        assert r.partial == shelf.partial and r.length == pytest.approx(hi - lo)
+        c0, c1 = clear_span(shelf)  # inside the uprights; a cut end stays where the view ended
+        assert (c0 == lo) == (shelf.partial in ("start", "both")) and (c1 == hi) == (shelf.partial in ("end", "both"))
+        assert r.partial == shelf.partial and r.length == pytest.approx(c1 - c0)
         spans = [b.cuboid.x_range() for b in shelf.boxes]
         # The cut end is either in a box or ends the one unknown gap; every other gap stays free.
         if shelf.partial == "start":
@@ -86,25 +97,29 @@ def test_unseen_length_is_not_free(short_map):
 
 def test_hand_map_partial_numbers():
     whole, cut = shelf_free_space(_hand_map(None).shelves()[0]), shelf_free_space(_hand_map("end").shelves()[0])
-    assert whole.free_length == pytest.approx(1.2) and whole.unknown_length == 0
-    assert cut.free_length == pytest.approx(0.7) and cut.unknown_length == pytest.approx(0.5)
+    u = UPRIGHT_INSET  # the gaps at the uprights end inside them
+    assert whole.free_length == pytest.approx(1.2 - 2 * u) and whole.unknown_length == 0
+    assert cut.free_length == pytest.approx(0.7 - u) and cut.unknown_length == pytest.approx(0.5)
     assert cut.unknown == [pytest.approx((1.5, 2.0))] and cut.gaps == [
-        pytest.approx((0.0, 0.5)),
+        pytest.approx((u, 0.5)),
         pytest.approx((1.0, 1.2)),
     ]
-    assert cut.free_area == pytest.approx(1.5 - 0.48) and cut.occupancy == pytest.approx(0.48 / 1.5)  # known 1.5 m
-    assert cut.free_volume == pytest.approx(1.5 * 0.9 - 0.48 * 0.4)
+    known = 1.5 - u  # the clear span's known part
+    assert cut.free_area == pytest.approx(known - 0.48) and cut.occupancy == pytest.approx(0.8 / known)  # length
+    assert cut.free_volume == pytest.approx(known * 0.9 - 0.48 * 0.4)
     assert cut.confidence == pytest.approx(whole.confidence * PARTIAL_CONFIDENCE)
     both = shelf_free_space(_hand_map("both").shelves()[0])
     assert both.free_length == pytest.approx(0.2) and both.unknown_length == pytest.approx(1.0)
     assert both.confidence == pytest.approx(PARTIAL_CONFIDENCE**2)
-    # A 0.4 m box fits in 0..0.5 and 1.5..2.0 of the whole shelf, only in 0..0.5 when the end is cut.
-    assert [f.centres for f in fits(_hand_map(None), 0.4, 0.4, 0.4)][0] == [
-        pytest.approx((0.2, 0.3)),
-        pytest.approx((1.7, 1.8)),
+    # A 0.3 m box fits in u..0.5 and 1.5..2-u of the whole shelf, only in u..0.5 when the end is cut; a 0.4 m one
+    # no longer fits next to an upright.
+    assert [f.centres for f in fits(_hand_map(None), 0.3, 0.3, 0.3)][0] == [
+        pytest.approx((u + 0.15, 0.35)),
+        pytest.approx((1.65, 1.85 - u)),
     ]
-    assert [f.centres for f in fits(_hand_map("end"), 0.4, 0.4, 0.4)][0] == [pytest.approx((0.2, 0.3))]
-    assert fits(_hand_map("both"), 0.4, 0.4, 0.4) == []
+    assert [f.centres for f in fits(_hand_map("end"), 0.3, 0.3, 0.3)][0] == [pytest.approx((u + 0.15, 0.35))]
+    assert fits(_hand_map("both"), 0.3, 0.3, 0.3) == []
+    assert fits(_hand_map(None), 0.4, 0.4, 0.4) == []
 
 
 def test_table_marks_partial_shelves(short_map, long_map):

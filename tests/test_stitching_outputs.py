@@ -8,7 +8,7 @@ import pytest
 
 from layouts import InputError, LayoutSpec
 from stitching.export_gltf import export_glb, load_glb_cuboid_bounds, map_cuboids
-from stitching.free_space import fits, free_space, parse_box, shelf_free_space
+from stitching.free_space import UPRIGHT_INSET, fits, free_space, parse_box, shelf_free_space
 from stitching.pipeline import reconstruct
 from stitching.synthetic import make_sequence
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
@@ -115,9 +115,12 @@ def test_free_space_numbers_and_fits():
     (fs,) = free_space(m)
     assert fs.gaps == [(0.5, 1.0)]
     assert fs.free_length == pytest.approx(0.5)
-    assert fs.free_area == pytest.approx(2.0 - 0.3 - 0.8)
-    assert fs.free_volume == pytest.approx(2.0 * 0.9 - 0.3 * 0.4 - 0.8 * 0.3)
-    assert fs.occupancy == pytest.approx(1.1 / 2.0)
+    clear = 2.0 - 2 * UPRIGHT_INSET  # the span inside the uprights; the boxes' footprints clipped to it
+    a0, a1 = (0.5 - UPRIGHT_INSET) * 0.6, (1.0 - UPRIGHT_INSET) * 0.8
+    assert fs.length == pytest.approx(clear)
+    assert fs.free_area == pytest.approx(clear - a0 - a1)
+    assert fs.free_volume == pytest.approx(clear * 0.9 - a0 * 0.4 - a1 * 0.3)
+    assert fs.occupancy == pytest.approx((clear - 0.5) / clear)  # the length under a box
     assert fs.boxes == 2
     assert shelf_free_space(m.shelves()[0]).to_dict()["gaps"] == [[0.5, 1.0]]
     f, turned = fits(m, 0.4, 0.3, 0.3, margin=0.02)
@@ -144,7 +147,8 @@ def test_yawed_box_footprint_counts_exactly():
     fs = free_space(m)[0]
     # Turned 90 degrees the 0.5 x 0.6 box spans [-0.05, 0.55] along X; only its part on the shelf counts.
     assert fs.free_length == pytest.approx(0.5 - 0.05, abs=1e-9)
-    assert fs.free_area == pytest.approx(2.0 - 0.55 * 0.5 - 0.8)
+    clear = 2.0 - 2 * UPRIGHT_INSET
+    assert fs.free_area == pytest.approx(clear - (0.55 - UPRIGHT_INSET) * 0.5 - (1.0 - UPRIGHT_INSET) * 0.8)
 
 
 def test_reconstruct_into_a_run_folder_keeps_its_layouts(tiny_dataset, tmp_path):
