@@ -173,7 +173,8 @@ def test_diff_keeps_a_users_files_unless_overwrite_and_replaces_its_own(tiny_bui
     fresh = tmp_path / "fresh"
     assert main([*argv[:-3], "--out", str(fresh)]) == 0  # and an earlier diff's folder is simply replaced
     assert main([*argv[:-3], "--out", str(fresh)]) == 0
-    assert sorted(p.name for p in fresh.iterdir()) == ["changes.csv", "changes.glb", "changes.json", "changes.rrd"]
+    files = ["changes.csv", "changes.glb", "changes.json", "changes.rrd", "location_changes.csv"]
+    assert sorted(p.name for p in fresh.iterdir()) == files
     capsys.readouterr()
     no_stage_left(out, fresh, tmp_path)
 
