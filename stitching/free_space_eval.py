@@ -3,10 +3,12 @@
 
 An offered placement (`stitching.building_free.LocationFit`: a location and ranges of building X for the box's
 centre) *fits* when its location is one of the ground truth's and, for every centre in its ranges, the box's
-extent along X (``along_x``, without the margin) lies on that location's level within the bay's usable board
-(the ground truth's positions, between the uprights) and overlaps no ground-truth stack of that level of that
-bay. A placement at a code the ground truth lacks is *invented*; one whose box reaches past the board is *into
-an upright*; one that overlaps a stack is *onto a box*. ``worst`` is the deepest such reach (metres).
+extent along X (``along_x``, without the margin) lies on that location's level between the inner faces of its
+bay's two upright frames (the ground truth's ``uprights``; where a ground truth lacks them, the usable board:
+its positions) and overlaps no ground-truth stack of that level of that bay. A placement at a code the ground
+truth lacks is *invented*; one whose box reaches into an upright frame is *into an upright*; one that overlaps a
+stack is *onto a box*; ``worst`` is the deepest such reach (metres). ``past_board`` counts the fitting ones that
+reach past the usable board into the clearance the generator leaves beside an upright (3 cm).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ class FitEval:
     offered: int  #: placements offered (one per location and turn)
     fit: int  #: of them, fitting at every offered centre
     invented: int  #: at a code the ground truth lacks
-    into_upright: int  #: reaching past the usable board
+    into_upright: int  #: reaching into an upright frame
     onto_box: int  #: overlapping a ground-truth stack
+    past_board: int = 0  #: fitting, but reaching past the usable board (into the clearance beside an upright)
     worst: float = 0.0  #: the deepest reach past the board or into a stack (metres)
     wrong: list[dict[str, Any]] = field(default_factory=list)  #: the first placements that do not fit
 
@@ -39,20 +42,26 @@ class FitEval:
         return {**asdict(self), "share": self.share}
 
 
-def truth_levels(truth: dict[str, Any]) -> dict[str, tuple[tuple[float, float], list[tuple[float, float]]]]:
-    """Location code -> (its bay's usable board along building X, the X extents of the stacks on its level)."""
+Span = tuple[float, float]
+
+
+def truth_levels(truth: dict[str, Any]) -> dict[str, tuple[Span, Span, list[Span]]]:
+    """Location code -> (the clear span between its bay's upright frames, its usable board, the X extents of the
+    stacks on its level), along building X."""
     stacks = truth_stacks(truth)
-    out: dict[str, tuple[tuple[float, float], list[tuple[float, float]]]] = {}
+    out: dict[str, tuple[Span, Span, list[Span]]] = {}
     try:
         for rack in truth["racks"]:
             for level in rack["levels"]:
                 pos = level["positions"]
                 board = (min(float(p["x_min"]) for p in pos), max(float(p["x_max"]) for p in pos))
+                frames = sorted(rack.get("uprights") or [])
+                clear = (float(frames[0][1]), float(frames[-1][0])) if len(frames) == 2 else board
                 key = (int(rack["aisle"]), str(rack["side"]), int(level["level"]))
                 mine = {str(p["location"]) for p in pos}
                 spans = [c.x_range() for code, c in stacks.get(key, []) if code in mine]
                 for code in mine:
-                    out[code] = (board, spans)
+                    out[code] = (clear, board, spans)
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"ground truth building.json: malformed ({type(e).__name__}: {e})") from None
     return out
@@ -68,19 +77,21 @@ def evaluate_fits(found: list[LocationFit], truth: dict[str, Any]) -> FitEval:
             if len(ev.wrong) < 20:
                 ev.wrong.append({"location": f.location, "why": "no such location"})
             continue
-        (b0, b1), spans = levels[f.location]
-        past = box = 0.0
+        (u0, u1), (b0, b1), spans = levels[f.location]
+        past = box = board = 0.0
         for c0, c1 in f.centres:
             lo, hi = c0 - f.along_x / 2, c1 + f.along_x / 2  # every centre's box lies within [lo, hi]
-            past = max(past, b0 - lo, hi - b1)
+            past = max(past, u0 - lo, hi - u1)
+            board = max(board, b0 - lo, hi - b1)
             for a, b in spans:
                 box = max(box, min(hi, b) - max(lo, a))
         ev.into_upright += past > EPS
         ev.onto_box += box > EPS
         if past <= EPS and box <= EPS:
             ev.fit += 1
+            ev.past_board += board > EPS
         else:
             ev.worst = max(ev.worst, past, box)
             if len(ev.wrong) < 20:
-                ev.wrong.append({"location": f.location, "past_board": round(past, 4), "onto_box": round(box, 4)})
+                ev.wrong.append({"location": f.location, "into_upright": round(past, 4), "onto_box": round(box, 4)})
     return ev
