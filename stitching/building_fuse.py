@@ -178,15 +178,15 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
 
 def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
     items = _split_joined([(p, r) for p in passes for r in p.racks])
-    groups = _split_long(_clusters(items))
+    views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
+    spans = _unseen_bays(face, [(*_ends(g)[:2], g) for g in _split_long(_clusters(items))], views)
     if face.sign < 0:
-        groups = groups[::-1]  # bays count along building +X, face X runs the other way on an L face
+        spans = spans[::-1]  # bays count along building +X, face X runs the other way on an L face
     heights = _board_heights(face, passes)
     thickness = statistics.median(p.board_thickness for p in passes) if passes else 0.06
-    views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
     racks, locations, bays = [], {}, {}
-    for bay, group in enumerate(groups, start=1):
-        lo, hi, cut_lo, cut_hi = _ends(group)
+    for bay, (lo, hi, group) in enumerate(spans, start=1):
+        cut_lo, cut_hi = _ends(group)[2:] if group else (False, False)
         rack_id = f"{face.aisle:02d}-{face.side}-{bay:02d}"
         partial = partial_side(cut_lo, cut_hi)
         levels = sorted(set(heights) | {s.level for _, r in group for s in r.shelves})
@@ -252,8 +252,8 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                     {
                         p.pose.sequence
                         for p in passes
-                        if lv in p.levels and covered_length(views[p.pose.sequence], a, b) > 1e-6
-                    },
+                        if group and lv in p.levels and covered_length(views[p.pose.sequence], a, b) > 1e-6
+                    },  # a bay no pass found (`_unseen_bays`) is not scanned
                     key=order.__getitem__,
                 )
                 seen = covered_length([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
@@ -263,6 +263,30 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
     seen_x = sorted(iv for v in views.values() for iv in v)
     wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
     return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
+
+
+def _unseen_bays(
+    face: FacePlan, spans: list[tuple[float, float, list]], views: dict[str, list[tuple[float, float]]]
+) -> list[tuple[float, float, list]]:
+    """The face's bays (face-frame ends, the racks of each) with every stretch of the floor plan's face that no
+    pass's view held and no bay fills cut into bays of the face's typical length, with no racks: a bay never seen
+    is a bay, `not scanned`, never absent."""
+    if face.x_min is None or face.x_max is None or not spans:
+        return spans
+    typical = statistics.median(hi - lo for lo, hi, _ in spans)
+    start, end = sorted((face.sign * face.x_min, face.sign * face.x_max))
+    seen = [iv for v in views.values() for iv in v]
+    out, edge = [], start
+    for lo, hi, g in [*sorted(spans, key=lambda t: t[0]), (end, end, None)]:
+        gap = lo - edge
+        k = round(gap / typical) if typical > 0 else 0
+        if k >= 1 and gap >= 0.8 * typical:
+            cuts = [(edge + j * gap / k, edge + (j + 1) * gap / k) for j in range(k)]
+            out += [(a, b, []) for a, b in cuts if covered_length(seen, a, b) < 0.5 * (b - a)]
+        if g is not None:
+            out.append((lo, hi, g))
+        edge = max(edge, hi)
+    return out
 
 
 def _shelf_facts(

@@ -277,3 +277,20 @@ def test_model_for_the_frames_size(building):
     assert choose_model(128) == "mvracklay-disc-4" and choose_model(96) == "mvracklay-disc-4"
     route = load_route(building / "route.json")
     assert frame_size(route, building) == 24  # the tiny building's 32 x 24 frames
+
+
+def test_unseen_stretch_of_the_plan_gets_bays(building, mapped):
+    """Without a list: a stretch of a face that the floor plan holds and no pass saw is bays of the face's
+    typical length, `not scanned`, numbered in their place; the rest keep their codes and counts."""
+    route, placed = _placed(building, mapped)
+    before = {r["location"]: r["boxes"] for r in fuse_building(route, placed).inventory()}
+    key = next(k for k in sorted(route.faces) if k[1] == "R")
+    plan = route.faces[key]
+    route.faces[key] = replace(plan, x_max=plan.x_max + 5.0)
+    rows = {r["location"]: r for r in fuse_building(route, placed).inventory()}
+    added = {c: r for c, r in rows.items() if c not in before}
+    assert {c: rows[c]["boxes"] for c in before} == before
+    bays = sorted({r["bay"] for r in added.values()})
+    top = max(r["bay"] for r in rows.values() if r["location"] in before and (r["aisle"], r["side"]) == key)
+    assert bays == list(range(top + 1, top + 1 + len(bays))) and len(bays) >= 1
+    assert all(r["boxes"] == NOT_SCANNED and (r["aisle"], r["side"]) == key for r in added.values())
