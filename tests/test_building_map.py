@@ -254,8 +254,10 @@ def test_locations_from_an_earlier_map_keep_codes(building, mapped, tmp_path, ca
     write_location_list([replace(e, code="B-" + e.code) for e in listed], wms)
     first = tmp_path / "first"
     assert main(["map", str(building), "--out", str(first), "--layouts", "gt", "--locations", str(wms),
-                 "--no-rrd", "--quiet"]) == 0  # fmt: skip
+                 "--no-rrd", "--quiet", "--json-out", str(tmp_path / "s.json")]) == 0  # fmt: skip
     assert "0 boxes outside every listed location" in capsys.readouterr().out
+    said = json.loads((tmp_path / "s.json").read_text())
+    assert said["outside_listed_locations"] == 0 and said["model"] is None  # ground-truth layouts: no model
     rescan = tmp_path / "rescan"
     assert main(["map", str(building), "--out", str(rescan), "--layouts", "gt", "--locations", str(first),
                  "--no-rrd", "--quiet"]) == 0  # fmt: skip

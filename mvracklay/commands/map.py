@@ -141,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
             "out": str(args.out), "passes": len(res.map.passes), "mapped": res.mapped,
             "locations": len(res.inventory), "not_scanned": len(res.inventory) - len(scanned),
             "boxes": sum(int(r["boxes"]) for r in scanned), **({"evaluation": scores} if scores else {}),
+            "model": res.map.meta.get("model"), "outside_listed_locations": len(res.map.outside),
         })  # fmt: skip
     if args.spawn:
         spawn_viewer(args.out / "building.rrd")
