@@ -2,7 +2,8 @@
 
 A location fits a ``w x d x h`` box as a row map's shelf does (`stitching.free_space.fits`: clear height, depth,
 a gap along X inside the uprights and clear of every box, the neighbouring positions' included, wide enough for
-the box and its margin, never in unknown length); only the map's own locations are offered (a fit on a shelf
+the box and its margin, never in unknown length; on a network-made map (``meta`` ``layouts: net``) also
+`stitching.free_space.NETWORK_EDGE_SLACK` clear of each box); only the map's own locations are offered (a fit on a shelf
 without a location record is none), and never one no pass saw. Ranked by the
 walk from ``near`` (a location code), else in building order: along the aisle within one aisle, else out to
 the nearer end of the racks (where the cross aisles are), across, and back in. The box centre's ranges are given
@@ -16,7 +17,7 @@ from dataclasses import asdict, dataclass
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
 from stitching.building_map import BuildingMap
-from stitching.free_space import fits, rack_of, shelf_free_space
+from stitching.free_space import edge_slack, fits, rack_of, shelf_free_space
 
 
 @dataclass
@@ -60,11 +61,12 @@ def building_fits(
 ) -> list[LocationFit]:
     """Scanned locations where the box fits, nearest to ``near`` first (see the module docstring)."""
     origin = _centre(bmap, near) if near is not None else None
+    slack = edge_slack(bmap.meta)
     ends = _ends(bmap)
     found = []
     for face in bmap.faces:
         shelves = {s.id: s for s in face.map.shelves()}
-        for f in fits(face.map, w, d, h, margin):
+        for f in fits(face.map, w, d, h, margin, slack):
             loc = face.locations.get(f.shelf)
             if loc is None or loc.code != f.shelf or not loc.scanned:
                 continue

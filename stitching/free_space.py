@@ -40,6 +40,9 @@ UPRIGHT_WIDTH = (
 )
 UPRIGHT_CLEARANCE = 0.03  #: metres a box keeps from an upright (the beams' connectors), as the ground truth's board
 UPRIGHT_INSET = UPRIGHT_WIDTH + UPRIGHT_CLEARANCE  #: metres from a rack's end to where a box can stand
+#: metres a box edge the network read may lie from the map's (its boxes' edges move by a median 3.5 cm between
+#: two scans): `fits` keeps this much more clear of each box of a network-made map
+NETWORK_EDGE_SLACK = 0.05
 PARTIAL_CONFIDENCE = 0.7  #: free-space confidence factor per cut end of a partial shelf
 #: the legend line `format_table` prints under a table with partial shelves
 PARTIAL_LEGEND = (
@@ -111,9 +114,9 @@ def _level_boxes(shelf: MapShelf, rack: MapRack | None) -> list[MapBox]:
     return list(shelf.boxes) + others
 
 
-def _gaps(span: tuple[float, float], boxes: list[MapBox]) -> list[tuple[float, float]]:
+def _gaps(span: tuple[float, float], boxes: list[MapBox], slack: float = 0.0) -> list[tuple[float, float]]:
     lo, hi = span
-    spans = sorted(b.cuboid.x_range() for b in boxes)
+    spans = sorted((a - slack, b + slack) for a, b in (b.cuboid.x_range() for b in boxes))
     gaps, cur = [], lo
     for a, b in spans:
         if a > cur:
@@ -127,13 +130,13 @@ def _gaps(span: tuple[float, float], boxes: list[MapBox]) -> list[tuple[float, f
 
 
 def _split_gaps(
-    shelf: MapShelf, rack: MapRack | None = None
+    shelf: MapShelf, rack: MapRack | None = None, slack: float = 0.0
 ) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
     """``(free gaps, unknown gaps)`` of the clear span: a partial shelf's gaps running to a cut end are unknown."""
     lo, hi = span = clear_span(shelf, rack)
     cut_lo, cut_hi = cut_sides(shelf.partial)
     free, unknown = [], []
-    for a, b in _gaps(span, _level_boxes(shelf, rack)):
+    for a, b in _gaps(span, _level_boxes(shelf, rack), slack):
         (unknown if (cut_lo and a <= lo + 1e-9) or (cut_hi and b >= hi - 1e-9) else free).append((a, b))
     return free, unknown
 
@@ -198,9 +201,19 @@ def parse_box(text: str) -> tuple[float, float, float]:
     return vals  # type: ignore[return-value]
 
 
-def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) -> list[Fit]:
-    """Shelves and box-centre X ranges where a ``w x d x h`` box fits (see the module docstring)."""
-    for name, v in (("w", w), ("d", d), ("h", h), ("margin", margin)):
+def edge_slack(meta: dict) -> float:
+    """`NETWORK_EDGE_SLACK` for a map whose boxes the network read (a row map's ``meta`` names its checkpoint, a
+    building map's says ``layouts: net``), else 0 (boxes from ground-truth layouts)."""
+    return NETWORK_EDGE_SLACK if meta.get("checkpoint") or meta.get("layouts") == "net" else 0.0
+
+
+def fits(
+    wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0, slack: float | None = None
+) -> list[Fit]:
+    """Shelves and box-centre X ranges where a ``w x d x h`` box fits (see the module docstring); ``slack``: metres
+    kept clear of each box beyond ``margin`` (default `edge_slack` of the map's meta)."""
+    slack = edge_slack(wmap.meta) if slack is None else slack
+    for name, v in (("w", w), ("d", d), ("h", h), ("margin", margin), ("slack", slack)):
         if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
             raise InputError(f"fits: {name} must be a finite number >= 0, got {v!r}")
     out: list[Fit] = []
@@ -208,7 +221,7 @@ def fits(wmap: WarehouseMap, w: float, d: float, h: float, margin: float = 0.0) 
         if h > shelf.clear_height - margin:
             continue
         depth = shelf.z_range[1] - shelf.z_range[0]
-        gaps = _split_gaps(shelf, rack)[0]  # inside the uprights, clear of boxes, never in unknown length
+        gaps = _split_gaps(shelf, rack, slack)[0]  # inside the uprights, clear of boxes, never in unknown length
         for along, across, rotated in ((w, d, False), (d, w, True)):
             if rotated and w == d:
                 continue

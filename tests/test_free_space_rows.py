@@ -12,7 +12,16 @@ from hypothesis import strategies as st
 
 from stitching.building_free import LocationFit, building_fits
 from stitching.building_map import BuildingMap, FaceMap, Location
-from stitching.free_space import UPRIGHT_INSET, UPRIGHT_WIDTH, clear_span, fits, free_space, shelf_free_space
+from stitching.free_space import (
+    NETWORK_EDGE_SLACK,
+    UPRIGHT_INSET,
+    UPRIGHT_WIDTH,
+    clear_span,
+    edge_slack,
+    fits,
+    free_space,
+    shelf_free_space,
+)
 from stitching.free_space_eval import evaluate_fits
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
 
@@ -157,3 +166,26 @@ def test_placements_checked_against_the_ground_truth(tiny_building, tiny_buildin
         bad.append(LocationFit(code, False, 0.3, [(stack["center"][0], stack["center"][0])], 0.0, None, 1.0))
     ev = evaluate_fits(bad, truth)
     assert ev.invented == 1 and ev.into_upright >= 1 and ev.fit == 0 and ev.onto_box == (stack is not None)
+
+
+def test_a_network_made_map_keeps_clear_of_its_boxes_by_the_edge_slack():
+    gt = _row(2.0, [_box(0, 0.5, 1.0)])
+    net = _row(2.0, [_box(0, 0.5, 1.0)])
+    net.meta = {"checkpoint": "models/m.pt"}
+    assert edge_slack(gt.meta) == 0 and edge_slack(net.meta) == NETWORK_EDGE_SLACK > 0
+    assert edge_slack({"layouts": "net"}) == NETWORK_EDGE_SLACK and edge_slack({"layouts": "gt"}) == 0
+    (a,) = fits(gt, 0.3, 0.3, 0.3, margin=0.02)
+    (b,) = fits(net, 0.3, 0.3, 0.3, margin=0.02)
+    s = NETWORK_EDGE_SLACK
+    assert a.centres == [pytest.approx((UPRIGHT_INSET + 0.17, 0.33)), pytest.approx((1.17, 2.0 - UPRIGHT_INSET - 0.17))]
+    assert b.centres == [
+        pytest.approx((UPRIGHT_INSET + 0.17, 0.33 - s)),
+        pytest.approx((1.17 + s, 2.0 - UPRIGHT_INSET - 0.17)),
+    ]
+    assert fits(net, 0.3, 0.3, 0.3, margin=0.02, slack=0.0) == [a]  # the slack given overrides the map's
+    # Free length is what the map measured: no slack there.
+    assert free_space(net)[0].free_length == pytest.approx(free_space(gt)[0].free_length)
+    bmap = _building()
+    bmap.meta = {"layouts": "net"}
+    (f,) = building_fits(bmap, 0.3, 0.3, 0.3, margin=0.02)
+    assert f.centres[0] == pytest.approx((UPRIGHT_INSET + 0.17, 0.33 - s))
