@@ -224,8 +224,8 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                 map_boxes = [
                     MapBox(
                         f"{pos_code}/box_{k:02d}",
-                        (x, -(board + bx.rel), bx.z),
-                        bx.size,
+                        (x, -(board + _standing(bx, clear)[0]), bx.z),
+                        _standing(bx, clear)[1],
                         bx.yaw,
                         bx.confidence,
                         bx.observations,
@@ -263,6 +263,14 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
     seen_x = sorted(iv for v in views.values() for iv in v)
     wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
     return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
+
+
+def _standing(bx: PlacedBox, clear: float) -> tuple[float, tuple[float, float, float]]:
+    """(centre height above the board, size) of a box on a level of ``clear`` height: no taller than the level,
+    standing on its board (a pass that measured its level higher than the plan's saw it taller)."""
+    clear = max(clear, 0.05)
+    h = min(bx.size[1], clear)
+    return min(max(bx.rel, h / 2), clear - h / 2), (bx.size[0], h, bx.size[2])
 
 
 def _unseen_bays(
@@ -354,8 +362,8 @@ def _fuse_listed(
             boxes = [
                 MapBox(
                     f"{e.code}/box_{k:02d}",
-                    (x, -(board + bx.rel), bx.z),
-                    bx.size,
+                    (x, -(board + _standing(bx, clear)[0]), bx.z),
+                    _standing(bx, clear)[1],
                     bx.yaw,
                     bx.confidence,
                     bx.observations,

@@ -296,3 +296,19 @@ def test_unseen_stretch_of_the_plan_gets_bays(building, mapped):
     top = max(r["bay"] for r in rows.values() if r["location"] in before and (r["aisle"], r["side"]) == key)
     assert bays == list(range(top + 1, top + 1 + len(bays))) and len(bays) >= 1
     assert all(r["boxes"] == NOT_SCANNED and (r["aisle"], r["side"]) == key for r in added.values())
+
+
+def test_a_box_taller_than_its_level_stands_within_it(building, mapped, tmp_path):
+    """A pass that measured its level higher than the plan's saw a box taller than the fused level: the map
+    keeps it within its level, on its board, and writes (the row-map schema holds)."""
+    route, placed = _placed(building, mapped)
+    rack = next(r for p in placed for r in p.racks if r.boxes)
+    bx = rack.boxes[0]
+    rack.boxes[0] = replace(bx, size=(bx.size[0], 3.0, bx.size[2]), rel=1.5)
+    for listed in (None, _listed(building)):
+        bmap = fuse_building(route, placed, listed=listed)
+        bmap.save(tmp_path / "building.json")
+        for _, shelf, _ in bmap.locations():
+            for b in shelf.boxes:
+                assert b.size[1] <= shelf.clear_height + 1e-9
+                assert -b.center[1] - b.size[1] / 2 >= shelf.board_height - 1e-9
