@@ -13,40 +13,60 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictStr, ValidationError, model_validator
-
-from layouts.errors import ContractError, InputError, first_problem
-from layouts.fileio import atomic_write_text
+from layouts.errors import ContractError, InputError
+from layouts.fileio import atomic_write_text, finite_float
 
 COLUMNS = ("code", "aisle", "side", "bay", "level", "start_m", "end_m")
 OPTIONAL = ("position",)
 MAX_BYTES = 64 * 1024 * 1024  #: a location master this large is not one
+CODE = re.compile(r"^\S(.*\S)?$")
 
-Metres = Annotated[float, Field(allow_inf_nan=False, ge=-1e5, le=1e5)]
+
+def _whole(lo: int, hi: int) -> Callable[[str], int]:
+    def read(v: str) -> int:
+        if not re.fullmatch(r"[+]?\d{1,6}", v):
+            raise ValueError(f"must be a whole number, got {v[:20]!r}")
+        n = int(v)
+        if not lo <= n <= hi:
+            raise ValueError(f"must lie in [{lo}, {hi}], got {n}")
+        return n
+
+    return read
 
 
-class _Entry(BaseModel):
-    """One row of a location list (the declared schema, checked on load and before writing)."""
+def _metres(v: str) -> float:
+    try:
+        x = finite_float(v)
+    except ValueError:
+        raise ValueError(f"must be a finite number of metres, got {v[:20]!r}") from None
+    if not -1e5 <= x <= 1e5:
+        raise ValueError(f"must lie within 100 km, got {x}")
+    return x
 
-    model_config = ConfigDict(extra="ignore")
-    code: StrictStr = Field(min_length=1, max_length=64, pattern=r"^\S(.*\S)?$")
-    aisle: Annotated[int, Field(ge=1, le=9999)]
-    side: Annotated[str, Field(pattern="^[LR]$")]
-    bay: Annotated[int, Field(ge=1, le=9999)]
-    level: Annotated[int, Field(ge=1, le=99)]
-    position: Annotated[int, Field(ge=1, le=999)] = 1
-    start_m: Metres
-    end_m: Metres
 
-    @model_validator(mode="after")
-    def _ordered(self) -> _Entry:
-        if not self.start_m < self.end_m:
-            raise ValueError(f"start_m {self.start_m} must lie below end_m {self.end_m}")
-        return self
+def _code(v: str) -> str:
+    if not 1 <= len(v) <= 64 or not CODE.match(v):
+        raise ValueError(f"must be 1-64 characters, not blank at either end, got {v[:20]!r}")
+    return v
+
+
+def _side(v: str) -> str:
+    if v not in ("L", "R"):
+        raise ValueError(f"must be L or R, got {v[:20]!r}")
+    return v
+
+
+#: the declared schema: each column's reader (a ValueError says what is wrong), checked on load and before writing
+SCHEMA: dict[str, Callable[[str], Any]] = {
+    "code": _code, "aisle": _whole(1, 9999), "side": _side, "bay": _whole(1, 9999), "level": _whole(1, 99),
+    "start_m": _metres, "end_m": _metres, "position": _whole(1, 999),
+}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -71,12 +91,22 @@ class ListedLocation:
         return self.end_m - self.start_m
 
 
-def _problem(e: ValidationError) -> str:
-    """The first problem as ``column: what`` (a row's own check names start_m / end_m)."""
-    err = e.errors()[0]
-    if not err.get("loc"):
-        return f"start_m, end_m: {str(err.get('msg', 'invalid')).removeprefix('Value error, ')}"
-    return first_problem([err])
+def _entry(row: dict[str, Any]) -> ListedLocation:
+    """One row through `SCHEMA` (a ValueError ``column: what``)."""
+    got: dict[str, Any] = {"position": 1}
+    for col, read in SCHEMA.items():
+        v = row.get(col)
+        if v is None or (col in OPTIONAL and str(v).strip() == ""):
+            if col in OPTIONAL:
+                continue
+            raise ValueError(f"{col}: missing")
+        try:
+            got[col] = read(str(v).strip())
+        except ValueError as e:
+            raise ValueError(f"{col}: {e}") from None
+    if not got["start_m"] < got["end_m"]:
+        raise ValueError(f"start_m, end_m: start_m {got['start_m']} must lie below end_m {got['end_m']}")
+    return ListedLocation(**got)
 
 
 def check_entries(entries: list[dict[str, Any]], source: str, built: bool = False) -> list[ListedLocation]:
@@ -86,11 +116,10 @@ def check_entries(entries: list[dict[str, Any]], source: str, built: bool = Fals
     fail = ContractError if built else InputError
     out, codes, places = [], {}, {}
     for k, raw in enumerate(entries, start=1):
-        row = {c: v for c, v in raw.items() if not (c in OPTIONAL and v in ("", None))}
         try:
-            e = _Entry.model_validate(row)
-        except ValidationError as err:
-            raise fail(f"{source}: row {k}: {_problem(err)}") from None
+            e = _entry(raw)
+        except ValueError as err:
+            raise fail(f"{source}: row {k}: {err}") from None
         if e.code in codes:
             raise fail(f"{source}: row {k}: code: {e.code!r} is listed twice (rows {codes[e.code]} and {k})")
         place = (e.aisle, e.side, e.bay, e.level, e.position)
@@ -100,7 +129,7 @@ def check_entries(entries: list[dict[str, Any]], source: str, built: bool = Fals
                 f"position {e.position} is listed twice (rows {places[place]} and {k})"
             )
         codes[e.code], places[place] = k, k
-        out.append(ListedLocation(e.code, e.aisle, e.side, e.bay, e.level, e.start_m, e.end_m, e.position))
+        out.append(e)
     if not out:
         raise fail(f"{source}: lists no location")
     return out

@@ -54,6 +54,8 @@ def test_position_optional(tmp_path):
         (["A,1,L,1,1,5.7,3.0"], HEADER, "row 1: start_m, end_m: start_m 5.7 must lie below end_m 3.0"),
         (["A,1,L,1,1,3.0,3.0"], HEADER, "row 1: start_m, end_m"),
         (["A,1,L,1,0,3.0,4.0"], HEADER, "row 1: level:"),
+        (["A,1,L,1,1.5,3.0,4.0"], HEADER, "row 1: level: must be a whole number"),
+        (["A,1,L,1,100,3.0,4.0"], HEADER, "row 1: level: must lie in [1, 99]"),
         (["A,1,L,1,1,3.0,nan"], HEADER, "row 1: end_m:"),
         (["A,1,L,1,1,3.0,1e400"], HEADER, "row 1: end_m:"),
         (["A,1,X,1,1,3.0,4.0"], HEADER, "row 1: side:"),
