@@ -23,7 +23,7 @@ from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -222,6 +222,8 @@ class LiveSource(FrameSource):
     _first: Arrival | None = field(default=None, repr=False)
     _decoded: int = 0
     _tries: int = 0  #: reconnections tried since the last frame decoded
+    #: the reader ends a quiet stream itself (a read timeout) and flushes the decoder then (`_reader_waits_for_reader`)
+    reader_times_out: ClassVar[bool] = True
 
     def stop(self, why: str = "stopped") -> None:
         """End the stream: the frames waiting are dropped, the pipeline finishes with what it mapped."""
@@ -244,11 +246,15 @@ class LiveSource(FrameSource):
 
     def _raw_frames(self, max_frames: int | None) -> Iterator[np.ndarray]:
         self.start()
-        n = 0
+        n, waited = 0, False
         while not self._stop.is_set() and not (max_frames and n >= max_frames):
             item = self.buffer.get(self.idle_timeout, self._stop)
             if item is None and self._reconnecting.is_set() and not self.buffer.closed:
                 continue
+            if item is None and self._reader_waits_for_reader(waited):
+                waited = True  # the reader's own read timeout ends a quiet stream, after the decoder's last frames
+                continue
+            waited = False
             if item is None:
                 if not self._stop.is_set() and not self.buffer.closed:
                     self.ended = self.ended or f"quiet for {self.idle_timeout:g} s"
@@ -262,6 +268,13 @@ class LiveSource(FrameSource):
             yield item.rgb
         self.ended = self.ended or ("max frames reached" if max_frames and n >= max_frames else "stream ended")
         self._stop.set()
+
+    def _reader_waits_for_reader(self, waited: bool) -> bool:
+        """Whether a quiet ``idle_timeout`` seen here waits once more for the reader: a stream's reader times out on
+        its own read (then flushes the decoder's last frames into the buffer and closes it), and its clock may have
+        started after ours, so frames flushed then would otherwise be received and never mapped."""
+        alive = self._thread is not None and self._thread.is_alive()
+        return self.reader_times_out and alive and not waited and not self.buffer.closed and not self._stop.is_set()
 
     def arrival(self, index: int) -> tuple[float, float | None]:
         """When the frame given out as ``index`` was received and its stream time (forgotten once asked)."""
@@ -414,6 +427,7 @@ class _IteratorLive(LiveSource):
     """A live source fed by a Python iterator (frames as they arrive: a camera SDK's callback, a queue)."""
 
     frames_in: Iterator[Any] | None = field(default=None, repr=False)
+    reader_times_out: ClassVar[bool] = False  #: an iterator has no read timeout: quiet is ``idle_timeout`` here
 
     def _read(self) -> None:
         from mvracklay.frames import _rgb_array

@@ -446,3 +446,37 @@ def test_a_long_live_walk_keeps_what_it_holds_bounded_by_the_map(seq20, tiny_che
     kept = res.run.map.steps
     assert [s.frame for s in kept] == list(range(n - steps, n)) and res.run.map.meta["step_summary"]["frames"] == n
     assert "/world/camera/path" in read_entities(tmp_path / "walk" / "warehouse.rrd")  # without its footer: whole
+
+
+def test_frames_a_stream_s_reader_flushes_after_our_quiet_clock_are_still_mapped():
+    """A stream's reader ends a quiet stream by its own read timeout and then flushes the decoder's last frames; its
+    clock may start after ours, so those frames come after ``idle_timeout`` of quiet here: they are still given
+    out (received = given), not counted received and never mapped. A reader that stays quiet longer still ends."""
+    from mvracklay.live_source import Arrival, LiveSource
+
+    def frame(i: int) -> Arrival:
+        return Arrival(np.full((4, 4, 3), i, np.uint8), time.monotonic(), None)
+
+    class Late(LiveSource):
+        pause = 0.45  # longer than idle_timeout (0.3 s), shorter than twice it
+
+        def _read(self) -> None:
+            for i in range(3):
+                self.buffer.put(frame(i))
+            time.sleep(self.pause)  # the reader's read timeout runs out later than ours
+            for i in range(3, 5):  # the decoder's last frames, flushed
+                self.buffer.put(frame(i))
+            self.ended = f"quiet for {self.idle_timeout:g} s"
+            self.buffer.close()
+
+    src = Late("live", Path("<late>"), 4, 4, None, idle_timeout=0.3, buffer=LatestFrames(8))
+    got = [int(f[0, 0, 0]) for f in src._raw_frames(None)]
+    assert got == [0, 1, 2, 3, 4] and src.buffer.received == src.given == 5 and src.ended == "quiet for 0.3 s"
+
+    class Gone(Late):
+        pause = 1.5  # quiet longer than both clocks: the stream ends with what came
+
+    src = Gone("live", Path("<gone>"), 4, 4, None, idle_timeout=0.3, buffer=LatestFrames(8))
+    t0 = time.monotonic()
+    assert [int(f[0, 0, 0]) for f in src._raw_frames(None)] == [0, 1, 2] and time.monotonic() - t0 < 1.2
+    src.close()
