@@ -222,16 +222,7 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                 pos_code = location_code(code, face.aisle, face.side, bay, lv, j + 1)
                 mine = [t for t in boxes if a <= t[1] < b or (t[1] == b and b == hi)]
                 map_boxes = [
-                    MapBox(
-                        f"{pos_code}/box_{k:02d}",
-                        (x, -(board + _standing(bx, clear)[0]), bx.z),
-                        _standing(bx, clear)[1],
-                        bx.yaw,
-                        bx.confidence,
-                        bx.observations,
-                        bx.colour,
-                    )  # fmt: skip
-                    for k, (bx, x, _) in enumerate(mine)
+                    _map_box(f"{pos_code}/box_{k:02d}", bx, x, board, clear) for k, (bx, x, _) in enumerate(mine)
                 ]
                 pcut_lo = cut_lo and abs(a - lo) < 1e-9
                 pcut_hi = cut_hi and abs(b - hi) < 1e-9
@@ -263,6 +254,12 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
     seen_x = sorted(iv for v in views.values() for iv in v)
     wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
     return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
+
+
+def _map_box(ident: str, bx: PlacedBox, x: float, board: float, clear: float) -> MapBox:
+    """The map's box ``ident`` of fused box ``bx`` at face X ``x``, standing on its board (`_standing`)."""
+    rel, size = _standing(bx, clear)
+    return MapBox(ident, (x, -(board + rel), bx.z), size, bx.yaw, bx.confidence, bx.observations, bx.colour)
 
 
 def _standing(bx: PlacedBox, clear: float) -> tuple[float, tuple[float, float, float]]:
@@ -360,16 +357,7 @@ def _fuse_listed(
             a, b = span[e.code]
             board, clear, z_range, conf = _shelf_facts(e.level, a, b, heights, thickness, passes)
             boxes = [
-                MapBox(
-                    f"{e.code}/box_{k:02d}",
-                    (x, -(board + _standing(bx, clear)[0]), bx.z),
-                    _standing(bx, clear)[1],
-                    bx.yaw,
-                    bx.confidence,
-                    bx.observations,
-                    bx.colour,
-                )  # fmt: skip
-                for k, (bx, x, _) in enumerate(kept[e.code])
+                _map_box(f"{e.code}/box_{k:02d}", bx, x, board, clear) for k, (bx, x, _) in enumerate(kept[e.code])
             ]
             shelves.append(MapShelf(e.code, e.level - 1, board, clear, (a, b), z_range, conf, boxes, None))
             saw = sorted(
