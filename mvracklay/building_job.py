@@ -147,13 +147,14 @@ def map_pass(task: PassTask) -> float:
     out = Path(task.out)
     if task.layouts == "gt":
         from layouts.codecs import LayoutFolder
-        from mvracklay.reconstruction import resolve_layouts
+        from mvracklay.reconstruction import gt_upright_columns, resolve_layouts
         from stitching.pipeline import Stitcher
 
         folder: LayoutFolder = resolve_layouts(Path(task.source), "gt")
         stitcher = Stitcher(folder.spec)
+        ups = gt_upright_columns(Path(task.source), folder.spec.size, folder.spec.x_extent)
         for i in folder.indices():
-            stitcher.push(folder.read(i), i)
+            stitcher.push(folder.read(i), i, uprights=ups.get(i))
         with staged(out, ("warehouse.json", PASS_RECORD)) as st:
             stitcher.map(None, {"layouts": "gt", "source": task.source}).save(st / "warehouse.json")
             _record(task, st)

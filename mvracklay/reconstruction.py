@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from layouts.codecs import LayoutFolder, read_layout_spec
 from layouts.errors import InputError
 
@@ -41,6 +43,30 @@ def resolve_layouts(seq_dir: Path, layouts: str) -> LayoutFolder:
     if not (folder / "spec.json").is_file():
         raise InputError(f"--layouts {layouts}: not a layout folder (no spec.json)")
     return LayoutFolder(folder)
+
+
+def gt_upright_columns(seq_dir: Path, size: int, x_extent: float) -> dict[int, np.ndarray]:
+    """Per frame of a generated sequence, the layout columns (``size`` over ``x_extent`` metres about the camera)
+    that hold an end of one of its racks (scene.json), where the front uprights stand: the ground truth the
+    upright head is fitted to, for ``--layouts gt``. {} where the sequence lacks scene.json or meta.json."""
+    from layouts.fileio import load_json
+
+    if not ((seq_dir / "scene.json").is_file() and (seq_dir / "meta.json").is_file()):
+        return {}
+    scene, meta = load_json(seq_dir / "scene.json"), load_json(seq_dir / "meta.json")
+    try:
+        ends = sorted({float(v) for r in scene["racks"] for v in (r["x_min"], r["x_max"])})
+        cams = {int(f["index"]): float(f["camera_position"][0]) for f in meta["frames"]}
+    except (KeyError, TypeError, ValueError, IndexError) as e:
+        raise InputError(f"{seq_dir}: scene.json / meta.json lack the racks' ends or the cameras ({e})") from None
+    out = {}
+    for i, cx in cams.items():
+        cols = np.zeros(size, bool)
+        for x in ends:
+            c = int(np.floor((x - cx + x_extent / 2) * size / x_extent))
+            cols[max(c - 1, 0) : max(min(c + 2, size), 0)] = True
+        out[i] = cols
+    return out
 
 
 def stitch_settings(board_thickness: float = 0.06, noisy: bool = False, keep_steps: int = 0) -> StitchConfig:

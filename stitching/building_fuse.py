@@ -32,6 +32,7 @@ from layouts.locations import DEFAULT_CODE, check_code_format, covered_length, l
 from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement, listed_code_format
 from stitching.building_register import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
 from stitching.building_route import FacePlan, Route
+from stitching.uprights import Upright, bay_cuts, fuse_uprights
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
 
 SAME_RACK = 0.5  #: overlap / shorter length above which two passes' racks are one bay
@@ -123,17 +124,45 @@ def _split_long(groups: list[list[tuple[PlacedPass, PlacedRack]]]) -> list[list[
                 if not any(a - 0.05 < x < b + 0.05 for a, b in spans)
             ]
             cuts.append(min(free, key=lambda x: abs(x - aim)) if free else aim)
-        edges = [lo - 1.0, *cuts, hi + 1.0]
-        for a, b in zip(edges, edges[1:]):
-            part = []
-            for p, r in g:
-                r0, r1 = max(r.lo + p.offset, a), min(r.hi + p.offset, b)
-                if r1 - r0 > 0.2:
-                    mine = [bx for bx in r.boxes if a <= bx.x + p.offset < b]
-                    part.append((p, PlacedRack(r0 - p.offset, r1 - p.offset, r.cut_lo and r0 == r.lo + p.offset,
-                                               r.cut_hi and r1 == r.hi + p.offset, r.shelves, mine)))  # fmt: skip
-            if part:
-                out.append(part)
+        out += _cut_group(g, cuts)
+    return out
+
+
+def _cut_group(g: list[tuple[PlacedPass, PlacedRack]], cuts: list[float]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+    """A bay group cut at face X ``cuts`` (ascending): each pass's rack clipped to each part, boxes by centre."""
+    lo, hi = _ends(g)[:2]
+    edges = [lo - 1.0, *cuts, hi + 1.0]
+    out = []
+    for a, b in zip(edges, edges[1:]):
+        part = []
+        for p, r in g:
+            r0, r1 = max(r.lo + p.offset, a), min(r.hi + p.offset, b)
+            if r1 - r0 > 0.2:
+                mine = [bx for bx in r.boxes if a <= bx.x + p.offset < b]
+                part.append((p, PlacedRack(r0 - p.offset, r1 - p.offset, r.cut_lo and r0 == r.lo + p.offset,
+                                           r.cut_hi and r1 == r.hi + p.offset, r.shelves, mine)))  # fmt: skip
+        if part:
+            out.append(part)
+    return out
+
+
+def _split_at_uprights(
+    groups: list[list[tuple[PlacedPass, PlacedRack]]], passes: list[PlacedPass]
+) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+    """Bays run together (touching, or a gap no pass saw) cut at the upright frames the passes found, fused over
+    the face (`stitching.uprights`); the face's typical bay width (the median of the bays so cut) drops a cut
+    that would leave two half bays."""
+    ups = fuse_uprights([[Upright(u.x + p.offset, u.support) for u in p.uprights] for p in passes])
+    if not ups:
+        return groups
+    spans = [_ends(g)[:2] for g in groups]
+    first = [[x for x, _ in bay_cuts(lo, hi, ups, None)] for lo, hi in spans]
+    widths = [b - a for (lo, hi), cuts in zip(spans, first) for a, b in zip([lo, *cuts], [*cuts, hi])]
+    typical = statistics.median(widths) if widths else None
+    out = []
+    for g, (lo, hi) in zip(groups, spans):
+        cuts = [x for x, _ in bay_cuts(lo, hi, ups, typical)]
+        out += _cut_group(g, cuts) if cuts else [g]
     return out
 
 
@@ -179,7 +208,9 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
 def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
     items = _split_joined([(p, r) for p in passes for r in p.racks])
     views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
-    spans = _unseen_bays(face, [(*_ends(g)[:2], g) for g in _split_long(_clusters(items))], views)
+    spans = _unseen_bays(
+        face, [(*_ends(g)[:2], g) for g in _split_long(_split_at_uprights(_clusters(items), passes))], views
+    )
     if face.sign < 0:
         spans = spans[::-1]  # bays count along building +X, face X runs the other way on an L face
     heights = _board_heights(face, passes)

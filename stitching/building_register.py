@@ -23,6 +23,7 @@ import numpy as np
 
 from layouts.errors import InputError
 from stitching.building_route import FacePlan, PassPose
+from stitching.uprights import Upright
 from stitching.warehouse_map import WarehouseMap, cut_sides
 
 MAX_HEADING_OFF = 45.0  #: degrees a pass's heading may be off its face's (90 for R, -90 for L)
@@ -79,6 +80,7 @@ class PlacedPass:
     trusted: float  #: share of its frames placed on a confirmed path
     shift: float = 0.0
     edges: list[dict] = field(default_factory=list)
+    uprights: list[Upright] = field(default_factory=list)  #: upright frames its row map found (add `offset`)
 
     @property
     def offset(self) -> float:
@@ -134,7 +136,8 @@ def place_pass(pose: PassPose, face: FacePlan, wmap: WarehouseMap) -> PlacedPass
         racks.append(PlacedRack(r.x_range[0], r.x_range[1], cut_lo, cut_hi, placed_shelves, boxes))
     steps = wmap.steps
     trusted = sum(s.trusted for s in steps) / len(steps) if steps else 1.0
-    return PlacedPass(pose, face.sign * pose.x, racks, list(wmap.seen_x), wmap.board_thickness, trusted)
+    ups = [Upright(x, sup) for x, sup in wmap.uprights]
+    return PlacedPass(pose, face.sign * pose.x, racks, list(wmap.seen_x), wmap.board_thickness, trusted, uprights=ups)
 
 
 def _features(p: PlacedPass, lo: float, hi: float) -> dict[tuple, list[tuple[float, float]]]:

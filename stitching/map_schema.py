@@ -145,6 +145,7 @@ class MapDoc(_Doc):
     origin_world: tuple[Coord, Coord, Coord] | None = None
     meta: dict[str, Any] | None = None
     seen_x: list[tuple[Coord, Coord]] | None = None
+    uprights: list[tuple[Coord, Unit]] | None = None  #: upright frames along the row: (centre X, support)
     steps: list[StepDoc]
     racks: list[RackDoc]
 

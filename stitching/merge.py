@@ -33,6 +33,7 @@ from stitching.map_schema import DUPLICATE_SHARE, Footprint, footprint_extent, o
 from stitching.path_record import StepStats, UntrustedFrames
 from stitching.registration import Registration
 from stitching.shift import MotionPrior, ShiftConfig
+from stitching.uprights import UprightStrip
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap, partial_side
 from stitching.xindex import XIndex
 
@@ -103,6 +104,7 @@ class MapBuilder(Registration):
         self._anchor = (0, 0.0)  # (frame position, offset) of the last trusted frame
         self._held_dropped = 0  # held frames pushed out by longer stretches (left out of the map)
         self._held: deque[tuple[int, FrameReconstruction, StepRecord]] = deque(maxlen=MAX_HELD)
+        self.uprights = UprightStrip(self.dx)  # upright columns of the trusted frames (`stitching.uprights`)
 
     def _boxes_near(self, r: int, lo: float, hi: float) -> list[FusedBox]:
         """Slot ``r``'s map boxes that may overlap ``[lo, hi]`` (a superset), in creation order."""
@@ -141,9 +143,10 @@ class MapBuilder(Registration):
         frame: int | None = None,
         motion: float | None = None,
         motion_conf: float | None = None,
+        uprights: np.ndarray | None = None,
     ) -> StepRecord:
         """Register one frame and fuse it into the map; returns its step record (``motion``, ``motion_conf``
-        (default 1): see `register`)."""
+        (default 1): see `register`; ``uprights``: the frame's upright columns, one flag per layout column)."""
         if motion is not None and (
             isinstance(motion, bool) or not isinstance(motion, (int, float)) or not math.isfinite(motion)
         ):
@@ -175,6 +178,8 @@ class MapBuilder(Registration):
             self._place_held(self.frames - 1, off)
         self._anchor = (self.frames - 1, off)
         self._merge_frame(rec, off)
+        if uprights is not None:
+            self.uprights.add(uprights, float(self.spec.col_to_x(rec.vis_lo + 0.5)) + off, rec.vis_lo, rec.vis_hi)
         return step
 
     def _place_held(self, pos: int, off: float) -> None:
@@ -353,7 +358,8 @@ class MapBuilder(Registration):
         meta.setdefault("step_summary", self.step_stats.to_dict())
         meta.setdefault("registration", self.untrusted.to_dict(shares, len(self._held) + self._held_dropped))
         seen_x = [((self.g0 + a) * self.dx, (self.g0 + b) * self.dx) for a, b in _bin_runs(seen_bins, 0)]
-        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x)
+        ups = [(u.x, u.support) for u in self.uprights.peaks()]
+        return WarehouseMap(racks, list(self.steps), self.board_thickness, origin_world, meta, seen_x, ups)
 
 
 @dataclass(frozen=True)

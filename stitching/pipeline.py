@@ -110,13 +110,15 @@ class Stitcher:
         index: int | None = None,
         motion: float | None = None,
         motion_conf: float | None = None,
+        uprights: np.ndarray | None = None,
     ) -> tuple[FrameReconstruction, StepRecord]:
         """Detect, lift, register and merge one frame.
 
         ``motion``: optional camera step along the row since the previous pushed frame (metres,
         + = toward +X) from another source, e.g. the images (`network.model.motion`); the layouts still
         decide, the step fills in where they fail and, where both agree, is blended in by ``motion_conf``
-        (its confidence in [0, 1], default 1; `stitching.merge.MapBuilder.register`).
+        (its confidence in [0, 1], default 1; `stitching.merge.MapBuilder.register`). ``uprights``: the
+        layout columns that show a front upright (bool, one per column), fused along X (`stitching.uprights`).
         """
         idx = self.count if index is None else _frame_index(index)
         fl = _as_frame(frame, idx)
@@ -125,7 +127,11 @@ class Stitcher:
         top = fl.top
         if fl.visible is not None and not fl.visible.all():
             top = top * fl.visible[None, None, :].astype(np.uint8)  # unseen columns are guesses
-        step = self.builder.add(rec, top, frame=idx, motion=motion, motion_conf=motion_conf)
+        if uprights is not None:
+            uprights = np.asarray(uprights)
+            if uprights.shape != (self.spec.size,):
+                raise InputError(f"frame {idx}: uprights must be one flag per layout column ({self.spec.size},)")
+        step = self.builder.add(rec, top, frame=idx, motion=motion, motion_conf=motion_conf, uprights=uprights)
         self.count += 1
         return rec, step
 

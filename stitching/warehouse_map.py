@@ -109,6 +109,8 @@ class WarehouseMap:
     origin_world: tuple[float, float, float] | None = None
     meta: dict[str, Any] = field(default_factory=dict)
     seen_x: list[tuple[float, float]] = field(default_factory=list)  #: X intervals seen; [] = not recorded
+    #: upright frames found along the row (`stitching.uprights`): (centre X, support); [] = none marked
+    uprights: list[tuple[float, float]] = field(default_factory=list)
 
     # ----------------------------------------------------------- queries
     def shelves(self) -> list[MapShelf]:
@@ -166,6 +168,7 @@ class WarehouseMap:
             steps=steps,
             board_thickness=self.board_thickness * factor,
             seen_x=[v(iv) for iv in self.seen_x],
+            uprights=[(x * factor, sup) for x, sup in self.uprights],
             meta={**self.meta, "scaled_by": factor},
         )
 
@@ -233,6 +236,8 @@ class WarehouseMap:
                 for r in self.racks
             ],
         }
+        if self.uprights:  # optional: a map without upright marks is written as before
+            doc["uprights"] = [r6(u) for u in self.uprights]
         check_built(doc)
         return doc
 
@@ -299,6 +304,7 @@ class WarehouseMap:
                 None if origin is None else _vec(origin, 3),
                 dict(d.get("meta") or {}),
                 [_vec(iv, 2) for iv in d.get("seen_x") or []],
+                [_vec(u, 2) for u in d.get("uprights") or []],
             )
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{source}: malformed warehouse map ({type(e).__name__}: {e})") from None
