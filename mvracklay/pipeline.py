@@ -38,6 +38,7 @@ from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
 from mvracklay.settings import RunConfig
+from network.heads.uprights import FRONT_THRESHOLD
 from network.inference.distance import DistanceReading
 from network.inference.loading import load_for_inference
 from network.inference.predictor import Predictor
@@ -267,10 +268,29 @@ def _stream_into_map(
 def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, pred: Predictor, intr: Intrinsics):
     """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
     reconstruction and the camera's offset along the row."""
-    frame_rec, step = stitcher.push(frame.layouts, frame.index)
+    ups = upright_columns(frame.prediction.maps.get("uprights"), stitcher.spec.size)
+    frame_rec, step = stitcher.push(frame.layouts, frame.index, uprights=ups)
     anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
     colours.add(frame_rec, step.offset, anchors, intr, frame.distance, _frame_angles(pred, frame.index))
     return frame_rec, step.offset
+
+
+def upright_columns(logits: Any, size: int) -> np.ndarray | None:
+    """A frame's front-upright columns for the stitcher: the upright head's front channel (logits ``(2, W)`` over
+    canonical columns) from `network.heads.uprights.FRONT_THRESHOLD` on, brought to the ``size`` layout columns
+    (both span the layouts' X extent about the camera); None without the head's output."""
+    if logits is None:
+        return None
+    front = np.asarray(logits.float().cpu() if hasattr(logits, "cpu") else logits, np.float64)
+    if front.ndim < 2 or front.shape[-2] != 2:
+        raise InputError(f"upright head output must be (2, W) logits per frame, got shape {front.shape}")
+    front = front.reshape(-1, 2, front.shape[-1])[0, 0]
+    w = front.shape[0]
+    cols = np.zeros(size, bool)
+    for c in np.flatnonzero(front >= np.log(FRONT_THRESHOLD / (1.0 - FRONT_THRESHOLD))):
+        lo = int(c * size // w)
+        cols[lo : max(lo + 1, -(-(c + 1) * size // w))] = True
+    return cols
 
 
 def _export(wmap: WarehouseMap, stage: Path, recording: RunRecording | None, frames: int, progress: bool) -> None:

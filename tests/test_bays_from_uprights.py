@@ -110,3 +110,46 @@ def test_gt_upright_columns_mark_rack_ends(tmp_path):
     assert cols.sum() == 6
     assert set(np.round(xs).astype(int)) == {0, 2}
     assert gt_upright_columns(tmp_path / "none", spec.size, spec.x_extent) == {}
+
+
+def test_network_upright_columns_threshold_and_resample():
+    import torch
+
+    from mvracklay.pipeline import upright_columns
+
+    logits = torch.full((2, 8), -5.0)
+    logits[0, 2] = 3.0  # a front upright in canonical column 2 of 8
+    logits[1, 5] = 3.0  # a rear one: not the stitcher's
+    logits[0, 7] = -0.1  # under the head's threshold
+    cols = upright_columns(logits, 16)
+    assert cols.dtype == bool and cols.shape == (16,)
+    assert np.flatnonzero(cols).tolist() == [4, 5]  # canonical column 2 covers layout columns 4-5
+    assert np.flatnonzero(upright_columns(logits[None], 4)).tolist() == [1]  # batch of one, coarser layouts
+    assert upright_columns(None, 16) is None
+    with pytest.raises(InputError, match="upright head output"):
+        upright_columns(torch.zeros(3, 8), 16)
+
+
+def test_network_uprights_reach_the_row_map(monkeypatch):
+    """`mvracklay.pipeline._stitch` pushes the frame's upright columns to the stitcher."""
+    import types
+
+    import torch
+
+    from mvracklay import pipeline
+
+    seen = {}
+
+    class Stub:
+        spec = types.SimpleNamespace(size=16)
+
+        def push(self, layouts, index, uprights=None):
+            seen["uprights"] = uprights
+            raise StopIteration
+
+    logits = torch.full((2, 16), -5.0)
+    logits[0, 3] = 2.0
+    frame = types.SimpleNamespace(layouts=None, index=0, prediction=types.SimpleNamespace(maps={"uprights": logits}))
+    with pytest.raises(StopIteration):
+        pipeline._stitch(frame, Stub(), None, None, None)
+    assert np.flatnonzero(seen["uprights"]).tolist() == [3]
