@@ -12,12 +12,14 @@ network's layouts so that the rows without the flag have the exact count at leas
 from __future__ import annotations
 
 import statistics
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
 from layouts.locations import INVENTORY_COLUMNS
 from stitching.warehouse_map import MapRack, MapShelf
 
+SAME_CUT = 0.05  #: metres: a bay ends at a cut this close to it
 RECOUNT = "recount"  #: the inventory's column: ``true``, ``false``, or empty where the location was not scanned
 #: a building map's inventory columns: a generated building's ground truth has no recount
 MAP_INVENTORY_COLUMNS = (*INVENTORY_COLUMNS, RECOUNT)
@@ -60,14 +62,17 @@ def needs_recount(e: RowEvidence, rule: RecountRule = RULE) -> bool:
     )
 
 
-def uncertain_bays(racks: list[MapRack], rule: RecountRule = RULE) -> set[str]:
-    """The ids of a face's racks (bays) whose width lies outside ``rule.bay_width`` of the face's median."""
+def uncertain_bays(racks: list[MapRack], rule: RecountRule = RULE, cuts: Iterable[tuple[float, bool]] = ()) -> set[str]:
+    """The ids of a face's racks (bays) whose width lies outside ``rule.bay_width`` of the face's median, and
+    those with an end at an uncertain one of ``cuts``, the face's bay boundaries found at uprights as
+    ``(x, certain)`` (`stitching.uprights.bay_cuts`, face frame)."""
     widths = {r.id: r.x_range[1] - r.x_range[0] for r in racks}
+    odd = {r.id for x, ok in cuts if not ok for r in racks if min(abs(e - x) for e in r.x_range) <= SAME_CUT}
     if len(widths) < 3:
-        return set()
+        return odd
     med = statistics.median(widths.values())
     lo, hi = rule.bay_width
-    return {k for k, w in widths.items() if not lo * med <= w <= hi * med}
+    return odd | {k for k, w in widths.items() if not lo * med <= w <= hi * med}
 
 
 def shelf_evidence(shelf: MapShelf, confidence: float, partial: bool, **more: Any) -> RowEvidence:

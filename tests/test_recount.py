@@ -46,6 +46,13 @@ def test_a_bay_breaking_the_faces_repetition_is_uncertain():
     assert uncertain_bays(racks[:2]) == set()  # too few bays to tell a repetition
 
 
+def test_a_bay_beside_an_uncertain_upright_cut_is_uncertain():
+    racks = [SimpleNamespace(id=f"r{k}", x_range=(2.0 * k, 2.0 * k + 2.0)) for k in range(4)]  # touching bays
+    assert uncertain_bays(racks, cuts=[(2.0, True), (4.0, True)]) == set()  # certain cuts: the widths repeat
+    assert uncertain_bays(racks, cuts=[(2.0, True), (4.01, False)]) == {"r1", "r2"}  # both sides of that cut
+    assert uncertain_bays(racks[:2], cuts=[(2.0, False)]) == {"r0", "r1"}  # too few for the widths, not for a cut
+
+
 def test_the_inventory_carries_the_flag(tiny_building, tiny_building_map):
     header = (tiny_building_map / "inventory.csv").read_text().splitlines()[0]
     assert header.split(",") == list(MAP_INVENTORY_COLUMNS)
