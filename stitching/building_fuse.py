@@ -148,22 +148,24 @@ def _cut_group(g: list[tuple[PlacedPass, PlacedRack]], cuts: list[float]) -> lis
 
 def _split_at_uprights(
     groups: list[list[tuple[PlacedPass, PlacedRack]]], passes: list[PlacedPass]
-) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+) -> tuple[list[list[tuple[PlacedPass, PlacedRack]]], list[float]]:
     """Bays run together (touching, or a gap no pass saw) cut at the upright frames the passes found, fused over
     the face (`stitching.uprights`); the face's typical bay width (the median of the bays so cut) drops a cut
-    that would leave two half bays."""
+    that would leave two half bays. Also the face X of the cuts `bay_cuts` calls uncertain (for the recount)."""
     ups = fuse_uprights([[Upright(u.x + p.offset, u.support) for u in p.uprights] for p in passes])
     if not ups:
-        return groups
+        return groups, []
     spans = [_ends(g)[:2] for g in groups]
     first = [[x for x, _ in bay_cuts(lo, hi, ups, None)] for lo, hi in spans]
     widths = [b - a for (lo, hi), cuts in zip(spans, first) for a, b in zip([lo, *cuts], [*cuts, hi])]
     typical = statistics.median(widths) if widths else None
-    out = []
+    out, uncertain = [], []
     for g, (lo, hi) in zip(groups, spans):
-        cuts = [x for x, _ in bay_cuts(lo, hi, ups, typical)]
+        found = bay_cuts(lo, hi, ups, typical)
+        cuts = [x for x, _ in found]
+        uncertain += [x for x, certain in found if not certain]
         out += _cut_group(g, cuts) if cuts else [g]
-    return out
+    return out, uncertain
 
 
 def _ends(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, float, bool, bool]:
@@ -208,9 +210,8 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
 def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
     items = _split_joined([(p, r) for p in passes for r in p.racks])
     views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
-    spans = _unseen_bays(
-        face, [(*_ends(g)[:2], g) for g in _split_long(_split_at_uprights(_clusters(items), passes))], views
-    )
+    groups, uncertain = _split_at_uprights(_clusters(items), passes)
+    spans = _unseen_bays(face, [(*_ends(g)[:2], g) for g in _split_long(groups)], views)
     if face.sign < 0:
         spans = spans[::-1]  # bays count along building +X, face X runs the other way on an L face
     heights = _board_heights(face, passes)
@@ -284,7 +285,7 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
         bays[rack_id] = bay
     seen_x = sorted(iv for v in views.values() for iv in v)
     wmap = WarehouseMap(racks, [], thickness, None, {"face": f"{face.aisle:02d}-{face.side}"}, seen_x)
-    return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays)
+    return FaceMap(face.aisle, face.side, face.front_z, wmap, locations, bays, tuple(uncertain))
 
 
 def _map_box(ident: str, bx: PlacedBox, x: float, board: float, clear: float) -> MapBox:

@@ -69,6 +69,8 @@ class FaceMap:
     map: WarehouseMap
     locations: dict[str, Location] = field(default_factory=dict)
     bays: dict[str, int] = field(default_factory=dict)  #: rack id -> bay number
+    #: face X of the bay boundaries found at uprights with little certainty (`stitching.uprights.bay_cuts`)
+    uncertain_cuts: tuple[float, ...] = ()
 
     @property
     def key(self) -> tuple[int, str]:
@@ -153,7 +155,14 @@ class BuildingMap:
         """One row per location (`stitching.recount.MAP_INVENTORY_COLUMNS`), building order; ``boxes`` is ``not
         scanned`` where no pass saw the location (its free-space columns empty, confidence 0)."""
         rows = []
-        odd = {s.id for f in self.faces for r in f.map.racks if r.id in uncertain_bays(f.map.racks) for s in r.shelves}
+        odd = {
+            s.id
+            for f in self.faces
+            for bad in [uncertain_bays(f.map.racks, cuts=[(x, False) for x in f.uncertain_cuts])]
+            for r in f.map.racks
+            if r.id in bad
+            for s in r.shelves
+        }
         for f, shelf, loc in self.locations():
             row: dict[str, Any] = {
                 "location": loc.code, "aisle": loc.aisle, "side": loc.side, "bay": loc.bay, "level": loc.level,
@@ -223,6 +232,7 @@ class BuildingMap:
                         for loc in f.locations.values()
                     ],
                     "map": f.map.to_dict(),
+                    **({"uncertain_cuts": [round(x, 6) for x in f.uncertain_cuts]} if f.uncertain_cuts else {}),
                 }
                 for f in self.faces
             ],
@@ -245,7 +255,8 @@ class BuildingMap:
                                           int(loc["position"]), [str(p) for p in loc["passes"]], float(loc["seen"]))  # fmt: skip
                 wmap = WarehouseMap.from_dict(f["map"], f"{source}: face {f['aisle']}-{f['side']}")
                 face = FaceMap(int(f["aisle"]), str(f["side"]), _finite(f["front_z"]), wmap, locs,
-                               {str(k): int(v) for k, v in f["bays"].items()})  # fmt: skip
+                               {str(k): int(v) for k, v in f["bays"].items()},
+                               tuple(_finite(x) for x in f.get("uncertain_cuts", ())))  # fmt: skip
                 if face.side not in ("L", "R"):
                     raise ValueError(f"side must be L or R, got {face.side!r}")
                 missing = [s.id for s in wmap.shelves() if s.id not in locs]

@@ -61,6 +61,7 @@ class FaceDoc(_Doc):
     bays: dict[StrictStr, Positive]  #: rack id -> bay number
     locations: list[LocationDoc]
     map: MapDoc
+    uncertain_cuts: list[Coord] | None = None  #: face X of bay boundaries found at uprights with little certainty
 
     @model_validator(mode="after")
     def _records(self) -> FaceDoc:

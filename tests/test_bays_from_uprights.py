@@ -4,6 +4,7 @@ at the fused uprights with the bay-width prior."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -90,13 +91,46 @@ def test_touching_bays_split_at_uprights_over_passes():
     a = _pass("a", 0.0, (0.0, 6.0), [Upright(0.0, 1.0), Upright(2.0, 0.9)])
     b = _pass("b", 1.0, (-1.0, 5.0), [Upright(3.02, 0.8), Upright(5.0, 1.0)])
     groups = [[(a, a.racks[0]), (b, b.racks[0])]]
-    bays = _split_at_uprights(groups, [a, b])
+    bays, uncertain = _split_at_uprights(groups, [a, b])
     spans = [sorted({(round(r.lo + p.offset, 2), round(r.hi + p.offset, 2)) for p, r in g}) for g in bays]
     assert len(bays) == 3
     assert spans[0] == [(0.0, 2.0)]
     assert spans[2][0][0] == pytest.approx(4.0, abs=0.02)
     assert [len({id(bx) for _, r in g for bx in r.boxes}) for g in bays] == [2, 2, 2]  # each pass's box once
-    assert _split_at_uprights(groups, [_pass("c", 0.0, (0.0, 6.0), [])]) == groups  # no uprights: as found
+    assert uncertain == []  # well supported, the three bays alike
+    assert _split_at_uprights(groups, [_pass("c", 0.0, (0.0, 6.0), [])]) == (groups, [])  # no uprights: as found
+    weak = _pass("d", 0.0, (0.0, 6.0), [Upright(2.0, 0.9), Upright(4.0, 0.3)])  # one frame barely seen
+    bays, uncertain = _split_at_uprights([[(weak, weak.racks[0])]], [weak])
+    assert len(bays) == 3 and uncertain == [pytest.approx(4.0)]
+
+
+def test_an_uncertain_boundary_is_kept_in_the_map_and_reaches_the_recount(tiny_building_map, monkeypatch):
+    import stitching.building_map as building_map
+
+    bmap = building_map.BuildingMap.load(tiny_building_map / "building.json")
+    face = bmap.faces[1]
+    rack = min(face.map.racks, key=lambda r: r.x_range[0])
+    cut = rack.x_range[1]  # its boundary with the next bay, found at an upright with little certainty
+    flagged = replace(bmap, faces=[bmap.faces[0], replace(face, uncertain_cuts=(cut,)), *bmap.faces[2:]])
+    again = building_map.BuildingMap.from_dict(flagged.to_dict())
+    assert again.faces[1].uncertain_cuts == (pytest.approx(cut),)
+    assert all("uncertain_cuts" not in f for f in bmap.to_dict()["faces"])  # none found: the file as before
+    given = []
+    real = building_map.uncertain_bays
+
+    def spy(racks, *args, cuts=(), **kw):
+        given.append(list(cuts))
+        return real(racks, *args, cuts=cuts, **kw)
+
+    monkeypatch.setattr(building_map, "uncertain_bays", spy)
+    again.inventory()
+    with_cut = [c for c in given if c]
+    assert (
+        len(given) == len(bmap.faces)
+        and len(with_cut) == 1
+        and all(c == [(pytest.approx(cut), False)] for c in with_cut)
+    )
+    assert rack.id in real(face.map.racks, cuts=[(cut, False)])
 
 
 def test_gt_upright_columns_mark_rack_ends(tmp_path):
