@@ -9,22 +9,13 @@ import shutil
 from pathlib import Path
 
 import pytest
+from test_faults import one_line
 
 from layouts import Intrinsics
 from layouts.errors import InputError
 from mvracklay.cli import main
 
 QUIET = ["--quiet", "--no-rrd", "--threads", "1"]
-
-
-def one_line(capsys: pytest.CaptureFixture[str], rc: int, command: str, *needles: str) -> str:
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert rc == 2, err
-    assert len(lines) == 1 and lines[0].startswith(f"mvracklay {command}: error: "), err
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

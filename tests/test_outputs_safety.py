@@ -7,7 +7,6 @@ outputs are byte-identical afterwards (`snapshot`)."""
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import shutil
@@ -15,6 +14,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from test_faults import one_line, snapshot
 
 from layouts.errors import InputError
 from layouts.publish import lock, write_failed
@@ -23,24 +23,6 @@ from mvracklay.cli import main
 from stitching import rerun_log
 
 QUIET = ["--quiet"]
-
-
-def snapshot(root: Path) -> dict[str, str | None]:
-    """Every file's digest and every folder (None) under ``root``, by relative path."""
-    return {
-        str(p.relative_to(root)): (hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None)
-        for p in sorted(Path(root).rglob("*"))
-    }
-
-
-def one_line(capsys: pytest.CaptureFixture[str], rc: int, command: str, *needles: str) -> str:
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert rc == 2, err
-    assert len(lines) == 1 and lines[0].startswith(f"mvracklay {command}: error: "), err
-    for n in needles:
-        assert n in lines[0], lines[0]
-    return lines[0]
 
 
 def no_stage_left(*folders: Path) -> None:

@@ -1,9 +1,8 @@
 """Sampling of a `waresynth.scene.Scene`: the rack row, its boxes, the background, lighting and camera path.
 
 Everything is built from one ``numpy.random.Generator`` and the effective config, so a sequence seed
-fully determines its scene. The stages of `build_scene` draw from the generator in a fixed order
-(row and camera, racks, background, floor and wall, light and sensor, camera rotation, motion blur,
-the look of `waresynth.look`):
+fully determines its scene. The stages of `build_scene` draw from the generator in a fixed order (row and camera,
+racks, background, floor and wall, light and sensor, camera rotation, motion blur, the look of `waresynth.look`):
 changing that order changes every generated dataset.
 """
 
@@ -183,11 +182,9 @@ def _build_rack_parts(
     beam = 0.08
     height = top + beam
     rid = rack.instance_id if record else shared_instance
-    # Uprights stand 3 mm proud of the boards and beams are slimmer, so no two faces are coplanar
-    # (coplanar faces would make the semantic/instance ids at their overlap arbitrary).
-    proud = 0.003
+    proud = 0.003  # uprights 3 mm proud of boards, beams slimmer: no coplanar faces (their ids would be arbitrary)
     xs = upright_centres(x0, x1, uw, shared)
-    for x in (x for x, own in zip(xs, frames) if own):
+    for x in (x for x, own in zip(xs, frames) if own):  # a frame shared with the rack before is built there
         for z in (zf + uw / 2, zf + dp - uw / 2):
             b.cuboid((x, -height / 2, z), (uw + 2 * proud, height, uw + 2 * proud), rack_sem, rid, rack_mat)
     for z in (zf + uw / 2, zf + dp - uw / 2):
