@@ -15,14 +15,15 @@ import pytest
 from conftest import TINY_BUILDING
 
 from layouts.location_changes import LOCATION_CHANGES, count_change
-from layouts.locations import NOT_SCANNED
+from layouts.locations import NOT_SCANNED, read_rows
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
-from stitching.building_diff import CHANGES, diff_buildings, format_diff
+from stitching.building_diff import CHANGES, LOCATION_COLUMNS, diff_buildings, format_diff
 from stitching.building_eval import evaluate_changes
 from stitching.building_map import BuildingMap
+from stitching.building_schema import check_change_rows, check_changes
 from stitching.export_gltf import glb_json
-from stitching.location_counts import evaluate_location_changes, read_location_truth
+from stitching.location_counts import EXCEPTION_COLUMNS, evaluate_location_changes, read_location_truth
 from stitching.rerun_log import read_entities
 from waresynth.building_generate import generate_building
 
@@ -112,6 +113,10 @@ def test_cli_writes_the_changes(scans, tmp_path, capsys):
     names = {n.get("name") for n in glb_json(out / "changes.glb")["nodes"]}
     assert any(str(n).startswith("change_000") for n in names)
     assert {"/changes/added", "/changes/removed", "/changes/moved"} <= read_entities(out / "changes.rrd")
+    check_changes(doc, "changes.json")  # what we write, we read: each file by the project's own reader
+    check_change_rows(read_rows((out / "changes.csv").read_text(), ("location", "change"), "changes.csv"), "x")
+    located = read_rows((out / "location_changes.csv").read_text(), LOCATION_COLUMNS, "location_changes.csv")
+    assert located and {r["location"] for r in located} >= {r["location"] for r in rows}
     assert main(["diff", str(tmp_path / "nothing"), str(scans["new"]), "--out", str(out)]) == 2
     assert "OLD_MAP" in capsys.readouterr().err
 
@@ -168,6 +173,11 @@ def test_location_changes_against_the_rescans_truth(scans):
     assert {r["location"] for r in rows} == set(after) and all(r["recount"] in ("true", "false") for r in rows)
 
 
+def _exceptions(out: Path) -> list[dict[str, str]]:
+    """``exceptions.csv`` as the project reads CSV rows (each row its columns, one line when malformed)."""
+    return read_rows((out / "exceptions.csv").read_text(), EXCEPTION_COLUMNS, str(out / "exceptions.csv"))
+
+
 def _wms(path: Path, rows: list[tuple[str, int]]) -> Path:
     path.write_text("location,expected\n" + "".join(f"{c},{n}\n" for c, n in rows))
     return path
@@ -186,14 +196,14 @@ def test_expected_lists_the_exceptions(scans, tmp_path, capsys):
     wms = _wms(tmp_path / "wms.csv", [*listed, ("99-L-01-01", 4)])
     out = tmp_path / "x"
     assert main(["diff", str(tmp_path / "m"), "--expected", str(wms), "--out", str(out)]) == 0
-    got = {(r["location"], r["exception"]): r for r in _truth(out / "exceptions.csv")}
+    got = {(r["location"], r["exception"]): r for r in _exceptions(out)}
     assert set(got) == {(differs["location"], "count differs"), (dropped["location"], "not in the WMS"),
                         (unseen["location"], "not scanned"), ("99-L-01-01", "missing from the map")}  # fmt: skip
     assert got[differs["location"], "count differs"]["expected"] == str(differs["boxes"] + 1)
     assert "4 exceptions of" in capsys.readouterr().out
     exact = _wms(tmp_path / "exact.csv", [(r["location"], r["boxes"]) for r in _load(scans["old"]).inventory()])
     assert main(["diff", str(scans["old"]), "--expected", str(exact), "--out", str(out)]) == 0
-    assert _truth(out / "exceptions.csv") == []
+    assert _exceptions(out) == []
 
 
 @pytest.mark.parametrize(
