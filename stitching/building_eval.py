@@ -36,7 +36,10 @@ class BuildingEval:
     fp: int
     fn: int
     mean_iou: float
-    wrong: list[dict[str, Any]] = field(default_factory=list)  #: the first locations whose count differs
+    wrong: list[dict[str, Any]] = field(default_factory=list)  #: every counted location whose count differs
+    flagged: int = 0  #: counted and scanned locations whose row says ``recount``
+    unflagged: int = 0  #: counted and scanned locations whose row does not
+    unflagged_exact: int = 0  #: of those, the ones with the exact count
 
     @property
     def exact_share(self) -> float:
@@ -50,8 +53,20 @@ class BuildingEval:
     def recall(self) -> float:
         return self.tp / (self.tp + self.fn) if self.tp + self.fn else 1.0
 
+    @property
+    def flagged_share(self) -> float:
+        """The share of scanned counted rows flagged ``recount``."""
+        n = self.flagged + self.unflagged
+        return self.flagged / n if n else 0.0
+
+    @property
+    def unflagged_exact_share(self) -> float:
+        """How often a row without ``recount`` has the exact count."""
+        return self.unflagged_exact / self.unflagged if self.unflagged else 1.0
+
     def to_dict(self) -> dict[str, Any]:
-        return {**asdict(self), "exact_share": self.exact_share, "precision": self.precision, "recall": self.recall}
+        return {**asdict(self), "exact_share": self.exact_share, "precision": self.precision, "recall": self.recall,
+                "flagged_share": self.flagged_share, "unflagged_exact_share": self.unflagged_exact_share}  # fmt: skip
 
 
 def truth_stacks(
@@ -95,13 +110,19 @@ def evaluate_building(
     all_codes = {r["location"] for r in truth_rows}
     rows = {r["location"]: r for r in bmap.inventory()}
     exact, missed, wrong = 0, 0, []
+    flags = {True: [0, 0], False: [0, 0]}  # recount -> [rows, exact]
     for code, t in counted.items():
         m = rows.get(code)
         if m is None or m["boxes"] == NOT_SCANNED:
             missed += 1
-        elif int(m["boxes"]) == int(t["boxes"]):
+            continue
+        right = int(m["boxes"]) == int(t["boxes"])
+        tally = flags[m.get("recount") == "true"]
+        tally[0] += 1
+        tally[1] += right
+        if right:
             exact += 1
-        elif len(wrong) < 20:
+        else:
             wrong.append({"location": code, "map": m["boxes"], "truth": int(t["boxes"])})
     invented = sum(1 for code in rows if code not in all_codes)
     stacks = truth_stacks(truth)
@@ -129,7 +150,10 @@ def evaluate_building(
         fp += sum(
             1 for i, (code, _) in enumerate(pr) if i not in matched_pr and (code in counted or code not in all_codes)
         )
-    return BuildingEval(len(counted), exact, missed, invented, tp, fp, fn, float(np.mean(ious)) if ious else 0.0, wrong)
+    mean_iou = float(np.mean(ious)) if ious else 0.0
+    return BuildingEval(
+        len(counted), exact, missed, invented, tp, fp, fn, mean_iou, wrong, flags[True][0], *flags[False]
+    )
 
 
 def evaluate_changes(

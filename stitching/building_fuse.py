@@ -40,6 +40,7 @@ SAME_BOX = 0.5  #: X overlap / narrower width above which two passes' boxes are 
 LONG_BAY = 1.8  #: a bay this many times the face's typical length is bays run together
 SPLIT_MARGIN = 0.4  #: metres a gap must lie inside another pass's rack to cut it there
 DEFAULT_CLEAR = 0.8  #: clear height (m) of a level nobody saw and the plan does not give
+WHOLE_VIEW = 0.95  #: share of a location a pass must hold in view for its count of it to be compared
 
 
 def _clusters(items: list[tuple[PlacedPass, PlacedRack]]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
@@ -207,6 +208,15 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
     return sorted(((b, x, names) for b, x, names, _ in kept), key=lambda t: t[1])
 
 
+def _pass_counts(
+    boxes: Sequence[tuple[PlacedBox, float, list[str]]], saw: list[str], views: dict[str, list], a: float, b: float
+) -> dict[str, int]:
+    """The boxes of a location on face X ``[a, b]`` (`_fuse_boxes`' triples) each pass of ``saw`` counted that
+    held all of it in view, where two or more did (else empty): passes that disagree make the count uncertain."""
+    whole = [n for n in saw if covered_length(views[n], a, b) >= WHOLE_VIEW * (b - a)]
+    return {n: sum(n in names for _, _, names in boxes) for n in whole} if len(whole) > 1 else {}
+
+
 def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
     items = _split_joined([(p, r) for p in passes for r in p.racks])
     views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
@@ -280,7 +290,10 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                     key=order.__getitem__,
                 )
                 seen = covered_length([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
-                locations[pos_code] = Location(pos_code, face.aisle, face.side, bay, lv, j + 1, saw, min(seen, 1.0))
+                counts = _pass_counts(mine, saw, views, a, b)
+                locations[pos_code] = Location(
+                    pos_code, face.aisle, face.side, bay, lv, j + 1, saw, min(seen, 1.0), counts
+                )
         racks.append(MapRack(rack_id, (lo, hi), shelves, partial))
         bays[rack_id] = bay
     seen_x = sorted(iv for v in views.values() for iv in v)
@@ -398,7 +411,10 @@ def _fuse_listed(
                 key=order.__getitem__,
             )  # fmt: skip
             seen = covered_length([iv for n in saw for iv in views[n]], a, b) / (b - a)
-            locations[e.code] = Location(e.code, e.aisle, e.side, e.bay, e.level, e.position, saw, min(seen, 1.0))
+            counts = _pass_counts(kept[e.code], saw, views, a, b)
+            locations[e.code] = Location(
+                e.code, e.aisle, e.side, e.bay, e.level, e.position, saw, min(seen, 1.0), counts
+            )
         rack_id = f"{face.aisle:02d}-{face.side}-{bay:02d}"
         racks.append(MapRack(rack_id, (lo, hi), shelves, None))
         bays[rack_id] = bay

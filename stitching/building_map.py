@@ -53,6 +53,13 @@ class Location:
     position: int
     passes: list[str] = field(default_factory=list)
     seen: float = 0.0  #: share of its length some pass's view held (0: not scanned)
+    #: boxes counted by each pass that held all of it in view (route order), where two or more did
+    counts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def disagree(self) -> bool:
+        """Whether the passes that saw all of it counted differently."""
+        return len(set(self.counts.values())) > 1
 
     @property
     def scanned(self) -> bool:
@@ -181,7 +188,11 @@ class BuildingMap:
                     "last_seen": loc.passes[-1], "pass": ";".join(loc.passes),
                 })  # fmt: skip
                 said = shelf_evidence(
-                    shelf, row["confidence"], row["partial"] == "true", uncertain_boundary=shelf.id in odd
+                    shelf,
+                    row["confidence"],
+                    row["partial"] == "true",
+                    uncertain_boundary=shelf.id in odd,
+                    disagree=loc.disagree,
                 )
                 row[RECOUNT] = recount_cell(said)
             rows.append(row)
@@ -228,6 +239,7 @@ class BuildingMap:
                             "position": loc.position,
                             "passes": loc.passes,
                             "seen": round(loc.seen, 4),
+                            **({"counts": loc.counts} if loc.counts else {}),
                         }  # fmt: skip
                         for loc in f.locations.values()
                     ],
@@ -252,7 +264,8 @@ class BuildingMap:
                 for loc in f["locations"]:
                     code = str(loc["location"])
                     locs[code] = Location(code, int(f["aisle"]), str(f["side"]), int(loc["bay"]), int(loc["level"]),
-                                          int(loc["position"]), [str(p) for p in loc["passes"]], float(loc["seen"]))  # fmt: skip
+                                          int(loc["position"]), [str(p) for p in loc["passes"]], float(loc["seen"]),
+                                          {str(k): int(v) for k, v in loc.get("counts", {}).items()})  # fmt: skip
                 wmap = WarehouseMap.from_dict(f["map"], f"{source}: face {f['aisle']}-{f['side']}")
                 face = FaceMap(int(f["aisle"]), str(f["side"]), _finite(f["front_z"]), wmap, locs,
                                {str(k): int(v) for k, v in f["bays"].items()},

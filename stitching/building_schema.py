@@ -52,6 +52,7 @@ class LocationDoc(_Doc):
     position: Positive
     passes: list[Name]
     seen: Unit  #: the share of its length some pass's view held
+    counts: dict[Name, Annotated[StrictInt, Field(ge=0, le=9999)]] | None = None  #: boxes per pass that saw it all
 
 
 class FaceDoc(_Doc):

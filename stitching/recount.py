@@ -3,10 +3,10 @@ it can be taken as counted.
 
 A row's evidence (`RowEvidence`) is what the map knows of how its count was made: the row's confidence, its
 least sure box (confidence and the frames that saw it), whether part of its length was never in view, whether the
-passes that saw it disagree, whether a bay boundary of it is uncertain. `needs_recount` flags it where any of
-these falls short of `RecountRule`, whose thresholds are calibrated on generated buildings mapped from the
-network's layouts so that the rows without the flag have the exact count at least 98 % of the time
-(docs/buildings.md, "The inventory").
+passes that held all of it in view counted different numbers of boxes, whether a bay boundary of it is uncertain.
+`needs_recount` flags it where any of these falls short of `RecountRule`. From ground-truth layouts the rows
+without the flag are exact; from the network's layouts they are right more often than the flagged ones but not
+yet 98 % of the time (docs/buildings.md, "The inventory", with the figures).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ class RowEvidence:
     box_confidence: float = 1.0  #: its least sure box's confidence (1 without boxes)
     support: int = 1_000_000  #: the frames that saw its least seen box (no boxes: unbounded)
     partial: bool = False  #: some of its length never in view
-    disagree: bool = False  #: the passes that saw it counted differently
+    disagree: bool = False  #: the passes that held all of it in view counted differently
     uncertain_boundary: bool = False  #: a bay boundary of it is uncertain
 
 

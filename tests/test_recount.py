@@ -77,3 +77,26 @@ def test_the_schema_refuses_a_bad_flag(tiny_building_map):
     with pytest.raises(InputError, match="row 1: recount"):
         check_inventory([{**rows[0], "recount": "maybe"}, *rows[1:]], "inventory.csv")
     check_inventory([{k: v for k, v in r.items() if k != "recount"} for r in rows], "truth")  # the ground truth's
+
+
+def test_passes_that_counted_a_location_differently_flag_it(tiny_building_map):
+    from stitching.building_fuse import _pass_counts
+
+    box = SimpleNamespace()
+    boxes = [(box, 1.2, ["a", "b"]), (box, 1.6, ["a"])]  # the second box only pass a found
+    views = {"a": [(0.0, 3.0)], "b": [(0.5, 3.0)], "c": [(1.5, 3.0)]}
+    assert _pass_counts(boxes, ["a", "b", "c"], views, 1.0, 2.0) == {"a": 2, "b": 1}  # c held half of it
+    assert _pass_counts(boxes, ["a", "c"], views, 1.0, 2.0) == {}  # one whole view: nothing to compare
+    bmap = BuildingMap.load(tiny_building_map / "building.json")
+    f, shelf, loc = next(t for t in bmap.locations() if t[2].scanned)
+    assert bmap.inventory()[0]["location"] == loc.code
+    loc.counts = {"pass_a": 2, "pass_b": 2}
+    assert not loc.disagree
+    loc.counts = {"pass_a": 2, "pass_b": 1}
+    assert loc.disagree and bmap.inventory()[0]["recount"] == "true"
+    again = BuildingMap.from_dict(bmap.to_dict())  # the per-pass counts are kept in building.json
+    assert again.faces[0].locations[loc.code].counts == {"pass_a": 2, "pass_b": 1}
+    bad = bmap.to_dict()
+    bad["faces"][0]["locations"][0]["counts"] = {"pass_a": -1}
+    with pytest.raises(InputError, match="counts"):
+        BuildingMap.from_dict(bad)

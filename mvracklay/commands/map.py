@@ -131,7 +131,9 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"against the ground truth: {scores['exact']} of {scores['locations']} locations with the right code "
             f"and box count ({scores['exact_share']:.1%}), {scores['invented']} invented, {scores['missed']} missed; "
-            f"boxes recall {scores['recall']:.3f}, precision {scores['precision']:.3f} at 3D IoU 0.5"
+            f"boxes recall {scores['recall']:.3f}, precision {scores['precision']:.3f} at 3D IoU 0.5; "
+            f"rows without recount exact {scores['unflagged_exact_share']:.1%}, "
+            f"recount on {scores['flagged_share']:.1%} of rows"
         )
     if args.json_out:
         from layouts.fileio import atomic_write_json
