@@ -4,7 +4,9 @@ A location fits a ``w x d x h`` box as a row map's shelf does (`stitching.free_s
 a gap along X inside the uprights and clear of every box, the neighbouring positions' included, wide enough for
 the box and its margin, never in unknown length; on a network-made map (``meta`` ``layouts: net``) also
 `stitching.free_space.NETWORK_EDGE_SLACK` clear of each box); only the map's own locations are offered (a fit on a shelf
-without a location record is none), and never one no pass saw. Ranked by the
+without a location record is none), and never one no pass saw, nor by default one whose inventory row is
+flagged ``recount`` (its boxes are uncertain, so is the gap: ``with_recount`` lists those too, marked, after the
+others). Ranked by the
 walk from ``near`` (a location code), else in building order: along the aisle within one aisle, else out to
 the nearer end of the racks (where the cross aisles are), across, and back in. The box centre's ranges are given
 in building X.
@@ -29,6 +31,7 @@ class LocationFit:
     free_length: float
     distance: float | None  #: metres walked from ``near`` (`walk`); None without ``near``
     confidence: float
+    recount: bool = False  #: its inventory row is flagged ``recount``: count it before putting a box there
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -57,9 +60,17 @@ def walk(a: tuple[float, float, int], b: tuple[float, float, int], ends: tuple[f
 
 
 def building_fits(
-    bmap: BuildingMap, w: float, d: float, h: float, margin: float = 0.0, near: str | None = None
+    bmap: BuildingMap,
+    w: float,
+    d: float,
+    h: float,
+    margin: float = 0.0,
+    near: str | None = None,
+    with_recount: bool = False,
 ) -> list[LocationFit]:
-    """Scanned locations where the box fits, nearest to ``near`` first (see the module docstring)."""
+    """Scanned locations where the box fits, nearest to ``near`` first, those flagged ``recount`` left out or, with
+    ``with_recount``, listed after the others (see the module docstring)."""
+    flagged = {r["location"] for r in bmap.inventory() if r.get("recount") == "true"}
     origin = _centre(bmap, near) if near is not None else None
     slack = edge_slack(bmap.meta)
     ends = _ends(bmap)
@@ -68,7 +79,7 @@ def building_fits(
         shelves = {s.id: s for s in face.map.shelves()}
         for f in fits(face.map, w, d, h, margin, slack):
             loc = face.locations.get(f.shelf)
-            if loc is None or loc.code != f.shelf or not loc.scanned:
+            if loc is None or loc.code != f.shelf or not loc.scanned or (f.shelf in flagged and not with_recount):
                 continue
             shelf = shelves[f.shelf]
             fs = shelf_free_space(shelf, rack_of(face.map, shelf))
@@ -77,25 +88,35 @@ def building_fits(
             if origin is not None:
                 dist = walk(origin, _centre(bmap, f.shelf), ends)
             found.append(
-                LocationFit(f.shelf, f.rotated, f.along_x, sorted(centres), fs.free_length, dist, fs.confidence)
+                LocationFit(
+                    f.shelf,
+                    f.rotated,
+                    f.along_x,
+                    sorted(centres),
+                    fs.free_length,
+                    dist,
+                    fs.confidence,
+                    f.shelf in flagged,
+                )
             )
     order = {loc.code: k for k, (_, _, loc) in enumerate(bmap.locations())}
     if origin is not None:
-        return sorted(found, key=lambda r: (r.distance, order[r.location], r.rotated))
-    return sorted(found, key=lambda r: (order[r.location], r.rotated))
+        return sorted(found, key=lambda r: (r.recount, r.distance, order[r.location], r.rotated))
+    return sorted(found, key=lambda r: (r.recount, order[r.location], r.rotated))
 
 
 def format_fits(rows: list[LocationFit], box: str, limit: int = 20) -> str:
     """A plain-text table of the first ``limit`` locations a box fits."""
     if not rows:
         return f"a {box} box fits in no scanned location"
-    head = f"{'location':<16} {'turned':>6} {'free_len':>8} {'dist_m':>7} {'conf':>5}  centre X (building, m)"
+    head = f"{'location':<16} {'turned':>6} {'free_len':>8} {'dist_m':>7} {'conf':>5} {'recount':>7}  centre X (building, m)"
     lines = [head, "-" * len(head)]
     for r in rows[:limit]:
         dist = "-" if r.distance is None else f"{r.distance:.1f}"
         ranges = ", ".join(f"[{a:.2f}, {b:.2f}]" for a, b in r.centres)
         lines.append(
-            f"{r.location:<16} {'yes' if r.rotated else 'no':>6} {r.free_length:>8.2f} {dist:>7} {r.confidence:>5.2f}  {ranges}"
+            f"{r.location:<16} {'yes' if r.rotated else 'no':>6} {r.free_length:>8.2f} {dist:>7} {r.confidence:>5.2f} "
+            f"{'yes' if r.recount else '-':>7}  {ranges}"
         )
     if len(rows) > limit:
         lines.append(f"... and {len(rows) - limit} more (--json lists all)")

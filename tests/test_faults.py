@@ -425,6 +425,8 @@ def test_the_untouched_map_answers(map_doc, tmp_path, capsys):
     path.write_text(json.dumps(map_doc))
     assert main(["free-space", str(path), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)
+    for flag in (["--near", "01-L-01-01"], ["--with-recount"]):  # a building map's options, refused on a row map
+        one_line(capsys, main(["free-space", str(path), "--box", "0.4x0.3x0.3", *flag]), "free-space", flag[0])
 
 
 DEEP = "[" * 100_000 + "]" * 100_000

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stitching.building_free import LocationFit, building_fits
+from stitching.building_free import LocationFit, building_fits, format_fits
 from stitching.building_map import BuildingMap, FaceMap, Location
 from stitching.free_space import (
     NETWORK_EDGE_SLACK,
@@ -189,3 +189,17 @@ def test_a_network_made_map_keeps_clear_of_its_boxes_by_the_edge_slack():
     bmap.meta = {"layouts": "net"}
     (f,) = building_fits(bmap, 0.3, 0.3, 0.3, margin=0.02)
     assert f.centres[0] == pytest.approx((UPRIGHT_INSET + 0.17, 0.33 - s))
+
+
+def test_a_location_flagged_recount_is_offered_only_when_asked_and_after_the_sure_ones():
+    bmap = _building()
+    face = bmap.faces[0]
+    extra = MapShelf("01-R-02-01", 0, 0.0, 0.9, (2.1, 4.1), (-0.5, 0.5), 1.0, [])
+    face.map.racks.append(MapRack("01-R-02", (2.1, 4.1), [extra]))
+    face.locations["01-R-02-01"] = Location("01-R-02-01", 1, "R", 2, 1, 1, ["p0", "p1"], 1.0)
+    assert [f.location for f in building_fits(bmap, 0.3, 0.3, 0.3)] == ["01-R-01-01", "01-R-02-01"]
+    face.locations["01-R-01-01"].counts = {"p0": 1, "p1": 2}  # the passes disagree: its row says recount
+    assert [f.location for f in building_fits(bmap, 0.3, 0.3, 0.3)] == ["01-R-02-01"]
+    both = building_fits(bmap, 0.3, 0.3, 0.3, with_recount=True)
+    assert [(f.location, f.recount) for f in both] == [("01-R-02-01", False), ("01-R-01-01", True)]
+    assert "recount" in format_fits(both, "0.3x0.3x0.3").splitlines()[0]

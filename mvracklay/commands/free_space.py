@@ -33,11 +33,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "map", metavar="MAP", help="warehouse.json written by `mvracklay run` / `reconstruct`, or their OUT folder"
     )
     p.add_argument("--box", help="box size WxDxH in metres, e.g. 0.4x0.3x0.3")
+    sure = "building map: also offer locations flagged recount (marked, last); by default only where the count is sure"
+    p.add_argument("--with-recount", action="store_true", help=sure)
     p.add_argument("--margin", type=float, default=0.02, help="clearance in metres on each side and above the box")
     p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01 (a row map)")
-    p.add_argument(
-        "--near", metavar="CODE", help="building map: rank the locations a --box fits by distance from this location"
-    )
+    p.add_argument("--near", metavar="CODE", help="building map: rank the locations a --box fits by distance from it")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument(
         "--csv",
@@ -71,8 +71,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("choose one of --json and --csv")
     if _is_building(path):
         return _building(path, args)
-    if args.near:
-        raise InputError("--near is for a building map (`mvracklay map`'s output)")
+    if args.near or args.with_recount:
+        raise InputError(
+            f"{'--near' if args.near else '--with-recount'} is for a building map (`mvracklay map`'s output)"
+        )
     wmap = WarehouseMap.load(path)
     rows = free_space(wmap)
     if args.shelf:
@@ -128,7 +130,7 @@ def _building(path: Path, args: argparse.Namespace) -> int:
     found = None
     if args.box:
         w, d, h = parse_box(args.box)
-        found = building_fits(bmap, w, d, h, args.margin, near)
+        found = building_fits(bmap, w, d, h, args.margin, near, with_recount=args.with_recount)
     if args.json:
         out: dict = {"map": str(path), "locations": rows}
         if found is not None:
@@ -142,8 +144,5 @@ def _building(path: Path, args: argparse.Namespace) -> int:
 
         print(rows_csv(rows, MAP_INVENTORY_COLUMNS), end="")
         return 0
-    if found is not None:
-        print(format_fits(found, args.box))
-        return 0
-    print(format_inventory(rows))
+    print(format_fits(found, args.box) if found is not None else format_inventory(rows))
     return 0
