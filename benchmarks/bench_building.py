@@ -26,7 +26,7 @@ if str(_ROOT) not in sys.path:
 
 from layouts.spec import LayoutSpec  # noqa: E402
 from mvracklay.building_job import map_building  # noqa: E402
-from waresynth.building_generate import generate_building  # noqa: E402
+from waresynth.building.generate import generate_building  # noqa: E402
 
 FACE = {"bays": [19, 19], "bay_width": [2.3, 2.7], "bay_gap": [0.1, 0.2], "pass_length": 12.0}
 CONFIG = {"camera": {"step": [0.2, 0.25]}}

@@ -1,7 +1,7 @@
-"""``mvracklay map``: many passes -> one building map (`stitching.building_fuse`), its inventory and scenes.
+"""``mvracklay map``: many passes -> one building map (`stitching.building.fuse_passes`), its inventory and scenes.
 
 Input: a folder holding ``route.json`` (a generated building, `mvracklay generate --building`) or a route file
-of one's own (`stitching.building_route`): each pass's ``sequence`` names its sequence folder, image folder or
+of one's own (`stitching.building.route`): each pass's ``sequence`` names its sequence folder, image folder or
 video, relative to the route file. Each pass is mapped as a row on its own (``--layouts gt``: its ground-truth
 layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/FOLDER/`` (`pass_folder`: never a
 path out of MAP), a task per pass on the local machine's processes or on a Ray cluster (`mvracklay.parallel`); a
@@ -12,7 +12,7 @@ MAP follows `mvracklay run`'s rules: never an input, inside one or holding one; 
 map's folder unless ``overwrite``; one command at a time (`layouts.publish.lock`).
 
 ``locations``: a location list (`layouts.location_list`, CSV) or an earlier building map (its folder or its
-``building.json``) whose codes, bays and spans the map takes (`stitching.building_fuse`). With the network and
+``building.json``) whose codes, bays and spans the map takes (`stitching.building.fuse_passes`). With the network and
 no ``checkpoint``, the shipped model made for the frames' size maps the passes (`choose_model`).
 """
 
@@ -32,8 +32,8 @@ from layouts.fileio import atomic_write_json, load_json
 from layouts.location_list import ListedLocation, read_location_list
 from layouts.locations import DEFAULT_CODE, check_code_format
 from layouts.publish import lock, refuse_overlap, staged
-from stitching.building_map import BuildingMap, write_inventory
-from stitching.building_route import Route, load_route, perturb
+from stitching.building.map import BuildingMap, write_inventory
+from stitching.building.route import Route, load_route, perturb
 from stitching.warehouse_map import WarehouseMap
 
 ROUTE = "route.json"
@@ -209,7 +209,7 @@ def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: dict[str,
 def _is_map_folder(folder: Path) -> bool:
     """Whether ``folder`` is an earlier `map_building`'s output: its building.json a building map, or none yet
     and the passes mapped so far (an interrupted map, to go on from)."""
-    from stitching.building_map import BUILDING_FORMAT
+    from stitching.building.map import BUILDING_FORMAT
 
     building = folder / "building.json"
     if not building.exists():
@@ -261,9 +261,9 @@ def map_building(
     into an ``out`` holding other files (only the map's outputs there are replaced); ``locations``: a location
     list or an earlier map whose codes the map takes (`load_locations`)."""
     from mvracklay.parallel import run_tasks
-    from stitching.building_export import export_building_glb, write_building_rrd
-    from stitching.building_fuse import check_listed, fuse_building
-    from stitching.building_register import place_pass
+    from stitching.building.export import export_building_glb, write_building_rrd
+    from stitching.building.fuse_passes import check_listed, fuse_building
+    from stitching.building.place import place_pass
 
     if layouts not in ("gt", "net"):
         raise InputError(f"--layouts must be 'gt' or 'net', got {layouts!r}")
@@ -339,9 +339,9 @@ def summary(res: BuildingResult) -> str:
 
 
 def evaluate_against_truth(res: BuildingResult) -> dict[str, Any]:
-    """The map's figures against a generated building's ``ground_truth/`` (`stitching.building_eval`)."""
+    """The map's figures against a generated building's ``ground_truth/`` (`stitching.building.eval`)."""
     from layouts.locations import read_inventory
-    from stitching.building_eval import evaluate_building
+    from stitching.building.eval import evaluate_building
 
     truth = res.source / "ground_truth"
     if not (truth / "building.json").is_file() or not (truth / "inventory.csv").is_file():

@@ -130,7 +130,7 @@ TINY_CONFIG = {"camera": {"step": [0.25, 0.3]}}
 def tiny_building(tmp_path_factory) -> Path:
     """A generated tiny building (`TINY_BUILDING`, seed 3), made once per run (the workers share it: read only)."""
     from layouts.spec import LayoutSpec
-    from waresynth.building_generate import generate_building
+    from waresynth.building.generate import generate_building
 
     with _shared(tmp_path_factory, "tiny_building") as (root, made):
         if not made:

@@ -11,9 +11,9 @@ import pytest
 
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
-from stitching.building_fuse import _split_at_uprights
-from stitching.building_register import PlacedBox, PlacedPass, PlacedRack
-from stitching.building_route import PassPose
+from stitching.building.fuse_passes import _split_at_uprights
+from stitching.building.place import PlacedBox, PlacedPass, PlacedRack
+from stitching.building.route import PassPose
 from stitching.uprights import Upright, UprightStrip, bay_cuts, fuse_uprights
 from stitching.warehouse_map import WarehouseMap
 
@@ -105,7 +105,7 @@ def test_touching_bays_split_at_uprights_over_passes():
 
 
 def test_an_uncertain_boundary_is_kept_in_the_map_and_reaches_the_recount(tiny_building_map, monkeypatch):
-    import stitching.building_map as building_map
+    import stitching.building.map as building_map
 
     bmap = building_map.BuildingMap.load(tiny_building_map / "building.json")
     face = bmap.faces[1]

@@ -18,14 +18,14 @@ from layouts.location_changes import LOCATION_CHANGES, count_change
 from layouts.locations import NOT_SCANNED, read_rows
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
-from stitching.building_diff import CHANGES, LOCATION_COLUMNS, diff_buildings, format_diff
-from stitching.building_eval import evaluate_changes
-from stitching.building_map import BuildingMap
-from stitching.building_schema import check_change_rows, check_changes
+from stitching.building.diff import CHANGES, LOCATION_COLUMNS, diff_buildings, format_diff
+from stitching.building.eval import evaluate_changes
+from stitching.building.location_counts import EXCEPTION_COLUMNS, evaluate_location_changes, read_location_truth
+from stitching.building.map import BuildingMap
+from stitching.building.schema import check_change_rows, check_changes
 from stitching.export_gltf import glb_json
-from stitching.location_counts import EXCEPTION_COLUMNS, evaluate_location_changes, read_location_truth
 from stitching.rerun_log import read_entities
-from waresynth.building_generate import generate_building
+from waresynth.building.generate import generate_building
 
 RATES = {"removed": 0.12, "added": 0.12, "moved": 0.1, "shifted": 0.12, "replaced": 0.05}
 

@@ -28,11 +28,11 @@ from layouts.errors import ContractError, InputError
 from layouts.spec import LayoutSpec
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
-from stitching.building_diff import BuildingDiff, Change, diff_buildings
-from stitching.building_diff_export import write_changes
-from stitching.building_eval import evaluate_building, evaluate_changes
-from stitching.building_map import BuildingMap
-from stitching.building_schema import check_inventory
+from stitching.building.diff import BuildingDiff, Change, diff_buildings
+from stitching.building.diff_export import write_changes
+from stitching.building.eval import evaluate_building, evaluate_changes
+from stitching.building.map import BuildingMap
+from stitching.building.schema import check_inventory
 
 
 def _set(*path_and_value):
@@ -108,7 +108,7 @@ def test_the_untouched_map_loads_and_round_trips(good, tiny_building_map):
 @pytest.fixture(scope="module")
 def one_aisle(tmp_path_factory) -> Path:
     """The tiny building with one aisle (the same seed: aisle 1's faces as the two-aisle building's), mapped."""
-    from waresynth.building_generate import generate_building
+    from waresynth.building.generate import generate_building
 
     root = tmp_path_factory.mktemp("one_aisle")
     generate_building(root / "b", building={**TINY_BUILDING, "aisles": 1}, config=TINY_CONFIG, image_size=(32, 24),

@@ -12,7 +12,7 @@ import pytest
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from waresynth.building_generate import generate_building
+from waresynth.building.generate import generate_building
 from waresynth.dataset import open_dataset
 
 BUILDING = {

@@ -14,11 +14,11 @@ from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED, read_inventory
 from mvracklay.building_job import map_building
 from mvracklay.cli import main
-from stitching.building_eval import evaluate_building
-from stitching.building_fuse import fuse_building
-from stitching.building_map import BuildingMap
-from stitching.building_register import place_pass
-from stitching.building_route import load_route, parse_pose_noise, perturb
+from stitching.building.eval import evaluate_building
+from stitching.building.fuse_passes import fuse_building
+from stitching.building.map import BuildingMap
+from stitching.building.place import place_pass
+from stitching.building.route import load_route, parse_pose_noise, perturb
 from stitching.export_gltf import glb_json
 from stitching.rerun_log import read_entities
 from stitching.warehouse_map import WarehouseMap

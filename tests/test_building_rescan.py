@@ -15,10 +15,10 @@ import pytest
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
-from waresynth.building import plan_building
-from waresynth.building_changes import MIN_SHIFT, apply_changes, changes_rows
-from waresynth.building_generate import generate_building
-from waresynth.building_schema import load_building
+from waresynth.building.changes import MIN_SHIFT, apply_changes, changes_rows
+from waresynth.building.generate import generate_building
+from waresynth.building.plan import plan_building
+from waresynth.building.schema import load_building
 from waresynth.config import load_config
 
 BUILDING = {

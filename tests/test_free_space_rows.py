@@ -10,8 +10,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from stitching.building_free import LocationFit, building_fits, format_fits
-from stitching.building_map import BuildingMap, FaceMap, Location
+from stitching.building.free import LocationFit, building_fits, format_fits
+from stitching.building.map import BuildingMap, FaceMap, Location
 from stitching.free_space import (
     NETWORK_EDGE_SLACK,
     UPRIGHT_INSET,
@@ -22,7 +22,7 @@ from stitching.free_space import (
     free_space,
     shelf_free_space,
 )
-from stitching.free_space_eval import evaluate_fits
+from stitching.building.free_space_eval import evaluate_fits
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
 
 

@@ -12,10 +12,10 @@ from layouts.classes import SHELF
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from waresynth import semantics as sem
-from waresynth.building import pass_row, plan_building
-from waresynth.building_generate import generate_building
-from waresynth.building_schema import BUILDING_DEFAULTS, load_building
-from waresynth.building_truth import ground_truth
+from waresynth.building.generate import generate_building
+from waresynth.building.plan import pass_row, plan_building
+from waresynth.building.schema import BUILDING_DEFAULTS, load_building
+from waresynth.building.truth import ground_truth
 from waresynth.config import load_config
 from waresynth.groundtruth import frame_layouts
 from waresynth.row_plan import CameraPlan
@@ -172,8 +172,8 @@ def test_generated_building_records_its_racking(tmp_path):
 
 def test_changed_stock_stays_clear_of_shared_uprights():
     """A rescan's moved, shifted and added stacks stand between the uprights of runs and units too."""
-    from waresynth.building_changes import apply_changes
-    from waresynth.building_schema import change_rates
+    from waresynth.building.changes import apply_changes
+    from waresynth.building.schema import change_rates
 
     plan = _plan({"run": 1.0, "units": 1.0}, seed=2)
     rates = {**change_rates(None), "added": 0.3, "moved": 0.2, "shifted": 0.3}

@@ -20,7 +20,7 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from mvracklay.parallel import TaskFailed, check_ray_address, connect, private_token, run_tasks, task_map
-from waresynth.building_generate import generate_building
+from waresynth.building.generate import generate_building
 from waresynth.generate import generate_dataset
 
 SMALL = dict(image_size=(32, 32), spec=LayoutSpec(size=16), seed=3, progress=False)

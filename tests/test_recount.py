@@ -11,9 +11,9 @@ from types import SimpleNamespace
 import pytest
 
 from layouts.errors import InputError
-from stitching.building_map import BuildingMap
-from stitching.building_schema import check_inventory
-from stitching.recount import MAP_INVENTORY_COLUMNS, RULE, RowEvidence, needs_recount, uncertain_bays
+from stitching.building.map import BuildingMap
+from stitching.building.recount import MAP_INVENTORY_COLUMNS, RULE, RowEvidence, needs_recount, uncertain_bays
+from stitching.building.schema import check_inventory
 
 SURE = RowEvidence(confidence=0.95, box_confidence=0.9, support=30)
 
@@ -80,7 +80,7 @@ def test_the_schema_refuses_a_bad_flag(tiny_building_map):
 
 
 def test_passes_that_counted_a_location_differently_flag_it(tiny_building_map):
-    from stitching.building_fuse import _pass_counts
+    from stitching.building.fuse_passes import _pass_counts
 
     box = SimpleNamespace()
     boxes = [(box, 1.2, ["a", "b"]), (box, 1.6, ["a"])]  # the second box only pass a found

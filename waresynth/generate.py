@@ -131,7 +131,7 @@ def write_sequence(
 ) -> dict[str, Any]:
     """Render one sequence into ``root/.NAME.tmp`` and rename it to ``root/NAME`` when complete.
 
-    ``planned``: its row and camera path as planned (a pass of `waresynth.building`), else sampled.
+    ``planned``: its row and camera path as planned (a pass of `waresynth.building.plan`), else sampled.
     Returns what it cost in the process that wrote it: name, frames, cpu_seconds, max_rss_mib.
     """
     cpu0 = time.process_time()

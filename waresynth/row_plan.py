@@ -1,6 +1,6 @@
 """A planned rack row: what `waresynth.scene_builder` builds a row's racks, boards and boxes from.
 
-The random sampler draws a `RowPlan` for each sequence; `waresynth.building` plans one per rack face, so every
+The random sampler draws a `RowPlan` for each sequence; `waresynth.building.plan` plans one per rack face, so every
 pass along a face builds the same racks and boxes. Row frame: X along the row, Y down, the front at Z = 0.
 Beside the plan, the geometry of its levels: clear heights, the boards' usable span, which levels a camera sees.
 """
@@ -55,7 +55,7 @@ class RackPlan:
 class RowPlan:
     """A rack row as planned (row frame: X along it, front at Z = 0): shared shelf heights, depth and
     uprights, the box-density preset, the materials of racks and boards, and the racks in X order. The
-    random sampler (`build_scene`) draws one per sequence; `waresynth.building` plans one per rack face, so
+    random sampler (`build_scene`) draws one per sequence; `waresynth.building.plan` plans one per rack face, so
     every pass along a face builds the same racks and boxes from it."""
 
     levels: list[float]

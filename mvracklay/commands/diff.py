@@ -75,12 +75,12 @@ def run(args: argparse.Namespace) -> int:
     from layouts.locations import read_rows
     from layouts.publish import refuse_overlap, staged
     from mvracklay.outputs import check_out
-    from stitching.building_diff import DiffConfig, diff_buildings, format_diff
-    from stitching.building_diff_export import CHANGE_FILES, is_changes_folder, write_changes
-    from stitching.building_eval import evaluate_changes
-    from stitching.building_map import BuildingMap
-    from stitching.building_schema import check_change_rows
-    from stitching.location_counts import score_locations
+    from stitching.building.diff import DiffConfig, diff_buildings, format_diff
+    from stitching.building.diff_export import CHANGE_FILES, is_changes_folder, write_changes
+    from stitching.building.eval import evaluate_changes
+    from stitching.building.location_counts import score_locations
+    from stitching.building.map import BuildingMap
+    from stitching.building.schema import check_change_rows
 
     given = {
         k: v
@@ -124,8 +124,8 @@ def _expected(args: argparse.Namespace) -> int:
     """``diff MAP --expected WMS_CSV``: the map's exceptions against the WMS's expected counts."""
     from layouts.publish import refuse_overlap, staged
     from mvracklay.outputs import check_out
-    from stitching import location_counts as lc
-    from stitching.building_map import BuildingMap
+    from stitching.building import location_counts as lc
+    from stitching.building.map import BuildingMap
 
     if args.new is not None:
         raise InputError("diff --expected compares one map with the WMS: give OLD_MAP alone, not NEW_MAP too")

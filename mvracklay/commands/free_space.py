@@ -118,8 +118,8 @@ def _is_building(path: Path) -> bool:
 
 def _building(path: Path, args: argparse.Namespace) -> int:
     """A building map: its inventory, and with --box the locations the box fits, nearest to --near first."""
-    from stitching.building_free import building_fits, check_near, format_fits, format_inventory
-    from stitching.building_map import BuildingMap
+    from stitching.building.free import building_fits, check_near, format_fits, format_inventory
+    from stitching.building.map import BuildingMap
     from stitching.free_space import parse_box
 
     if args.shelf:
@@ -140,7 +140,7 @@ def _building(path: Path, args: argparse.Namespace) -> int:
         return 0
     if args.csv:
         from layouts.locations import rows_csv
-        from stitching.recount import MAP_INVENTORY_COLUMNS
+        from stitching.building.recount import MAP_INVENTORY_COLUMNS
 
         print(rows_csv(rows, MAP_INVENTORY_COLUMNS), end="")
         return 0

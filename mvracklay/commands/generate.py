@@ -111,9 +111,9 @@ def run(args: GenerateSettings) -> int:
 def _building(
     args: GenerateSettings, spec: LayoutSpec, given: dict[str, int], config: object, tasks: TaskMap | None
 ) -> int:
-    """``--building [FILE]``: every pass of a building (`waresynth.building_generate`); a rescan takes SCAN's
+    """``--building [FILE]``: every pass of a building (`waresynth.building.generate`); a rescan takes SCAN's
     image size and layout spec where the options are not given, and refuses those given that differ."""
-    from waresynth.building_generate import generate_building
+    from waresynth.building.generate import generate_building
 
     if args.building:
         from layouts.publish import refuse_overlap

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from mvracklay.building_job import map_building, summary
     from mvracklay.outputs import spawn_viewer
     from mvracklay.threads import resolve_threads
-    from stitching.building_route import parse_pose_noise
+    from stitching.building.route import parse_pose_noise
 
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")

@@ -5,7 +5,7 @@ comments). Ranges are ``[low, high]`` drawn per face or per bay by the building'
 `load_building` refuses, in one line naming the file and the key, unknown keys, values of the wrong type,
 numbers outside their range and ``[low, high]`` with low > high. ``changes`` (a rescan's change rates) is not
 among the defaults: a building config holds it only for ``--rescan``. Nor are ``rack_build`` and ``run_bays``
-(how the racks are built, `waresynth.rack_build`): without them every rack stands apart.
+(how the racks are built, `waresynth.building.rack_build`): without them every rack stands apart.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ class ChangesDoc(BaseModel):
 
 
 class RackBuildDoc(BaseModel):
-    """The shares of faces built each way (`waresynth.rack_build.KINDS`); missing ones are 0, their sum above 0."""
+    """The shares of faces built each way (`waresynth.building.rack_build.KINDS`); missing ones are 0, their sum above 0."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 

@@ -1,7 +1,7 @@
 """The declared schemas of the building formats: the building map (``building.json``), its inventory rows
 (``inventory.csv`` / ``.json``), the changes between two scans (``changes.csv`` / ``.json``) and a generated
 building's ground truth (``ground_truth/building.json``, as far as it is read); the route file's is in
-`stitching.building_route`.
+`stitching.building.route`.
 
 Each ``check_*`` refuses, in one `InputError` line naming the source and the field path
 (``faces[2].front_z``), a document whose figures would be printed as answers but cannot be true:
@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, Validat
 from layouts.errors import ContractError, InputError, first_problem
 from layouts.location_changes import count_change
 from layouts.locations import NOT_SCANNED, check_code_format, location_code
-from stitching.building_route import Aisle, Level, PlanFace, Side
+from stitching.building.route import Aisle, Level, PlanFace, Side
 from stitching.map_schema import Coord, Count, MapDoc, Size, Unit, Yaw
 
 #: metres a mapped face's front line may differ from its floor plan's (rounding in the file)

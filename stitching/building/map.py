@@ -14,7 +14,7 @@ racks' positions alone, so a code names the same slot in every scan. A location 
 (its inventory row says so), never empty.
 
 A map made with a location list (``location_list``: where it came from) takes its codes, bays and spans from
-that list instead (`stitching.building_fuse`), and keeps the boxes outside every listed location aside
+that list instead (`stitching.building.fuse_passes`), and keeps the boxes outside every listed location aside
 (``outside``: face, level, building X and centre, size, passes); `BuildingMap.listed` gives its locations back as
 a list, so a later scan keeps its codes.
 """
@@ -30,11 +30,11 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, atomic_write_text, load_json
 from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, rows_csv
-from stitching.building_route import FacePlan, plan_dict, plan_face
-from stitching.building_schema import check_building, check_inventory
+from stitching.building.recount import MAP_INVENTORY_COLUMNS, RECOUNT, recount_cell, shelf_evidence, uncertain_bays
+from stitching.building.route import FacePlan, plan_dict, plan_face
+from stitching.building.schema import check_building, check_inventory
 from stitching.free_space import ShelfFreeSpace, rack_of, shelf_free_space
 from stitching.geometry import Cuboid
-from stitching.recount import MAP_INVENTORY_COLUMNS, RECOUNT, recount_cell, shelf_evidence, uncertain_bays
 from stitching.warehouse_map import MapShelf, WarehouseMap
 
 BUILDING_FORMAT = "mvracklay-building-map"
@@ -159,7 +159,7 @@ class BuildingMap:
 
     # ----------------------------------------------------------- inventory
     def inventory(self) -> list[dict[str, Any]]:
-        """One row per location (`stitching.recount.MAP_INVENTORY_COLUMNS`), building order; ``boxes`` is ``not
+        """One row per location (`stitching.building.recount.MAP_INVENTORY_COLUMNS`), building order; ``boxes`` is ``not
         scanned`` where no pass saw the location (its free-space columns empty, confidence 0)."""
         rows = []
         odd = {

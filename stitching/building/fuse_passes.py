@@ -1,7 +1,7 @@
 """Fuse the placed passes of a building into one `BuildingMap`: one rack per bay, one shelf per location, each
 box once.
 
-Per face (its frame, `stitching.building_map`):
+Per face (its frame, `stitching.building.map`):
 
 * **Racks**: a rack one pass saw where another saw two bays with a gap between is cut at that gap; then
   two passes' racks whose X ranges overlap by half the shorter are one bay; its ends are where the
@@ -29,9 +29,9 @@ from typing import Any
 from layouts.errors import InputError
 from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, check_code_format, covered_length, location_code
-from stitching.building_map import BuildingMap, FaceMap, Location, PassPlacement, listed_code_format
-from stitching.building_register import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
-from stitching.building_route import FacePlan, Route
+from stitching.building.map import BuildingMap, FaceMap, Location, PassPlacement, listed_code_format
+from stitching.building.place import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
+from stitching.building.route import FacePlan, Route
 from stitching.uprights import Upright, bay_cuts, fuse_uprights
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
 

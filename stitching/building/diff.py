@@ -32,8 +32,8 @@ from scipy.optimize import linear_sum_assignment
 from layouts.errors import InputError
 from layouts.location_changes import UNCHANGED, count_change
 from layouts.locations import NOT_SCANNED
-from stitching.building_map import BuildingMap, FaceMap, Location
-from stitching.building_route import FacePlan
+from stitching.building.map import BuildingMap, FaceMap, Location
+from stitching.building.route import FacePlan
 from stitching.free_space import shelf_free_space
 from stitching.warehouse_map import MapBox, MapShelf
 

@@ -3,7 +3,7 @@
 `apply_changes` takes a planned `Building` (its faces' racks and stacks) and returns a changed copy and the
 list of `Change` records; `changes_rows` / `changes_csv` turn them into ``ground_truth/changes.csv``
 (docs/waresynth.md, "Rescans"), `location_change_rows` / `location_changes_csv` the per-location counts before and
-after into ``ground_truth/location_changes.csv`` (`layouts.location_changes`). Rates (`waresynth.building_schema.CHANGE_DEFAULTS`) are shares of the
+after into ``ground_truth/location_changes.csv`` (`layouts.location_changes`). Rates (`waresynth.building.schema.CHANGE_DEFAULTS`) are shares of the
 building's stacks before the changes: ``round(rate x stacks)`` stacks are removed, moved, shifted and replaced
 (each stack at most once), and ``round(added x stacks)`` new stacks added. A change that finds no room (a move with no location to take it, a shift with no
 free length along its position) is left out, so the counts are at most the rates'. Everything is drawn from
@@ -28,9 +28,9 @@ import numpy as np
 from layouts.errors import InputError
 from layouts.location_changes import TRUTH_COLUMNS, UNCHANGED, count_change
 from layouts.locations import rows_csv
-from waresynth.building import Building, Face
-from waresynth.building_schema import CHANGE_DEFAULTS, change_rates
-from waresynth.building_truth import board_positions, box_id, ground_truth, location_code, position_of
+from waresynth.building.plan import Building, Face
+from waresynth.building.schema import CHANGE_DEFAULTS, change_rates
+from waresynth.building.truth import board_positions, box_id, ground_truth, location_code, position_of
 from waresynth.draws import choice, colour, uniform
 from waresynth.row_plan import RackPlan, StackPlan, clear_heights
 from waresynth.scene import PATTERNS, Material
@@ -184,7 +184,7 @@ def _draw_stack(rng: np.random.Generator, building: Building, b: Board, cfg: dic
 def apply_changes(
     building: Building, rates: dict[str, float] | None, seed: int, cfg: dict[str, Any] | None = None
 ) -> tuple[Building, list[Change]]:
-    """``(changed copy of building, changes)``: ``rates`` (`waresynth.building_schema.change_rates`) applied by a generator seeded by
+    """``(changed copy of building, changes)``: ``rates`` (`waresynth.building.schema.change_rates`) applied by a generator seeded by
     ``seed``; ``cfg`` the generator config the building was planned with (None: the default), for the sizes,
     looks and head room of new boxes. ``building`` is left as it was; the passes are copied unchanged."""
     from waresynth.config import load_config

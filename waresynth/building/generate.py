@@ -1,14 +1,14 @@
-"""``mvracklay generate OUT --building [FILE]``: every pass of a planned building (`waresynth.building`) as a
+"""``mvracklay generate OUT --building [FILE]``: every pass of a planned building (`waresynth.building.plan`) as a
 sequence of a WareSynth dataset, with the route record and the building's ground truth.
 
 ``OUT`` is a WareSynth dataset (manifest.json, one folder per pass, all in the test split; every reader of a
 dataset reads it) plus ``OUT/route.json`` (`waresynth.building.route`) and ``OUT/ground_truth/building.json``
-and ``inventory.csv`` (`waresynth.building_truth`), and ``OUT/locations.csv``: the location list a warehouse
+and ``inventory.csv`` (`waresynth.building.truth`), and ``OUT/locations.csv``: the location list a warehouse
 management system would export (`layouts.location_list`: codes and spans, no contents). As for any dataset, the same seed and configs give the same
 bytes whatever the worker count, and a re-run skips the complete passes.
 
-``rescan=OUT`` writes the same building after a seeded change set (`waresynth.building_changes`), scanned by
-passes and cameras of its own (`waresynth.building_rescan`), with ``ground_truth/changes.csv`` and
+``rescan=OUT`` writes the same building after a seeded change set (`waresynth.building.changes`), scanned by
+passes and cameras of its own (`waresynth.building.rescan`), with ``ground_truth/changes.csv`` and
 ``location_changes.csv`` beside the rest and ``rescan_of`` in the manifest; the same seed and OUT give the same bytes.
 """
 
@@ -25,17 +25,17 @@ from layouts.locations import inventory_csv
 from layouts.publish import refuse_overlap
 from layouts.spec import LayoutSpec
 from layouts.tasks import TaskMap
-from waresynth.building import Building, pass_row, plan_building, replan_passes, route
-from waresynth.building_changes import (
+from waresynth.building.changes import (
     apply_changes,
     changes_csv,
     changes_rows,
     location_change_rows,
     location_changes_csv,
 )
-from waresynth.building_rescan import open_rescan, pass_seed
-from waresynth.building_schema import load_building
-from waresynth.building_truth import ground_truth
+from waresynth.building.plan import Building, pass_row, plan_building, replan_passes, route
+from waresynth.building.rescan import open_rescan, pass_seed
+from waresynth.building.schema import load_building
+from waresynth.building.truth import ground_truth
 from waresynth.config import load_config
 from waresynth.dataset import DATASET_FORMAT, DATASET_VERSION
 from waresynth.generate import check_writer_args, write_dataset
@@ -77,10 +77,10 @@ def generate_building(
     tasks: TaskMap | None = None,
 ) -> Path:
     """Generate (or resume) a building's passes in ``out_dir``; returns its path. ``building``: the building
-    config (a dict, a JSON file or None for `waresynth.building_schema.BUILDING_DEFAULTS`); ``config``: the
+    config (a dict, a JSON file or None for `waresynth.building.schema.BUILDING_DEFAULTS`); ``config``: the
     generator config, as for `waresynth.generate.generate_dataset`; ``image_size`` None: 256 x 256.
     ``rescan``: a building dataset to scan again after changes (its racks, configs, spec and image size; the
-    options given must agree with them, `waresynth.building_rescan.open_rescan`; ``spec`` may then be a dict of
+    options given must agree with them, `waresynth.building.rescan.open_rescan`; ``spec`` may then be a dict of
     the spec's fields given, e.g. ``{"size": 64}``); ``tasks``: where the passes
     are written (`waresynth.generate.write_dataset`)."""
     if rescan is not None:

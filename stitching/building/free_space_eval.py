@@ -1,7 +1,7 @@
 """Where `free-space --box` offers a box, checked against a generated building's ground truth
-(``ground_truth/building.json``, `waresynth.building_truth`).
+(``ground_truth/building.json``, `waresynth.building.truth`).
 
-An offered placement (`stitching.building_free.LocationFit`: a location and ranges of building X for the box's
+An offered placement (`stitching.building.free.LocationFit`: a location and ranges of building X for the box's
 centre) *fits* when its location is one of the ground truth's and, for every centre in its ranges, the box's
 extent along X (``along_x``, without the margin) lies on that location's level between the inner faces of its
 bay's two upright frames (the ground truth's ``uprights``; where a ground truth lacks them, the usable board:
@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from layouts.errors import InputError
-from stitching.building_eval import truth_stacks
-from stitching.building_free import LocationFit
+from stitching.building.eval import truth_stacks
+from stitching.building.free import LocationFit
 
 EPS = 1e-6  #: metres of overlap below which a box still fits (rounding of the ground truth's numbers)
 

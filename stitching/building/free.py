@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
-from stitching.building_map import BuildingMap
+from stitching.building.map import BuildingMap
 from stitching.free_space import edge_slack, fits, rack_of, shelf_free_space
 
 

@@ -2,7 +2,7 @@
 named by location code, facts in their extras) and ``building.rrd`` (each pass on its own entity path and
 timeline, then the fused building).
 
-Both in the building frame (`stitching.building_map`): glTF gets (x, -y, -z) as for a row map; Rerun the frame
+Both in the building frame (`stitching.building.map`): glTF gets (x, -y, -z) as for a row map; Rerun the frame
 as it is (right / down / forward, ``ViewCoordinates.RDF``).
 """
 
@@ -12,7 +12,7 @@ import os
 from dataclasses import replace
 from typing import Any
 
-from stitching.building_map import BuildingMap, FaceMap
+from stitching.building.map import BuildingMap, FaceMap
 from stitching.export_gltf import Part, scene_parts, write_parts_glb
 from stitching.geometry import Cuboid
 from stitching.warehouse_map import WarehouseMap

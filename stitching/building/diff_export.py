@@ -12,9 +12,9 @@ import os
 
 import numpy as np
 
-from stitching.building_diff import BuildingDiff, Change
-from stitching.building_export import building_parts
-from stitching.building_map import BuildingMap
+from stitching.building.diff import BuildingDiff, Change
+from stitching.building.export import building_parts
+from stitching.building.map import BuildingMap
 from stitching.export_gltf import Part, write_parts_glb
 from stitching.geometry import Cuboid
 
@@ -157,8 +157,8 @@ def write_changes(
     and (``rrd``) ``changes.rrd`` in ``out``, each atomically; returns their names."""
     from layouts.fileio import atomic_write_json, atomic_write_text
     from layouts.locations import rows_csv
-    from stitching.building_diff import CHANGE_COLUMNS, LOCATION_COLUMNS
-    from stitching.building_schema import check_changes
+    from stitching.building.diff import CHANGE_COLUMNS, LOCATION_COLUMNS
+    from stitching.building.schema import check_changes
 
     os.makedirs(out, exist_ok=True)
     rows = d.rows()

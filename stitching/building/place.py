@@ -1,7 +1,7 @@
 """Place each pass's row map on its rack face: by its route pose, then refined where passes overlap.
 
 A pass's row map (`WarehouseMap`: X from its first camera along the camera's right, Z about the rack's mid-depth,
-Y from its lowest slot's board) goes into its face's frame (`stitching.building_map`) as follows:
+Y from its lowest slot's board) goes into its face's frame (`stitching.building.map`) as follows:
 
 * **Z**: the racks' front (the median of its shelves' front edges) on the face's front line from the floor
   plan; rack rows are straight, so a pass's heading only has to pick the face (within `MAX_HEADING_OFF`).
@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from layouts.errors import InputError
-from stitching.building_route import FacePlan, PassPose
+from stitching.building.route import FacePlan, PassPose
 from stitching.uprights import Upright
 from stitching.warehouse_map import WarehouseMap, cut_sides
 

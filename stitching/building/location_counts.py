@@ -25,8 +25,8 @@ from pydantic import BaseModel, ConfigDict, Field, StrictStr, ValidationError
 from layouts.errors import InputError, first_problem
 from layouts.location_changes import LOCATION_CHANGES
 from layouts.locations import NOT_SCANNED
-from stitching.building_map import BuildingMap
-from stitching.building_schema import _refuse
+from stitching.building.map import BuildingMap
+from stitching.building.schema import _refuse
 
 EXCEPTIONS = ("count differs", "not scanned", "missing from the map", "not in the WMS")
 EXCEPTION_COLUMNS = ("location", "exception", "expected", "counted", "confidence", "recount")

@@ -4,7 +4,7 @@ that scan the faces (long faces in overlapping passes, some faces twice).
 Building frame (docs/waresynth.md, "Buildings"): metres, X along the aisles, Y down (floor Y = 0), Z across them.
 Aisle ``a`` (from 1) has a face on each side: ``L`` at its lower Z, ``R`` at its higher Z; rows of two
 aisles stand back to back. Bays are numbered from 1 along +X on both sides, from the rack positions alone, so
-a bay's number (and location code, `waresynth.building_truth`) is the same in every scan. A face's row is
+a bay's number (and location code, `waresynth.building.truth`) is the same in every scan. A face's row is
 planned in its own row frame (X along the face, the camera looking +Z at its front, Z = 0): for an R face
 building = (x, y, front + z), for an L face building = (-x, y, front - z) (a half turn about Y).
 Every random choice comes from the building's seed: the face plans from one stream per face, each pass's
@@ -22,10 +22,10 @@ import numpy as np
 
 from layouts.camera import Intrinsics
 from layouts.errors import InputError
+from waresynth.building.rack_build import face_kind, lay_bays, rack_ends
 from waresynth.config import draw_hfov
 from waresynth.draws import uniform
 from waresynth.generate import sequence_seeds
-from waresynth.rack_build import face_kind, lay_bays, rack_ends
 from waresynth.row_plan import CameraPlan, RackPlan, RowPlan, visible_levels
 from waresynth.scene_builder import (
     sample_levels,
@@ -62,7 +62,7 @@ class Face:
     front_z: float
     bays: list[tuple[float, float]]  #: bay b (from 1) spans bays[b - 1] along building X
     row: RowPlan  #: in the face's row frame, racks ``rack_BB`` (BB = bay) in row-frame X order
-    build: str = "apart"  #: how its racks are built (`waresynth.rack_build.KINDS`)
+    build: str = "apart"  #: how its racks are built (`waresynth.building.rack_build.KINDS`)
 
     @property
     def sign(self) -> float:
@@ -101,7 +101,7 @@ def _face_row(rng: np.random.Generator, cfg: dict[str, Any], bcfg: dict[str, Any
               bays: list[tuple[float, float]], depth: float, kind: str = "apart",
               touch: list[bool] | None = None) -> RowPlan:  # fmt: skip
     """The face's row: levels, uprights, density, materials and every bay's stacks, drawn in bay order
-    (``kind`` and ``touch``: how its racks are built, `waresynth.rack_build.lay_bays`)."""
+    (``kind`` and ``touch``: how its racks are built, `waresynth.building.rack_build.lay_bays`)."""
     levels, thickness, top = sample_levels(rng, {**cfg, "rack": {**cfg["rack"], "levels": bcfg["levels"]}})
     density, preset, rack_mat, board_mat, uw = sample_row_look(rng, cfg)
     row = RowPlan(levels, thickness, top, depth, uw, density, preset, rack_mat, board_mat)

@@ -6,7 +6,7 @@ format (default ``{aisle:02d}-{side}-{bay:02d}-{level:02d}``, e.g. ``01-L-03-02`
 the floor, positions from 1 along +X (a level's usable length cut in ``positions`` equal parts; a box belongs
 to the position holding its stack's centre). Codes come from the rack positions alone, never from what a pass
 saw, so they are the same in every scan. Each rack records its span (its location column: its own uprights
-whole, half of a frame it shares, `waresynth.rack_build`) and its two upright frames' X ranges (``uprights``);
+whole, half of a frame it shares, `waresynth.building.rack_build`) and its two upright frames' X ranges (``uprights``);
 ``racking`` lists each face's build and every upright frame along it once, lowest X first.
 """
 
@@ -16,7 +16,7 @@ import math
 from typing import Any
 
 from layouts.locations import covered_length, location_code
-from waresynth.building import Building, Face
+from waresynth.building.plan import Building, Face
 from waresynth.row_plan import RackPlan, clear_heights
 
 

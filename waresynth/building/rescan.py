@@ -23,10 +23,10 @@ import numpy as np
 from layouts.errors import InputError
 from layouts.fileio import load_json
 from layouts.spec import LayoutSpec
-from waresynth.building import Building, plan_building
-from waresynth.building_changes import apply_changes
-from waresynth.building_schema import RACK_KEYS, change_rates, load_building
-from waresynth.building_truth import ground_truth
+from waresynth.building.changes import apply_changes
+from waresynth.building.plan import Building, plan_building
+from waresynth.building.schema import RACK_KEYS, change_rates, load_building
+from waresynth.building.truth import ground_truth
 from waresynth.config import load_config
 
 #: the generator config's sections the racks and stacks are drawn from: a rescan keeps them

@@ -1,5 +1,5 @@
 """A building map against a generated building's ground truth (``ground_truth/building.json`` and
-``inventory.csv``, `waresynth.building_truth`).
+``inventory.csv``, `waresynth.building.truth`).
 
 * **Locations**: those some pass's layouts held (the ground truth's ``pass`` column not empty) are counted;
   one is *exact* when the map has its code, scanned, with the same number of boxes (stacks). A map location
@@ -21,8 +21,8 @@ from scipy.optimize import linear_sum_assignment
 
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED
-from stitching.building_map import BuildingMap
-from stitching.building_schema import check_change_rows, check_inventory, check_truth
+from stitching.building.map import BuildingMap
+from stitching.building.schema import check_change_rows, check_inventory, check_truth
 from stitching.geometry import Cuboid, iou_matrix
 
 
