@@ -1,4 +1,4 @@
-"""``mvracklay map``: many passes -> one building map (`stitching.building.fuse_passes`), its inventory and scenes.
+"""``mvracklay map``: many passes -> one building map (`stitching.building.pipeline`), its inventory and scenes.
 
 Input: a folder holding ``route.json`` (a generated building, `mvracklay generate --building`) or a route file
 of one's own (`stitching.building.route`): each pass's ``sequence`` names its sequence folder, image folder or
@@ -23,6 +23,7 @@ import json
 import os
 import re
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,7 @@ from layouts.fileio import atomic_write_json, load_json
 from layouts.location_list import ListedLocation, read_location_list
 from layouts.locations import DEFAULT_CODE, check_code_format
 from layouts.publish import lock, refuse_overlap, staged
+from stitching.building.config import BuildingConfig
 from stitching.building.map import BuildingMap, write_inventory
 from stitching.building.route import Route, load_route, perturb
 from stitching.warehouse_map import WarehouseMap
@@ -65,6 +67,50 @@ class BuildingResult:
     inventory: list[dict[str, Any]]
     written: list[str] = field(default_factory=list)  #: the outputs' file names, in MAP
     worker_peak_mb: float = 0.0  #: the most memory a process mapping a pass held (0: none mapped)
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """What a building map is made from (`map_building`).
+
+    ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network; ``run``:
+    `mvracklay.settings.RunConfig` fields, e.g. ``checkpoint``); ``pose_noise``: (metres, degrees) added to the
+    route's poses, seeded by ``seed``; ``code`` / ``positions``: the location code format and positions per
+    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1); ``locations``: a
+    location list or an earlier map whose codes the map takes (`load_locations`); ``building``: how passes are
+    placed, registered and fused (`stitching.building.config.BuildingConfig`)."""
+
+    layouts: str = "net"
+    run: Mapping[str, Any] = field(default_factory=dict)
+    pose_noise: tuple[float, float] | None = None
+    seed: int = 0
+    code: str | None = None
+    positions: int | None = None
+    locations: str | os.PathLike | None = None
+    building: BuildingConfig = field(default_factory=BuildingConfig)
+
+    def __post_init__(self) -> None:
+        if self.layouts not in ("gt", "net"):
+            raise InputError(f"--layouts must be 'gt' or 'net', got {self.layouts!r}")
+        if not isinstance(self.building, BuildingConfig):
+            raise InputError(f"MapSettings.building must be a BuildingConfig, got {type(self.building).__name__}")
+
+
+@dataclass(frozen=True)
+class MapJob:
+    """How `map_building` runs and what it writes: ``workers`` local processes or a Ray cluster at ``ray`` map
+    the passes; ``rrd``: write building.rrd; ``progress``: bars and the closing line on stderr; ``overwrite``:
+    write into an ``out`` holding other files (only the map's outputs there are replaced)."""
+
+    workers: int = 1
+    ray: str | None = None
+    rrd: bool = True
+    progress: bool = True
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise InputError(f"--workers must be >= 1, got {self.workers}")
 
 
 def resolve_route(path: str | os.PathLike) -> tuple[Route, Path]:
@@ -146,17 +192,14 @@ def map_pass(task: PassTask) -> float:
     returns the peak memory (MB) of the process that mapped it. Runs in a worker process or a Ray task."""
     out = Path(task.out)
     if task.layouts == "gt":
-        from layouts.codecs import LayoutFolder
         from mvracklay.reconstruction import gt_upright_columns, resolve_layouts
-        from stitching.pipeline import Stitcher
+        from stitching.pipeline import stitch_folder
 
-        folder: LayoutFolder = resolve_layouts(Path(task.source), "gt")
-        stitcher = Stitcher(folder.spec)
+        folder = resolve_layouts(Path(task.source), "gt")
         ups = gt_upright_columns(Path(task.source), folder.spec.size, folder.spec.x_extent)
-        for i in folder.indices():
-            stitcher.push(folder.read(i), i, uprights=ups.get(i))
+        done = stitch_folder(folder, uprights=ups, meta={"layouts": "gt", "source": task.source})
         with staged(out, ("warehouse.json", PASS_RECORD)) as st:
-            stitcher.map(None, {"layouts": "gt", "source": task.source}).save(st / "warehouse.json")
+            done.map.save(st / "warehouse.json")
             _record(task, st)
     else:
         from mvracklay.frames import open_source
@@ -238,45 +281,29 @@ def check_map_out(out: Path, source: str | os.PathLike, tasks: list[PassTask], r
 def map_building(
     source: str | os.PathLike,
     out: str | os.PathLike,
-    *,
-    layouts: str = "net",
-    run: dict[str, Any] | None = None,
-    pose_noise: tuple[float, float] | None = None,
-    seed: int = 0,
-    code: str | None = None,
-    positions: int | None = None,
-    workers: int = 1,
-    ray: str | None = None,
-    rrd: bool = True,
-    progress: bool = True,
-    overwrite: bool = False,
-    locations: str | os.PathLike | None = None,
+    settings: MapSettings | None = None,
+    job: MapJob | None = None,
 ) -> BuildingResult:
-    """Map every pass of the route at ``source`` into ``out`` and fuse them (see the module docstring).
-
-    ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network; ``run``:
-    `mvracklay.settings.RunConfig` fields, e.g. ``checkpoint``); ``pose_noise``: (metres, degrees) added to the
-    route's poses, seeded by ``seed``; ``code`` / ``positions``: the location code format and positions per
-    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1); ``overwrite``: write
-    into an ``out`` holding other files (only the map's outputs there are replaced); ``locations``: a location
-    list or an earlier map whose codes the map takes (`load_locations`)."""
+    """Map every pass of the route at ``source`` into ``out`` and fuse them (see the module docstring): what the
+    map is made from by ``settings``, how it runs and what it writes by ``job``."""
     from mvracklay.parallel import run_tasks
     from stitching.building.export import export_building_glb, write_building_rrd
-    from stitching.building.fuse_passes import check_listed, fuse_building
-    from stitching.building.place import place_pass
+    from stitching.building.fuse_passes import check_listed
+    from stitching.building.pipeline import build_map
 
-    if layouts not in ("gt", "net"):
-        raise InputError(f"--layouts must be 'gt' or 'net', got {layouts!r}")
+    settings, job = settings or MapSettings(), job or MapJob()
+    layouts, pose_noise = settings.layouts, settings.pose_noise
     route, base = resolve_route(source)
     bcfg = building_config(base)
-    code = code or bcfg.get("code") or DEFAULT_CODE
-    positions = int(positions or bcfg.get("positions") or 1)
+    code = settings.code or bcfg.get("code") or DEFAULT_CODE
+    positions = int(settings.positions or bcfg.get("positions") or 1)
     check_code_format(code, positions)
+    locations = settings.locations
     listed, listed_source = load_locations(locations) if locations is not None else (None, "")
     if listed is not None:
         check_listed(listed, route, listed_source)
     out = Path(out)
-    run = dict(run or {})
+    run = dict(settings.run)
     model = None
     if layouts == "net":
         run.setdefault("rrd", False)
@@ -290,22 +317,23 @@ def map_building(
         else:
             model = str(run["checkpoint"])
     tasks = pass_tasks(route, base, out, layouts, run)
-    check_map_out(out, source, tasks, run, overwrite)
+    check_map_out(out, source, tasks, run, job.overwrite)
+    progress, rrd = job.progress, job.rrd
     with lock(out, make=True):  # the passes are written into MAP/passes before the building is published
         todo = [t for t in tasks if not _done(t)]
         peak = 0.0
-        for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=workers, ray=ray,
+        for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=job.workers, ray=job.ray,
                                progress="map passes" if progress else None):  # fmt: skip
             peak = max(peak, mb)
         if pose_noise is not None:
-            route = perturb(route, pose_noise[0], pose_noise[1], seed)
+            route = perturb(route, pose_noise[0], pose_noise[1], settings.seed)
         maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
-        placed = [place_pass(pose, route.faces[pose.key], maps[pose.sequence]) for pose in route.passes]
         meta = {
             "source": str(source), "layouts": layouts, "passes": len(tasks),
-            "pose_noise": list(pose_noise) if pose_noise else None, "seed": seed,
+            "pose_noise": list(pose_noise) if pose_noise else None, "seed": settings.seed,
         } | ({"model": model} if model else {})  # fmt: skip
-        bmap = fuse_building(route, placed, code, positions, meta=meta, listed=listed, listed_source=listed_source)
+        bmap = build_map(route, maps, settings.building, code=code, positions=positions, meta=meta, listed=listed,
+                         listed_source=listed_source)  # fmt: skip
         with staged(out, OUTPUTS, locked=False) as st:  # the building's files swapped in whole
             bmap.save(st / "building.json")
             export_building_glb(bmap, st / "building.glb")

@@ -6,7 +6,6 @@ stitching settings (`stitch_settings`) and the stitched map written with its rec
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -106,34 +105,32 @@ def reconstruct_folder(
 
     from stitching import rerun_log
     from stitching.export_gltf import export_glb
-    from stitching.pipeline import Stitcher
+    from stitching.pipeline import stitch_folder
     from stitching.warehouse_map import camera_in_map
 
     origin, cam_y, cam_z = camera_in_map(seq.frame(indices[0])) if seq is not None else (None, None, None)
-    stitcher = Stitcher(folder.spec, config)
     rec = None
     if rrd:
         rec = rerun_log.start("mvracklay-reconstruct", save=out / "warehouse.rrd", num_slots=folder.spec.num_slots)
     path = []
-    t_stitch = 0.0
-    for i in tqdm(indices, desc="reconstruct", unit="frame", disable=not progress, file=sys.stderr):
-        fl = folder.read(i)
-        t0 = time.perf_counter()
-        frame_rec, step = stitcher.push(fl, i)
-        t_stitch += time.perf_counter() - t0
-        if rec is not None:
-            path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
-            frame_rgb = None
-            if seq is not None and log_rgb and seq.rgb_path(i).is_file():
-                frame_rgb = seq.rgb(i)
-            rerun_log.log_frame(rec, i, fl, frame_rec, step.offset, frame_rgb, path)
-            if (len(path) - 1) % map_every == 0 or i == indices[-1]:
-                rerun_log.log_map(rec, stitcher.map(), i, folder.spec.num_slots)
+
+    def log(i, fl, frame_rec, step, stitcher) -> None:
+        path.append(rerun_log.camera_point(step.offset, cam_y, cam_z))
+        frame_rgb = None
+        if seq is not None and log_rgb and seq.rgb_path(i).is_file():
+            frame_rgb = seq.rgb(i)
+        rerun_log.log_frame(rec, i, fl, frame_rec, step.offset, frame_rgb, path)
+        if (len(path) - 1) % map_every == 0 or i == indices[-1]:
+            rerun_log.log_map(rec, stitcher.map(), i, folder.spec.num_slots)
+
     meta = {"layouts": str(folder.root), "frames": len(indices), "spec": folder.spec.to_dict()}
-    wmap = stitcher.map(origin, meta)
-    wmap.save(out / "warehouse.json")
-    export_glb(wmap, out / "warehouse.glb")
+    steps = tqdm(indices, desc="reconstruct", unit="frame", disable=not progress, file=sys.stderr)
+    done = stitch_folder(
+        folder, steps, config, on_frame=log if rec is not None else None, origin_world=origin, meta=meta
+    )
+    done.map.save(out / "warehouse.json")
+    export_glb(done.map, out / "warehouse.glb")
     if rec is not None:
         rec.flush()
         rec.disconnect()
-    return wmap, t_stitch
+    return done.map, done.seconds

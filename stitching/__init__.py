@@ -10,7 +10,9 @@ from importlib import import_module
 #: where each name of `__all__` lives, imported on first use (a free-space query reads a map without loading
 #: the image-processing code)
 _WHERE = {
-    **dict.fromkeys(("Reconstruction", "StitchConfig", "Stitcher", "folder_frames", "reconstruct"), "pipeline"),
+    **dict.fromkeys(
+        ("Reconstruction", "StitchConfig", "Stitcher", "folder_frames", "reconstruct", "stitch_folder"), "pipeline"
+    ),
     **dict.fromkeys(("MapBox", "MapRack", "MapShelf", "StepRecord", "WarehouseMap"), "warehouse_map"),
 }
 
@@ -32,4 +34,5 @@ __all__ = [
     "WarehouseMap",
     "folder_frames",
     "reconstruct",
+    "stitch_folder",
 ]

@@ -4,13 +4,14 @@
 >>> result.map.save("warehouse.json")           # doctest: +SKIP
 
 ``frames`` yields `layouts.codecs.FrameLayouts` (or ``(top, front)`` / ``(top, front, visible)``
-tuples); a `layouts.codecs.LayoutFolder` is read with `folder_frames`. Frames are processed one
+tuples); a `layouts.codecs.LayoutFolder` is stitched with `stitch_folder`. Frames are processed one
 at a time and not kept (streaming); ``on_frame`` sees each frame's reconstruction and step.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,6 +64,7 @@ class StitchConfig:
 class Reconstruction:
     map: WarehouseMap
     frames: int
+    seconds: float = 0.0  #: time spent stitching (detect, lift, register, merge), not reading or ``on_frame``
 
 
 FrameInput = FrameLayouts | tuple
@@ -155,24 +157,51 @@ class Stitcher:
         return self.builder.build(origin_world, meta)
 
 
+#: what `reconstruct` calls after each frame: its index, layouts, reconstruction, step and the stitcher so far
+OnFrame = Callable[[int, FrameLayouts, FrameReconstruction, StepRecord, Stitcher], None]
+
+
 def reconstruct(
     frames: Iterable[FrameInput] | Iterable[tuple[int, FrameLayouts]],
     spec: LayoutSpec,
     config: StitchConfig | None = None,
-    on_frame: Callable[[int, FrameLayouts, FrameReconstruction, StepRecord, Stitcher], None] | None = None,
+    on_frame: OnFrame | None = None,
     origin_world: tuple[float, float, float] | None = None,
     meta: dict | None = None,
     indexed: bool = False,
+    uprights: Mapping[int, np.ndarray] | None = None,
 ) -> Reconstruction:
-    """Stitch a sequence of layouts into a `WarehouseMap` (``indexed``: items are ``(index, frame)``)."""
+    """Stitch a sequence of layouts into a `WarehouseMap` (``indexed``: items are ``(index, frame)``);
+    ``uprights``: by frame index, the layout columns showing a front upright (`Stitcher.push`)."""
     st = Stitcher(spec, config)
+    seconds = 0.0
     for i, item in enumerate(frames):
         idx, fr = (item[0], item[1]) if indexed else (i, item)
         fl = _as_frame(fr, idx)
-        rec, step = st.push(fl, idx)
+        t0 = time.perf_counter()
+        rec, step = st.push(fl, idx, uprights=uprights.get(idx) if uprights else None)
+        seconds += time.perf_counter() - t0
         if on_frame is not None:
             on_frame(idx, fl, rec, step, st)
-    return Reconstruction(st.map(origin_world, meta), st.count)
+    return Reconstruction(st.map(origin_world, meta), st.count, seconds)
+
+
+def stitch_folder(
+    folder: LayoutFolder,
+    indices: Iterable[int] | None = None,
+    config: StitchConfig | None = None,
+    *,
+    on_frame: OnFrame | None = None,
+    origin_world: tuple[float, float, float] | None = None,
+    meta: dict | None = None,
+    uprights: Mapping[int, np.ndarray] | None = None,
+) -> Reconstruction:
+    """The layouts a folder holds (at ``indices``, default all, in that order) stitched into a map: `reconstruct`
+    over `folder_frames`."""
+    if not isinstance(folder, LayoutFolder):
+        raise InputError(f"folder must be a LayoutFolder, got {type(folder).__name__}")
+    frames = folder_frames(folder, indices)
+    return reconstruct(frames, folder.spec, config, on_frame, origin_world, meta, indexed=True, uprights=uprights)
 
 
 def frame_arrays(top: np.ndarray, front: np.ndarray, visible: np.ndarray | None = None) -> list[FrameLayouts]:

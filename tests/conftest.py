@@ -143,9 +143,9 @@ def tiny_building(tmp_path_factory) -> Path:
 def tiny_building_map(tiny_building, tmp_path_factory) -> Path:
     """`tiny_building` mapped from its ground-truth layouts (`mvracklay map --layouts gt`): the MAP folder (once per
     run, shared, read only)."""
-    from mvracklay.building_job import map_building
+    from mvracklay.building_job import MapJob, MapSettings, map_building
 
     with _shared(tmp_path_factory, "tiny_building_map") as (root, made):
         if not made:
-            map_building(tiny_building, root / "m", layouts="gt", progress=False)
+            map_building(tiny_building, root / "m", MapSettings(layouts="gt"), MapJob(progress=False))
     return root / "m"

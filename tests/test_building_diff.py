@@ -16,7 +16,7 @@ from conftest import TINY_BUILDING
 
 from layouts.location_changes import LOCATION_CHANGES, count_change
 from layouts.locations import NOT_SCANNED, read_rows
-from mvracklay.building_job import map_building
+from mvracklay.building_job import MapJob, MapSettings, map_building
 from mvracklay.cli import main
 from stitching.building.diff import CHANGES, LOCATION_COLUMNS, diff_buildings, format_diff
 from stitching.building.eval import evaluate_changes
@@ -38,7 +38,7 @@ def _rescan(old: Path, out: Path, seed: int, rates: dict) -> Path:
 def scans(tiny_building, tiny_building_map, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("scans")
     changed = _rescan(tiny_building, root / "changed", 11, RATES)
-    map_building(changed, root / "changed_map", layouts="gt", rrd=False, progress=False)
+    map_building(changed, root / "changed_map", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False))
     return {"old": tiny_building_map, "new": root / "changed_map", "truth": changed / "ground_truth/changes.csv",
             "root": root, "old_data": tiny_building, "new_data": changed}  # fmt: skip
 
@@ -65,10 +65,18 @@ def test_every_category_found(scans):
 
 
 def test_pose_noise_on_both_scans(scans, tmp_path):
-    old = map_building(scans["old_data"], tmp_path / "o", layouts="gt", pose_noise=(0.3, 3.0), seed=5, rrd=False,
-                       progress=False).map  # fmt: skip
-    new = map_building(scans["new_data"], tmp_path / "n", layouts="gt", pose_noise=(0.3, 3.0), seed=6, rrd=False,
-                       progress=False).map  # fmt: skip
+    old = map_building(
+        scans["old_data"],
+        tmp_path / "o",
+        MapSettings(layouts="gt", pose_noise=(0.3, 3.0), seed=5),
+        MapJob(rrd=False, progress=False),
+    ).map
+    new = map_building(
+        scans["new_data"],
+        tmp_path / "n",
+        MapSettings(layouts="gt", pose_noise=(0.3, 3.0), seed=6),
+        MapJob(rrd=False, progress=False),
+    ).map
     scores = evaluate_changes(diff_buildings(old, new).rows(), _truth(scans["truth"]))
     assert all(s["precision"] >= 0.95 and s["recall"] >= 0.95 for s in scores.values()), scores
 
@@ -76,7 +84,9 @@ def test_pose_noise_on_both_scans(scans, tmp_path):
 def test_a_rescan_without_changes_keeps_the_codes_and_reports_nothing(scans):
     quiet = _rescan(scans["old_data"], scans["root"] / "same", 12, {k: 0.0 for k in RATES})
     assert len(_truth(quiet / "ground_truth/changes.csv")) == 0
-    new = map_building(quiet, scans["root"] / "same_map", layouts="gt", rrd=False, progress=False).map
+    new = map_building(
+        quiet, scans["root"] / "same_map", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False)
+    ).map
     old = _load(scans["old"])
     # another scan (new passes, cameras, distances): the same codes for the same racks
     assert [t[2].code for t in new.locations()] == [t[2].code for t in old.locations()]

@@ -12,12 +12,14 @@ import pytest
 
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED, read_inventory
-from mvracklay.building_job import map_building
+from mvracklay.building_job import MapJob, MapSettings, map_building
 from mvracklay.cli import main
+from stitching.building.config import BuildingConfig, FuseConfig, PlaceConfig
 from stitching.building.eval import evaluate_building
 from stitching.building.fuse_passes import fuse_building
 from stitching.building.map import BuildingMap
-from stitching.building.place import place_pass
+from stitching.building.pipeline import build_map
+from stitching.building.place import place_pass, register
 from stitching.building.route import load_route, parse_pose_noise, perturb
 from stitching.export_gltf import glb_json
 from stitching.rerun_log import read_entities
@@ -41,6 +43,12 @@ def _truth(building: Path) -> tuple[dict, list[dict]]:
 
 def _score(building: Path, bmap: BuildingMap):
     return evaluate_building(bmap, *_truth(building))
+
+
+def _fuse(route, placed, **how) -> BuildingMap:
+    """The placed passes (`_placed`, changed by a test) registered and fused, as `build_map` does it."""
+    register(route, placed)
+    return fuse_building(route, placed, **how)
 
 
 def _placed(building: Path, mapped: Path, route=None):
@@ -73,7 +81,7 @@ def test_face_scanned_twice_is_not_doubled(building, mapped):
     r, placed = _placed(building, mapped)
     again = [replace(placed[0], pose=replace(placed[0].pose, sequence="again"))]
     r.passes.append(again[0].pose)
-    once, doubled = fuse_building(load_route(building / "route.json"), placed), fuse_building(r, placed + again)
+    once, doubled = _fuse(load_route(building / "route.json"), placed), _fuse(r, placed + again)
     assert once.box_count() == doubled.box_count()
 
 
@@ -81,7 +89,7 @@ def test_pose_noise_keeps_codes_and_counts(building, mapped, tmp_path):
     clean = BuildingMap.load(mapped / "building.json")
     for seed in (0, 1):
         route, placed = _placed(building, mapped, perturb(load_route(building / "route.json"), 0.3, 3.0, seed))
-        noisy = fuse_building(route, placed)
+        noisy = _fuse(route, placed)
         ev = _score(building, noisy)
         assert ev.exact == ev.locations and ev.invented == 0 and ev.recall == 1.0 and ev.precision == 1.0
         assert [t[2].code for t in noisy.locations()] == [t[2].code for t in clean.locations()]
@@ -113,7 +121,7 @@ def test_unseen_levels_are_not_scanned_never_empty(building, mapped):
     plan = route.faces[key]
     route.faces[key] = replace(plan, levels_m=plan.levels_m + (plan.levels_m[-1] + 0.9,))
     top = len(plan.levels_m) + 1
-    rows = [r for r in fuse_building(route, placed).inventory() if (r["aisle"], r["side"]) == key]
+    rows = [r for r in _fuse(route, placed).inventory() if (r["aisle"], r["side"]) == key]
     unseen = [r for r in rows if r["level"] == top]
     assert unseen and all(
         r["boxes"] == NOT_SCANNED and r["confidence"] == 0 and r["free_length_m"] == "" for r in unseen
@@ -130,7 +138,7 @@ def test_outputs_and_resume(building, mapped):
     entities = read_entities(mapped / "building.rrd")
     assert {"/building/boxes", "/building/shelves"} <= entities
     assert {f"/passes/{p.name}/camera" for p in bmap.passes} <= entities
-    again = map_building(building, mapped, layouts="gt", progress=False)
+    again = map_building(building, mapped, MapSettings(layouts="gt"), MapJob(progress=False))
     assert again.mapped == 0 and again.map.to_dict() == bmap.to_dict()
 
 
@@ -177,7 +185,9 @@ def test_a_route_file_of_ones_own(building, tmp_path):
         ],
     }  # fmt: skip
     (tmp_path / "route.json").write_text(json.dumps(route))
-    res = map_building(tmp_path / "route.json", tmp_path / "m", layouts="gt", rrd=False, progress=False)
+    res = map_building(
+        tmp_path / "route.json", tmp_path / "m", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False)
+    )
     assert len(res.map.faces) == 1 and res.map.box_count() > 0
     rows = {r["location"]: r for r in res.inventory}
     truth = {r["location"]: r for r in _truth(building)[1] if r["pass"]}
@@ -196,7 +206,7 @@ def test_location_list_gives_codes_and_every_row(building, mapped):
     listed = _listed(building)
     renamed = [replace(e, code=f"WH1.{k:04d}") for k, e in enumerate(listed)]
     route, placed = _placed(building, mapped)
-    bmap = fuse_building(route, placed, listed=renamed, listed_source="wms.csv")
+    bmap = _fuse(route, placed, listed=renamed, listed_source="wms.csv")
     rows = bmap.inventory()
     assert sorted(r["location"] for r in rows) == sorted(e.code for e in renamed)
     truth = {r["location"]: r for r in _truth(building)[1]}
@@ -224,7 +234,7 @@ def test_location_list_not_scanned_and_outside(building, mapped):
     face = placed[0].pose.key  # every pass of a face left out (each location of the tiny building has two)
     gone = {p.pose.sequence for p in placed if p.pose.key == face}
     route.passes = [p for p in route.passes if p.sequence not in gone]
-    bmap = fuse_building(route, [p for p in placed if p.pose.sequence not in gone], listed=listed)
+    bmap = _fuse(route, [p for p in placed if p.pose.sequence not in gone], listed=listed)
     rows = {r["location"]: r for r in bmap.inventory()}
     only_gone = [r["location"] for r in truth if r["pass"] and set(r["pass"].split(";")) <= gone]
     assert only_gone and all(rows[c]["boxes"] == NOT_SCANNED for c in only_gone)
@@ -234,7 +244,7 @@ def test_location_list_not_scanned_and_outside(building, mapped):
     held = next(e for e in listed if full[e.code]["pass"] and int(full[e.code]["boxes"]) > 0)
     gap = [e for e in listed if e.face != held.face or e.bay != held.bay]
     route, placed = _placed(building, mapped)
-    bmap = fuse_building(route, placed, listed=gap)
+    bmap = _fuse(route, placed, listed=gap)
     lost = [e for e in listed if e.face == held.face and e.bay == held.bay]
     want = sum(int(full[e.code]["boxes"]) for e in lost if full[e.code]["pass"])
     out = bmap.outside
@@ -285,11 +295,11 @@ def test_unseen_stretch_of_the_plan_gets_bays(building, mapped):
     """Without a list: a stretch of a face that the floor plan holds and no pass saw is bays of the face's
     typical length, `not scanned`, numbered in their place; the rest keep their codes and counts."""
     route, placed = _placed(building, mapped)
-    before = {r["location"]: r["boxes"] for r in fuse_building(route, placed).inventory()}
+    before = {r["location"]: r["boxes"] for r in _fuse(route, placed).inventory()}
     key = next(k for k in sorted(route.faces) if k[1] == "R")
     plan = route.faces[key]
     route.faces[key] = replace(plan, x_max=plan.x_max + 5.0)
-    rows = {r["location"]: r for r in fuse_building(route, placed).inventory()}
+    rows = {r["location"]: r for r in _fuse(route, placed).inventory()}
     added = {c: r for c, r in rows.items() if c not in before}
     assert {c: rows[c]["boxes"] for c in before} == before
     bays = sorted({r["bay"] for r in added.values()})
@@ -306,9 +316,47 @@ def test_a_box_taller_than_its_level_stands_within_it(building, mapped, tmp_path
     bx = rack.boxes[0]
     rack.boxes[0] = replace(bx, size=(bx.size[0], 3.0, bx.size[2]), rel=1.5)
     for listed in (None, _listed(building)):
-        bmap = fuse_building(route, placed, listed=listed)
+        bmap = _fuse(route, placed, listed=listed)
         bmap.save(tmp_path / "building.json")
         for _, shelf, _ in bmap.locations():
             for b in shelf.boxes:
                 assert b.size[1] <= shelf.clear_height + 1e-9
                 assert -b.center[1] - b.size[1] / 2 >= shelf.board_height - 1e-9
+
+
+def _maps(building: Path, mapped: Path):
+    route = load_route(building / "route.json")
+    return route, {
+        p.sequence: WarehouseMap.load(mapped / "passes" / p.sequence / "warehouse.json") for p in route.passes
+    }
+
+
+def test_one_call_places_registers_and_fuses(building, mapped):
+    """`build_map` from the route and the row maps is the building `mvracklay map` wrote; its settings reach the
+    steps: a registration that asks for more matches than any overlap has leaves the passes on their route poses,
+    and a box of one pass never the same as another's counts every box seen twice twice."""
+    saved = BuildingMap.load(mapped / "building.json")
+    route, maps = _maps(building, mapped)
+    how = {"code": saved.code, "positions": saved.positions, "meta": saved.meta}
+    assert build_map(route, maps, **how).to_dict() == saved.to_dict()
+    alone = build_map(route, maps, BuildingConfig(place=PlaceConfig(min_matches=10**6)), **how)
+    assert all(e["with"] not in maps for p in alone.passes for e in p.edges)
+    assert any(e["with"] in maps for p in saved.passes for e in p.edges)
+    doubled = build_map(route, maps, BuildingConfig(fuse=FuseConfig(same_box=2.0)), **how)
+    assert doubled.box_count() > saved.box_count()
+
+
+def test_building_settings_are_checked(building, mapped):
+    route, maps = _maps(building, mapped)
+    with pytest.raises(InputError, match=r"^FuseConfig.same_box must be a finite number >= 0, got -1"):
+        FuseConfig(same_box=-1)
+    with pytest.raises(InputError, match=r"^PlaceConfig.outlier must be a finite number >= 0, got nan"):
+        PlaceConfig(outlier=float("nan"))
+    with pytest.raises(InputError, match=r"^BuildingConfig.fuse must be a FuseConfig, got PlaceConfig"):
+        BuildingConfig(fuse=PlaceConfig())
+    with pytest.raises(InputError, match="no row map for pass"):
+        build_map(route, {k: v for k, v in list(maps.items())[1:]})
+    with pytest.raises(InputError, match=r"^--layouts must be 'gt' or 'net', got 'truth'"):
+        MapSettings(layouts="truth")
+    with pytest.raises(InputError, match=r"^--workers must be >= 1, got 0"):
+        MapJob(workers=0)

@@ -80,13 +80,14 @@ def test_the_schema_refuses_a_bad_flag(tiny_building_map):
 
 
 def test_passes_that_counted_a_location_differently_flag_it(tiny_building_map):
+    from stitching.building.config import FuseConfig
     from stitching.building.fuse_passes import _pass_counts
 
     box = SimpleNamespace()
     boxes = [(box, 1.2, ["a", "b"]), (box, 1.6, ["a"])]  # the second box only pass a found
     views = {"a": [(0.0, 3.0)], "b": [(0.5, 3.0)], "c": [(1.5, 3.0)]}
-    assert _pass_counts(boxes, ["a", "b", "c"], views, 1.0, 2.0) == {"a": 2, "b": 1}  # c held half of it
-    assert _pass_counts(boxes, ["a", "c"], views, 1.0, 2.0) == {}  # one whole view: nothing to compare
+    assert _pass_counts(boxes, ["a", "b", "c"], views, 1.0, 2.0, FuseConfig()) == {"a": 2, "b": 1}  # c held half of it
+    assert _pass_counts(boxes, ["a", "c"], views, 1.0, 2.0, FuseConfig()) == {}  # one whole view: nothing to compare
     bmap = BuildingMap.load(tiny_building_map / "building.json")
     f, shelf, loc = next(t for t in bmap.locations() if t[2].scanned)
     assert bmap.inventory()[0]["location"] == loc.code

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from layouts import BOX, SHELF, InputError, LayoutError, LayoutSpec
-from layouts.codecs import FrameLayouts
+from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.raster import fill_rect
 from stitching.detect import DetectConfig, detect_frame
 from stitching.lift import lift_frame
 from stitching.map_eval import covered_range, evaluate_map
-from stitching.pipeline import StitchConfig, Stitcher, frame_arrays, reconstruct
+from stitching.pipeline import StitchConfig, Stitcher, frame_arrays, reconstruct, stitch_folder
 from stitching.synthetic import degrade, make_sequence
 
 SPEC = LayoutSpec(size=128)
@@ -197,3 +197,27 @@ def test_a_bad_motion_estimate_is_refused(bad):
     st.push(seq.layouts[0], 0)
     with pytest.raises(LayoutError, match="motion"):
         st.push(seq.layouts[1], 1, motion=bad)
+
+
+def test_a_layout_folder_is_stitched_by_one_function(tmp_path):
+    """`stitch_folder`: the folder's frames in index order, as `reconstruct` stitches them in memory; the upright
+    columns given by frame index reach the stitcher; a folder that is not one is refused in one line."""
+    seq = make_sequence(seed=5, frames=12, spec=SPEC, density="moderate")
+    folder = LayoutFolder.create(tmp_path / "layouts", SPEC)
+    for i, fl in enumerate(seq.layouts):
+        folder.write(i, fl)
+    seen = []
+    got = stitch_folder(folder, on_frame=lambda i, *_: seen.append(i), meta={"from": "folder"})
+    want = reconstruct(seq.layouts, SPEC, meta={"from": "folder"})
+    assert got.map.to_dict() == want.map.to_dict() and got.frames == 12 and seen == list(range(12))
+    assert got.seconds > 0
+    assert stitch_folder(folder, [0, 1, 2]).frames == 3
+    end = seq.scene["racks"][0]["x_max"]  # an upright where the first rack ends, in every frame's view of it
+    ups = {}
+    for i, rec in enumerate(seq.frames):
+        c = int((end - rec["camera_position"][0] + SPEC.x_extent / 2) * SPEC.size / SPEC.x_extent)
+        ups[i] = np.zeros(SPEC.size, bool)
+        ups[i][max(c - 1, 0) : max(min(c + 2, SPEC.size), 0)] = True
+    assert stitch_folder(folder, uprights=ups).map.uprights and not want.map.uprights
+    with pytest.raises(InputError, match="must be a LayoutFolder"):
+        stitch_folder(tmp_path / "layouts")

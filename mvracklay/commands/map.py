@@ -92,7 +92,7 @@ def _ray_help() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvracklay.building_job import map_building, summary
+    from mvracklay.building_job import MapJob, MapSettings, map_building, summary
     from mvracklay.outputs import spawn_viewer
     from mvracklay.threads import resolve_threads
     from stitching.building.route import parse_pose_noise
@@ -116,11 +116,11 @@ def run(args: argparse.Namespace) -> int:
         run_cfg = {"checkpoint": args.checkpoint, "distance": args.distance, "camera_height": args.camera_height,
                    "device": args.device, "threads": threads}  # fmt: skip
         RunConfig(**run_cfg).validate()
-    res = map_building(
-        args.dataset, args.out, layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed,
-        code=args.code, positions=args.positions, workers=args.workers, ray=args.ray, rrd=not args.no_rrd,
-        progress=not args.quiet, overwrite=args.overwrite, locations=args.locations,
-    )  # fmt: skip
+    settings = MapSettings(layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed, code=args.code,
+                           positions=args.positions, locations=args.locations)  # fmt: skip
+    job = MapJob(workers=args.workers, ray=args.ray, rrd=not args.no_rrd, progress=not args.quiet,
+                 overwrite=args.overwrite)  # fmt: skip
+    res = map_building(args.dataset, args.out, settings, job)
     print(summary(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))
     scores = None

@@ -29,21 +29,15 @@ from typing import Any
 from layouts.errors import InputError
 from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, check_code_format, covered_length, location_code
+from stitching.building.config import FuseConfig
 from stitching.building.map import BuildingMap, FaceMap, Location, PassPlacement, listed_code_format
-from stitching.building.place import PlacedBox, PlacedPass, PlacedRack, PlacedShelf, register_face
+from stitching.building.place import PlacedBox, PlacedPass, PlacedRack, PlacedShelf
 from stitching.building.route import FacePlan, Route
 from stitching.uprights import Upright, bay_cuts, fuse_uprights
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
 
-SAME_RACK = 0.5  #: overlap / shorter length above which two passes' racks are one bay
-SAME_BOX = 0.5  #: X overlap / narrower width above which two passes' boxes are one
-LONG_BAY = 1.8  #: a bay this many times the face's typical length is bays run together
-SPLIT_MARGIN = 0.4  #: metres a gap must lie inside another pass's rack to cut it there
-DEFAULT_CLEAR = 0.8  #: clear height (m) of a level nobody saw and the plan does not give
-WHOLE_VIEW = 0.95  #: share of a location a pass must hold in view for its count of it to be compared
 
-
-def _clusters(items: list[tuple[PlacedPass, PlacedRack]]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+def _clusters(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -> list[list[tuple[PlacedPass, PlacedRack]]]:
     """Racks of the face grouped into bays (union-find on overlap), ordered by face X."""
     n = len(items)
     parent = list(range(n))
@@ -61,7 +55,7 @@ def _clusters(items: list[tuple[PlacedPass, PlacedRack]]) -> list[list[tuple[Pla
                 continue
             (a0, a1), (b0, b1) = spans[i], spans[j]
             shorter = min(a1 - a0, b1 - b0)
-            if shorter > 0 and min(a1, b1) - max(a0, b0) >= SAME_RACK * shorter:
+            if shorter > 0 and min(a1, b1) - max(a0, b0) >= cfg.same_rack * shorter:
                 parent[root(i)] = root(j)
     groups: dict[int, list[int]] = {}
     for i in range(n):
@@ -70,7 +64,7 @@ def _clusters(items: list[tuple[PlacedPass, PlacedRack]]) -> list[list[tuple[Pla
     return sorted(out, key=lambda g: statistics.median((r.lo + r.hi) / 2 + p.offset for p, r in g))
 
 
-def _split_joined(items: list[tuple[PlacedPass, PlacedRack]]) -> list[tuple[PlacedPass, PlacedRack]]:
+def _split_joined(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -> list[tuple[PlacedPass, PlacedRack]]:
     """A rack one pass saw as one where another pass saw two (a narrow gap between bays lost in its layouts) is
     cut at the other pass's gap: its shelves go to both parts, its boxes by their centre."""
     gaps = []  # (gap start, gap end, pass) between two whole-seen neighbouring racks of a pass
@@ -87,7 +81,7 @@ def _split_joined(items: list[tuple[PlacedPass, PlacedRack]]) -> list[tuple[Plac
                 continue
             last = parts[-1]
             lo, hi = last.lo + p.offset, last.hi + p.offset
-            if lo + SPLIT_MARGIN < g0 and g1 < hi - SPLIT_MARGIN:
+            if lo + cfg.split_margin < g0 and g1 < hi - cfg.split_margin:
                 cut0, cut1 = g0 - p.offset, g1 - p.offset
                 left = PlacedRack(
                     last.lo, cut0, last.cut_lo, False, last.shelves, [b for b in last.boxes if b.x < (cut0 + cut1) / 2]
@@ -100,8 +94,10 @@ def _split_joined(items: list[tuple[PlacedPass, PlacedRack]]) -> list[tuple[Plac
     return out
 
 
-def _split_long(groups: list[list[tuple[PlacedPass, PlacedRack]]]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
-    """A bay ``LONG_BAY`` times longer than the face's typical bay is bays whose gap no pass saw: cut into as many
+def _split_long(
+    groups: list[list[tuple[PlacedPass, PlacedRack]]], cfg: FuseConfig
+) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+    """A bay ``long_bay`` times longer than the face's typical bay is bays whose gap no pass saw: cut into as many
     typical bays, each cut in the box-free X nearest its even share (boxes never straddle two bays)."""
     lengths = [hi - lo for lo, hi, _, _ in map(_ends, groups)]
     whole = sorted(n for n, g in zip(lengths, groups) if not any(r.cut_lo or r.cut_hi for _, r in g))
@@ -111,7 +107,7 @@ def _split_long(groups: list[list[tuple[PlacedPass, PlacedRack]]]) -> list[list[
     out = []
     for n, g in zip(lengths, groups):
         k = round(n / typical)
-        if n < LONG_BAY * typical or k < 2:
+        if n < cfg.long_bay * typical or k < 2:
             out.append(g)
             continue
         lo, hi, _, _ = _ends(g)
@@ -190,7 +186,9 @@ def _board_heights(face: FacePlan, passes: Sequence[PlacedPass]) -> dict[int, fl
     return {lv: statistics.median(v) for lv, v in seen.items()} | ({base: 0.0} if seen else {})
 
 
-def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[PlacedBox, float, list[str]]]:
+def _fuse_boxes(
+    candidates: list[tuple[PlacedPass, PlacedBox]], cfg: FuseConfig
+) -> list[tuple[PlacedBox, float, list[str]]]:
     """Each box once: (box, face-frame X, passes that saw it)."""
     order = sorted(candidates, key=lambda c: (-c[1].observations, -c[1].confidence, c[1].x + c[0].offset))
     kept: list[tuple[PlacedBox, float, list[str], PlacedPass]] = []
@@ -200,7 +198,7 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
             if kp is p:
                 continue
             overlap = min(x + b.size[0] / 2, kx + kb.size[0] / 2) - max(x - b.size[0] / 2, kx - kb.size[0] / 2)
-            if overlap >= SAME_BOX * min(b.size[0], kb.size[0]):
+            if overlap >= cfg.same_box * min(b.size[0], kb.size[0]):
                 kept[k] = (kb, kx, names + [p.pose.sequence], kp)
                 break
         else:
@@ -209,19 +207,26 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]]) -> list[tuple[Pl
 
 
 def _pass_counts(
-    boxes: Sequence[tuple[PlacedBox, float, list[str]]], saw: list[str], views: dict[str, list], a: float, b: float
+    boxes: Sequence[tuple[PlacedBox, float, list[str]]],
+    saw: list[str],
+    views: dict[str, list],
+    a: float,
+    b: float,
+    cfg: FuseConfig,
 ) -> dict[str, int]:
     """The boxes of a location on face X ``[a, b]`` (`_fuse_boxes`' triples) each pass of ``saw`` counted that
     held all of it in view, where two or more did (else empty): passes that disagree make the count uncertain."""
-    whole = [n for n in saw if covered_length(views[n], a, b) >= WHOLE_VIEW * (b - a)]
+    whole = [n for n in saw if covered_length(views[n], a, b) >= cfg.whole_view * (b - a)]
     return {n: sum(n in names for _, _, names in boxes) for n in whole} if len(whole) > 1 else {}
 
 
-def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int]) -> FaceMap:
-    items = _split_joined([(p, r) for p in passes for r in p.racks])
+def _fuse_face(
+    face: FacePlan, passes: list[PlacedPass], code: str, positions: int, order: dict[str, int], cfg: FuseConfig
+) -> FaceMap:
+    items = _split_joined([(p, r) for p in passes for r in p.racks], cfg)
     views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
-    groups, uncertain = _split_at_uprights(_clusters(items), passes)
-    spans = _unseen_bays(face, [(*_ends(g)[:2], g) for g in _split_long(groups)], views)
+    groups, uncertain = _split_at_uprights(_clusters(items, cfg), passes)
+    spans = _unseen_bays(face, [(*_ends(g)[:2], g) for g in _split_long(groups, cfg)], views)
     if face.sign < 0:
         spans = spans[::-1]  # bays count along building +X, face X runs the other way on an L face
     heights = _board_heights(face, passes)
@@ -248,14 +253,14 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
             elif seen_shelves:
                 clear = statistics.median(s.clear for _, s in seen_shelves)
             else:
-                clear = DEFAULT_CLEAR
+                clear = cfg.default_clear
             z_range = (
                 tuple(statistics.median(s.z_range[k] for _, s in seen_shelves) for k in (0, 1))
                 if seen_shelves
                 else _face_depth(group)
             )
             conf = max((s.confidence for _, s in seen_shelves), default=0.0)
-            boxes = _fuse_boxes([(p, b) for p, r in group for b in r.boxes if b.level == lv])
+            boxes = _fuse_boxes([(p, b) for p, r in group for b in r.boxes if b.level == lv], cfg)
             cut = (hi - lo) / positions
             for j in range(positions):
                 # position 1 at the lowest building X: the low face-X end on an R face, the high one on an L face
@@ -290,7 +295,7 @@ def _fuse_face(face: FacePlan, passes: list[PlacedPass], code: str, positions: i
                     key=order.__getitem__,
                 )
                 seen = covered_length([iv for name in saw for iv in views[name]], a, b) / (b - a) if b > a else 0.0
-                counts = _pass_counts(mine, saw, views, a, b)
+                counts = _pass_counts(mine, saw, views, a, b, cfg)
                 locations[pos_code] = Location(
                     pos_code, face.aisle, face.side, bay, lv, j + 1, saw, min(seen, 1.0), counts
                 )
@@ -340,10 +345,10 @@ def _unseen_bays(
 
 
 def _shelf_facts(
-    lv: int, a: float, b: float, heights: dict[int, float], thickness: float, passes: list[PlacedPass]
+    lv: int, a: float, b: float, heights: dict[int, float], thickness: float, passes: list[PlacedPass], clear0: float
 ) -> tuple[float, float, tuple[float, float], float]:
     """(board, clear height, Z range, confidence) of level ``lv`` over face X ``[a, b]``: the plan's heights,
-    else what the passes whose racks overlap it saw."""
+    else what the passes whose racks overlap it saw (``clear0``: the clear height of a level nobody saw)."""
     seen = [
         (p, s)
         for p in passes
@@ -357,11 +362,11 @@ def _shelf_facts(
         board = (
             statistics.median(heights.get(min(p.levels), 0.0) + s.board - _lowest_board(p) for p, s in seen)
             if seen
-            else max(heights.values(), default=0.0) + DEFAULT_CLEAR * (lv - max(heights, default=0))
+            else max(heights.values(), default=0.0) + clear0 * (lv - max(heights, default=0))
         )
     above = [h for k, h in heights.items() if k > lv]
     clear = min(above) - board - thickness if above else (
-        statistics.median(s.clear for _, s in seen) if seen else DEFAULT_CLEAR
+        statistics.median(s.clear for _, s in seen) if seen else clear0
     )  # fmt: skip
     zs = [s.z_range for _, s in seen] or [s.z_range for p in passes for r in p.racks for s in r.shelves]
     z = (statistics.median(v[0] for v in zs), statistics.median(v[1] for v in zs)) if zs else (0.0, 1.0)
@@ -369,7 +374,7 @@ def _shelf_facts(
 
 
 def _fuse_listed(
-    face: FacePlan, passes: list[PlacedPass], listed: list[ListedLocation], order: dict[str, int]
+    face: FacePlan, passes: list[PlacedPass], listed: list[ListedLocation], order: dict[str, int], cfg: FuseConfig
 ) -> tuple[FaceMap, list[dict[str, Any]]]:
     """A face whose locations the list gives (see the module docstring); returns it and the boxes outside every
     listed location of it (building frame)."""
@@ -381,7 +386,9 @@ def _fuse_listed(
     outside = []
     for lv in sorted({b.level for p in passes for r in p.racks for b in r.boxes}):
         mine = [e for e in listed if e.level == lv]
-        for bx, x, names in _fuse_boxes([(p, b) for p in passes for r in p.racks for b in r.boxes if b.level == lv]):
+        for bx, x, names in _fuse_boxes(
+            [(p, b) for p in passes for r in p.racks for b in r.boxes if b.level == lv], cfg
+        ):
             home = [e for e in mine if span[e.code][0] <= x < span[e.code][1]]
             if home:
                 kept[home[0].code].append((bx, x, names))
@@ -400,7 +407,7 @@ def _fuse_listed(
         shelves = []
         for e in entries:
             a, b = span[e.code]
-            board, clear, z_range, conf = _shelf_facts(e.level, a, b, heights, thickness, passes)
+            board, clear, z_range, conf = _shelf_facts(e.level, a, b, heights, thickness, passes, cfg.default_clear)
             boxes = [
                 _map_box(f"{e.code}/box_{k:02d}", bx, x, board, clear) for k, (bx, x, _) in enumerate(kept[e.code])
             ]
@@ -411,7 +418,7 @@ def _fuse_listed(
                 key=order.__getitem__,
             )  # fmt: skip
             seen = covered_length([iv for n in saw for iv in views[n]], a, b) / (b - a)
-            counts = _pass_counts(kept[e.code], saw, views, a, b)
+            counts = _pass_counts(kept[e.code], saw, views, a, b, cfg)
             locations[e.code] = Location(
                 e.code, e.aisle, e.side, e.bay, e.level, e.position, saw, min(seen, 1.0), counts
             )
@@ -449,13 +456,15 @@ def fuse_building(
     placed: list[PlacedPass],
     code: str = DEFAULT_CODE,
     positions: int = 1,
-    route_sigma: float = 0.3,
     meta: dict | None = None,
     listed: Sequence[ListedLocation] | None = None,
     listed_source: str = "location list",
+    cfg: FuseConfig | None = None,
 ) -> BuildingMap:
-    """Register the placed passes face by face and fuse them into one building map (faces in plan order); with
-    ``listed`` (a location list, read from ``listed_source``) its codes and spans (see the module docstring)."""
+    """Fuse the passes, placed and registered (`stitching.building.place.place_passes`), into one building map
+    (faces in plan order); with ``listed`` (a location list, read from ``listed_source``) its codes and spans
+    (see the module docstring)."""
+    cfg = cfg or FuseConfig()
     if listed is not None:
         positions = max(e.position for e in listed)
         code = listed_code_format(positions)
@@ -465,16 +474,14 @@ def fuse_building(
     faces, outside = [], []
     for key, plan in sorted(route.faces.items()):
         mine = [p for p in placed if p.pose.key == key]
-        if mine:
-            register_face(mine, plan, route_sigma)
         if listed is not None:
             face_list = [e for e in listed if e.face == key]
             if face_list or mine:  # a face the list lacks: every box its passes saw lies outside
-                face, out = _fuse_listed(plan, mine, face_list, order)
+                face, out = _fuse_listed(plan, mine, face_list, order, cfg)
                 faces.append(face)
                 outside += out
         elif mine:
-            faces.append(_fuse_face(plan, mine, code, positions, order))
+            faces.append(_fuse_face(plan, mine, code, positions, order, cfg))
     placements = [
         PassPlacement(
             p.pose.sequence,
