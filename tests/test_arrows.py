@@ -3,8 +3,10 @@
 ``layouts`` is the floor (numpy, scipy, scikit-image and Pillow's resampling beside the standard library);
 ``waresynth`` and ``stitching`` stand on it and on nothing else of ours; ``network`` stands on it and reads
 datasets through ``waresynth`` from one module only; ``mvracklay`` composes them all and only the application
-folders (demos, tests, benchmarks, scripts, research) import it; ``research`` is imported by nothing. Every
-import is read, function-level ones too; a relative import is refused so that none hides from the check.
+folders (demos, tests, benchmarks, scripts, research) import it; ``research`` is imported by nothing. Inside a
+package, a wing (the building: ``stitching/building/``, ``waresynth/building/``) stands on the rest of its package,
+which never imports it. Every import is read, function-level ones too; a relative import is refused so that none
+hides from the check.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ MAY_IMPORT = {
 LAYOUTS_THIRD_PARTY = {"numpy", "scipy", "skimage", "PIL"}
 #: the one module of ``network`` that reads datasets, so the one that imports ``waresynth``
 DATASET_READER = "network/training/train_data.py"
+#: wings of a package: each may import the rest of its package; the rest never imports it
+WINGS = ("stitching.building", "waresynth.building")
 
 
 def imports(path: Path) -> list[tuple[int, str, int]]:
@@ -39,6 +43,18 @@ def imports(path: Path) -> list[tuple[int, str, int]]:
             out += [(node.lineno, a.name.split(".")[0], 0) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             out.append((node.lineno, (node.module or "").split(".")[0], node.level))
+    return out
+
+
+def dotted_imports(path: Path) -> list[tuple[int, str]]:
+    """``(line, dotted name)`` of every module ``path`` imports and every name it imports from one (``from a import
+    b`` gives ``a`` and ``a.b``: ``b`` may be a module), at any depth."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            out += [(node.lineno, node.module)] + [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
     return out
 
 
@@ -85,10 +101,30 @@ def test_no_relative_import_hides_from_the_check(package):
     assert not bad, "\n".join(bad)
 
 
+@pytest.mark.parametrize("wing", WINGS)
+def test_a_wing_stands_on_its_package_and_the_package_never_on_it(wing):
+    package, folder = wing.split(".")[0], ROOT / wing.replace(".", "/")
+    assert (folder / "__init__.py").is_file(), f"{wing} is no package"
+    bad = [
+        f"{path.relative_to(ROOT)}:{line} imports {name}"
+        for path in _files(package)
+        if folder not in path.parents
+        for line, name in dotted_imports(path)
+        if name == wing or name.startswith(wing + ".")
+    ]
+    assert not bad, "\n".join(bad)
+
+
 def test_the_check_sees_a_bad_arrow(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text("def f():\n    from network.model import net\n    import stitching.merge\n")
     assert [(line, name) for line, name, _ in imports(bad)] == [(2, "network"), (3, "stitching")]
+    wing = tmp_path / "wing.py"
+    wing.write_text("from stitching import building\nimport waresynth.building.plan\n")
+    assert [n for _, n in dotted_imports(wing) if n.startswith(WINGS)] == [
+        "stitching.building",
+        "waresynth.building.plan",
+    ]
 
 
 #: the one test that patches a command's ``run`` to see how the CLI reports an interrupt (the CLI's behaviour)
