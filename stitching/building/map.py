@@ -31,7 +31,7 @@ from layouts.fileio import atomic_write_json, atomic_write_text, load_json
 from layouts.location_list import ListedLocation
 from layouts.locations import DEFAULT_CODE, INVENTORY_COLUMNS, NOT_SCANNED, check_code_format, rows_csv
 from stitching.building.recount import MAP_INVENTORY_COLUMNS, RECOUNT, recount_cell, shelf_evidence, uncertain_bays
-from stitching.building.route import FacePlan, plan_dict, plan_face
+from stitching.building.route import FacePlan, OnFace, plan_dict, plan_face
 from stitching.building.schema import check_building, check_inventory
 from stitching.free_space import ShelfFreeSpace, rack_of, shelf_free_space
 from stitching.geometry import Cuboid
@@ -67,7 +67,7 @@ class Location:
 
 
 @dataclass
-class FaceMap:
+class FaceMap(OnFace):
     """One rack face: its aisle and side, its front line, its map (face frame) and its locations by code."""
 
     aisle: int
@@ -78,15 +78,6 @@ class FaceMap:
     bays: dict[str, int] = field(default_factory=dict)  #: rack id -> bay number
     #: face X of the bay boundaries found at uprights with little certainty (`stitching.uprights.bay_cuts`)
     uncertain_cuts: tuple[float, ...] = ()
-
-    @property
-    def key(self) -> tuple[int, str]:
-        return (self.aisle, self.side)
-
-    @property
-    def sign(self) -> float:
-        """+1 for an R face, -1 for an L face: building X = sign * face X, building Z = front + sign * face Z."""
-        return 1.0 if self.side == "R" else -1.0
 
     def to_building(self, c: Cuboid) -> Cuboid:
         """A face-frame cuboid in the building frame (a half turn keeps the yaw)."""

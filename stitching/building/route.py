@@ -83,8 +83,25 @@ class _Route(BaseModel):
     passes: list[_Pass] = Field(min_length=1)
 
 
+class OnFace:
+    """What the ``aisle`` and ``side`` of a face, or of a thing on one, give: its face's key and the sign of its
+    face frame in the building."""
+
+    aisle: int
+    side: str
+
+    @property
+    def key(self) -> tuple[int, str]:
+        return (self.aisle, self.side)
+
+    @property
+    def sign(self) -> float:
+        """+1 for an R face, -1 for an L face: building X = sign * face X, building Z = front + sign * face Z."""
+        return 1.0 if self.side == "R" else -1.0
+
+
 @dataclass(frozen=True)
-class FacePlan:
+class FacePlan(OnFace):
     """A face as the floor plan gives it: front line, extent along building X (None: unknown), board heights."""
 
     aisle: int
@@ -94,17 +111,9 @@ class FacePlan:
     x_max: float | None = None
     levels_m: tuple[float, ...] = ()  #: boards' top heights above the floor, lowest first; () unknown
 
-    @property
-    def key(self) -> tuple[int, str]:
-        return (self.aisle, self.side)
-
-    @property
-    def sign(self) -> float:
-        return 1.0 if self.side == "R" else -1.0
-
 
 @dataclass(frozen=True)
-class PassPose:
+class PassPose(OnFace):
     """One pass: its sequence, face, the first camera's building X and Z, heading (degrees), its slots' levels."""
 
     sequence: str
@@ -116,10 +125,6 @@ class PassPose:
     levels: tuple[int, ...] | None = None  #: level (from 1) of each slot; None: from ``first_level`` up
     first_level: int = 1
     height: float | None = None  #: the camera above the floor, when the route gives it
-
-    @property
-    def key(self) -> tuple[int, str]:
-        return (self.aisle, self.side)
 
     def slot_level(self, slot: int) -> int:
         """The level (from 1) a slot of this pass's layouts holds."""
