@@ -65,18 +65,11 @@ def test_every_category_found(scans):
 
 
 def test_pose_noise_on_both_scans(scans, tmp_path):
-    old = map_building(
-        scans["old_data"],
-        tmp_path / "o",
-        MapSettings(layouts="gt", pose_noise=(0.3, 3.0), seed=5),
-        MapJob(rrd=False, progress=False),
-    ).map
-    new = map_building(
-        scans["new_data"],
-        tmp_path / "n",
-        MapSettings(layouts="gt", pose_noise=(0.3, 3.0), seed=6),
-        MapJob(rrd=False, progress=False),
-    ).map
+    old, new = (
+        map_building(scans[data], tmp_path / out, MapSettings("gt", pose_noise=(0.3, 3.0), seed=seed),
+                     MapJob(rrd=False, progress=False)).map
+        for data, out, seed in (("old_data", "o", 5), ("new_data", "n", 6))
+    )  # fmt: skip
     scores = evaluate_changes(diff_buildings(old, new).rows(), _truth(scans["truth"]))
     assert all(s["precision"] >= 0.95 and s["recall"] >= 0.95 for s in scores.values()), scores
 
