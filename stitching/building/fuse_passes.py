@@ -36,8 +36,12 @@ from stitching.building.route import FacePlan, Route
 from stitching.uprights import Upright, bay_cuts, fuse_uprights
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, WarehouseMap, partial_side
 
+Seen = tuple[PlacedPass, PlacedRack]  #: a rack as one pass saw it
+Bay = list[Seen]  #: the racks of the passes that are one bay
+Fused = tuple[PlacedBox, float, list[str]]  #: a box once: its best view, its face X, the passes that saw it
 
-def _clusters(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+
+def _clusters(items: list[Seen], cfg: FuseConfig) -> list[Bay]:
     """Racks of the face grouped into bays (union-find on overlap), ordered by face X."""
     n = len(items)
     parent = list(range(n))
@@ -64,7 +68,7 @@ def _clusters(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -> li
     return sorted(out, key=lambda g: statistics.median((r.lo + r.hi) / 2 + p.offset for p, r in g))
 
 
-def _split_joined(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -> list[tuple[PlacedPass, PlacedRack]]:
+def _split_joined(items: list[Seen], cfg: FuseConfig) -> list[Seen]:
     """A rack one pass saw as one where another pass saw two (a narrow gap between bays lost in its layouts) is
     cut at the other pass's gap: its shelves go to both parts, its boxes by their centre."""
     gaps = []  # (gap start, gap end, pass) between two whole-seen neighbouring racks of a pass
@@ -94,9 +98,7 @@ def _split_joined(items: list[tuple[PlacedPass, PlacedRack]], cfg: FuseConfig) -
     return out
 
 
-def _split_long(
-    groups: list[list[tuple[PlacedPass, PlacedRack]]], cfg: FuseConfig
-) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+def _split_long(groups: list[Bay], cfg: FuseConfig) -> list[Bay]:
     """A bay ``long_bay`` times longer than the face's typical bay is bays whose gap no pass saw: cut into as many
     typical bays, each cut in the box-free X nearest its even share (boxes never straddle two bays)."""
     lengths = [hi - lo for lo, hi, _, _ in map(_ends, groups)]
@@ -125,7 +127,7 @@ def _split_long(
     return out
 
 
-def _cut_group(g: list[tuple[PlacedPass, PlacedRack]], cuts: list[float]) -> list[list[tuple[PlacedPass, PlacedRack]]]:
+def _cut_group(g: Bay, cuts: list[float]) -> list[Bay]:
     """A bay group cut at face X ``cuts`` (ascending): each pass's rack clipped to each part, boxes by centre."""
     lo, hi = _ends(g)[:2]
     edges = [lo - 1.0, *cuts, hi + 1.0]
@@ -143,9 +145,7 @@ def _cut_group(g: list[tuple[PlacedPass, PlacedRack]], cuts: list[float]) -> lis
     return out
 
 
-def _split_at_uprights(
-    groups: list[list[tuple[PlacedPass, PlacedRack]]], passes: list[PlacedPass]
-) -> tuple[list[list[tuple[PlacedPass, PlacedRack]]], list[float]]:
+def _split_at_uprights(groups: list[Bay], passes: list[PlacedPass]) -> tuple[list[Bay], list[float]]:
     """Bays run together (touching, or a gap no pass saw) cut at the upright frames the passes found, fused over
     the face (`stitching.uprights`); the face's typical bay width (the median of the bays so cut) drops a cut
     that would leave two half bays. Also the face X of the cuts `bay_cuts` calls uncertain (for the recount)."""
@@ -165,7 +165,7 @@ def _split_at_uprights(
     return out, uncertain
 
 
-def _ends(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, float, bool, bool]:
+def _ends(group: Bay) -> tuple[float, float, bool, bool]:
     whole_lo = [r.lo + p.offset for p, r in group if not r.cut_lo]
     whole_hi = [r.hi + p.offset for p, r in group if not r.cut_hi]
     lo = statistics.median(whole_lo) if whole_lo else min(r.lo + p.offset for p, r in group)
@@ -186,9 +186,7 @@ def _board_heights(face: FacePlan, passes: Sequence[PlacedPass]) -> dict[int, fl
     return {lv: statistics.median(v) for lv, v in seen.items()} | ({base: 0.0} if seen else {})
 
 
-def _fuse_boxes(
-    candidates: list[tuple[PlacedPass, PlacedBox]], cfg: FuseConfig
-) -> list[tuple[PlacedBox, float, list[str]]]:
+def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]], cfg: FuseConfig) -> list[Fused]:
     """Each box once: (box, face-frame X, passes that saw it)."""
     order = sorted(candidates, key=lambda c: (-c[1].observations, -c[1].confidence, c[1].x + c[0].offset))
     kept: list[tuple[PlacedBox, float, list[str], PlacedPass]] = []
@@ -207,12 +205,7 @@ def _fuse_boxes(
 
 
 def _pass_counts(
-    boxes: Sequence[tuple[PlacedBox, float, list[str]]],
-    saw: list[str],
-    views: dict[str, list],
-    a: float,
-    b: float,
-    cfg: FuseConfig,
+    boxes: Sequence[Fused], saw: list[str], views: dict[str, list], a: float, b: float, cfg: FuseConfig
 ) -> dict[str, int]:
     """The boxes of a location on face X ``[a, b]`` (`_fuse_boxes`' triples) each pass of ``saw`` counted that
     held all of it in view, where two or more did (else empty): passes that disagree make the count uncertain."""
@@ -382,7 +375,7 @@ def _fuse_listed(
     thickness = statistics.median(p.board_thickness for p in passes) if passes else 0.06
     views = {p.pose.sequence: [(a + p.offset, b + p.offset) for a, b in p.seen] or [p.seen_range()] for p in passes}
     span = {e.code: tuple(sorted((face.sign * e.start_m, face.sign * e.end_m))) for e in listed}
-    kept: dict[str, list[tuple[PlacedBox, float, list[str]]]] = {e.code: [] for e in listed}
+    kept: dict[str, list[Fused]] = {e.code: [] for e in listed}
     outside = []
     for lv in sorted({b.level for p in passes for r in p.racks for b in r.boxes}):
         mine = [e for e in listed if e.level == lv]
@@ -435,7 +428,7 @@ def _lowest_board(p: PlacedPass) -> float:
     return min((s.board for r in p.racks for s in r.shelves), default=0.0)
 
 
-def _face_depth(group: list[tuple[PlacedPass, PlacedRack]]) -> tuple[float, float]:
+def _face_depth(group: Bay) -> tuple[float, float]:
     zs = [s.z_range for _, r in group for s in r.shelves]
     if not zs:
         return (0.0, 1.0)
