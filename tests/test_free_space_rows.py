@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from stitching.building.free import LocationFit, building_fits, format_fits
+from stitching.building.free_space_eval import evaluate_fits
 from stitching.building.map import BuildingMap, FaceMap, Location
 from stitching.free_space import (
     NETWORK_EDGE_SLACK,
@@ -22,7 +23,6 @@ from stitching.free_space import (
     free_space,
     shelf_free_space,
 )
-from stitching.building.free_space_eval import evaluate_fits
 from stitching.warehouse_map import MapBox, MapRack, MapShelf, StepRecord, WarehouseMap
 
 
