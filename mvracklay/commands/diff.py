@@ -95,8 +95,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("diff: NEW_MAP is missing (or give --expected WMS_CSV to compare one map with the WMS)")
     old_path, new_path = building_path(args.old, "OLD_MAP"), building_path(args.new, "NEW_MAP")
     inputs = {"OLD_MAP": args.old, "NEW_MAP": args.new, "--truth": args.truth}
-    with output_folder(args.out, CHANGE_FILES, command="diff", earlier=is_changes_folder, inputs=inputs,
-                       overwrite=args.overwrite) as stage:  # DIR checked and held first, the changes swapped in whole
+    with output_folder(
+        args.out, CHANGE_FILES, command="diff", earlier=is_changes_folder, inputs=inputs, overwrite=args.overwrite
+    ) as stage:  # DIR checked and held first, the changes swapped in whole
         old, new = BuildingMap.load(old_path), BuildingMap.load(new_path)
         truth = None
         if args.truth is not None:
