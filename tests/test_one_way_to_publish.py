@@ -23,14 +23,15 @@ SMALL = ["--sequences", "2", "--frames", "2", "--size", "32", "--layout-size", "
 
 class Case:
     """One command: its argv with OUT where it goes (``argv(out)``), its input (the folder or file an OUT must never
-    be) and the options that make a second run rewrite an earlier OUT (``again``)."""
+    be), the options that make a second run rewrite an earlier OUT (``again``) and how many files that run writes
+    before the disk is full (``room``)."""
 
     def __init__(self, command: str, tmp: Path, tiny_dataset: Path, tiny_building: Path, tiny_building_map: Path,
                  tiny_checkpoint: Path) -> None:  # fmt: skip
         self.command = command
         seq = lambda: Path(shutil.copytree(tiny_dataset / "seq_00000", tmp / "in" / "seq"))  # noqa: E731
         net = ["--checkpoint", str(tiny_checkpoint), "--threads", "1"]
-        self.again = ["--overwrite"]
+        self.again, self.room = ["--overwrite"], 0
         if command == "run":
             self.input = seq()
             self.head, self.tail = ["run", str(self.input), *net, "--max-frames", "2", "--no-rrd", "--quiet"], []
@@ -39,7 +40,8 @@ class Case:
             self.head, self.tail = ["reconstruct", str(self.input), "--no-rrd", "--quiet"], []
         elif command == "predict":
             self.input = seq()
-            self.head, self.tail, self.again = ["predict", str(self.input), *net, "--quiet"], [], []
+            self.head, self.tail = ["predict", str(self.input), *net, "--quiet"], []
+            self.again, self.room = ["--layout-size", "32"], 1  # other layouts: the disk full after the first file
         elif command == "export":
             self.input = Path(shutil.copytree(tiny_dataset, tmp / "in" / "data"))
             self.head, self.tail = ["export", str(self.input), "--format", "yolo", "--quiet"], []
@@ -87,7 +89,12 @@ def test_a_failed_write_leaves_the_earlier_out_byte_identical(case, tmp_path, mo
     capsys.readouterr()
     before, inputs = snapshot(out), snapshot(tmp_path / "in")
 
+    made, mkstemp = [], fileio.tempfile.mkstemp
+
     def full(*args, **kwargs):
+        made.append(kwargs.get("dir"))
+        if len(made) <= case.room:
+            return mkstemp(*args, **kwargs)
         raise OSError(errno.ENOSPC, "No space left on device", str(Path(kwargs.get("dir", tmp_path)) / "x"))
 
     monkeypatch.setattr(fileio.tempfile, "mkstemp", full)  # every file the command writes: a full disk
