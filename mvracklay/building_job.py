@@ -36,7 +36,7 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.location_list import ListedLocation, read_location_list
 from layouts.locations import DEFAULT_CODE, check_code_format
-from layouts.publish import lock, refuse_overlap, staged
+from layouts.publish import check_out, lock, refuse_overlap, staged
 from stitching.building_map import BuildingMap, write_inventory
 from stitching.building_route import Route, load_route, perturb
 from stitching.warehouse_map import WarehouseMap
@@ -242,15 +242,13 @@ def _is_map_folder(folder: Path) -> bool:
 def check_map_out(out: Path, source: str | os.PathLike, tasks: list[PassTask], run: dict[str, Any],
                   overwrite: bool) -> None:  # fmt: skip
     """Refuse a MAP that is, lies inside or holds an input (DATASET, a pass's footage, the checkpoint), or that
-    holds other files than an earlier map's unless ``overwrite`` (`mvracklay.outputs.check_out`)."""
-    from mvracklay.outputs import check_out
-
+    holds other files than an earlier map's unless ``overwrite`` (`layouts.publish.check_out`)."""
     inputs: dict[str, str | os.PathLike | None] = {"DATASET": source}
     inputs.update({f"pass {t.name!r}": t.source for t in tasks})
     ckpt = run.get("checkpoint")
     inputs["--checkpoint"] = str(ckpt) if ckpt and Path(str(ckpt)).exists() else None
     refuse_overlap([out], inputs)
-    check_out(out, overwrite, outputs=(*OUTPUTS, PASSES), earlier=_is_map_folder, command="map")
+    check_out(out, overwrite, (*OUTPUTS, PASSES), _is_map_folder, "map")
 
 
 def map_building(

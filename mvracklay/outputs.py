@@ -1,6 +1,6 @@
 """What `run` and `reconstruct` write, and where: which OUT they may write into (`check_out`, `check_apart`; the
 rules and the publishing are `layouts.publish`) and the Rerun viewer opened on a written recording
-(`spawn_viewer`). Imports no torch: `mvracklay reconstruct`, `map` and `diff` use it too."""
+(`spawn_viewer`). Imports no torch: `mvracklay reconstruct` and `map` use it too."""
 
 from __future__ import annotations
 
