@@ -4,8 +4,9 @@
     .venv/bin/python benchmarks/bench_building.py                         # 1, 5, 10 aisles, 2 workers, + Ray
     .venv/bin/python benchmarks/bench_building.py --aisles 1 2 --no-ray   # quicker
 
-Each building is generated once into ``--work`` (32x32 images, 128 px layouts, steps of 20-25 cm: the map reads
-only the layouts; a re-run reuses it). Per size: the wall time of mapping every pass as a row and of placing,
+Each building is generated once into the work folder (32x32 images, 128 px layouts, steps of 20-25 cm: the map reads
+only the layouts): by default a fresh folder under the system's temporary folder, removed at the end unless
+``--keep``; a ``--work`` folder given is kept, and a re-run with it reuses the buildings. Per size: the wall time of mapping every pass as a row and of placing,
 registering and fusing them, the peak resident memory of the command and of a worker mapping a pass, and seconds per pass
 (flat when the cost grows linearly with the passes). With Ray (``--ray-aisles``): the same map through a local
 Ray of ``--workers`` CPUs against ``--workers`` local processes, as a ratio (Ray's start-up included once).
@@ -17,6 +18,7 @@ import argparse
 import resource
 import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -56,15 +58,45 @@ def time_map(root: Path, out: Path, workers: int, ray: str | None = None) -> dic
             "worker_mb": res.worker_peak_mb}  # fmt: skip
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """The benchmark's options, each described."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--aisles", type=int, nargs="+", default=[1, 5, 10])
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--work", type=Path, default=_ROOT / "out" / "bench_building")
-    p.add_argument("--ray-aisles", type=int, default=5, help="the size timed through a local Ray too")
-    p.add_argument("--no-ray", action="store_true")
-    args = p.parse_args(argv)
-    args.work.mkdir(parents=True, exist_ok=True)
+    p.add_argument("--aisles", type=int, nargs="+", default=[1, 5, 10], metavar="N",
+                   help="the building sizes to map, in aisles of 2 faces (default: 1 5 10)")  # fmt: skip
+    p.add_argument("--workers", type=int, default=2, metavar="W",
+                   help="local processes mapping the passes, and the CPUs of the local Ray (default: 2)")  # fmt: skip
+    p.add_argument("--work", type=Path, metavar="DIR",
+                   help="where the buildings and maps go, kept for a re-run to reuse (default: a fresh folder under "
+                   "the system's temporary folder, removed at the end)")  # fmt: skip
+    p.add_argument("--keep", action="store_true", help="keep the default work folder (its path is printed)")
+    p.add_argument(
+        "--ray-aisles",
+        type=int,
+        default=5,
+        metavar="N",
+        help="the building size mapped through a local Ray too, against local processes (default: 5)",
+    )
+    p.add_argument("--no-ray", action="store_true", help="skip the local Ray comparison (no Ray needed)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    if args.work is not None:
+        args.work.mkdir(parents=True, exist_ok=True)
+        return run(args)
+    args.work = Path(tempfile.mkdtemp(prefix="bench_building-"))
+    try:
+        return run(args)
+    finally:
+        if args.keep:
+            print(f"work folder kept: {args.work}")
+        else:
+            shutil.rmtree(args.work, ignore_errors=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """The benchmark's table (and the Ray line) for ``args`` (`main`), in ``args.work``."""
     print(f"{'aisles':>6} {'passes':>6} {'boxes':>6} {'map_s':>7} {'s/pass':>7} {'peak_MB':>8} {'worker_MB':>10}")
     for a in args.aisles:
         root = building(args.work, a)

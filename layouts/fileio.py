@@ -13,6 +13,8 @@ import math
 import os
 import tempfile
 import zipfile
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -130,20 +132,29 @@ def _not_numpy(path: Path, want: str) -> None:
         raise LayoutError(f"{path}: expected a {want}, found a {found}")
 
 
-def load_npy(path: str | os.PathLike) -> np.ndarray:
-    """Load a ``.npy`` without pickle; any problem becomes one line naming the file."""
-    path = Path(path)
-    _not_numpy(path, ".npy array")
+@contextmanager
+def _numpy_errors(path: Path, want: str) -> Iterator[None]:
+    """What `np.load` raises on ``path`` as one line naming the file (a pickle refused as one)."""
     try:
-        arr = np.load(path, allow_pickle=False)
+        yield
+    except LayoutError:
+        raise
     except FileNotFoundError:
         raise LayoutError(f"{path}: file not found") from None
     except ValueError as e:
         if "pickle" in str(e).lower():
             raise LayoutError(f"{path}: holds pickled objects, refused (only plain arrays are read)") from None
-        raise LayoutError(f"{path}: not a readable .npy array ({e})") from None
-    except (OSError, EOFError) as e:
-        raise LayoutError(f"{path}: not a readable .npy array ({e})") from None
+        raise LayoutError(f"{path}: not a readable {want} ({e})") from None
+    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as e:
+        raise LayoutError(f"{path}: not a readable {want} ({e})") from None
+
+
+def load_npy(path: str | os.PathLike) -> np.ndarray:
+    """Load a ``.npy`` without pickle; any problem becomes one line naming the file."""
+    path = Path(path)
+    _not_numpy(path, ".npy array")
+    with _numpy_errors(path, ".npy array"):
+        arr = np.load(path, allow_pickle=False)
     if not isinstance(arr, np.ndarray):
         raise LayoutError(f"{path}: expected a .npy array, found an archive")
     return arr
@@ -153,21 +164,10 @@ def load_npz(path: str | os.PathLike, keys: tuple[str, ...] | None = None) -> di
     """Load an ``.npz`` without pickle into a dict; ``keys`` must all be present."""
     path = Path(path)
     _not_numpy(path, ".npz archive")
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            if not hasattr(z, "files"):
-                raise LayoutError(f"{path}: expected an .npz archive, found a plain array")
-            out = {k: z[k] for k in z.files}
-    except LayoutError:
-        raise
-    except FileNotFoundError:
-        raise LayoutError(f"{path}: file not found") from None
-    except ValueError as e:
-        if "pickle" in str(e).lower():
-            raise LayoutError(f"{path}: holds pickled objects, refused (only plain arrays are read)") from None
-        raise LayoutError(f"{path}: not a readable .npz archive ({e})") from None
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as e:
-        raise LayoutError(f"{path}: not a readable .npz archive ({e})") from None
+    with _numpy_errors(path, ".npz archive"), np.load(path, allow_pickle=False) as z:
+        if not hasattr(z, "files"):
+            raise LayoutError(f"{path}: expected an .npz archive, found a plain array")
+        out = {k: z[k] for k in z.files}
     if keys:
         missing = [k for k in keys if k not in out]
         if missing:
@@ -183,18 +183,24 @@ def finite_float(text: str) -> float:
     return v
 
 
+def _parsed(load: Callable[..., Any], text: str, source: str, kind: str, malformed: type[Exception], said: str) -> Any:
+    """``load(text)`` with finite floats only (`finite_float`): malformed text (``said``, ``{e}`` the parser's
+    words), nesting too deep to read or a number out of range each one line naming ``source``."""
+    try:
+        return load(text, parse_float=finite_float)
+    except malformed as e:
+        raise LayoutError(f"{source}: {said.format(e=e)}") from None
+    except RecursionError:
+        raise LayoutError(f"{source}: not readable {kind} (nested too deep)") from None
+    except ValueError as e:  # a number out of range, or an integer of more digits than Python converts
+        raise LayoutError(f"{source}: not readable {kind} ({e})") from None
+
+
 def loads_json(text: str, source: str) -> Any:
     """Parse JSON a user gave (a map, a camera, a config, a meta.json): malformed text, nesting too deep to
     read, or a number beyond a float's range (1e400) each become one line naming ``source``. The literals
     ``NaN`` / ``Infinity`` (Python's own JSON writes them) parse; each format's schema says where they may be."""
-    try:
-        return json.loads(text, parse_float=finite_float)
-    except json.JSONDecodeError as e:
-        raise LayoutError(f"{source}: not valid JSON ({e})") from None
-    except RecursionError:
-        raise LayoutError(f"{source}: not readable JSON (nested too deep)") from None
-    except ValueError as e:  # a number out of range, or an integer of more digits than Python converts
-        raise LayoutError(f"{source}: not readable JSON ({e})") from None
+    return _parsed(json.loads, text, source, "JSON", json.JSONDecodeError, "not valid JSON ({e})")
 
 
 def loads_toml(text: str, source: str) -> dict[str, Any]:
@@ -202,14 +208,7 @@ def loads_toml(text: str, source: str) -> dict[str, Any]:
     deep, or a number that is not finite (``inf``, ``nan``, ``1e400``)."""
     import tomllib
 
-    try:
-        return tomllib.loads(text, parse_float=finite_float)
-    except tomllib.TOMLDecodeError as e:
-        raise LayoutError(f"{source}: not TOML: {e}") from None
-    except RecursionError:
-        raise LayoutError(f"{source}: not readable TOML (nested too deep)") from None
-    except ValueError as e:
-        raise LayoutError(f"{source}: not readable TOML ({e})") from None
+    return _parsed(tomllib.loads, text, source, "TOML", tomllib.TOMLDecodeError, "not TOML: {e}")
 
 
 def load_json(path: str | os.PathLike) -> Any:

@@ -19,7 +19,10 @@ stage is made.
 
 `lock` holds OUT for one command at a time (a second writer into the same OUT is one line, not a race
 the last one wins); `staged` is the whole path in one block: stage, write, publish, or on failure
-discard and say it in one line. Every command that writes an output folder goes through them.
+discard and say it in one line. `output_folder` is the one way a command writes its output folder: the rules on
+OUT (`refuse_overlap`, `check_out`: missing, empty or an earlier output of the same command unless
+``overwrite``), then `staged`. A command that resumes into OUT (`generate`, `merge-shards`) writes in place
+under `lock` after the same checks.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
@@ -348,3 +351,70 @@ def refuse_overlap(
             if _overlap(o, i):
                 rel = "is" if o == i else ("lies inside" if i in o.parents else "holds")
                 raise InputError(f"{what} {opath}: {rel} the input {iname} {ipath}; write the outputs elsewhere")
+
+
+def check_out(
+    out: str | os.PathLike,
+    overwrite: bool,
+    outputs: Iterable[str] | None,
+    earlier: Callable[[Path], bool],
+    command: str,
+    untouched: Iterable[str] = (),
+    what: str = "--out",
+) -> None:
+    """Refuse an OUT that is neither missing, empty nor an earlier output folder of ``command`` (only ``outputs`` in
+    it, ``earlier(OUT)`` true; ``outputs`` None: the command owns every entry of OUT), unless ``overwrite``: then
+    only the command's outputs are replaced. ``untouched``: outputs the command leaves alone (reconstruct's
+    layouts/); alone in OUT they count as empty. Probes that OUT can be written (`check_writable`)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{what} {out}: exists and is not a folder")
+    check_writable(out, what)
+    if overwrite or not out.is_dir():
+        return
+    names = {p.name for p in out.iterdir() if not is_stage_name(p.name)}
+    if names <= set(untouched):
+        return
+    own = names if outputs is None else set(outputs) | set(untouched)
+    if names <= own and earlier(out):
+        return  # an earlier output folder of the command
+    other = sorted(names - own)
+    held = f"holds other files ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''})" if other else None
+    if outputs is None:
+        held, tail = held or "holds other files", "replace everything there"
+    else:
+        tail = "replace the outputs there (nothing else is touched)"
+    raise InputError(
+        f"{what} {out}: {held or 'has no map'}, not an earlier {command}'s output folder; give --overwrite to {tail} "
+        f"or another {what}"
+    )
+
+
+@contextmanager
+def output_folder(
+    out: str | os.PathLike,
+    outputs: Iterable[str] | None,
+    *,
+    command: str,
+    earlier: Callable[[Path], bool],
+    inputs: Mapping[str, str | os.PathLike | None] | None = None,
+    overwrite: bool = False,
+    untouched: Iterable[str] = (),
+    may_hold_inputs: bool = False,
+    what: str = "--out",
+) -> Iterator[Path]:
+    """The one way a command writes its output folder OUT: refused in one line when an output would be, lie
+    inside or hold one of ``inputs`` (`refuse_overlap`; those not on disk skipped) or when OUT is not missing,
+    empty or an earlier output of ``command`` unless ``overwrite`` (`check_out`); then OUT held, a stage yielded
+    to be filled and swapped in whole (`staged`), or on failure OUT left as it was.
+
+    ``outputs``: the names the command writes in OUT (None: all of OUT is the command's, an export);
+    ``earlier(OUT)``: whether a folder holding only those is the command's own earlier output; ``may_hold_inputs``:
+    OUT may hold an input the command leaves alone (reconstruct's OUT/layouts), only the outputs are checked."""
+    out = Path(out)
+    given = {k: v for k, v in (inputs or {}).items() if v is not None and Path(v).exists()}
+    refuse_overlap([out / n for n in outputs] if may_hold_inputs and outputs else [out], given, what)
+    outputs = None if outputs is None else tuple(outputs)
+    check_out(out, overwrite, outputs, earlier, command, untouched, what)
+    with staged(out, outputs, what) as st:
+        yield st

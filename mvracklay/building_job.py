@@ -18,21 +18,26 @@ no ``checkpoint``, the shipped model made for the frames' size maps the passes (
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import json
 import os
 import re
 import sys
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.location_list import ListedLocation, read_location_list
 from layouts.locations import DEFAULT_CODE, check_code_format
-from layouts.publish import lock, refuse_overlap, staged
+from layouts.publish import check_out, lock, refuse_overlap, staged
 from stitching.building.config import BuildingConfig
 from stitching.building.map import BuildingMap, write_inventory
 from stitching.building.route import Route, load_route, perturb
@@ -67,6 +72,8 @@ class BuildingResult:
     inventory: list[dict[str, Any]]
     written: list[str] = field(default_factory=list)  #: the outputs' file names, in MAP
     worker_peak_mb: float = 0.0  #: the most memory a process mapping a pass held (0: none mapped)
+    seconds: float = 0.0  #: wall time of mapping the passes (0: none mapped)
+    wall: float = 0.0  #: wall time of the whole map
 
 
 @dataclass(frozen=True)
@@ -187,9 +194,23 @@ def building_config(base: Path) -> dict[str, Any]:
     return doc if isinstance(doc, dict) else {}
 
 
-def map_pass(task: PassTask) -> float:
+def map_pass(task: PassTask) -> tuple[float, list[str]]:
     """Map one pass as a row into ``task.out`` (``warehouse.json``, and the run's outputs for the network);
-    returns the peak memory (MB) of the process that mapped it. Runs in a worker process or a Ray task."""
+    returns the peak memory (MB) of the process that mapped it and the warnings it gave (`pass_warnings`), for the
+    caller to print with the pass's name. Runs in a worker process or a Ray task."""
+    with contextlib.redirect_stderr(io.StringIO()) as said:
+        _map_pass(task)
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, pass_warnings(said.getvalue())
+
+
+def pass_warnings(said: str) -> list[str]:
+    """The lines a pass printed on stderr, each without the command it was printed as (``mvracklay run: ``)."""
+    return [re.sub(r"^mvracklay[\w. -]*?: ", "", line) for line in said.splitlines() if line.strip()]
+
+
+def _map_pass(task: PassTask) -> None:
     out = Path(task.out)
     if task.layouts == "gt":
         from mvracklay.reconstruction import gt_upright_columns, resolve_layouts
@@ -209,9 +230,6 @@ def map_pass(task: PassTask) -> float:
         cfg = RunConfig(**task.run)
         run_pipeline(open_source(task.source, prog="mvracklay map"), out, cfg)
         _record(task, out)
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _record(task: PassTask, folder: Path) -> None:
@@ -267,15 +285,13 @@ def _is_map_folder(folder: Path) -> bool:
 def check_map_out(out: Path, source: str | os.PathLike, tasks: list[PassTask], run: dict[str, Any],
                   overwrite: bool) -> None:  # fmt: skip
     """Refuse a MAP that is, lies inside or holds an input (DATASET, a pass's footage, the checkpoint), or that
-    holds other files than an earlier map's unless ``overwrite`` (`mvracklay.outputs.check_out`)."""
-    from mvracklay.outputs import check_out
-
+    holds other files than an earlier map's unless ``overwrite`` (`layouts.publish.check_out`)."""
     inputs: dict[str, str | os.PathLike | None] = {"DATASET": source}
     inputs.update({f"pass {t.name!r}": t.source for t in tasks})
     ckpt = run.get("checkpoint")
     inputs["--checkpoint"] = str(ckpt) if ckpt and Path(str(ckpt)).exists() else None
     refuse_overlap([out], inputs)
-    check_out(out, overwrite, outputs=(*OUTPUTS, PASSES), earlier=_is_map_folder, command="map")
+    check_out(out, overwrite, (*OUTPUTS, PASSES), _is_map_folder, "map")
 
 
 def map_building(
@@ -291,6 +307,7 @@ def map_building(
     from stitching.building.fuse_passes import check_listed
     from stitching.building.pipeline import build_map
 
+    start = time.perf_counter()
     settings, job = settings or MapSettings(), job or MapJob()
     layouts, pose_noise = settings.layouts, settings.pose_noise
     route, base = resolve_route(source)
@@ -321,10 +338,13 @@ def map_building(
     progress, rrd = job.progress, job.rrd
     with lock(out, make=True):  # the passes are written into MAP/passes before the building is published
         todo = [t for t in tasks if not _done(t)]
-        peak = 0.0
-        for _, mb in run_tasks(map_pass, [(t.name, t) for t in todo], workers=job.workers, ray=job.ray,
-                               progress="map passes" if progress else None):  # fmt: skip
+        peak, folder, t0 = 0.0, {t.name: Path(t.out).name for t in todo}, time.perf_counter()
+        for name, (mb, said) in run_tasks(map_pass, [(t.name, t) for t in todo], workers=job.workers, ray=job.ray,
+                                          progress="map passes" if progress else None):  # fmt: skip
             peak = max(peak, mb)
+            for line in said:  # on its own line, above the progress bar
+                tqdm.write(f"mvracklay map: {folder[name]}: {line}", file=sys.stderr)
+        seconds = time.perf_counter() - t0
         if pose_noise is not None:
             route = perturb(route, pose_noise[0], pose_noise[1], settings.seed)
         maps = {t.name: WarehouseMap.load(Path(t.out) / "warehouse.json") for t in tasks}
@@ -341,12 +361,24 @@ def map_building(
                 write_building_rrd(bmap, maps, st / "building.rrd")
             rows = write_inventory(bmap, st)
     if progress:
-        print(
-            f"mvracklay map: {len(todo)} of {len(tasks)} passes mapped, the rest kept from {out / PASSES}",
-            file=sys.stderr,
-        )
+        print(f"mvracklay map: {mapped_line(len(todo), len(tasks), out / PASSES)}", file=sys.stderr)
     written = [n for n in OUTPUTS if (out / n).is_file() and (rrd or n != "building.rrd")]
-    return BuildingResult(base, out, bmap, len(todo), rows, written, peak)
+    return BuildingResult(base, out, bmap, len(todo), rows, written, peak, seconds, time.perf_counter() - start)
+
+
+def mapped_line(mapped: int, passes: int, kept_in: Path) -> str:
+    """How many passes this run mapped, and where the others were kept from (an earlier run's row maps)."""
+    if mapped == passes:
+        return f"{passes} passes mapped"
+    if mapped == 0:
+        return f"no pass mapped, all {passes} kept from {kept_in}"
+    return f"{mapped} of {passes} passes mapped, the rest kept from {kept_in}"
+
+
+def speed_line(res: BuildingResult) -> str:
+    """The map's speed, as `mvracklay run` says its own: the wall time and the seconds a pass mapped took."""
+    each = f", {res.seconds / res.mapped:.2f} s a pass mapped ({res.mapped})" if res.mapped else ", no pass mapped"
+    return f"speed: {res.wall:.1f} s{each} (wall, this machine)"
 
 
 def summary(res: BuildingResult) -> str:

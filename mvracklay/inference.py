@@ -119,7 +119,7 @@ def predict_folder(
     """
     from tqdm import tqdm
 
-    from layouts.publish import check_writable, refuse_overlap
+    from layouts.publish import output_folder
     from layouts.rackdepth import check_rack_depth
     from mvracklay.camera import camera_warning, frames_camera
     from mvracklay.distance import FrameDistances, default_distance
@@ -128,33 +128,34 @@ def predict_folder(
 
     settings = settings or InferenceSettings()
     frames = every_nth(open_source(seq_dir, prog=prog), every)
-    refuse_overlap([out], {"INPUT": seq_dir})  # the layouts never land in (or over) the input
-    check_writable(out)
-    intr, lens = frames_camera(intrinsics, frames, record, source)
-    differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
-    if differs:
-        print(f"{prog}: warning: camera {differs}", file=sys.stderr)
-    dist_of = FrameDistances(frames, intr, distance, None, default_distance(record), prog=prog)
-    spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
-    if settings.rack_depth is not None:
-        check_rack_depth(settings.rack_depth, spec)
-    pred = make_predictor(model, settings, intr, dist_of, frames.camera_angles)
-    folder = LayoutFolder.create(out, spec)
-    bar = tqdm(total=frames.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
-    depth, n = float("nan"), 0
-    steps: list[float] = []
-    confidence: list[float] = []
-    for frame in predict_frames(pred, frames, spec, intr, lens, dist_of, mode, on_read=lambda _: bar.update(1)):
-        folder.write(frame.index, frame.layouts)
-        depth, n = frame.prediction.rack_depth, frame.index + 1
-        if frame.prediction.camera_step is not None:
-            steps.append(round(frame.prediction.camera_step, 6))
-            confidence.append(round(float(frame.prediction.camera_step_confidence), 4))
-    bar.close()
-    if n == 0:
-        raise InputError(f"{frames.path}: no frames to process")
-    if len(steps) == n:
-        write_camera_steps(folder.root, steps, confidence)
+    # the layouts never land in (or over) the input; a layout folder written whole, an earlier one replaced
+    with output_folder(out, None, command="predict", earlier=lambda d: (d / "spec.json").is_file(),
+                       inputs={"INPUT": seq_dir}) as st:  # fmt: skip
+        intr, lens = frames_camera(intrinsics, frames, record, source)
+        differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
+        if differs:
+            print(f"{prog}: warning: camera {differs}", file=sys.stderr)
+        dist_of = FrameDistances(frames, intr, distance, None, default_distance(record), prog=prog)
+        spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
+        if settings.rack_depth is not None:
+            check_rack_depth(settings.rack_depth, spec)
+        pred = make_predictor(model, settings, intr, dist_of, frames.camera_angles)
+        folder = LayoutFolder.create(st, spec)
+        bar = tqdm(total=frames.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
+        depth, n = float("nan"), 0
+        steps: list[float] = []
+        confidence: list[float] = []
+        for frame in predict_frames(pred, frames, spec, intr, lens, dist_of, mode, on_read=lambda _: bar.update(1)):
+            folder.write(frame.index, frame.layouts)
+            depth, n = frame.prediction.rack_depth, frame.index + 1
+            if frame.prediction.camera_step is not None:
+                steps.append(round(frame.prediction.camera_step, 6))
+                confidence.append(round(float(frame.prediction.camera_step_confidence), 4))
+        bar.close()
+        if n == 0:
+            raise InputError(f"{frames.path}: no frames to process")
+        if len(steps) == n:
+            write_camera_steps(folder.root, steps, confidence)
     report_readings(pred, depth, intr, progress, prog)
     if progress and dist_of.reading is not None and not dist_of.recorded:
         print(f"distance to the racks: {dist_of.reading.describe()}")

@@ -1,6 +1,6 @@
-"""What the commands write, and where: which OUT a command may write into (`check_out`, `check_apart`; the staging
-and publishing itself is `layouts.publish.staged`) and the Rerun viewer opened on a written recording
-(`spawn_viewer`). Imports no torch: `mvracklay reconstruct`, `map` and `diff` use it too."""
+"""What `run` and `reconstruct` write, and where: which OUT they may write into (`check_out`, `check_apart`; the
+rules and the publishing are `layouts.publish`) and the Rerun viewer opened on a written recording
+(`spawn_viewer`). Imports no torch: `mvracklay reconstruct` and `map` use it too."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from layouts import publish
 from layouts.errors import InputError
-from layouts.publish import check_writable, is_stage_name, refuse_overlap, stage
+from layouts.publish import refuse_overlap
 
 #: what `mvracklay run` writes into OUT
 OUTPUTS = ("layouts", "warehouse.json", "warehouse.glb", "warehouse.rrd")
@@ -26,11 +27,11 @@ def _format_of(path: Path) -> object:
     return data.get("format") if isinstance(data, dict) else None
 
 
-def _is_map(path: Path) -> bool:
-    """Whether ``path`` is a warehouse.json written by `mvracklay run` or `reconstruct`."""
+def is_run_output(folder: Path) -> bool:
+    """Whether ``folder`` holds a warehouse.json written by `mvracklay run` or `reconstruct`."""
     from stitching.warehouse_map import MAP_FORMAT
 
-    return _format_of(path) == MAP_FORMAT
+    return _format_of(folder / "warehouse.json") == MAP_FORMAT
 
 
 def check_out(
@@ -41,27 +42,8 @@ def check_out(
     earlier: Callable[[Path], bool] | None = None,
     command: str = "run",
 ) -> None:
-    """Refuse an OUT that is neither missing, empty nor an earlier output folder of the command (only ``outputs``
-    in it, ``earlier(OUT)`` true; default: run's `OUTPUTS`, its warehouse.json a map), unless ``overwrite``: then
-    only the command's own outputs are replaced. ``untouched``: outputs the command leaves alone (reconstruct's
-    layouts/), alone in OUT they count as empty; ``command``: its name in the message."""
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
-    check_writable(out)
-    if overwrite or not out.is_dir():
-        return
-    names = {p.name for p in out.iterdir() if not is_stage_name(p.name)}
-    if names <= set(untouched):
-        return
-    earlier = earlier or (lambda folder: _is_map(folder / "warehouse.json"))
-    if names <= set(outputs) and earlier(out):
-        return  # an earlier output folder of the command
-    other = sorted(names - set(outputs))
-    what = f"holds other files ({', '.join(other[:3])}{', ...' if len(other) > 3 else ''})" if other else "has no map"
-    raise InputError(
-        f"--out {out}: {what}, not an earlier {command}'s output folder; give --overwrite to replace the outputs "
-        "there (nothing else is touched) or another --out"
-    )
+    """`layouts.publish.check_out` with `run`'s outputs (`OUTPUTS`, its warehouse.json a map) by default."""
+    publish.check_out(out, overwrite, outputs, earlier or is_run_output, command, untouched)
 
 
 def check_apart(out: Path, names: tuple[str, ...], inputs: dict[str, object]) -> None:
@@ -69,12 +51,6 @@ def check_apart(out: Path, names: tuple[str, ...], inputs: dict[str, object]) ->
     calls each -> its path or None): an output never replaces an input (`layouts.publish.refuse_overlap`)."""
     given = {k: v for k, v in inputs.items() if isinstance(v, (str, Path)) and Path(v).exists()}
     refuse_overlap([out / n for n in names], given)
-
-
-def staging_dir(out: Path) -> Path:
-    """A fresh staging folder on OUT's filesystem (`layouts.publish.stage`: beside a missing OUT, inside an
-    existing one); stale ones of processes no longer alive are removed."""
-    return stage(out)
 
 
 def spawn_viewer(rrd: Path) -> None:

@@ -218,7 +218,7 @@ def test_export_cli_bad_paths_are_one_line_errors(
         capsys, ["export", str(tiny_dataset), "--format", "yolo", "--out", str(busy), "--quiet"]
     )
     assert (busy / "keep.txt").exists()
-    assert "outside" in _one_line_error(
+    assert "lies inside the input DIR" in _one_line_error(
         capsys, ["export", str(tiny_dataset), "--format", "coco", "--out", str(tiny_dataset / "coco"), "--quiet"]
     )
     assert main(["export", str(tiny_dataset), "--format", "racklay", "--out", str(busy), "--overwrite", "--quiet"]) == 0

@@ -177,7 +177,7 @@ def test_a_second_writer_into_the_same_out_is_refused(
         "map": ["map", str(tiny_building), "--layouts", "gt", "--no-rrd", "--quiet"],
         "diff": ["diff", str(tiny_building_map), str(tiny_building_map), "--no-rrd"],
     }[command] + ["--out", str(out)]  # fmt: skip
-    with lock(out, "--out" if command != "export" else "output folder"):  # another command writing there
+    with lock(out):  # another command writing there
         one_line(capsys, main(argv), command, str(out), "another command is writing there now")
     assert not out.exists() and not list(tmp_path.iterdir())  # nothing made, the lock file gone
     assert main(argv) == 0  # once it is done, the same command works

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from layouts.codecs import LayoutFolder
+from layouts.publish import stage
 from mvracklay.cli import main
-from mvracklay.outputs import staging_dir
 from stitching.free_space import format_table
 from stitching.warehouse_map import WarehouseMap
 
@@ -72,15 +72,15 @@ def test_reconstruct_follows_the_same_rule(run_dir, tmp_path, capsys):
     assert main([*argv, "--overwrite"]) == 0 and (other / "data.csv").read_text() == "x"
 
 
-def test_staging_dir_removes_stale_folders_of_dead_processes(tmp_path):
+def test_stage_removes_stale_folders_of_dead_processes(tmp_path):
     out = tmp_path / "out"
     dead = tmp_path / ".out.partial-999999999"  # above any PID the kernel hands out
     alive = tmp_path / f".out.partial-{os.getppid()}"
     other = tmp_path / ".other.partial-999999999"
     for d in (dead, alive, other):
         d.mkdir()
-    stage = staging_dir(out)
-    assert stage.name == f".out.partial-{os.getpid()}" and stage.is_dir()
+    st = stage(out)
+    assert st.name == f".out.partial-{os.getpid()}" and st.is_dir()
     assert not dead.exists() and alive.exists() and other.exists()
 
 

@@ -64,7 +64,7 @@ def test_refuses_foreign_or_different_folders(tmp_path):
     assert (root / "seq_00000" / "meta.json").stat().st_mtime_ns == keep
     afile = tmp_path / "file"
     afile.write_text("x")
-    with pytest.raises(InputError, match="not a directory"):
+    with pytest.raises(InputError, match="exists and is not a folder"):
         generate_dataset(afile, **SMALL)
 
 

@@ -28,7 +28,7 @@ from layouts.camera_record import CAMERA_ANGLE_KEYS
 from layouts.codecs import FrameLayouts, LayoutFolder
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
-from layouts.publish import is_write_failure, write_failed
+from layouts.publish import discard, is_stage_name, is_write_failure, lock, publish, stage, write_failed
 from layouts.spec import LayoutSpec
 from layouts.tasks import TaskMap, process_map
 from waresynth.config import draw_hfov, load_config
@@ -299,11 +299,12 @@ def _same_dataset_problem(root: Path, manifest: dict[str, Any]) -> str | None:
     return None
 
 
-def _prepare_root(root: Path, manifest: dict[str, Any], overwrite: bool) -> None:
-    """Create ``root``, or accept it for resuming, or refuse (or with ``overwrite`` delete) a foreign one."""
+def _prepare_root(root: Path, manifest: dict[str, Any], overwrite: bool) -> Path:
+    """Where the dataset is written: ``root`` (made, or accepted for resuming), or with ``overwrite`` a stage that
+    replaces a foreign ``root`` whole once complete (`layouts.publish.stage`); a foreign one is refused otherwise."""
     if root.exists() and not root.is_dir():
         raise InputError(f"{root}: exists and is not a directory")
-    if root.is_dir() and any(root.iterdir()):
+    if root.is_dir() and any(not is_stage_name(p.name) for p in root.iterdir()):
         problem = _same_dataset_problem(root, manifest)
         if problem is not None and not overwrite:
             raise InputError(f"{problem}; choose another folder or pass --overwrite")
@@ -317,8 +318,9 @@ def _prepare_root(root: Path, manifest: dict[str, Any], overwrite: bool) -> None
                 raise InputError(
                     f"{root}: refusing to overwrite a filesystem root, the home folder or the working folder"
                 )
-            shutil.rmtree(root)
+            return stage(root, "output folder")
     root.mkdir(parents=True, exist_ok=True)
+    return root
 
 
 def generate_dataset(
@@ -416,7 +418,35 @@ def write_dataset(
     processes. The bytes are the same either way."""
     if tasks is not None and not callable(tasks):
         raise InputError(f"tasks must be a function (fn, items) -> (key, result) pairs, got {type(tasks).__name__}")
-    _prepare_root(root, manifest, overwrite)
+    with lock(root, "output folder"):  # one writer at a time
+        into = _prepare_root(root, manifest, overwrite)
+        try:
+            _fill(into, manifest, spec, cfg, image_size, workers, progress, stats, plans, beside, tasks)
+        except BaseException as e:
+            if into != root:
+                discard(into)  # a foreign folder replaced only once the new dataset is whole
+            if is_write_failure(e, into):  # a full disk: one line; what is kept depends on where it was written
+                raise write_failed(e, root, "output folder", RESUMABLE if into == root else "") from None
+            raise
+        if into != root:
+            publish(into, root, None, "output folder")
+    return root
+
+
+def _fill(
+    root: Path,
+    manifest: dict[str, Any],
+    spec: LayoutSpec,
+    cfg: dict[str, Any],
+    image_size: tuple[int, int],
+    workers: int,
+    progress: bool,
+    stats: list[dict[str, Any]] | None,
+    plans: dict[str, tuple[RowPlan, CameraPlan]] | None,
+    beside: Callable[[Path], None] | None,
+    tasks: TaskMap | None,
+) -> None:
+    """`write_dataset`'s writing into ``root`` (the dataset's folder, or the stage that replaces it)."""
     atomic_write_json(root / MANIFEST, manifest)
     if beside is not None:
         beside(root)
@@ -425,13 +455,7 @@ def write_dataset(
         shutil.rmtree(root / f".{e['name']}.tmp", ignore_errors=True)
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
     if todo:
-        try:
-            _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans, tasks)
-        except OSError as e:
-            if not is_write_failure(e, root):
-                raise
-            raise write_failed(e, root, "output folder", RESUMABLE) from None
-    return root
+        _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans, tasks)
 
 
 #: what is kept when writing the sequences fails (`write_failed`)

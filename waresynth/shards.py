@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
+from layouts.publish import is_write_failure, lock, refuse_overlap, write_failed
 from layouts.spec import LayoutSpec
 from waresynth.dataset import check_sequence_name, read_manifest
 from waresynth.generate import MANIFEST, build_manifest
@@ -159,7 +160,22 @@ def merge_shards(
     """
     out = Path(out_dir)
     shards = [Path(d) for d in shard_dirs]
+    refuse_overlap([out], {f"SHARD_DIR {i + 1}": d for i, d in enumerate(shards) if d.exists()}, "OUT")
     full, plan = _plan(out, shards)
+    with lock(out, "OUT"):  # one merge into OUT at a time; it resumes in place, the manifest written last
+        try:
+            _move(out, plan, full, link, progress)
+        except OSError as e:
+            if not is_write_failure(e, out):
+                raise
+            raise write_failed(
+                e, out, "OUT", "; what was moved is in OUT: run the same command again to go on"
+            ) from None
+    return out
+
+
+def _move(out: Path, plan: dict[str, Path | None], full: dict[str, Any], link: bool, progress: bool) -> None:
+    """`merge_shards`'s moves into ``out``, its manifest last."""
     out.mkdir(parents=True, exist_ok=True)
     for stale in out.glob(".*.tmp"):
         shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
@@ -182,4 +198,3 @@ def merge_shards(
                 os.replace(tmp, dst)
                 shutil.rmtree(src / name)
     atomic_write_json(out / MANIFEST, full, fsync=True)
-    return out

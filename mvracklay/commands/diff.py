@@ -73,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from layouts.locations import read_rows
-    from layouts.publish import refuse_overlap, staged
-    from mvracklay.outputs import check_out
+    from layouts.publish import output_folder
     from stitching.building.diff import DiffConfig, diff_buildings, format_diff
     from stitching.building.diff_export import CHANGE_FILES, is_changes_folder, write_changes
     from stitching.building.eval import evaluate_changes
@@ -95,26 +94,27 @@ def run(args: argparse.Namespace) -> int:
     if args.new is None:
         raise InputError("diff: NEW_MAP is missing (or give --expected WMS_CSV to compare one map with the WMS)")
     old_path, new_path = building_path(args.old, "OLD_MAP"), building_path(args.new, "NEW_MAP")
-    refuse_overlap([args.out], {"OLD_MAP": args.old, "NEW_MAP": args.new, "--truth": args.truth})
-    check_out(args.out, args.overwrite, outputs=CHANGE_FILES, earlier=is_changes_folder, command="diff")
-    old, new = BuildingMap.load(old_path), BuildingMap.load(new_path)
-    truth = None
-    if args.truth is not None:
-        if not args.truth.is_file():
-            raise InputError(f"--truth {args.truth}: file not found")
-        truth = read_rows(args.truth.read_text(), ("location", "change"), f"--truth {args.truth}")
-        check_change_rows(truth, f"--truth {args.truth}")
-    d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
-    print(format_diff(d, args.limit))
-    scores = evaluate_changes(d.rows(), truth) if truth is not None else None
-    beside = args.truth.parent / "location_changes.csv" if truth is not None else None
-    per_location = score_locations(d.location_rows(), beside) if beside is not None and beside.is_file() else None
-    for cat, s in (scores or {}).items():
-        print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} found, "
-              f"{s['truth']} true)")  # fmt: skip
-    if per_location is not None:
-        scores["locations"] = per_location
-    with staged(args.out, CHANGE_FILES) as stage:  # DIR held, the changes swapped in whole
+    inputs = {"OLD_MAP": args.old, "NEW_MAP": args.new, "--truth": args.truth}
+    with output_folder(
+        args.out, CHANGE_FILES, command="diff", earlier=is_changes_folder, inputs=inputs, overwrite=args.overwrite
+    ) as stage:  # DIR checked and held first, the changes swapped in whole
+        old, new = BuildingMap.load(old_path), BuildingMap.load(new_path)
+        truth = None
+        if args.truth is not None:
+            if not args.truth.is_file():
+                raise InputError(f"--truth {args.truth}: file not found")
+            truth = read_rows(args.truth.read_text(), ("location", "change"), f"--truth {args.truth}")
+            check_change_rows(truth, f"--truth {args.truth}")
+        d = diff_buildings(old, new, replace(DiffConfig.for_maps(old, new), **given))
+        print(format_diff(d, args.limit))
+        scores = evaluate_changes(d.rows(), truth) if truth is not None else None
+        beside = args.truth.parent / "location_changes.csv" if truth is not None else None
+        per_location = score_locations(d.location_rows(), beside) if beside is not None and beside.is_file() else None
+        for cat, s in (scores or {}).items():
+            print(f"{cat:<8} precision {s['precision']:.3f} recall {s['recall']:.3f} ({s['tp']} of {s['found']} "
+                  f"found, {s['truth']} true)")  # fmt: skip
+        if per_location is not None:
+            scores["locations"] = per_location
         written = write_changes(old, new, d, stage, rrd=not args.no_rrd, evaluation=scores)
     print("wrote " + ", ".join(str(args.out / n) for n in written))
     return 0
@@ -122,21 +122,19 @@ def run(args: argparse.Namespace) -> int:
 
 def _expected(args: argparse.Namespace) -> int:
     """``diff MAP --expected WMS_CSV``: the map's exceptions against the WMS's expected counts."""
-    from layouts.publish import refuse_overlap, staged
-    from mvracklay.outputs import check_out
+    from layouts.publish import output_folder
     from stitching.building import location_counts as lc
     from stitching.building.map import BuildingMap
 
     if args.new is not None:
         raise InputError("diff --expected compares one map with the WMS: give OLD_MAP alone, not NEW_MAP too")
     path = building_path(args.old, "MAP")
-    refuse_overlap([args.out], {"MAP": args.old, "--expected": args.expected})
-    earlier = lambda d: (d / "exceptions.csv").is_file()  # noqa: E731
-    check_out(args.out, args.overwrite, outputs=lc.EXCEPTION_FILES, earlier=earlier, command="diff")
-    expected = lc.read_expected(args.expected)
-    rows = lc.expected_exceptions(BuildingMap.load(path), expected)
-    print(lc.format_exceptions(rows, len(expected), args.limit))
-    with staged(args.out, lc.EXCEPTION_FILES) as stage:  # DIR held, the exceptions swapped in whole
+    inputs = {"MAP": args.old, "--expected": args.expected}
+    with output_folder(args.out, lc.EXCEPTION_FILES, command="diff", earlier=lambda d: (d / "exceptions.csv").is_file(),
+                       inputs=inputs, overwrite=args.overwrite) as stage:  # fmt: skip
+        expected = lc.read_expected(args.expected)
+        rows = lc.expected_exceptions(BuildingMap.load(path), expected)
+        print(lc.format_exceptions(rows, len(expected), args.limit))
         lc.write_exceptions(rows, stage)
     print(f"wrote {args.out / 'exceptions.csv'}")
     return 0

@@ -92,8 +92,9 @@ def _ray_help() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvracklay.building_job import MapJob, MapSettings, map_building, summary
+    from mvracklay.building_job import MapJob, MapSettings, map_building, speed_line, summary
     from mvracklay.outputs import spawn_viewer
+    from mvracklay.parallel import check_ray_address
     from mvracklay.threads import resolve_threads
     from stitching.building.route import parse_pose_noise
 
@@ -104,8 +105,6 @@ def run(args: argparse.Namespace) -> int:
     if args.spawn and args.no_rrd:
         raise InputError("--spawn opens MAP/building.rrd; it cannot be combined with --no-rrd")
     if args.ray is not None:
-        from mvracklay.parallel import check_ray_address
-
         check_ray_address(args.ray)
     noise = parse_pose_noise(args.pose_noise) if args.pose_noise else None
     run_cfg = {}
@@ -122,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
                  overwrite=args.overwrite)  # fmt: skip
     res = map_building(args.dataset, args.out, settings, job)
     print(summary(res))
+    print(speed_line(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))
     scores = None
     if args.evaluate:

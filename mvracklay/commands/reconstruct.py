@@ -58,8 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from layouts.publish import staged
-    from mvracklay.outputs import check_apart, check_out, spawn_viewer
+    from layouts.publish import output_folder
+    from mvracklay.outputs import is_run_output, spawn_viewer
     from stitching.path_record import registration_warning
 
     seq_dir = Path(args.seq_dir)
@@ -84,11 +84,9 @@ def run(args: argparse.Namespace) -> int:
         )
     config = stitch_settings(args.board_thickness, args.noisy, args.keep_steps)
     final_out = Path(args.out)
-    check_out(final_out, args.overwrite, untouched=("layouts",))
-    check_apart(
-        final_out, MAP_OUTPUTS, {"layouts": folder.root, "meta.json": seq_dir / "meta.json", "rgb": seq_dir / "rgb"}
-    )
-    with staged(final_out, MAP_OUTPUTS) as out:  # outputs appear in OUT only when the whole run succeeded
+    inputs = {"layouts": folder.root, "meta.json": seq_dir / "meta.json", "rgb": seq_dir / "rgb", "INPUT": seq_dir}
+    with output_folder(final_out, MAP_OUTPUTS, command="run", earlier=is_run_output, inputs=inputs,
+                       overwrite=args.overwrite, untouched=("layouts",), may_hold_inputs=True) as out:  # fmt: skip
         wmap, t_stitch = reconstruct_folder(
             folder, indices, out, seq, config, not args.no_rrd, not args.no_rgb, args.map_every, not args.quiet
         )

@@ -23,11 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from layouts.canonical import CanonicalView
-from network.heads.uprights import BACK_EDGE_WEIGHT, upright_depth_scores
+from network.heads.uprights import BACK_EDGE_WEIGHT, pool_pyramid, upright_depth_scores
 
 #: board thickness assumed for the underside of boards above the camera (the generator draws 4-8 cm)
 NOMINAL_THICKNESS = 0.06
@@ -41,12 +40,9 @@ PROB_FLOOR = 1e-3
 
 
 def pool_rows(p1: torch.Tensor, p2: torch.Tensor) -> torch.Tensor:
-    """Pyramid maps ``(N, c1, H/2, W/2)`` and ``(N, c2, H/4, W/4)`` -> ``(N, 2 (c1 + c2), H/2)``: mean and
-    max over columns (boards are horizontal in the canonical image), the coarse map brought to the fine rows."""
-    a = torch.cat([p1.mean(-1), p1.amax(-1)], 1)
-    b = torch.cat([p2.mean(-1), p2.amax(-1)], 1)
-    b = F.interpolate(b, size=a.shape[-1], mode="linear", align_corners=False)
-    return torch.cat([a, b], 1)
+    """`network.heads.uprights.pool_pyramid` over the columns (boards are horizontal in the canonical image):
+    ``(N, 2 (c1 + c2), H/2)``."""
+    return pool_pyramid(p1, p2, -1)
 
 
 def row_net(cin: int, width: int = 64) -> nn.Sequential:

@@ -39,13 +39,18 @@ PROB_FLOOR = 1e-3
 BACK_EDGE_WEIGHT = 0.1
 
 
-def pool_columns(p1: torch.Tensor, p2: torch.Tensor) -> torch.Tensor:
-    """Pyramid maps ``(N, c1, H/2, W/2)`` and ``(N, c2, H/4, W/4)`` -> ``(N, 2 (c1 + c2), W/2)``: mean and
-    max over rows (uprights are vertical in the canonical image), the coarse map brought to the fine columns."""
-    a = torch.cat([p1.mean(-2), p1.amax(-2)], 1)
-    b = torch.cat([p2.mean(-2), p2.amax(-2)], 1)
+def pool_pyramid(p1: torch.Tensor, p2: torch.Tensor, over: int) -> torch.Tensor:
+    """Pyramid maps ``(N, c1, H/2, W/2)`` and ``(N, c2, H/4, W/4)`` -> mean and max over dimension ``over`` (-2:
+    the rows, -1: the columns), the coarse map brought to the fine positions left: ``(N, 2 (c1 + c2), L)``."""
+    a = torch.cat([p1.mean(over), p1.amax(over)], 1)
+    b = torch.cat([p2.mean(over), p2.amax(over)], 1)
     b = F.interpolate(b, size=a.shape[-1], mode="linear", align_corners=False)
     return torch.cat([a, b], 1)
+
+
+def pool_columns(p1: torch.Tensor, p2: torch.Tensor) -> torch.Tensor:
+    """`pool_pyramid` over the rows (uprights are vertical in the canonical image): ``(N, 2 (c1 + c2), W/2)``."""
+    return pool_pyramid(p1, p2, -2)
 
 
 class UprightHead(nn.Module):

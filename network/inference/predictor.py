@@ -233,13 +233,15 @@ class Predictor:
     def stream(self, frames: Iterable[np.ndarray]) -> Iterator[FramePrediction]:
         """Each frame's `FramePrediction` (logits with the box offset applied, slots, depths), carrying the memory;
         None for a frame the network skipped (``trunk_from``, `network.training.head_inputs.HeadInputPredictor`)."""
-        return _typed(self._outputs(frames, self._stream, streaming=True))
+        return _typed(self._depths(self._decided(frames, self._stream, streaming=True)))
 
     def window(self, frames: Iterable[np.ndarray], recompute: bool = False) -> Iterator[FramePrediction]:
         """Each frame's `FramePrediction` from the window of ``seq_len`` frames ending there (fresh memory each)."""
         if self.trunk_from:
             raise InputError("trunk_from skips frames of a stream; the windowed mode runs every frame")
-        return _typed(self._outputs(frames, lambda inputs: self._window(inputs, recompute), streaming=False))
+        return _typed(
+            self._depths(self._decided(frames, lambda inputs: self._window(inputs, recompute), streaming=False))
+        )
 
     def run(self, frames: Iterable[np.ndarray], mode: str = "stream") -> Iterator[FramePrediction]:
         """Each frame's `FramePrediction`, streaming or windowed (``mode``)."""
@@ -344,14 +346,6 @@ class Predictor:
         valid = torch.isfinite(out["anchors"]).cpu().numpy()
         boxes.add(*reading(logits), valid, step, front_reading(logits))
         _put_box_depths(out, boxes, boxes.camera_x, valid)
-
-    def _outputs(
-        self,
-        frames: Iterable[np.ndarray],
-        raw: Callable[[Iterable[Inputs]], Iterator[dict[str, torch.Tensor]]],
-        streaming: bool,
-    ) -> Iterator[dict[str, torch.Tensor]]:
-        return self._depths(self._decided(frames, raw, streaming))
 
     @torch.no_grad()
     def _decided(

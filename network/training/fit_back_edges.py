@@ -76,14 +76,20 @@ def rack_row(seq: Any, what: str = "the back-edge head") -> tuple[float, float]:
         raise InputError(f"{name}: fitting {what} needs a generated dataset (scene.json with the rack row)") from None
 
 
-@torch.no_grad()
-def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progress: bool = True) -> Cached:
-    """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
-    view = model.cfg.view
+def frames_to_fit(model: MVRackLay, sequences: list[Any], every: int, head: str) -> int:
+    """How many frames a head's fit reads (every ``every``-th of each sequence), ``model`` put in eval mode; one
+    line when there are none."""
     model.eval()
     total = sum(len(range(0, s.num_frames, every)) for s in sequences)
     if not total:
-        raise InputError("no frames to fit the back-edge head on")
+        raise InputError(f"no frames to fit {head} on")
+    return total
+
+
+@torch.no_grad()
+def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progress: bool = True) -> Cached:
+    """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
+    view, total = model.cfg.view, frames_to_fit(model, sequences, every, "the back-edge head")
     # one block per array, filled in place: many small per-sequence pieces fragment the heap (several x the memory)
     pooled: torch.Tensor | None = None
     rows = torch.empty((total, view.height))

@@ -24,7 +24,15 @@ from network.heads.uprights import UprightHead, pool_columns
 from network.inference.predictor import Predictor, sequence_camera
 from network.model.net import MVRackLay
 from network.preprocess import frame_camera
-from network.training.fit_back_edges import FitConfig, fit_epochs, fit_head, head_probs, rack_row, reading_errors
+from network.training.fit_back_edges import (
+    FitConfig,
+    fit_epochs,
+    fit_head,
+    frames_to_fit,
+    head_probs,
+    rack_row,
+    reading_errors,
+)
 from network.training.train_data import require_level_camera, upright_faces
 
 #: a canonical column is an upright's when this fraction of its rows inside the image show it
@@ -69,11 +77,7 @@ def upright_targets(seq: Any, i: int, view: CanonicalView, rack_depth: float) ->
 @torch.no_grad()
 def cache_features(model: MVRackLay, sequences: list[Any], every: int = 1, progress: bool = True) -> Cached:
     """Run the frozen trunk over ``sequences`` (every ``every``-th frame) and keep what the head needs."""
-    view = model.cfg.view
-    model.eval()
-    total = sum(len(range(0, s.num_frames, every)) for s in sequences)
-    if not total:
-        raise InputError("no frames to fit the upright head on")
+    view, total = model.cfg.view, frames_to_fit(model, sequences, every, "the upright head")
     pooled: torch.Tensor | None = None  # one block per array, filled in place (see network.training.fit_back_edges)
     target = np.zeros((total, 2, view.width), np.float32)
     inside = np.zeros((total, view.width), bool)

@@ -11,8 +11,7 @@ from typing import Any
 import numpy as np
 
 from layouts.fileio import atomic_write_json, atomic_write_text
-from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table
-from waresynth.exporters.staging import (
+from waresynth.exporters.common import (
     EXPORT_VERSION,
     check_split_name,
     copy_file,
@@ -22,6 +21,7 @@ from waresynth.exporters.staging import (
     source_record,
     split_names,
 )
+from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table
 
 
 def rle_counts(mask: np.ndarray) -> list[int]:

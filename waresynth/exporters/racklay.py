@@ -29,6 +29,15 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_save_npy, atomic_write_json, atomic_write_text, load_json, load_npy
 from layouts.spec import LayoutSpec
 from waresynth.dataset import check_frame_index
+from waresynth.exporters.common import (
+    SPLIT_ORDER,
+    check_split_name,
+    copy_file,
+    progress_bar,
+    run_staged,
+    source_record,
+    split_names,
+)
 from waresynth.exporters.racklay_lists import (
     DEFAULT_SLOTS,
     IMAGE_DIR,
@@ -37,15 +46,6 @@ from waresynth.exporters.racklay_lists import (
     check_out_path,
     list_frame,
     list_texts,
-)
-from waresynth.exporters.staging import (
-    SPLIT_ORDER,
-    check_split_name,
-    copy_file,
-    progress_bar,
-    run_staged,
-    source_record,
-    split_names,
 )
 
 RACKLAY_MANIFEST = "racklay_export.json"

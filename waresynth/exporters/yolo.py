@@ -11,8 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from layouts.fileio import atomic_write_json, atomic_write_text
-from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table, mask_bbox
-from waresynth.exporters.staging import (
+from waresynth.exporters.common import (
     EXPORT_VERSION,
     check_split_name,
     copy_file,
@@ -22,6 +21,7 @@ from waresynth.exporters.staging import (
     source_record,
     split_names,
 )
+from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table, mask_bbox
 
 
 def yolo_box(bbox: tuple[int, int, int, int], width: int, height: int) -> tuple[float, float, float, float]:

@@ -1,11 +1,10 @@
-"""What every exporter shares: the checked dataset, a staging folder that replaces the output folder only
-once complete, split names, file copies and the record of the source dataset."""
+"""What every exporter shares: the checked dataset, its output folder written whole (`run_staged`), split names,
+file copies and the record of the source dataset."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -13,16 +12,7 @@ from tqdm import tqdm
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
-from layouts.publish import (
-    check_writable,
-    discard,
-    is_stage_name,
-    is_write_failure,
-    lock,
-    publish,
-    stage,
-    write_failed,
-)
+from layouts.publish import output_folder
 
 #: version of the COCO and YOLO exports (`export.json`)
 EXPORT_VERSION = 1
@@ -79,30 +69,9 @@ def open_checked(dataset_dir: str | os.PathLike) -> Any:
     return open_dataset(root)
 
 
-@dataclass
-class Staging:
-    """A staging folder on ``out``'s filesystem that replaces ``out``'s content only once complete
-    (`layouts.publish`: a failed or interrupted export leaves ``out`` as it was)."""
-
-    out: Path
-    overwrite: bool
-    tmp: Path = field(init=False)
-
-    def __post_init__(self) -> None:
-        if self.out.exists():
-            if not self.out.is_dir():
-                raise InputError(f"{self.out}: exists and is not a folder")
-            if any(not is_stage_name(p.name) for p in self.out.iterdir()) and not self.overwrite:
-                raise InputError(f"{self.out}: output folder exists and is not empty (pass --overwrite to replace it)")
-        check_writable(self.out, "output folder")
-        self.tmp = stage(self.out, "output folder")
-
-    def commit(self) -> Path:
-        publish(self.tmp, self.out, managed=None, what="output folder")
-        return self.out
-
-    def abort(self) -> None:
-        discard(self.tmp)
+def is_export(folder: Path) -> bool:
+    """Whether ``folder`` is an earlier export (its record `export.json` or ``racklay_export.json`` there)."""
+    return any((folder / n).is_file() for n in ("export.json", "racklay_export.json"))
 
 
 def run_staged(
@@ -112,24 +81,15 @@ def run_staged(
     overwrite: bool,
     progress: bool,
 ) -> Path:
-    """Open and check the dataset, let ``build`` fill a staging folder, then move it to ``out_dir``."""
+    """Open and check the dataset, let ``build`` fill a stage that replaces ``out_dir`` whole when complete
+    (`layouts.publish.output_folder`: an export owns all of its folder)."""
     dataset = open_checked(dataset_dir)
-    out = Path(out_dir)
-    src, dst = Path(dataset.root).resolve(), out.resolve()
-    if dst == src or src in dst.parents or dst in src.parents:
-        raise InputError(f"{out}: output folder must lie outside the dataset folder {dataset.root}")
     if not dataset.sequences():
         raise InputError(f"{dataset.root}: dataset has no sequences")
-    with lock(out, "output folder"):  # one export into OUT at a time
-        stage = Staging(out, overwrite)
-        try:
-            build(dataset, stage.tmp, progress)
-        except BaseException as e:
-            stage.abort()
-            if is_write_failure(e, stage.tmp):  # a full disk while staging: one line, the earlier export whole
-                raise write_failed(e, out, "output folder") from None
-            raise
-        return stage.commit()
+    with output_folder(out_dir, None, command="export", earlier=is_export, inputs={"DIR": dataset.root},
+                       overwrite=overwrite) as st:  # fmt: skip
+        build(dataset, st, progress)
+    return Path(out_dir)
 
 
 def source_record(dataset: Any) -> dict[str, Any]:
