@@ -11,16 +11,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from mvracklay.options import DEVICES
+from mvracklay.models import CHECKPOINT_HELP
+from mvracklay.options import THREADS_HELP
 from mvracklay.parallel import RAY_HELP
 from mvracklay.settings import (
+    ComputeSettings,
     InferenceSettings,
+    OutputSettings,
+    RunConfig,
     check_range,
     json_out_setting,
     nested,
     precision_setting,
     quiet_setting,
+    same_as,
     setting,
 )
 from waresynth.exporters import EXPORT_FORMATS
@@ -63,10 +67,8 @@ class GenerateSettings:
         "sensor.supersample (default: the config's, 1)",
         metavar="S", type=int, choices=(1, 2, 3, 4),
     )  # fmt: skip
-    workers: int = setting(
-        "--workers", "worker processes (one sequence at a time each)", 1, metavar="W", type=int, range=(1, 256)
-    )
-    ray: str | None = setting("--ray", RAY_HELP + "; one task per sequence or pass", metavar="ADDRESS")
+    workers: int = same_as(ComputeSettings, "workers")
+    ray: str | None = same_as(ComputeSettings, "ray", RAY_HELP + "; one task per sequence or pass")
     format: str = setting(
         "--format", "also export the dataset in this format (as `mvracklay export` does) to --export-out",
         "native", choices=("native", *EXPORT_FORMATS),
@@ -121,17 +123,6 @@ class GenerateSettings:
             )
 
 
-@dataclass(frozen=True)
-class EvaluateBaselineSettings:
-    """``mvracklay evaluate-baseline``: Table I of the depth-projection baseline."""
-
-    data: Path | None = setting("--data", "dataset folder written by 'mvracklay generate'", type=Path, required=True)
-    split: str = setting("--split", "which split to score (train, val, test, or all)", "test")
-    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
-    json_out: Path | None = json_out_setting("also write the result as JSON here")
-    quiet: bool = quiet_setting("no progress bar", alias=True)
-
-
 #: the inference settings `evaluate` takes (a rack depth is each sequence's own to read)
 EVALUATE_INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll", "pitch", "yaw")
 
@@ -140,7 +131,7 @@ EVALUATE_INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll"
 class EvaluateSettings:
     """``mvracklay evaluate``: Table I of a checkpoint on a dataset split."""
 
-    checkpoint: Path | None = setting("--checkpoint", CHECKPOINT_HELP, type=checkpoint_arg, required=True)
+    checkpoint: Path | None = same_as(RunConfig, "checkpoint", CHECKPOINT_HELP, required=True)
     data: Path | None = setting(
         "--data",
         "dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')",
@@ -150,10 +141,10 @@ class EvaluateSettings:
     mode: str = setting("--mode", "windowed (paper) or streaming", "window", choices=["window", "stream"])
     #: --flip-average, --no-depth-read, --whole-sequence, --fuse-frames, --roll, --pitch, --yaw
     inference: InferenceSettings = nested(InferenceSettings, only=EVALUATE_INFERENCE)
-    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
-    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    max_frames: int = same_as(RunConfig, "max_frames", "frames per sequence (0 = all)")
+    threads: int | str = same_as(ComputeSettings, "threads")
     precision: str = precision_setting()
-    device: str = setting("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    device: str = same_as(ComputeSettings, "device")
     true_anchors: bool = setting(
         "--true-anchors",
         "analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
@@ -170,6 +161,17 @@ class EvaluateSettings:
     quiet: bool = quiet_setting("hide the progress bar", alias=True)
 
 
+@dataclass(frozen=True)
+class EvaluateBaselineSettings:
+    """``mvracklay evaluate-baseline``: Table I of the depth-projection baseline."""
+
+    data: Path | None = same_as(EvaluateSettings, "data", "dataset folder written by 'mvracklay generate'")
+    split: str = same_as(EvaluateSettings, "split")
+    max_frames: int = same_as(RunConfig, "max_frames", "frames per sequence (0 = all)")
+    json_out: Path | None = json_out_setting("also write the result as JSON here")
+    quiet: bool = quiet_setting("no progress bar", alias=True)
+
+
 def _with_checkpoint(name: str, help: str, default: object = None, **kwargs: object) -> object:
     return setting(name, f"with --checkpoint: {help}", default, **kwargs)
 
@@ -180,13 +182,12 @@ class EvalReconstructionSettings:
 
     path: str | None = setting("path", "WareSynth dataset or sequence folder", metavar="PATH")
     layouts: str = setting("--layouts", "'gt' or a layout folder (single sequence only)", "gt")
-    checkpoint: Path | None = setting(
-        "--checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those",
-        type=checkpoint_arg,
-    )  # fmt: skip
+    checkpoint: Path | None = same_as(
+        RunConfig, "checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those"
+    )
     mode: str = _with_checkpoint("--mode", "inference mode", "stream", choices=["stream", "window"])
-    threads: int = _with_checkpoint("--threads", "torch CPU threads", 2, type=int)
-    device: str = _with_checkpoint("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    threads: int | str = same_as(ComputeSettings, "threads", f"with --checkpoint: {THREADS_HELP}")
+    device: str = same_as(ComputeSettings, "device", "with --checkpoint: auto = the GPU when CUDA is present")
     #: metres, 'scene' (each sequence's own, from its scene.json) or None (`mvracklay.reconstruction_eval`)
     rack_depth: str | None = _with_checkpoint(
         "--rack-depth",
@@ -208,7 +209,7 @@ class EvalReconstructionSettings:
     split: str | None = setting("--split", "only this split of a dataset", choices=("train", "val", "test"))
     limit: int = setting("--limit", "at most this many sequences (0 = all)", 0, type=int)
     iou: float = setting("--iou", "3D IoU threshold for a true positive", 0.5, type=float)
-    board_thickness: float = setting("--board-thickness", "assumed board thickness (metres)", 0.06, type=float)
+    board_thickness: float = same_as(RunConfig, "board_thickness", "assumed board thickness (metres)")
     noisy: bool = setting("--noisy", "clean-up settings for network output", False, action="store_true")
     morph: int = setting("--morph", "degrade: grow (>0) / shrink (<0) boxes by N pixels", 0, type=int)
     flip: float = setting("--flip", "degrade: fraction of pixels flipped to a random class", 0.0, type=float)
@@ -221,5 +222,5 @@ class EvalReconstructionSettings:
         False, action="store_true",
     )  # fmt: skip
     seed: int = setting("--seed", "seed of the degradation and of --handheld's walks", 0, type=int)
-    json: bool = setting("--json", "print JSON instead of a table", False, action="store_true")
+    json: bool = same_as(OutputSettings, "json")
     quiet: bool = quiet_setting("no progress bar", alias=True)

@@ -16,7 +16,7 @@ from mvracklay.options import (
     add_threads_option,
     read_config,
 )
-from mvracklay.presets import PRESETS
+from mvracklay.presets import PRESETS, preset_defaults
 from mvracklay.settings import SERVE_PORT, InferenceSettings, LiveSettings, RunConfig, add_options, from_args
 from mvracklay.threads import resolve_threads
 
@@ -95,7 +95,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
     from_file = read_config(args.config, parser, settings=classes) if args.config else {}
     quality = args.quality or from_file.pop("quality", None) or "default"
     from_file.pop("quality", None)
-    return {**PRESETS[quality], **from_file, "quality": quality}
+    return {**preset_defaults(quality), **from_file, "quality": quality}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.settings import setting
+from mvracklay.settings import ComputeSettings, same_as, setting
+from mvracklay.threads import resolve_threads
 from network.device import DistEnv, device_for
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import PRECISIONS, cpu_has_native_bf16
@@ -140,7 +141,8 @@ class TrainSettings:
         _T.precision, choices=list(PRECISIONS),
     )  # fmt: skip
     seed: int = _opt("--seed", "seed of the weights, the data order and augmentation", _T.seed, type=int)
-    threads: int = _opt("--threads", "torch CPU threads", _T.threads, type=int)
+    threads: int | str = same_as(ComputeSettings, "threads", "torch CPU threads: a count, or auto: the cores free of "
+                                 "other work when training starts", default=_T.threads, group="optimisation")  # fmt: skip
     workers: int = _opt("--workers", "data-loader worker processes", _T.workers, type=int)
     checkpoint_every: int = _opt(
         "--checkpoint-every",
@@ -304,7 +306,7 @@ def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
         jpeg_quality=tuple(args.jpeg_quality),
         precision=args.precision,
         seed=args.seed,
-        threads=args.threads,
+        threads=resolve_threads(args.threads),
         workers=args.workers,
         val_frames=args.val_frames,
         val_sequences=args.val_sequences,
