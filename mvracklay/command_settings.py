@@ -224,3 +224,82 @@ class EvalReconstructionSettings:
     seed: int = setting("--seed", "seed of the degradation and of --handheld's walks", 0, type=int)
     json: bool = same_as(OutputSettings, "json")
     quiet: bool = quiet_setting("no progress bar", alias=True)
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """``mvracklay export``: a generated dataset in another format."""
+
+    dataset: str | None = setting("dataset", "WareSynth dataset folder (holds manifest.json)", metavar="DIR")
+    format: str | None = setting("--format", "output format", required=True, choices=EXPORT_FORMATS)
+    out: Path | None = same_as(
+        OutputSettings, "out", "output folder (must be outside DIR)", metavar="OUT", required=True
+    )
+    yolo_task: str = setting(
+        "--yolo-task", "yolo labels: boxes (detect) or polygons (segment)", "detect", choices=("detect", "segment")
+    )
+    slots: int | None = same_as(
+        GenerateSettings,
+        "slots",
+        "racklay: shelf slots per layout stack, the empty ones all 0 (default 4, the reference code's --num_racks; "
+        "at least the dataset's slots)",
+        metavar="N",
+    )  # fmt: skip
+    overwrite: bool = same_as(OutputSettings, "overwrite", "replace OUT if it exists and is not empty")
+    quiet: bool = same_as(OutputSettings, "quiet", "no progress bar")
+
+
+@dataclass(frozen=True)
+class InspectSettings:
+    """``mvracklay inspect``: a generated dataset's summary and a preview sheet."""
+
+    dataset: str | None = setting("dataset", "WareSynth dataset folder (holds manifest.json)", metavar="DIR")
+    sequence: str | None = setting("--sequence", "sequence to preview (default: the first one)", metavar="NAME")
+    frame: int = setting("--frame", "frame index within the sequence", 0, metavar="I", type=int)
+    out: Path | None = same_as(
+        OutputSettings, "out", "where to write the preview sheet", default="sheet.png", metavar="PNG"
+    )
+    max_frames: int = same_as(
+        RunConfig, "max_frames", "measure pixel fractions on at most N frames spread evenly over the dataset",
+        default=200, metavar="N",
+    )  # fmt: skip
+    no_sheet: bool = setting("--no-sheet", "print the summary only", False, action="store_true")
+    quiet: bool = same_as(OutputSettings, "quiet", "no progress bar")
+
+
+@dataclass(frozen=True)
+class MergeShardsSettings:
+    """``mvracklay merge-shards``: the shards of a generated dataset joined into one."""
+
+    out: Path | None = same_as(GenerateSettings, "out", "merged dataset folder (new or empty)")
+    shards: list[Path] | None = setting(
+        "shards", "shard folders, all N of them", metavar="SHARD_DIR", type=Path, nargs="+"
+    )
+    link: bool = setting(
+        "--link",
+        "hard-link the files instead of moving the folders (the shards stay usable; copies across filesystems)",
+        False, action="store_true",
+    )  # fmt: skip
+    quiet: bool = same_as(OutputSettings, "quiet", "hide the progress bar")
+
+
+@dataclass(frozen=True)
+class RecipeSettings:
+    """``mvracklay train --recipe``: a training recipe's stages run into the run folder (`mvracklay.training.runner`)."""
+
+    recipe: str | None = setting(
+        "--recipe",
+        "run a training recipe into --out (the run folder): a shipped one (smoke, default-128, budget-256, "
+        "default-256) or a TOML file; the training options above then come from the recipe",
+        metavar="NAME|FILE", group="recipe",
+    )  # fmt: skip
+    set: list[str] = setting(
+        "--set",
+        "with --recipe: change one value, e.g. vars.head_sequences=4, data.train.sequences=12, "
+        "stage.stage2.minutes=0.3, stage.stage2.lr=1e-3, budget.total=100, precision=fp32 (repeatable)",
+        [], action="append", metavar="PATH=VALUE", group="recipe",
+    )  # fmt: skip
+    dry_run: bool = setting(
+        "--dry-run", "with --recipe: print the stages and their arguments only", False, action="store_true",
+        group="recipe",
+    )  # fmt: skip

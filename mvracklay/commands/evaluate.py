@@ -49,7 +49,9 @@ def run(args: EvaluateSettings) -> int:
     fuse_tau = settings.fuse_tau
     # an angle not given is each sequence's recorded one (0 for a level camera)
     roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((settings.roll, settings.pitch, settings.yaw), ANGLES))
-    model, record = load_for_inference(args.checkpoint, NAME, args.device, args.precision, resolve_threads(args.threads))
+    model, record = load_for_inference(
+        args.checkpoint, NAME, args.device, args.precision, resolve_threads(args.threads)
+    )
     ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:
