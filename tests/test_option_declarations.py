@@ -93,3 +93,20 @@ def test_evaluate_takes_threads_auto_on_the_command_line(tmp_path, capsys):
                "--threads", "auto"])  # fmt: skip
     err = capsys.readouterr().err
     assert rc == 2 and "--threads" not in err and "invalid" not in err
+
+
+def test_diffs_tolerance_help_is_read_from_its_config():
+    """``diff --same`` and the other tolerances say `DiffConfig`'s defaults (any maps; network-made), not copies."""
+    from stitching.building_diff import DiffConfig
+
+    helps = {a.dest: a.help for a in _commands()["diff"]._actions}
+    for name in ("same", "size_tol", "move_tol"):
+        mine, net = getattr(DiffConfig(), name), getattr(DiffConfig.network_made(), name)
+        assert f"(default {mine:g}; {net:g} " in helps[name], name
+
+
+def test_predict_refuses_every_auto_in_one_line(tmp_path, capsys):
+    """``--every`` is one option (N|auto) everywhere; predict, whose input is no live source, names it."""
+    rc = main(["predict", str(tmp_path), "--out", str(tmp_path / "o"), "--every", "auto"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "--every must be an integer >= 1" in err
