@@ -76,10 +76,9 @@ class GenerateSettings:
     export_out: Path | None = setting(
         "--export-out", "export folder (default: OUT_<format> beside OUT)", metavar="DIR", type=Path
     )
-    overwrite: bool = setting(
-        "--overwrite", "delete a non-empty OUT (or export folder) that is not this dataset", False,
-        action="store_true",
-    )  # fmt: skip
+    overwrite: bool = same_as(
+        OutputSettings, "overwrite", "delete a non-empty OUT (or export folder) that is not this dataset"
+    )
     shard: str | None = setting(
         "--shard",
         "write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
@@ -185,7 +184,7 @@ class EvalReconstructionSettings:
     checkpoint: Path | None = same_as(
         RunConfig, "checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those"
     )
-    mode: str = _with_checkpoint("--mode", "inference mode", "stream", choices=["stream", "window"])
+    mode: str = same_as(RunConfig, "mode", "with --checkpoint: inference mode")
     threads: int | str = same_as(ComputeSettings, "threads", f"with --checkpoint: {THREADS_HELP}")
     device: str = same_as(ComputeSettings, "device", "with --checkpoint: auto = the GPU when CUDA is present")
     #: metres, 'scene' (each sequence's own, from its scene.json) or None (`mvracklay.reconstruction_eval`)
