@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.errors import InputError  # noqa: E402
 from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
-from mvracklay.options import add_precision_option  # noqa: E402
+from mvracklay.settings import ComputeSettings, add_options  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.model.frozen import trunk_precision, use_precision  # noqa: E402
 from network.training.box_cache import FrameChoice, cache_part  # noqa: E402
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="torch threads of a one-process pass")
     ap.add_argument("--workers", type=int, default=1, help="processes of one thread each sharing the pass")
     ap.add_argument("--repeats", type=int, default=2, help="passes; the best is shown")
-    add_precision_option(ap)
+    add_options(ap, ComputeSettings, only=("precision",))
     ap.add_argument("--json", type=Path, help="also write the figures here")
     args = ap.parse_args(argv)
     try:

@@ -25,7 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from layouts.spec import LayoutSpec  # noqa: E402
-from waresynth.generate import generate_dataset  # noqa: E402
+from waresynth.generate import DatasetSettings, generate_dataset  # noqa: E402
 
 
 def main() -> int:
@@ -64,15 +64,17 @@ def _run(args: argparse.Namespace, config: Path | None) -> float:
         t0 = time.perf_counter()
         generate_dataset(
             out,
-            num_sequences=args.sequences,
-            frames=args.frames,
-            image_size=(args.size, args.size),
-            spec=LayoutSpec(size=args.layout_size),
-            seed=args.seed,
-            config=config,
-            workers=args.workers,
-            overwrite=True,
-            progress=False,
+            DatasetSettings(
+                num_sequences=args.sequences,
+                frames=args.frames,
+                image_size=(args.size, args.size),
+                spec=LayoutSpec(size=args.layout_size),
+                seed=args.seed,
+                config=config,
+                workers=args.workers,
+                overwrite=True,
+                progress=False,
+            ),
             stats=stats,
         )
         wall = time.perf_counter() - t0

@@ -54,7 +54,7 @@ import torch  # noqa: E402
 
 from layouts.fileio import atomic_write_json  # noqa: E402
 from mvracklay.models import checkpoint_arg  # noqa: E402
-from mvracklay.options import add_fuse_option, add_precision_option, add_roll_option  # noqa: E402
+from mvracklay.settings import ComputeSettings, InferenceSettings, add_options  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from network.inference.predictor import Predictor  # noqa: E402
 from network.model import frozen  # noqa: E402
@@ -202,15 +202,14 @@ def main() -> int:
         choices=["stream", "window", "window-recompute", "stream-flip"],
         help="stream-flip: streaming with the test-time flip average (--flip-average)",
     )
-    add_fuse_option(ap)
-    add_roll_option(ap)
+    add_options(ap, InferenceSettings, only=("fuse_tau", "roll", "pitch", "yaw"))
     ap.add_argument("--device", default="cpu", help="torch device to run on: cpu (default), cuda, cuda:1, ...")
     ap.add_argument(
         "--no-graphs",
         action="store_true",
         help="run the network's modules, not its frozen graphs (network/model/frozen.py), to see what they buy",
     )
-    add_precision_option(ap)
+    add_options(ap, ComputeSettings, only=("precision",))
     ap.add_argument(
         "--runtime",
         choices=RUNTIMES,

@@ -49,11 +49,10 @@ def free_port() -> int:
 
 def frames_of(size: int, count: int, seed: int, tmp: Path) -> list[np.ndarray]:
     """A generated sequence's frames, then the same reversed (a walk along the row and back)."""
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
     from waresynth.imageio import read_png
 
-    generate_dataset(tmp / f"s{size}", num_sequences=1, frames=count, image_size=(size, size), seed=seed,
-                     progress=False)  # fmt: skip
+    generate_dataset(tmp / f"s{size}", DatasetSettings(num_sequences=1, frames=count, image_size=(size, size), seed=seed, progress=False))  # fmt: skip
     fwd = [read_png(p, np.uint8, 3) for p in sorted((tmp / f"s{size}" / "seq_00000" / "rgb").glob("*.png"))]
     return fwd + fwd[::-1]
 

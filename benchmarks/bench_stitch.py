@@ -79,7 +79,7 @@ def accuracy(ds, label: str, config: StitchConfig | None, deg: Degrade | None) -
 
 def main() -> int:
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sequences", type=int, default=8, help="sequences for the accuracy figures")
@@ -93,21 +93,25 @@ def main() -> int:
         work = Path(args.work or tmp)
         big = generate_dataset(
             work / "d512",
-            num_sequences=1,
-            frames=args.frames,
-            image_size=(64, 64),
-            spec=LayoutSpec(size=512),
-            seed=args.seed,
-            progress=False,
+            DatasetSettings(
+                num_sequences=1,
+                frames=args.frames,
+                image_size=(64, 64),
+                spec=LayoutSpec(size=512),
+                seed=args.seed,
+                progress=False,
+            ),
         )
         acc = generate_dataset(
             work / "d128",
-            num_sequences=args.sequences,
-            frames=args.frames,
-            image_size=(64, 64),
-            spec=LayoutSpec(size=128),
-            seed=args.seed + 1,
-            progress=False,
+            DatasetSettings(
+                num_sequences=args.sequences,
+                frames=args.frames,
+                image_size=(64, 64),
+                spec=LayoutSpec(size=128),
+                seed=args.seed + 1,
+                progress=False,
+            ),
         )
         seq = open_dataset(big).sequences()[0]
         sp = speed(seq, args.repeats)

@@ -13,11 +13,12 @@ from layouts import LayoutSpec  # noqa: E402
 from stitching.free_space import fits, format_table, free_space  # noqa: E402
 from stitching.pipeline import folder_frames, reconstruct  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
-from waresynth.generate import generate_dataset  # noqa: E402
+from waresynth.generate import DatasetSettings, generate_dataset  # noqa: E402
 
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="mvracklay_demo_"))
 root = generate_dataset(
-    out / "data", num_sequences=1, frames=30, image_size=(96, 96), spec=LayoutSpec(), seed=9, progress=False
+    out / "data",
+    DatasetSettings(num_sequences=1, frames=30, image_size=(96, 96), spec=LayoutSpec(), seed=9, progress=False),
 )
 seq = open_dataset(root).sequences()[0]
 wmap = reconstruct(folder_frames(seq.layout_folder), seq.spec, indexed=True).map

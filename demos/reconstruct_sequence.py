@@ -17,11 +17,12 @@ from stitching.export_gltf import export_glb  # noqa: E402
 from stitching.pipeline import Stitcher  # noqa: E402
 from stitching.warehouse_map import origin_from_record  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
-from waresynth.generate import generate_dataset  # noqa: E402
+from waresynth.generate import DatasetSettings, generate_dataset  # noqa: E402
 
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(tempfile.mkdtemp(prefix="mvracklay_demo_"))
 root = generate_dataset(
-    out / "data", num_sequences=1, frames=30, image_size=(96, 96), spec=LayoutSpec(), seed=5, progress=False
+    out / "data",
+    DatasetSettings(num_sequences=1, frames=30, image_size=(96, 96), spec=LayoutSpec(), seed=5, progress=False),
 )
 seq = open_dataset(root).sequences()[0]
 

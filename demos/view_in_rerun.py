@@ -16,13 +16,14 @@ from layouts import LayoutSpec  # noqa: E402
 from stitching import rerun_log  # noqa: E402
 from stitching.pipeline import Stitcher  # noqa: E402
 from waresynth.dataset import open_dataset  # noqa: E402
-from waresynth.generate import generate_dataset  # noqa: E402
+from waresynth.generate import DatasetSettings, generate_dataset  # noqa: E402
 
 args = [a for a in sys.argv[1:] if a != "--spawn"]
 spawn = "--spawn" in sys.argv
 out = Path(args[0]) if args else Path(tempfile.mkdtemp(prefix="mvracklay_demo_"))
 root = generate_dataset(
-    out / "data", num_sequences=1, frames=30, image_size=(128, 128), spec=LayoutSpec(), seed=3, progress=False
+    out / "data",
+    DatasetSettings(num_sequences=1, frames=30, image_size=(128, 128), spec=LayoutSpec(), seed=3, progress=False),
 )
 seq = open_dataset(root).sequences()[0]
 

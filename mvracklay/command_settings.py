@@ -11,16 +11,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.models import CHECKPOINT_HELP, checkpoint_arg
-from mvracklay.options import DEVICES
+from mvracklay.models import CHECKPOINT_HELP
+from mvracklay.options import THREADS_HELP
 from mvracklay.parallel import RAY_HELP
 from mvracklay.settings import (
+    ComputeSettings,
     InferenceSettings,
+    OutputSettings,
+    RunConfig,
     check_range,
     json_out_setting,
     nested,
     precision_setting,
     quiet_setting,
+    same_as,
     setting,
 )
 from waresynth.exporters import EXPORT_FORMATS
@@ -63,10 +67,8 @@ class GenerateSettings:
         "sensor.supersample (default: the config's, 1)",
         metavar="S", type=int, choices=(1, 2, 3, 4),
     )  # fmt: skip
-    workers: int = setting(
-        "--workers", "worker processes (one sequence at a time each)", 1, metavar="W", type=int, range=(1, 256)
-    )
-    ray: str | None = setting("--ray", RAY_HELP + "; one task per sequence or pass", metavar="ADDRESS")
+    workers: int = same_as(ComputeSettings, "workers")
+    ray: str | None = same_as(ComputeSettings, "ray", RAY_HELP + "; one task per sequence or pass")
     format: str = setting(
         "--format", "also export the dataset in this format (as `mvracklay export` does) to --export-out",
         "native", choices=("native", *EXPORT_FORMATS),
@@ -74,10 +76,9 @@ class GenerateSettings:
     export_out: Path | None = setting(
         "--export-out", "export folder (default: OUT_<format> beside OUT)", metavar="DIR", type=Path
     )
-    overwrite: bool = setting(
-        "--overwrite", "delete a non-empty OUT (or export folder) that is not this dataset", False,
-        action="store_true",
-    )  # fmt: skip
+    overwrite: bool = same_as(
+        OutputSettings, "overwrite", "delete a non-empty OUT (or export folder) that is not this dataset"
+    )
     shard: str | None = setting(
         "--shard",
         "write only shard I of N (sequences k with k %% N == I), e.g. one job of an array; "
@@ -121,17 +122,6 @@ class GenerateSettings:
             )
 
 
-@dataclass(frozen=True)
-class EvaluateBaselineSettings:
-    """``mvracklay evaluate-baseline``: Table I of the depth-projection baseline."""
-
-    data: Path | None = setting("--data", "dataset folder written by 'mvracklay generate'", type=Path, required=True)
-    split: str = setting("--split", "which split to score (train, val, test, or all)", "test")
-    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
-    json_out: Path | None = json_out_setting("also write the result as JSON here")
-    quiet: bool = quiet_setting("no progress bar", alias=True)
-
-
 #: the inference settings `evaluate` takes (a rack depth is each sequence's own to read)
 EVALUATE_INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll", "pitch", "yaw")
 
@@ -140,7 +130,7 @@ EVALUATE_INFERENCE = ("flip", "read_depth", "whole_sequence", "fuse_tau", "roll"
 class EvaluateSettings:
     """``mvracklay evaluate``: Table I of a checkpoint on a dataset split."""
 
-    checkpoint: Path | None = setting("--checkpoint", CHECKPOINT_HELP, type=checkpoint_arg, required=True)
+    checkpoint: Path | None = same_as(RunConfig, "checkpoint", CHECKPOINT_HELP, required=True)
     data: Path | None = setting(
         "--data",
         "dataset folder ('mvracklay generate'), or a RackLay/MVRackLay export ('mvracklay export --format racklay')",
@@ -150,10 +140,10 @@ class EvaluateSettings:
     mode: str = setting("--mode", "windowed (paper) or streaming", "window", choices=["window", "stream"])
     #: --flip-average, --no-depth-read, --whole-sequence, --fuse-frames, --roll, --pitch, --yaw
     inference: InferenceSettings = nested(InferenceSettings, only=EVALUATE_INFERENCE)
-    max_frames: int = setting("--max-frames", "frames per sequence (0 = all)", 0, type=int)
-    threads: int = setting("--threads", "CPU threads for torch", 2, type=int)
+    max_frames: int = same_as(RunConfig, "max_frames", "frames per sequence (0 = all)")
+    threads: int | str = same_as(ComputeSettings, "threads")
     precision: str = precision_setting()
-    device: str = setting("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    device: str = same_as(ComputeSettings, "device")
     true_anchors: bool = setting(
         "--true-anchors",
         "analysis: place the shelf slots at the ground-truth boards instead of the row head's (decoders alone)",
@@ -170,6 +160,17 @@ class EvaluateSettings:
     quiet: bool = quiet_setting("hide the progress bar", alias=True)
 
 
+@dataclass(frozen=True)
+class EvaluateBaselineSettings:
+    """``mvracklay evaluate-baseline``: Table I of the depth-projection baseline."""
+
+    data: Path | None = same_as(EvaluateSettings, "data", "dataset folder written by 'mvracklay generate'")
+    split: str = same_as(EvaluateSettings, "split")
+    max_frames: int = same_as(RunConfig, "max_frames", "frames per sequence (0 = all)")
+    json_out: Path | None = json_out_setting("also write the result as JSON here")
+    quiet: bool = quiet_setting("no progress bar", alias=True)
+
+
 def _with_checkpoint(name: str, help: str, default: object = None, **kwargs: object) -> object:
     return setting(name, f"with --checkpoint: {help}", default, **kwargs)
 
@@ -180,13 +181,12 @@ class EvalReconstructionSettings:
 
     path: str | None = setting("path", "WareSynth dataset or sequence folder", metavar="PATH")
     layouts: str = setting("--layouts", "'gt' or a layout folder (single sequence only)", "gt")
-    checkpoint: Path | None = setting(
-        "--checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those",
-        type=checkpoint_arg,
-    )  # fmt: skip
-    mode: str = _with_checkpoint("--mode", "inference mode", "stream", choices=["stream", "window"])
-    threads: int = _with_checkpoint("--threads", "torch CPU threads", 2, type=int)
-    device: str = _with_checkpoint("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    checkpoint: Path | None = same_as(
+        RunConfig, "checkpoint", f"predict each sequence's layouts with this model ({CHECKPOINT_HELP}) and score those"
+    )
+    mode: str = same_as(RunConfig, "mode", "with --checkpoint: inference mode")
+    threads: int | str = same_as(ComputeSettings, "threads", f"with --checkpoint: {THREADS_HELP}")
+    device: str = same_as(ComputeSettings, "device", "with --checkpoint: auto = the GPU when CUDA is present")
     #: metres, 'scene' (each sequence's own, from its scene.json) or None (`mvracklay.reconstruction_eval`)
     rack_depth: str | None = _with_checkpoint(
         "--rack-depth",
@@ -208,7 +208,7 @@ class EvalReconstructionSettings:
     split: str | None = setting("--split", "only this split of a dataset", choices=("train", "val", "test"))
     limit: int = setting("--limit", "at most this many sequences (0 = all)", 0, type=int)
     iou: float = setting("--iou", "3D IoU threshold for a true positive", 0.5, type=float)
-    board_thickness: float = setting("--board-thickness", "assumed board thickness (metres)", 0.06, type=float)
+    board_thickness: float = same_as(RunConfig, "board_thickness", "assumed board thickness (metres)")
     noisy: bool = setting("--noisy", "clean-up settings for network output", False, action="store_true")
     morph: int = setting("--morph", "degrade: grow (>0) / shrink (<0) boxes by N pixels", 0, type=int)
     flip: float = setting("--flip", "degrade: fraction of pixels flipped to a random class", 0.0, type=float)
@@ -221,5 +221,84 @@ class EvalReconstructionSettings:
         False, action="store_true",
     )  # fmt: skip
     seed: int = setting("--seed", "seed of the degradation and of --handheld's walks", 0, type=int)
-    json: bool = setting("--json", "print JSON instead of a table", False, action="store_true")
+    json: bool = same_as(OutputSettings, "json")
     quiet: bool = quiet_setting("no progress bar", alias=True)
+
+
+@dataclass(frozen=True)
+class ExportSettings:
+    """``mvracklay export``: a generated dataset in another format."""
+
+    dataset: str | None = setting("dataset", "WareSynth dataset folder (holds manifest.json)", metavar="DIR")
+    format: str | None = setting("--format", "output format", required=True, choices=EXPORT_FORMATS)
+    out: Path | None = same_as(
+        OutputSettings, "out", "output folder (must be outside DIR)", metavar="OUT", required=True
+    )
+    yolo_task: str = setting(
+        "--yolo-task", "yolo labels: boxes (detect) or polygons (segment)", "detect", choices=("detect", "segment")
+    )
+    slots: int | None = same_as(
+        GenerateSettings,
+        "slots",
+        "racklay: shelf slots per layout stack, the empty ones all 0 (default 4, the reference code's --num_racks; "
+        "at least the dataset's slots)",
+        metavar="N",
+    )  # fmt: skip
+    overwrite: bool = same_as(OutputSettings, "overwrite", "replace OUT if it exists and is not empty")
+    quiet: bool = same_as(OutputSettings, "quiet", "no progress bar")
+
+
+@dataclass(frozen=True)
+class InspectSettings:
+    """``mvracklay inspect``: a generated dataset's summary and a preview sheet."""
+
+    dataset: str | None = setting("dataset", "WareSynth dataset folder (holds manifest.json)", metavar="DIR")
+    sequence: str | None = setting("--sequence", "sequence to preview (default: the first one)", metavar="NAME")
+    frame: int = setting("--frame", "frame index within the sequence", 0, metavar="I", type=int)
+    out: Path | None = same_as(
+        OutputSettings, "out", "where to write the preview sheet", default="sheet.png", metavar="PNG"
+    )
+    max_frames: int = same_as(
+        RunConfig, "max_frames", "measure pixel fractions on at most N frames spread evenly over the dataset",
+        default=200, metavar="N",
+    )  # fmt: skip
+    no_sheet: bool = setting("--no-sheet", "print the summary only", False, action="store_true")
+    quiet: bool = same_as(OutputSettings, "quiet", "no progress bar")
+
+
+@dataclass(frozen=True)
+class MergeShardsSettings:
+    """``mvracklay merge-shards``: the shards of a generated dataset joined into one."""
+
+    out: Path | None = same_as(GenerateSettings, "out", "merged dataset folder (new or empty)")
+    shards: list[Path] | None = setting(
+        "shards", "shard folders, all N of them", metavar="SHARD_DIR", type=Path, nargs="+"
+    )
+    link: bool = setting(
+        "--link",
+        "hard-link the files instead of moving the folders (the shards stay usable; copies across filesystems)",
+        False, action="store_true",
+    )  # fmt: skip
+    quiet: bool = same_as(OutputSettings, "quiet", "hide the progress bar")
+
+
+@dataclass(frozen=True)
+class RecipeSettings:
+    """``mvracklay train --recipe``: a training recipe's stages run into the run folder (`mvracklay.training.runner`)."""
+
+    recipe: str | None = setting(
+        "--recipe",
+        "run a training recipe into --out (the run folder): a shipped one (smoke, default-128, budget-256, "
+        "default-256) or a TOML file; the training options above then come from the recipe",
+        metavar="NAME|FILE", group="recipe",
+    )  # fmt: skip
+    set: list[str] = setting(
+        "--set",
+        "with --recipe: change one value, e.g. vars.head_sequences=4, data.train.sequences=12, "
+        "stage.stage2.minutes=0.3, stage.stage2.lr=1e-3, budget.total=100, precision=fp32 (repeatable)",
+        [], action="append", metavar="PATH=VALUE", group="recipe",
+    )  # fmt: skip
+    dry_run: bool = setting(
+        "--dry-run", "with --recipe: print the stages and their arguments only", False, action="store_true",
+        group="recipe",
+    )  # fmt: skip

@@ -78,7 +78,7 @@ def _run(args: argparse.Namespace, cli_main) -> int:
     from stitching.free_space import format_table, free_space
     from stitching.warehouse_map import WarehouseMap
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
     from waresynth.preview import write_sheet
 
     t_start = time.perf_counter()
@@ -92,13 +92,15 @@ def _run(args: argparse.Namespace, cli_main) -> int:
     t0 = time.perf_counter()
     generate_dataset(
         data,
-        num_sequences=1,
-        frames=args.frames,
-        image_size=(args.size, args.size),
-        spec=LayoutSpec(size=args.layout_size),
-        seed=args.seed,
-        config=None,
-        progress=not args.quiet,
+        DatasetSettings(
+            num_sequences=1,
+            frames=args.frames,
+            image_size=(args.size, args.size),
+            spec=LayoutSpec(size=args.layout_size),
+            seed=args.seed,
+            config=None,
+            progress=not args.quiet,
+        ),
     )
     seq = open_dataset(data).sequences()[0]
     print(f"sequence {seq.root} ready ({time.perf_counter() - t0:.1f} s)")

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from layouts.lens import Lens
     from mvracklay.distance import FrameDistances
     from mvracklay.frames import FrameSource
+    from mvracklay.use_settings import PredictSettings
     from network.inference.predictor import Predictor
     from network.inference.result import FramePrediction
     from network.model.net import MVRackLay
@@ -95,27 +96,20 @@ def predict_frames(
 def predict_folder(
     model: MVRackLay,
     record: dict[str, Any],
-    seq_dir: Path,
-    out: Path,
-    settings: InferenceSettings | None = None,
+    settings: PredictSettings,
     *,
-    mode: str = "stream",
-    layout_size: int = 0,
-    intrinsics: str | None = None,
-    distance: float | None = None,
-    progress: bool = True,
     source: str = "checkpoint",
-    every: int = 1,
     prog: str = "mvracklay predict",
 ) -> int:
-    """Write the layouts ``model`` predicts for ``seq_dir`` to the layout folder ``out``; returns the frame count.
+    """Write the layouts ``model`` predicts for ``settings.seq_dir`` to the layout folder ``settings.out``; returns
+    the frame count.
 
     ``seq_dir`` is any input of `mvracklay.frames.open_source` (a sequence, an image folder, an image, a
-    video); ``every``: every N-th frame. The canonical warp and the visible columns use ``intrinsics`` (``--camera``)
+    video); ``every``: every N-th frame. The canonical warp and the visible columns use ``camera`` (``--camera``)
     / ``distance`` when given, else the sequence's intrinsics and per-frame distance from ``meta.json``, else
     the checkpoint ``record``'s camera and the distance read from the first frames (`mvracklay.distance`).
-    ``settings``: what the prediction does (`InferenceSettings`: flip, rack depth, depth reading, whole
-    sequence, fusion, the camera's angles).
+    ``inference``: what the prediction does (`InferenceSettings`: flip, rack depth, depth reading, whole
+    sequence, fusion, the camera's angles); ``mode``, ``layout_size``, ``quiet``: as `PredictSettings` says.
     """
     from tqdm import tqdm
 
@@ -126,8 +120,9 @@ def predict_folder(
     from mvracklay.every import every_nth
     from mvracklay.frames import open_source
 
-    settings = settings or InferenceSettings()
-    frames = every_nth(open_source(seq_dir, prog=prog), every)
+    seq_dir, out, layout_size, progress = settings.seq_dir, settings.out, settings.layout_size, not settings.quiet
+    intrinsics = str(settings.camera) if settings.camera is not None else None
+    frames = every_nth(open_source(seq_dir, prog=prog), settings.every)
     # the layouts never land in (or over) the input; a layout folder written whole, an earlier one replaced
     with output_folder(out, None, command="predict", earlier=lambda d: (d / "spec.json").is_file(),
                        inputs={"INPUT": seq_dir}) as st:  # fmt: skip
@@ -135,17 +130,19 @@ def predict_folder(
         differs = camera_warning(intr, record, source, guessed=intrinsics is None and frames.intrinsics is None)
         if differs:
             print(f"{prog}: warning: camera {differs}", file=sys.stderr)
-        dist_of = FrameDistances(frames, intr, distance, None, default_distance(record), prog=prog)
+        dist_of = FrameDistances(frames, intr, settings.distance, None, default_distance(record), prog=prog)
         spec = model.cfg.spec if not layout_size else replace(model.cfg.spec, size=layout_size)
-        if settings.rack_depth is not None:
-            check_rack_depth(settings.rack_depth, spec)
-        pred = make_predictor(model, settings, intr, dist_of, frames.camera_angles)
+        if settings.inference.rack_depth is not None:
+            check_rack_depth(settings.inference.rack_depth, spec)
+        pred = make_predictor(model, settings.inference, intr, dist_of, frames.camera_angles)
         folder = LayoutFolder.create(st, spec)
-        bar = tqdm(total=frames.frame_count(), desc=f"predict ({mode})", unit="frame", disable=not progress)
+        bar = tqdm(total=frames.frame_count(), desc=f"predict ({settings.mode})", unit="frame", disable=not progress)
         depth, n = float("nan"), 0
         steps: list[float] = []
         confidence: list[float] = []
-        for frame in predict_frames(pred, frames, spec, intr, lens, dist_of, mode, on_read=lambda _: bar.update(1)):
+        for frame in predict_frames(
+            pred, frames, spec, intr, lens, dist_of, settings.mode, on_read=lambda _: bar.update(1)
+        ):
             folder.write(frame.index, frame.layouts)
             depth, n = frame.prediction.rack_depth, frame.index + 1
             if frame.prediction.camera_step is not None:

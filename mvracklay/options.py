@@ -108,30 +108,6 @@ def add_help_all_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--help-all", action=HelpAllAction, help="show the help with every option, the hidden ones too")
 
 
-def add_precision_option(p: argparse.ArgumentParser, more: str = "", hidden: bool = False) -> None:
-    """``--precision`` (`network.model.frozen.set_precision`) for a command that runs a trained network
-    (``more``: added to its help)."""
-    add(p, "--precision", choices=PRECISIONS, default="fp32", help=PRECISION_HELP + more, hidden=hidden)
-
-
-def add_fuse_option(p: argparse.ArgumentParser, prefix: str = "", hidden: bool = False) -> None:
-    """``--fuse-frames [TAU]`` (`network.inference.fusion`): 0 (off) unless given, `FUSE_TAU` when given bare."""
-    add(p, "--fuse-frames", type=float, nargs="?", const=FUSE_TAU, default=0.0, metavar="TAU",
-        help=prefix + FUSE_HELP, hidden=hidden)  # fmt: skip
-
-
-def add_roll_option(p: argparse.ArgumentParser, prefix: str = "", hidden: bool = False) -> None:
-    """``--roll``, ``--pitch``, ``--yaw`` (``auto|DEG``; None unless given:
-    `network.inference.roll.resolve_angles` picks the source's default)."""
-    for name, text in (("roll", ROLL_HELP), ("pitch", PITCH_HELP), ("yaw", YAW_HELP)):
-        add(p, f"--{name}", default=None, metavar="auto|DEG", help=prefix + text, hidden=hidden)
-
-
-def add_device_option(p: argparse.ArgumentParser, help_text: str = "auto = the GPU when CUDA is present") -> None:
-    """``--device auto|cpu|cuda`` for a command that runs the network in one process."""
-    p.add_argument("--device", choices=DEVICES, default="auto", help=help_text)
-
-
 THREADS_HELP = (
     "CPU threads for the network: a count, or auto (default): the cores free of other work when the command "
     "starts, all of them when none is (beside 1 busy process on 2 cores, 1 thread kept its idle speed where 2 "
@@ -149,43 +125,6 @@ def threads_value(text: str) -> int | str:
         raise argparse.ArgumentTypeError(str(e).removeprefix("--threads ")) from None
 
 
-def add_threads_option(p: argparse.ArgumentParser, default: int | str = "auto") -> None:
-    """``--threads N|auto`` for a command that runs the network on the CPU (`mvracklay.threads.resolve_threads`
-    turns ``auto`` into a count)."""
-    p.add_argument("--threads", type=threads_value, default=default, metavar="N|auto", help=THREADS_HELP)
-
-
-def add_quiet_option(p: argparse.ArgumentParser, help_text: str = "no progress bars") -> None:
-    """``--quiet`` (no progress bars; ``--no-progress`` kept as a hidden alias)."""
-    p.add_argument("--quiet", action="store_true", help=help_text)
-    p.add_argument("--no-progress", dest="quiet", action="store_true", help=argparse.SUPPRESS)
-
-
-def add_overwrite_option(p: argparse.ArgumentParser, outputs: str, command: str) -> None:
-    """``--overwrite`` (`run`, `reconstruct`, `map`, `diff`): write into an output folder holding other files,
-    replacing only the command's ``outputs`` there (`mvracklay.outputs.check_out`)."""
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help=f"write into an output folder holding other files (only {outputs} there are replaced); without it the "
-        f"folder must be missing, empty or an earlier {command}'s output folder",
-    )
-
-
-def add_spawn_option(p: argparse.ArgumentParser, rrd: str = "OUT/warehouse.rrd", live: bool = False) -> None:
-    """``--spawn``: open the Rerun viewer on the written recording when done (needs the .rrd); ``live``: a live
-    source's run streams into the viewer as it maps."""
-    more = "; a live source: the viewer opens at the start and the recording streams into it as the map grows"
-    p.add_argument(
-        "--spawn", action="store_true", help=f"open the Rerun viewer on {rrd} when done" + (more if live else "")
-    )
-
-
-def add_hidden_alias(p: argparse.ArgumentParser, old: str, dest: str, **kwargs) -> None:
-    """An old option name kept parseable but out of ``--help`` (e.g. ``--intrinsics`` for ``--camera``)."""
-    p.add_argument(old, dest=dest, help=argparse.SUPPRESS, default=argparse.SUPPRESS, **kwargs)
-
-
 class DeprecatedAlias(argparse.Action):
     """An old option name still taken (out of ``--help``), with one line on stderr naming the one to use."""
 
@@ -196,14 +135,6 @@ class DeprecatedAlias(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> None:
         print(f"warning: {option_string} is deprecated here: use {self.deprecated_for} (same value)", file=sys.stderr)
         setattr(namespace, self.dest, values)
-
-
-def add_json_out_option(p: argparse.ArgumentParser, help_text: str) -> None:
-    """``--json-out PATH``: also write the result as JSON to PATH (``--json`` elsewhere prints JSON instead of a
-    table; the older ``--json PATH`` of these commands is still taken, with a warning)."""
-    p.add_argument("--json-out", type=Path, metavar="PATH", help=help_text)
-    p.add_argument("--json", dest="json_out", type=Path, metavar="PATH", action=DeprecatedAlias, use="--json-out",
-                   default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
 
 
 def config_value(action: argparse.Action, key: str, value: object, where: str) -> object:

@@ -146,8 +146,10 @@ def predicted_layouts(
 ) -> LayoutFolder:
     """The layouts ``model`` predicts for ``seq``, written to the layout folder ``out`` (`mvracklay.inference.predict_folder`)."""
     from mvracklay.inference import predict_folder
+    from mvracklay.use_settings import PredictSettings
 
-    predict_folder(model, record, seq.root, out, settings, mode=mode, progress=False, source=source)
+    job = PredictSettings(seq_dir=seq.root, out=out, inference=settings, mode=mode, quiet=True)
+    predict_folder(model, record, job, source=source)
     return LayoutFolder(out)
 
 

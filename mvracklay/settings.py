@@ -21,18 +21,25 @@ from mvracklay.models import CHECKPOINT_HELP, DEFAULT_MODEL, checkpoint_arg
 from mvracklay.options import (
     CAMERA_HEIGHT_HELP,
     CAMERA_JSON_HELP,
+    DEVICES,
     DISTANCE_HELP,
     FLIP_HELP,
     FUSE_HELP,
     FUSE_TAU,
     NO_DEPTH_READ_HELP,
     PITCH_HELP,
+    PRECISION_HELP,
+    PRECISIONS,
     RACK_DEPTH_HELP,
     ROLL_HELP,
+    THREADS_HELP,
     WHOLE_SEQUENCE_HELP,
     YAW_HELP,
     add,
+    threads_value,
 )
+from mvracklay.parallel import RAY_HELP
+from mvracklay.threads import AUTO
 
 
 def option(name: str, help: str, *, invert: bool = False, range: tuple[float | None, float | None] | None = None,
@@ -64,6 +71,91 @@ def setting(name: str, help: str, default: Any = None, **kwargs: Any) -> Any:
 
 def _angle(name: str, text: str) -> Any:
     return field(default=None, metadata=option(f"--{name}", text, metavar="auto|DEG", range=(-45.0, 45.0)))
+
+
+def json_out_setting(help: str) -> Any:
+    """``--json-out PATH``: also write the result as JSON to PATH (the older ``--json PATH`` still taken, with a
+    warning: elsewhere ``--json`` prints JSON instead of a table)."""
+    return setting("--json-out", help, type=Path, metavar="PATH", old=("--json",))
+
+
+def quiet_setting(help: str = "hide the progress bar", alias: bool = False) -> Any:
+    """``--quiet``: no progress bars (``alias``: ``--no-progress`` also taken, out of ``--help``)."""
+    return setting("--quiet", help, False, action="store_true", aliases=("--no-progress",) if alias else ())
+
+
+def precision_setting(more: str = "") -> Any:
+    """``--precision`` (`ComputeSettings`) of a stage that runs a trained network (``more``: added to its help)."""
+    return same_as(ComputeSettings, "precision", PRECISION_HELP + more)
+
+
+def same_as(
+    cls: type, name: str, help: str | None = None, *, default: Any = MISSING, group: str | None = None, **shown: Any
+) -> Any:
+    """A field taking the option ``cls``'s field ``name`` declares (its type, default and range), in another
+    settings dataclass; ``help``: as this command words it; ``group``: the help heading it is listed under
+    here; ``shown``: its ``metavar`` / ``required`` / ``aliases`` here; ``default``: where a command must keep its
+    own (`mvracklay.training.train_network`: a fixed ``--threads``, so that a seed's run repeats)."""
+    f = next(f for f in fields(cls) if f.name == name)
+    if set(shown) - {"metavar", "required", "aliases"}:
+        raise ValueError(f"{name}: only metavar, required and aliases change where an option is shown")
+    meta = {**f.metadata, "aliases": shown.pop("aliases", f.metadata["aliases"]), "group": group}
+    meta["argparse"] = {**f.metadata["argparse"], **shown}
+    if help is not None:
+        meta["help"] = help
+    if default is not MISSING:
+        return field(default=default, metadata=meta)
+    if f.default_factory is not MISSING:
+        return field(default_factory=f.default_factory, metadata=meta)
+    return field(default=f.default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class ComputeSettings:
+    """Where a command runs the network and how much of the machine it takes: each option's one declaration
+    (`mvracklay.threads.resolve_threads` turns ``auto`` into a count; `network.device.device_for`)."""
+
+    threads: int | str = setting("--threads", THREADS_HELP, AUTO, type=threads_value, metavar="N|auto")
+    device: str = setting("--device", "auto = the GPU when CUDA is present", "auto", choices=DEVICES)
+    #: the trunk graph's arithmetic (`network.model.frozen.set_precision`)
+    precision: str = setting("--precision", PRECISION_HELP, "fp32", choices=PRECISIONS)
+    workers: int = setting(
+        "--workers", "worker processes (one sequence at a time each)", 1, metavar="W", type=int, range=(1, 256)
+    )
+    ray: str | None = setting("--ray", RAY_HELP, metavar="ADDRESS")
+
+
+#: ``--overwrite``'s help where a command replaces ``outputs`` in its folder, an earlier ``command``'s
+OVERWRITE_HELP = (
+    "write into an output folder holding other files (only {outputs} there are replaced); without it the folder "
+    "must be missing, empty or an earlier {command}'s output folder"
+)
+
+
+def overwrite_help(outputs: str, command: str) -> str:
+    """``--overwrite``'s help of a command that replaces ``outputs`` in its folder (`mvracklay.outputs.check_out`)."""
+    return OVERWRITE_HELP.format(outputs=outputs, command=command)
+
+
+def spawn_help(rrd: str = "OUT/warehouse.rrd", live: bool = False) -> str:
+    """``--spawn``'s help: the viewer opens on the written recording ``rrd`` when done; ``live``: a live source's run
+    streams into it as it maps."""
+    more = "; a live source: the viewer opens at the start and the recording streams into it as the map grows"
+    return f"open the Rerun viewer on {rrd} when done" + (more if live else "")
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    """Where a command writes and what it shows: each option's one declaration (a command words the help of
+    its own outputs: `add_options`' ``helps``, `same_as`)."""
+
+    out: Path | None = setting("--out", "output folder", type=Path)
+    overwrite: bool = setting("--overwrite", overwrite_help("the outputs", "run"), False, action="store_true")
+    rrd: bool = setting("--no-rrd", "do not write the Rerun recording", True, invert=True)
+    spawn: bool = setting("--spawn", spawn_help(), False, action="store_true")
+    quiet: bool = quiet_setting("no progress bars", alias=True)
+    json_out: Path | None = json_out_setting("also write the result as JSON here")
+    json: bool = setting("--json", "print JSON instead of a table", False, action="store_true")
 
 
 @dataclass(frozen=True)
@@ -130,12 +222,21 @@ def field_default(f: Any) -> Any:
 
 
 def add_options(
-    p: argparse.ArgumentParser, cls: type, *, hidden: bool = False, prefix: str = "", only: tuple[str, ...] = ()
+    p: argparse.ArgumentParser,
+    cls: type,
+    *,
+    hidden: bool = False,
+    prefix: str = "",
+    only: tuple[str, ...] = (),
+    helps: dict[str, str] | None = None,
+    **shown: dict[str, Any],
 ) -> None:
     """An option on ``p`` for every field of the settings dataclass ``cls`` (``only``: these fields), its name,
     help, default and argparse details from the field's metadata; ``hidden``: out of ``--help`` (config-file
-    keys, `mvracklay.options.add`); ``prefix``: put before each help text. Fields with a ``group`` go under
-    that heading (made on first use, in field order)."""
+    keys, `mvracklay.options.add`); ``prefix``: put before each help text; ``helps``: a field's help as this
+    command words it; ``shown``: a field's ``metavar`` / ``required`` here (``out={"metavar": "MAP"}``), its
+    type, default and range staying the declaration's. Fields with a ``group`` go under that heading (made on
+    first use, in field order)."""
     from mvracklay.options import DeprecatedAlias
 
     groups: dict[str, Any] = {}
@@ -149,6 +250,9 @@ def add_options(
         if dest(f) is None:
             continue
         meta = dict(f.metadata["argparse"])
+        if set(shown.get(f.name, ())) - {"metavar", "required"}:
+            raise ValueError(f"{f.name}: only metavar and required change where an option is shown")
+        meta.update(shown.get(f.name, {}))
         default = field_default(f)
         if f.metadata["invert"]:
             meta.update(action="store_true")
@@ -160,7 +264,8 @@ def add_options(
         name = f.metadata["option"]
         if not name.startswith("-"):  # a positional argument: argparse names its dest after it
             meta.pop("dest", None)
-        add(where, name, default=default, help=prefix + f.metadata["help"], hidden=hidden, **meta)
+        text = (helps or {}).get(f.name, f.metadata["help"])
+        add(where, name, default=default, help=prefix + text, hidden=hidden, **meta)
         for old in f.metadata.get("old", ()):
             kept = {k: v for k, v in meta.items() if k in ("type", "metavar", "nargs")}
             where.add_argument(old, dest=dest(f), action=DeprecatedAlias, use=name, default=argparse.SUPPRESS,
@@ -184,17 +289,21 @@ def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
 
 
 def check_range(cls: type, settings: Any) -> None:
-    """One line naming the option when a numeric field lies outside its metadata's range."""
+    """One line naming the option when a field lies outside its declared range or choices (the one statement
+    of them: argparse, the ``--config`` schema and the Python API all check against it)."""
     for f in fields(cls):
-        lo, hi = f.metadata.get("range") or (None, None)
-        if lo is None and hi is None:
+        if "option" not in f.metadata:
             continue
-        value = getattr(settings, f.name)
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
+        value, name = getattr(settings, f.name), f.metadata["option"]
+        choices = f.metadata["argparse"].get("choices")
+        if choices is not None and value is not None and value not in choices:
+            raise InputError(f"{name} must be one of {', '.join(map(str, choices))}, got {value!r}")
+        lo, hi = f.metadata.get("range") or (None, None)
+        if (lo is None and hi is None) or not isinstance(value, (int, float)) or isinstance(value, bool):
             continue
         if not math.isfinite(value) or (lo is not None and value < lo) or (hi is not None and value > hi):
-            said = f"in [{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
-            raise InputError(f"{f.metadata['option']} must be {said}, got {value!r}")
+            said = f"in [{lo}, {hi}]" if lo is not None and hi is not None else f">= {lo}" if hi is None else f"<= {hi}"
+            raise InputError(f"{name} must be {said}, got {value!r}")
 
 
 def every_arg(text: str) -> int | str:
@@ -247,7 +356,7 @@ class RunConfig:
     )  # fmt: skip
     #: what the prediction does: flip, rack depth, depth reading, whole sequence, fusion, the camera's angles
     inference: InferenceSettings = field(default_factory=InferenceSettings)
-    rrd: bool = _run("--no-rrd", "do not write warehouse.rrd", default=True, invert=True)
+    rrd: bool = same_as(OutputSettings, "rrd", "do not write warehouse.rrd")
     rgb: bool = _run("--no-rgb", "do not log the RGB frames to Rerun", default=True, invert=True)
     map_every: int = _run(
         "--map-every", "log the growing map to Rerun every N frames", default=1, type=int, range=(1, None)
@@ -284,48 +393,21 @@ class RunConfig:
 
         check_dataclass(self)  # each field's type: one line, not a TypeError further on
         from network.inference.distance import check_camera_height, check_distance
-        from network.inference.predictor import MODES
         from network.precision import check_precision
 
-        if self.mode not in MODES:
-            raise InputError(f"--mode must be one of {', '.join(MODES)}, got {self.mode!r}")
-        if self.max_frames < 0:
-            raise InputError(f"--max-frames must be >= 0, got {self.max_frames}")
-        if self.every != "auto" and (not isinstance(self.every, int) or self.every < 1):
+        check_range(RunConfig, self)  # the ranges and choices its fields declare
+        if self.every != "auto" and not isinstance(self.every, int):
             raise InputError(f"--every must be an integer >= 1 (or auto, for a live source), got {self.every!r}")
-        if self.layout_size and not 8 <= self.layout_size <= 1024:
+        if self.layout_size and not 8 <= self.layout_size <= 1024:  # 0: the model's
             raise InputError(f"--layout-size must be in [8, 1024], got {self.layout_size}")
         check_distance(self.distance)
         check_camera_height(self.camera_height)
         self.inference.validate()
-        if self.map_every < 1:
-            raise InputError(f"--map-every must be >= 1, got {self.map_every}")
-        if not 0 <= self.board_thickness < 1:
-            raise InputError(f"--board-thickness must be in [0, 1) metres, got {self.board_thickness}")
         if self.threads < 1:
             raise InputError(f"--threads must be >= 1, got {self.threads}")
         check_precision(self.precision)
-        if self.device not in ("auto", "cpu", "cuda"):
-            raise InputError(f"--device must be auto, cpu or cuda, got {self.device!r}")
-        check_range(RunConfig, self)
-
-
-def json_out_setting(help: str) -> Any:
-    """``--json-out PATH``: also write the result as JSON to PATH (the older ``--json PATH`` still taken, with a
-    warning: elsewhere ``--json`` prints JSON instead of a table)."""
-    return setting("--json-out", help, type=Path, metavar="PATH", old=("--json",))
-
-
-def quiet_setting(help: str = "hide the progress bar", alias: bool = False) -> Any:
-    """``--quiet``: no progress bars (``alias``: ``--no-progress`` also taken, out of ``--help``)."""
-    return setting("--quiet", help, False, action="store_true", aliases=("--no-progress",) if alias else ())
-
-
-def precision_setting(more: str = "") -> Any:
-    """``--precision`` (`network.model.frozen.set_precision`) of a stage that runs a trained network."""
-    from mvracklay.options import PRECISION_HELP, PRECISIONS
-
-    return setting("--precision", PRECISION_HELP + more, "fp32", choices=PRECISIONS)
+        if self.device not in DEVICES:
+            raise InputError(f"--device must be one of {', '.join(DEVICES)}, got {self.device!r}")
 
 
 #: the help heading of the live sources' options

@@ -58,6 +58,7 @@ def layouts_for(seq_root: Path, cache: Path, checkpoint: str | None) -> LayoutFo
     if not (cache / "spec.json").is_file():
         from mvracklay.inference import predict_folder
         from mvracklay.models import checkpoint_arg
+        from mvracklay.use_settings import PredictSettings
         from network.checkpoint import load_model
 
         if checkpoint not in _MODEL:
@@ -66,7 +67,7 @@ def layouts_for(seq_root: Path, cache: Path, checkpoint: str | None) -> LayoutFo
             torch.set_num_threads(2)
             _MODEL[checkpoint] = load_model(checkpoint_arg(checkpoint))
         model, record = _MODEL[checkpoint]
-        predict_folder(model, record, seq_root, cache, progress=False, source=checkpoint)
+        predict_folder(model, record, PredictSettings(seq_dir=seq_root, out=cache, quiet=True), source=checkpoint)
     return LayoutFolder(cache)
 
 

@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from layouts.codecs import LayoutFolder  # noqa: E402
 from mvracklay.inference import predict_folder  # noqa: E402
 from mvracklay.reconstruction_eval import evaluate_sequence  # noqa: E402
+from mvracklay.use_settings import PredictSettings  # noqa: E402
 from network.checkpoint import load_model  # noqa: E402
 from stitching.detect import DetectConfig  # noqa: E402
 from stitching.merge import MergeConfig  # noqa: E402
@@ -55,7 +56,8 @@ def main() -> int:
         folders = []
         for seq in tqdm(seqs, desc="predict", unit="seq", leave=False):
             out = Path(tmp) / seq.name
-            predict_folder(model, record, seq.root, out, mode="stream", progress=False, source=str(args.checkpoint))
+            job = PredictSettings(seq_dir=seq.root, out=out, mode="stream", quiet=True)
+            predict_folder(model, record, job, source=str(args.checkpoint))
             folders.append(LayoutFolder(out))
         for opening, support, area in tqdm(grid, desc="stitch", unit="setting", leave=False):
             cfg = StitchConfig(

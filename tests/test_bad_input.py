@@ -21,7 +21,7 @@ from layouts.fileio import load_npy, npz_bytes
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from network.checkpoint import load_checkpoint
-from waresynth.generate import generate_dataset
+from waresynth.generate import DatasetSettings, generate_dataset
 
 #: a valid checkpoint, trained for the table by the `checkpoint` fixture (never the shipped weights)
 _VALID: dict[str, Path] = {}
@@ -55,7 +55,10 @@ def base(tmp_path_factory) -> Path:
     """One sequence x 3 frames, 64x64 images, layouts D=32."""
     out = tmp_path_factory.mktemp("bad") / "ds"
     return generate_dataset(
-        out, num_sequences=1, frames=3, image_size=(64, 64), spec=LayoutSpec(size=32), seed=2, progress=False
+        out,
+        DatasetSettings(
+            num_sequences=1, frames=3, image_size=(64, 64), spec=LayoutSpec(size=32), seed=2, progress=False
+        ),
     )
 
 

@@ -403,12 +403,9 @@ def test_a_kept_cache_grows_by_one_part_per_data_folder(tiny_checkpoint, tiny_da
     """A fit on a second dataset reuses the first one's part and makes only the new one; the head equals a
     fit on both through a single temporary cache; a cache kept in the earlier one-folder layout is moved into
     its part and reused."""
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
-    more = generate_dataset(
-        tmp_path / "more", num_sequences=2, frames=4, image_size=(128, 128), spec=LayoutSpec(size=64), seed=8,
-        progress=False,
-    )  # fmt: skip
+    more = generate_dataset(tmp_path / "more", DatasetSettings(num_sequences=2, frames=4, image_size=(128, 128), spec=LayoutSpec(size=64), seed=8, progress=False))  # fmt: skip
     keep = tmp_path / "cache"
     args = ["--checkpoint", str(tiny_checkpoint), "--epochs", "1", "--threads", "1", "--quiet"]
     assert (

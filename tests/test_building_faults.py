@@ -211,10 +211,9 @@ def test_generate_refuses_what_cannot_be_written(argv, needle, tiny_building, tm
 
 
 def test_eval_reconstruction_of_an_empty_split_is_refused(tmp_path, capsys):
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
-    ds = generate_dataset(tmp_path / "ds", num_sequences=1, frames=2, image_size=(32, 32), spec=LayoutSpec(size=32),
-                          seed=1, progress=False)  # fmt: skip
+    ds = generate_dataset(tmp_path / "ds", DatasetSettings(num_sequences=1, frames=2, image_size=(32, 32), spec=LayoutSpec(size=32), seed=1, progress=False))  # fmt: skip
     split = json.loads((ds / "manifest.json").read_text())["sequences"][0]["split"]
     empty = next(s for s in ("train", "val", "test") if s != split)
     rc = main(["eval-reconstruction", str(ds), "--split", empty, "--quiet"])

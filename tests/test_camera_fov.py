@@ -10,7 +10,7 @@ from layouts.camera import Intrinsics
 from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from waresynth.config import draw_hfov, load_config
-from waresynth.generate import generate_dataset
+from waresynth.generate import DatasetSettings, generate_dataset
 
 SMALL = dict(num_sequences=4, frames=1, image_size=(64, 48), spec=LayoutSpec(size=32), seed=3, progress=False)
 
@@ -45,8 +45,8 @@ def test_draw_is_per_sequence_seed_and_in_range():
 
 
 def test_generated_sequences_record_and_use_their_own_camera(tmp_path):
-    ranged = generate_dataset(tmp_path / "r", **SMALL, config={"camera": {"hfov_deg": [45, 65]}})
-    fixed = generate_dataset(tmp_path / "f", **SMALL)
+    ranged = generate_dataset(tmp_path / "r", DatasetSettings(**SMALL, config={"camera": {"hfov_deg": [45, 65]}}))
+    fixed = generate_dataset(tmp_path / "f", DatasetSettings(**SMALL))
     fovs = []
     for mr, mf in zip(metas(ranged), metas(fixed)):
         fov = mr["camera"]["hfov_deg"]
@@ -60,7 +60,7 @@ def test_generated_sequences_record_and_use_their_own_camera(tmp_path):
         assert mr["step"] == mf["step"]
     assert len(set(fovs)) == len(fovs)
     # same seed, same bytes
-    again = generate_dataset(tmp_path / "r2", **SMALL, config={"camera": {"hfov_deg": [45, 65]}})
+    again = generate_dataset(tmp_path / "r2", DatasetSettings(**SMALL, config={"camera": {"hfov_deg": [45, 65]}}))
     assert [m["camera"]["hfov_deg"] for m in metas(again)] == fovs
     assert (again / "seq_00001" / "rgb" / "000000.png").read_bytes() == (
         ranged / "seq_00001" / "rgb" / "000000.png"
@@ -71,10 +71,10 @@ def test_inspect_reports_the_cameras_fields_of_view(tmp_path):
     from waresynth.dataset import open_dataset
     from waresynth.preview import format_summary, summarise
 
-    ranged = generate_dataset(tmp_path / "r", **SMALL, config={"camera": {"hfov_deg": [45, 65]}})
+    ranged = generate_dataset(tmp_path / "r", DatasetSettings(**SMALL, config={"camera": {"hfov_deg": [45, 65]}}))
     fovs = sorted(m["camera"]["hfov_deg"] for m in metas(ranged))
     s = summarise(open_dataset(ranged), progress=False)
     assert s["hfov_deg"] == pytest.approx([fovs[0], fovs[-1]])
     assert f"camera       {fovs[0]:.1f} to {fovs[-1]:.1f} deg horizontal field of view" in format_summary(s)
-    fixed = summarise(open_dataset(generate_dataset(tmp_path / "f", **SMALL)), progress=False)
+    fixed = summarise(open_dataset(generate_dataset(tmp_path / "f", DatasetSettings(**SMALL))), progress=False)
     assert "camera       60.0 deg horizontal field of view" in format_summary(fixed)

@@ -92,12 +92,12 @@ def test_level_depth_of_a_level_camera_is_its_depth():
 @pytest.fixture(scope="module")
 def turned_dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """The same 2 sequences x 5 frames (seed 11) from a level camera and one yawed 4 degrees."""
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     root = tmp_path_factory.mktemp("turned")
     kw = dict(num_sequences=2, frames=5, image_size=(96, 96), spec=LayoutSpec(size=32), seed=11, progress=False)
-    level = generate_dataset(root / "level", **kw)
-    turned = generate_dataset(root / "yaw4", config=turned_config(yaw=4.0), **kw)
+    level = generate_dataset(root / "level", DatasetSettings(**kw))
+    turned = generate_dataset(root / "yaw4", DatasetSettings(config=turned_config(yaw=4.0), **kw))
     return level, turned
 
 
@@ -122,7 +122,7 @@ def test_the_dataset_records_the_rotation(turned_dataset):
 def test_a_manifest_from_before_the_rotation_still_resumes(turned_dataset, tmp_path):
     import shutil
 
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     copy = tmp_path / "old"
     shutil.copytree(turned_dataset[0], copy)
@@ -132,10 +132,10 @@ def test_a_manifest_from_before_the_rotation_still_resumes(turned_dataset, tmp_p
     (copy / "manifest.json").write_text(json.dumps(manifest))
     shutil.rmtree(copy / "seq_00001")
     kw = dict(num_sequences=2, frames=5, image_size=(96, 96), spec=LayoutSpec(size=32), seed=11, progress=False)
-    generate_dataset(copy, **kw)  # accepted as the same dataset: its camera was level
+    generate_dataset(copy, DatasetSettings(**kw))  # accepted as the same dataset: its camera was level
     assert (copy / "seq_00001" / "meta.json").is_file()
     with pytest.raises(InputError, match="different WareSynth dataset"):
-        generate_dataset(copy, config=turned_config(yaw=1.0), **kw)
+        generate_dataset(copy, DatasetSettings(config=turned_config(yaw=1.0), **kw))
 
 
 def test_training_windows_are_levelled_by_the_recorded_rotation(turned_dataset):

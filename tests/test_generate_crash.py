@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from layouts.spec import LayoutSpec
-from waresynth.generate import generate_dataset
+from waresynth.generate import DatasetSettings, generate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 ARGS = ["--sequences", "3", "--frames", "10", "--size", "96", "--layout-size", "16", "--seed", "11"]
@@ -60,12 +60,9 @@ def test_kill9_then_rerun_is_byte_identical(tmp_path):
 
     ref = generate_dataset(
         tmp_path / "ref",
-        num_sequences=3,
-        frames=10,
-        image_size=(96, 96),
-        spec=LayoutSpec(size=16),
-        seed=11,
-        progress=False,
+        DatasetSettings(
+            num_sequences=3, frames=10, image_size=(96, 96), spec=LayoutSpec(size=16), seed=11, progress=False
+        ),
     )
     got = tree_bytes(out)
     assert got == tree_bytes(ref)

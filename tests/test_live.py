@@ -26,10 +26,10 @@ FIXED = ["--distance", "2.6", "--roll", "0", "--pitch", "0", "--yaw", "0", "--th
 @pytest.fixture(scope="module")
 def seq20(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One generated sequence of 20 frames at 128x128 (a couple of seconds)."""
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     out = tmp_path_factory.mktemp("live") / "data"
-    generate_dataset(out, num_sequences=1, frames=20, image_size=(128, 128), seed=11, progress=False)
+    generate_dataset(out, DatasetSettings(num_sequences=1, frames=20, image_size=(128, 128), seed=11, progress=False))
     return out / "seq_00000"
 
 

@@ -170,16 +170,13 @@ def test_bad_inputs_are_one_line_errors(run_dir, tiny_dataset, tmp_path, capsys)
 def test_train_joins_several_datasets_and_refuses_a_different_spec(tiny_dataset, tmp_path, capsys):
     from layouts import LayoutSpec
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     other = generate_dataset(
         tmp_path / "other",
-        num_sequences=2,
-        frames=4,
-        image_size=(128, 128),
-        spec=LayoutSpec(size=64),
-        seed=8,
-        progress=False,
+        DatasetSettings(
+            num_sequences=2, frames=4, image_size=(128, 128), spec=LayoutSpec(size=64), seed=8, progress=False
+        ),
     )
     out = tmp_path / "run"
     args = ["train", "--data", str(tiny_dataset), str(other), "--out", str(out), "--epochs", "1"]
@@ -190,12 +187,9 @@ def test_train_joins_several_datasets_and_refuses_a_different_spec(tiny_dataset,
     assert rec["data"]["train_sequences"] == n_train and rec["data"]["seed"] == [7, 8]
     coarse = generate_dataset(
         tmp_path / "coarse",
-        num_sequences=1,
-        frames=2,
-        image_size=(128, 128),
-        spec=LayoutSpec(size=32),
-        seed=9,
-        progress=False,
+        DatasetSettings(
+            num_sequences=1, frames=2, image_size=(128, 128), spec=LayoutSpec(size=32), seed=9, progress=False
+        ),
     )
     capsys.readouterr()
     assert main(["train", "--data", str(tiny_dataset), str(coarse), "--out", str(tmp_path / "r2"), *TINY]) == 2

@@ -198,17 +198,19 @@ def test_a_model_trained_on_a_range_of_cameras_is_checked_against_the_nearest():
 
 def test_training_records_the_range_of_its_cameras(tmp_path: Path):
     from network.training.train_data import hfov_range
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     root = generate_dataset(
         tmp_path / "d",
-        num_sequences=3,
-        frames=1,
-        image_size=(64, 48),
-        spec=LayoutSpec(size=32),
-        seed=3,
-        progress=False,
-        config={"camera": {"hfov_deg": [45, 65]}},
+        DatasetSettings(
+            num_sequences=3,
+            frames=1,
+            image_size=(64, 48),
+            spec=LayoutSpec(size=32),
+            seed=3,
+            progress=False,
+            config={"camera": {"hfov_deg": [45, 65]}},
+        ),
     )
     seqs = open_dataset(root).sequences()
     lo, hi = hfov_range(seqs)

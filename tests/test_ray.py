@@ -21,7 +21,7 @@ from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from mvracklay.parallel import TaskFailed, check_ray_address, connect, private_token, run_tasks, task_map
 from waresynth.building.generate import generate_building
-from waresynth.generate import generate_dataset
+from waresynth.generate import DatasetSettings, generate_dataset
 
 SMALL = dict(image_size=(32, 32), spec=LayoutSpec(size=16), seed=3, progress=False)
 BUILDING = {
@@ -46,7 +46,7 @@ def square(x: int) -> int:
 
 
 def test_a_dataset_through_ray_is_byte_identical_to_one_made_here(ray_local, tmp_path):
-    local = generate_dataset(tmp_path / "local", num_sequences=3, frames=2, **SMALL)  # in this process
+    local = generate_dataset(tmp_path / "local", DatasetSettings(num_sequences=3, frames=2, **SMALL))  # in this process
     args = ["--sequences", "3", "--frames", "2", "--size", "32", "--layout-size", "16", "--seed", "3", "--quiet"]
     assert main(["generate", str(tmp_path / "ray"), *args, "--ray", ray_local]) == 0
     assert tree_bytes(tmp_path / "ray") == tree_bytes(local)
@@ -117,7 +117,7 @@ def test_a_worker_that_writes_elsewhere_is_one_line(tmp_path):
             yield key, {"name": key, "frames": entry["frames"]}
 
     with pytest.raises(InputError, match="every worker sees at the same path"):
-        generate_dataset(tmp_path / "d", num_sequences=1, frames=1, tasks=elsewhere, **SMALL)
+        generate_dataset(tmp_path / "d", DatasetSettings(num_sequences=1, frames=1, **SMALL), tasks=elsewhere)
 
 
 # --- a cluster that does not answer, and the local token ----------------------------------------------------------

@@ -55,17 +55,17 @@ def test_colours_are_the_means_of_the_sub_pixel_rays_and_labels_stay_point_sampl
 
 def test_a_supersampled_dataset_keeps_the_default_labels_and_an_old_manifest_resumes(tmp_path):
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     kw = dict(num_sequences=2, frames=3, image_size=(64, 48), spec=LayoutSpec(size=32), seed=4, progress=False)
-    plain = open_dataset(generate_dataset(tmp_path / "plain", **kw))
-    aa = open_dataset(generate_dataset(tmp_path / "aa", config={"sensor": {"supersample": 2}}, **kw))
+    plain = open_dataset(generate_dataset(tmp_path / "plain", DatasetSettings(**kw)))
+    aa = open_dataset(generate_dataset(tmp_path / "aa", DatasetSettings(config={"sensor": {"supersample": 2}}, **kw)))
     assert aa.config["sensor"]["supersample"] == 2
     from waresynth.preview import format_summary, summarise
 
     assert "each the mean colour of 2 x 2 rays" in format_summary(summarise(aa, progress=False))
     assert "area-sampled" not in format_summary(summarise(plain, progress=False))
-    blur = generate_dataset(tmp_path / "blur", config={"sensor": {"motion_blur": [0.2, 0.6]}}, **kw)
+    blur = generate_dataset(tmp_path / "blur", DatasetSettings(config={"sensor": {"motion_blur": [0.2, 0.6]}}, **kw))
     drawn = [sq.meta["camera"]["motion_blur"] for sq in open_dataset(blur).sequences()]
     assert all(0.2 <= b <= 0.6 for b in drawn) and drawn[0] != drawn[1]
     said = format_summary(summarise(open_dataset(blur), progress=False))
@@ -84,10 +84,10 @@ def test_a_supersampled_dataset_keeps_the_default_labels_and_an_old_manifest_res
     del manifest["config"]["sensor"]["supersample"], manifest["config"]["sensor"]["motion_blur"]
     (old / "manifest.json").write_text(json.dumps(manifest))
     shutil.rmtree(old / "seq_00001")
-    generate_dataset(old, **kw)
+    generate_dataset(old, DatasetSettings(**kw))
     np.testing.assert_array_equal(open_dataset(old).sequence("seq_00001").rgb(2), plain.sequence("seq_00001").rgb(2))
     with pytest.raises(InputError, match="different WareSynth dataset"):
-        generate_dataset(old, config={"sensor": {"supersample": 2}}, **kw)
+        generate_dataset(old, DatasetSettings(config={"sensor": {"supersample": 2}}, **kw))
 
 
 def test_a_yaw_reads_closer_on_supersampled_frames():

@@ -11,10 +11,10 @@ import json
 import pytest
 
 from layouts.errors import InputError
-from mvracklay.options import FUSE_TAU, add_json_out_option
+from mvracklay.options import FUSE_TAU
 from mvracklay.pipeline import RunConfig
-from mvracklay.presets import PRESETS, preset_fields
-from mvracklay.settings import InferenceSettings, add_options, check_range, from_args
+from mvracklay.presets import PRESETS, preset_defaults, preset_fields
+from mvracklay.settings import InferenceSettings, OutputSettings, add_options, check_range, from_args
 
 
 def _parser(**kwargs) -> argparse.ArgumentParser:
@@ -75,9 +75,29 @@ def test_presets_and_the_api_name_the_settings_fields():
         preset_fields("best")
 
 
+def test_presets_become_parser_defaults_through_the_fields_options():
+    """A preset names fields; as parser defaults a switch that turns a field off takes the opposite value."""
+    assert preset_defaults("fast") == {"no_depth_read": True, "no_rgb": True, "map_every": 10}
+    assert preset_defaults("offline") == {"whole_sequence": True, "flip_average": True, "fuse_frames": FUSE_TAU}
+    assert preset_defaults("default") == {}
+
+
+def test_run_config_checks_each_declared_range_once():
+    """``--board-thickness``' range is its field's: [0, 1] from the Python API as in a config file."""
+    RunConfig(board_thickness=1.0).validate()
+    for bad, says in ((-0.1, r"--board-thickness must be in \[0.0, 1.0\]"), (1.5, "--board-thickness must be in"),
+                      ("x", "board_thickness: want a number")):  # fmt: skip
+        with pytest.raises(InputError, match=says):
+            RunConfig(board_thickness=bad).validate()
+    with pytest.raises(InputError, match="--map-every must be >= 1, got 0"):
+        RunConfig(map_every=0).validate()
+    with pytest.raises(InputError, match="--mode must be one of stream, window, got 'batch'"):
+        RunConfig(mode="batch").validate()
+
+
 def test_the_old_json_path_still_writes_and_warns(capsys, tmp_path):
     p = argparse.ArgumentParser()
-    add_json_out_option(p, "write here")
+    add_options(p, OutputSettings, only=("json_out",), helps={"json_out": "write here"})
     assert p.parse_args([]).json_out is None
     assert p.parse_args(["--json-out", "a.json"]).json_out.name == "a.json"
     assert capsys.readouterr().err == ""

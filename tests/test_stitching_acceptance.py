@@ -14,11 +14,14 @@ from stitching.pipeline import StitchConfig
 def seq50(tmp_path_factory):
     """4 sequences x 50 frames, layouts D=128, small images (a few seconds)."""
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     out = tmp_path_factory.mktemp("stitch") / "ds"
     root = generate_dataset(
-        out, num_sequences=4, frames=50, image_size=(48, 48), spec=LayoutSpec(size=128), seed=21, progress=False
+        out,
+        DatasetSettings(
+            num_sequences=4, frames=50, image_size=(48, 48), spec=LayoutSpec(size=128), seed=21, progress=False
+        ),
     )
     return open_dataset(root)
 

@@ -14,7 +14,7 @@ from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from waresynth import semantics
 from waresynth.dataset import open_dataset
-from waresynth.generate import assign_splits, generate_dataset
+from waresynth.generate import DatasetSettings, assign_splits, generate_dataset
 
 SMALL = dict(num_sequences=2, frames=2, image_size=(64, 48), spec=LayoutSpec(size=32), seed=3, progress=False)
 
@@ -24,23 +24,23 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
 
 
 def test_same_seed_same_bytes_any_worker_count(tmp_path):
-    a = generate_dataset(tmp_path / "a", **SMALL)
-    b = generate_dataset(tmp_path / "b", **{**SMALL, "workers": 2})
+    a = generate_dataset(tmp_path / "a", DatasetSettings(**SMALL))
+    b = generate_dataset(tmp_path / "b", DatasetSettings(**{**SMALL, "workers": 2}))
     ta, tb = tree_bytes(a), tree_bytes(b)
     assert len(ta) == 2 * (4 * 2 + 2 + 3) + 1  # per sequence: 4 images x 2 frames, 2 layouts, spec/meta/scene
     assert ta == tb
-    c = generate_dataset(tmp_path / "c", **{**SMALL, "seed": 4})
+    c = generate_dataset(tmp_path / "c", DatasetSettings(**{**SMALL, "seed": 4}))
     assert tree_bytes(c)[str(Path("seq_00000/rgb/000000.png"))] != ta[str(Path("seq_00000/rgb/000000.png"))]
 
 
 def test_resume_skips_complete_and_restores_missing(tmp_path):
-    root = generate_dataset(tmp_path / "d", **SMALL)
+    root = generate_dataset(tmp_path / "d", DatasetSettings(**SMALL))
     before = tree_bytes(root)
     keep = (root / "seq_00000" / "meta.json").stat().st_mtime_ns
     shutil.rmtree(root / "seq_00001")
     (root / ".seq_00001.tmp" / "rgb").mkdir(parents=True)  # an interrupted write
     assert not open_dataset(root).complete()
-    generate_dataset(root, **SMALL)
+    generate_dataset(root, DatasetSettings(**SMALL))
     assert tree_bytes(root) == before
     assert (root / "seq_00000" / "meta.json").stat().st_mtime_ns == keep
     assert open_dataset(root).complete()
@@ -51,21 +51,21 @@ def test_refuses_foreign_or_different_folders(tmp_path):
     foreign.mkdir()
     (foreign / "notes.txt").write_text("mine")
     with pytest.raises(InputError, match="not a WareSynth dataset"):
-        generate_dataset(foreign, **SMALL)
+        generate_dataset(foreign, DatasetSettings(**SMALL))
     assert (foreign / "notes.txt").exists()
-    root = generate_dataset(tmp_path / "e", **SMALL)
+    root = generate_dataset(tmp_path / "e", DatasetSettings(**SMALL))
     with pytest.raises(InputError, match="different WareSynth dataset.*seed"):
-        generate_dataset(root, **{**SMALL, "seed": 5})
-    generate_dataset(foreign, **{**SMALL, "num_sequences": 1, "frames": 1}, overwrite=True)
+        generate_dataset(root, DatasetSettings(**{**SMALL, "seed": 5}))
+    generate_dataset(foreign, DatasetSettings(**{**SMALL, "num_sequences": 1, "frames": 1}, overwrite=True))
     assert not (foreign / "notes.txt").exists() and open_dataset(foreign).complete()
     # overwrite keeps (resumes) the very same dataset instead of rendering it again
     keep = (root / "seq_00000" / "meta.json").stat().st_mtime_ns
-    generate_dataset(root, **SMALL, overwrite=True)
+    generate_dataset(root, DatasetSettings(**SMALL, overwrite=True))
     assert (root / "seq_00000" / "meta.json").stat().st_mtime_ns == keep
     afile = tmp_path / "file"
     afile.write_text("x")
     with pytest.raises(InputError, match="exists and is not a folder"):
-        generate_dataset(afile, **SMALL)
+        generate_dataset(afile, DatasetSettings(**SMALL))
 
 
 @pytest.mark.parametrize(
@@ -88,7 +88,7 @@ def test_refuses_foreign_or_different_folders(tmp_path):
 )
 def test_bad_config_one_line_error(tmp_path, config, match):
     with pytest.raises(InputError, match=match) as e:
-        generate_dataset(tmp_path / "x", **SMALL, config=config)
+        generate_dataset(tmp_path / "x", DatasetSettings(**SMALL, config=config))
     assert "\n" not in str(e.value)
     assert not (tmp_path / "x").exists()
 
@@ -97,12 +97,12 @@ def test_config_file_errors_name_the_file(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     with pytest.raises(InputError, match="bad.json: not valid JSON"):
-        generate_dataset(tmp_path / "x", **SMALL, config=bad)
+        generate_dataset(tmp_path / "x", DatasetSettings(**SMALL, config=bad))
     with pytest.raises(InputError, match="missing.json: config file not found"):
-        generate_dataset(tmp_path / "x", **SMALL, config=tmp_path / "missing.json")
+        generate_dataset(tmp_path / "x", DatasetSettings(**SMALL, config=tmp_path / "missing.json"))
     good = tmp_path / "good.json"
     good.write_text(json.dumps({"_doc": "comment", "camera": {"step": [0.1, 0.1], "reverse_probability": 0.0}}))
-    root = generate_dataset(tmp_path / "y", **{**SMALL, "num_sequences": 1}, config=good)
+    root = generate_dataset(tmp_path / "y", DatasetSettings(**{**SMALL, "num_sequences": 1}, config=good))
     ds = open_dataset(root)
     assert ds.config["camera"]["step"] == [0.1, 0.1]
     assert ds.sequences()[0].meta["step"] == pytest.approx(0.1)
@@ -121,7 +121,7 @@ def test_config_file_errors_name_the_file(tmp_path):
 )
 def test_bad_arguments(tmp_path, kwargs, match):
     with pytest.raises(InputError, match=match):
-        generate_dataset(tmp_path / "x", **{**SMALL, **kwargs})
+        generate_dataset(tmp_path / "x", DatasetSettings(**{**SMALL, **kwargs}))
 
 
 def test_splits_by_sequence():
@@ -204,10 +204,10 @@ def test_a_pool_of_workers_finishes_every_time(tmp_path):
 
     script = (
         "import sys; from pathlib import Path; from layouts.spec import LayoutSpec; "
-        "from waresynth.generate import generate_dataset\n"
+        "from waresynth.generate import DatasetSettings, generate_dataset\n"
         "for k in range(12):\n"
-        "    generate_dataset(Path(sys.argv[1]) / str(k), num_sequences=3, frames=1, image_size=(32, 24), "
-        "spec=LayoutSpec(size=16), seed=k, workers=2, progress=False)\n"
+        "    generate_dataset(Path(sys.argv[1]) / str(k), DatasetSettings(num_sequences=3, frames=1, "
+        "image_size=(32, 24), spec=LayoutSpec(size=16), seed=k, workers=2, progress=False))\n"
     )
     r = subprocess.run(
         [sys.executable, "-c", script, str(tmp_path)],

@@ -190,7 +190,7 @@ def test_the_wide_look_streams_a_share_of_its_sequences_at_phone_and_robot_rates
 
 def test_a_lens_is_recorded_and_undistorting_the_frame_gives_the_pinhole_view(tmp_path):
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     intr = Intrinsics.from_fov(128, 96, 60.0)
     lens_cfg = _cfg({"sensor": {"lens_k1": [-0.2, -0.2], "lens_k2": [0.01, 0.01]}})
@@ -210,7 +210,9 @@ def test_a_lens_is_recorded_and_undistorting_the_frame_gives_the_pinhole_view(tm
     assert before > 0.08 and after < 0.4 * before
     assert undistort_image(bent.rgb, intr, lens).shape == bent.rgb.shape
     kw = dict(num_sequences=1, frames=2, image_size=(64, 48), spec=LayoutSpec(size=32), seed=1, progress=False)
-    ds = open_dataset(generate_dataset(tmp_path / "d", config={"sensor": {"lens_k1": [-0.1, -0.1]}}, **kw))
+    ds = open_dataset(
+        generate_dataset(tmp_path / "d", DatasetSettings(config={"sensor": {"lens_k1": [-0.1, -0.1]}}, **kw))
+    )
     rec = ds.sequences()[0].meta["intrinsics"]
     assert rec["k1"] == -0.1 and rec["k2"] == 0.0
     from layouts.camera_record import lens_from_record
@@ -285,7 +287,7 @@ def test_generate_takes_a_shipped_config_name_and_an_old_manifest_resumes(tmp_pa
 
     from mvracklay.cli import main
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     args = ["generate", str(tmp_path / "w"), "--sequences", "2", "--frames", "2", "--size", "32", "--no-progress"]
     assert main([*args, "--config", "wide_look", "--seed", "3"]) == 0
@@ -298,7 +300,7 @@ def test_generate_takes_a_shipped_config_name_and_an_old_manifest_resumes(tmp_pa
     assert "look         2 of 2 sequences (waresynth.look): light level" in said
     # a dataset written before the look existed was neutral: it resumes as the default
     kw = dict(num_sequences=2, frames=2, image_size=(32, 32), spec=LayoutSpec(size=16), seed=4, progress=False)
-    plain = generate_dataset(tmp_path / "plain", **kw)
+    plain = generate_dataset(tmp_path / "plain", DatasetSettings(**kw))
     old = tmp_path / "old"
     shutil.copytree(plain, old)
     manifest = json.loads((old / "manifest.json").read_text())
@@ -308,7 +310,7 @@ def test_generate_takes_a_shipped_config_name_and_an_old_manifest_resumes(tmp_pa
     del manifest["config"]["rack"]["board_textures"]
     (old / "manifest.json").write_text(json.dumps(manifest))
     shutil.rmtree(old / "seq_00001")
-    generate_dataset(old, **kw)
+    generate_dataset(old, DatasetSettings(**kw))
     np.testing.assert_array_equal(
         open_dataset(old).sequence("seq_00001").rgb(1), open_dataset(plain).sequence("seq_00001").rgb(1)
     )

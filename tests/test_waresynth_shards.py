@@ -13,7 +13,7 @@ from layouts.errors import InputError
 from layouts.spec import LayoutSpec
 from mvracklay.cli import main
 from waresynth.dataset import open_dataset
-from waresynth.generate import generate_dataset, parse_shard
+from waresynth.generate import DatasetSettings, generate_dataset, parse_shard
 from waresynth.shards import merge_shards
 
 SMALL = dict(num_sequences=3, frames=2, image_size=(48, 32), spec=LayoutSpec(size=16), seed=5, progress=False)
@@ -26,12 +26,12 @@ def tree_bytes(root: Path) -> dict[str, bytes]:
 
 @pytest.fixture(scope="module")
 def full(tmp_path_factory) -> Path:
-    return generate_dataset(tmp_path_factory.mktemp("full") / "ds", **SMALL)
+    return generate_dataset(tmp_path_factory.mktemp("full") / "ds", DatasetSettings(**SMALL))
 
 
 @pytest.fixture()
 def shards(tmp_path) -> list[Path]:
-    return [generate_dataset(tmp_path / f"s{i}", **SMALL, shard=(i, 2)) for i in range(2)]
+    return [generate_dataset(tmp_path / f"s{i}", DatasetSettings(**SMALL, shard=(i, 2))) for i in range(2)]
 
 
 def test_shards_are_disjoint_round_robin_partial_datasets(shards, full):
@@ -71,7 +71,7 @@ def test_cli_shard_and_merge(tmp_path, full, capsys):
         assert main(["generate", str(tmp_path / f"c{i}"), *CLI, "--shard", f"{i}/2"]) == 0
     assert "shard 1/2" in capsys.readouterr().out
     assert main(["merge-shards", str(tmp_path / "m"), str(tmp_path / "c1"), str(tmp_path / "c0"), "--no-progress"]) == 0
-    ref = generate_dataset(tmp_path / "ref", **{**SMALL, "image_size": (32, 32)})
+    ref = generate_dataset(tmp_path / "ref", DatasetSettings(**{**SMALL, "image_size": (32, 32)}))
     assert tree_bytes(tmp_path / "m") == tree_bytes(ref)
 
 
@@ -88,8 +88,8 @@ def _err(capsys) -> str:
 
 
 def test_merge_refusals(shards, tmp_path, capsys):
-    other = generate_dataset(tmp_path / "other", **{**SMALL, "seed": 6}, shard=(1, 2))
-    three = generate_dataset(tmp_path / "three", **SMALL, shard=(1, 3))
+    other = generate_dataset(tmp_path / "other", DatasetSettings(**{**SMALL, "seed": 6}, shard=(1, 2)))
+    three = generate_dataset(tmp_path / "three", DatasetSettings(**SMALL, shard=(1, 3)))
     cases = [
         ([shards[0], other], "other settings.*seed differ"),
         ([shards[0], three], "other settings.*shard.count"),
@@ -101,7 +101,7 @@ def test_merge_refusals(shards, tmp_path, capsys):
         assert main(["merge-shards", str(tmp_path / "out"), *map(str, dirs), "--no-progress"]) == 2
         assert re.search(match, _err(capsys)), match
         assert not (tmp_path / "out").exists()  # nothing written on refusal
-    unsharded = generate_dataset(tmp_path / "plain", **SMALL)
+    unsharded = generate_dataset(tmp_path / "plain", DatasetSettings(**SMALL))
     assert main(["merge-shards", str(tmp_path / "out"), str(unsharded), "--no-progress"]) == 2
     assert "not a shard" in _err(capsys)
     # an overlapping shard: sequence seq_00000 claimed by a second shard's manifest

@@ -33,11 +33,11 @@ TINY_TRAIN: list[str] = [
 def tiny_dataset(out: Path) -> Path:
     """Generate the tests' tiny dataset (`TINY_DATASET`) into ``out``; returns it."""
     from layouts.spec import LayoutSpec
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     opts = dict(TINY_DATASET)
     spec = LayoutSpec(size=opts.pop("layout_size"))
-    return generate_dataset(out, spec=spec, progress=False, **opts)
+    return generate_dataset(out, DatasetSettings(spec=spec, progress=False, **opts))
 
 
 def make_tiny_checkpoint(dst: Path = TINY_CHECKPOINT) -> Path:

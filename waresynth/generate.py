@@ -16,6 +16,7 @@ import resource
 import shutil
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -323,32 +324,52 @@ def _prepare_root(root: Path, manifest: dict[str, Any], overwrite: bool) -> Path
     return root
 
 
+@dataclass(frozen=True)
+class DatasetSettings:
+    """A WareSynth dataset to write (`generate_dataset`): what it holds and how it is written."""
+
+    num_sequences: int  #: sequences, one scene and camera path each
+    frames: int  #: frames per sequence
+    image_size: tuple[int, int] = (256, 256)  #: (width, height) in pixels
+    spec: LayoutSpec | None = None  #: the layouts' spec; None: the default
+    seed: int = 0  #: same seed and config, same bytes
+    config: dict[str, Any] | str | os.PathLike | None = None  #: a dict, a JSON path or None (the defaults)
+    splits: tuple[float, float, float] = (0.9, 0.05, 0.05)  #: train, val, test fractions
+    #: ``(i, n)`` or ``"i/n"``: only the sequences k with ``k % n == i`` (`waresynth.shards.merge_shards` joins them)
+    shard: tuple[int, int] | str | None = None
+    workers: int = 1  #: local worker processes
+    overwrite: bool = False  #: replace a non-empty folder that is not this same dataset
+    progress: bool = True
+
+
 def generate_dataset(
     out_dir: str | os.PathLike,
+    settings: DatasetSettings,
     *,
-    num_sequences: int,
-    frames: int,
-    image_size: tuple[int, int] = (256, 256),
-    spec: LayoutSpec | None = None,
-    seed: int = 0,
-    config: dict[str, Any] | str | os.PathLike | None = None,
-    workers: int = 1,
-    overwrite: bool = False,
-    progress: bool = True,
-    splits: tuple[float, float, float] = (0.9, 0.05, 0.05),
     stats: list[dict[str, Any]] | None = None,
-    shard: tuple[int, int] | str | None = None,
     tasks: TaskMap | None = None,
 ) -> Path:
-    """Generate (or resume) a WareSynth dataset in ``out_dir``; returns its path.
+    """Generate (or resume) the WareSynth dataset ``settings`` describes in ``out_dir``; returns its path.
 
     Complete sequences already on disk are skipped; a non-empty folder that is not this same
-    dataset is refused unless ``overwrite``. ``config`` is a dict, a JSON path or None (defaults).
-    ``stats``, when a list, receives one cost record per sequence written (see `write_sequence`).
-    ``shard`` ``(i, n)`` or ``"i/n"`` writes only the sequences k with ``k % n == i`` (a partial
-    dataset that `waresynth.shards.merge_shards` joins with the other shards). ``tasks``: where the sequences
-    are written (`write_dataset`).
+    dataset is refused unless ``settings.overwrite``. ``stats``, when a list, receives one cost record per
+    sequence written (see `write_sequence`). ``tasks``: where the sequences are written (`write_dataset`).
     """
+    if not isinstance(settings, DatasetSettings):
+        raise InputError(f"settings must be a DatasetSettings, got {type(settings).__name__}")
+    num_sequences, frames, image_size, spec = (
+        settings.num_sequences,
+        settings.frames,
+        settings.image_size,
+        settings.spec,
+    )
+    seed, config, workers, splits, shard = (
+        settings.seed,
+        settings.config,
+        settings.workers,
+        settings.splits,
+        settings.shard,
+    )
     num_sequences = _check_int("num_sequences", num_sequences, 1, 100000)
     frames = _check_int("frames", frames, 1, 100000)
     seed, workers, spec, (w, h) = check_writer_args(seed, workers, spec, image_size)
@@ -374,7 +395,9 @@ def generate_dataset(
     )
     if shard is not None:
         manifest = shard_manifest(manifest, *shard)
-    return write_dataset(root, manifest, overwrite, spec, cfg, (w, h), workers, progress, stats, tasks=tasks)
+    return write_dataset(
+        root, manifest, settings.overwrite, spec, cfg, (w, h), workers, settings.progress, stats, tasks=tasks
+    )
 
 
 def check_writer_args(

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_overwrite_option
+from mvracklay.settings import add_options
+from mvracklay.use_settings import DiffSettings, tolerance_helps
 
 NAME = "diff"
 HELP = "what changed between two building maps per location (emptied, filled, count changed), or a map against the WMS"
@@ -28,36 +29,7 @@ INTERRUPTED = "DIR left as it was"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("old", metavar="OLD_MAP", help="the earlier scan's building map (folder or building.json)")
-    p.add_argument("new", metavar="NEW_MAP", nargs="?", help="the later scan's building map (none with --expected)")
-    p.add_argument("--expected", type=Path, metavar="WMS_CSV",
-                   help="the counts the WMS expects (CSV: location, expected): list the map's exceptions")  # fmt: skip
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder of the changes")
-    add_overwrite_option(p, "the changes files", "diff")
-    p.add_argument(
-        "--truth",
-        type=Path,
-        metavar="CHANGES_CSV",
-        help="a generated rescan's ground_truth/changes.csv: print precision and recall per change category (per "
-        "location too, from location_changes.csv beside it)",
-    )
-    p.add_argument(
-        "--same",
-        type=float,
-        help="metres along a level within which a box has not moved (default 0.08; 0.15 between network-made maps)",
-    )
-    p.add_argument(
-        "--size-tol",
-        type=float,
-        help="metres each size may differ for a box in place to be the same (default 0.06; 0.15 network-made)",
-    )
-    p.add_argument(
-        "--move-tol",
-        type=float,
-        help="metres each size may differ for a box found elsewhere, a move (default 0.015; 0.05 network-made)",
-    )
-    p.add_argument("--no-rrd", action="store_true", help="do not write changes.rrd")
-    p.add_argument("--limit", type=int, default=40, help="changes printed (all are written)")
+    add_options(p, DiffSettings, helps=tolerance_helps())
 
 
 def building_path(arg: str | Path, name: str) -> Path:

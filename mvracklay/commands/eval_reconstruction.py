@@ -51,6 +51,7 @@ def run(args: EvalReconstructionSettings) -> int:
         scale_factor,
         summarise,
     )
+    from mvracklay.threads import resolve_threads
     from network.inference.loading import load_for_inference
     from stitching.warehouse_map import WarehouseMap
 
@@ -79,7 +80,7 @@ def run(args: EvalReconstructionSettings) -> int:
     settings.validate()  # checked before anything runs
     model, record = None, None
     if args.checkpoint:
-        model, record = load_for_inference(args.checkpoint, NAME, args.device, threads=args.threads)
+        model, record = load_for_inference(args.checkpoint, NAME, args.device, threads=resolve_threads(args.threads))
     results, corrected = [], []
     with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
         for k, seq in enumerate(

@@ -34,6 +34,7 @@ def run(args: EvaluateSettings) -> int:
     from layouts.fileio import atomic_write_json, nan_to_null
     from layouts.metrics import format_reference_table, format_table
     from layouts.publish import refuse_overlap
+    from mvracklay.threads import resolve_threads
     from network.inference.layout_eval import evaluate_sequences, table_title
     from network.inference.loading import load_for_inference
     from network.inference.roll import ANGLES, check_angle, describe_angles
@@ -43,14 +44,14 @@ def run(args: EvaluateSettings) -> int:
     refuse_overlap(
         [args.json_out] if args.json_out else [], {"--data": args.data, "--checkpoint": args.checkpoint}, "--json-out"
     )
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
     settings = args.inference
     settings.validate()
     fuse_tau = settings.fuse_tau
     # an angle not given is each sequence's recorded one (0 for a level camera)
     roll, pitch, yaw = (check_angle(a, "--" + n) for a, n in zip((settings.roll, settings.pitch, settings.yaw), ANGLES))
-    model, record = load_for_inference(args.checkpoint, NAME, args.device, args.precision, args.threads)
+    model, record = load_for_inference(
+        args.checkpoint, NAME, args.device, args.precision, resolve_threads(args.threads)
+    )
     ds = open_data(args.data)
     seqs = ds.sequences(None if args.split == "all" else args.split)
     if not seqs:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from mvracklay.options import add_quiet_option
+from mvracklay.command_settings import ExportSettings
+from mvracklay.settings import add_options
 
 NAME = "export"
 HELP = "export a WareSynth dataset as COCO instance segmentation, YOLO detection or RackLay layouts"
@@ -23,26 +24,7 @@ ORDER = 22
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from waresynth.exporters import EXPORT_FORMATS
-
-    p.add_argument("dataset", metavar="DIR", help="WareSynth dataset folder (holds manifest.json)")
-    p.add_argument("--format", required=True, choices=EXPORT_FORMATS, help="output format")
-    p.add_argument("--out", required=True, metavar="OUT", help="output folder (must be outside DIR)")
-    p.add_argument(
-        "--yolo-task",
-        choices=("detect", "segment"),
-        default="detect",
-        help="yolo labels: boxes (detect) or polygons (segment)",
-    )
-    p.add_argument(
-        "--slots",
-        type=int,
-        metavar="N",
-        help="racklay: shelf slots per layout stack, the empty ones all 0 (default 4, the reference code's "
-        "--num_racks; at least the dataset's slots)",
-    )
-    p.add_argument("--overwrite", action="store_true", help="replace OUT if it exists and is not empty")
-    add_quiet_option(p, "no progress bar")
+    add_options(p, ExportSettings)
 
 
 def run(args: argparse.Namespace) -> int:

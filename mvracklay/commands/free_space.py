@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.settings import add_options
+from mvracklay.use_settings import FreeSpaceSettings
 
 NAME = "free-space"
 HELP = "free space per shelf of a map (a row's warehouse.json or a building), and where a box fits"
@@ -29,21 +31,7 @@ ORDER = 12
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "map", metavar="MAP", help="warehouse.json written by `mvracklay run` / `reconstruct`, or their OUT folder"
-    )
-    p.add_argument("--box", help="box size WxDxH in metres, e.g. 0.4x0.3x0.3")
-    sure = "building map: also offer locations flagged recount (marked, last); by default only where the count is sure"
-    p.add_argument("--with-recount", action="store_true", help=sure)
-    p.add_argument("--margin", type=float, default=0.02, help="clearance in metres on each side and above the box")
-    p.add_argument("--shelf", help="only this shelf id, e.g. rack_00/shelf_01 (a row map)")
-    p.add_argument("--near", metavar="CODE", help="building map: rank the locations a --box fits by distance from it")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    p.add_argument(
-        "--csv",
-        action="store_true",
-        help="print CSV (one row per shelf) instead of a table; with --box also whether it fits and where",
-    )
+    add_options(p, FreeSpaceSettings)
 
 
 def map_path(arg: str) -> Path:

@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: GenerateSettings) -> int:
     from layouts.spec import LayoutSpec
     from waresynth.dataset import open_dataset
-    from waresynth.generate import generate_dataset
+    from waresynth.generate import DatasetSettings, generate_dataset
 
     args.validate()
     from layouts.publish import refuse_overlap
@@ -75,16 +75,18 @@ def run(args: GenerateSettings) -> int:
     size = args.size or DEFAULT_SIZE
     root = generate_dataset(
         args.out,
-        num_sequences=args.sequences,
-        frames=args.frames,
-        image_size=(size, size),
-        spec=spec,
-        seed=args.seed,
-        config=config,
-        workers=args.workers,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
-        shard=shard,
+        DatasetSettings(
+            num_sequences=args.sequences,
+            frames=args.frames,
+            image_size=(size, size),
+            spec=spec,
+            seed=args.seed,
+            config=config,
+            workers=args.workers,
+            overwrite=args.overwrite,
+            progress=not args.quiet,
+            shard=shard,
+        ),
         tasks=tasks,
     )
     ds = open_dataset(root)

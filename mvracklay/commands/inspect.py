@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_quiet_option
+from mvracklay.command_settings import InspectSettings
+from mvracklay.settings import add_options
 
 NAME = "inspect"
 HELP = "summarise a WareSynth dataset and write a preview sheet (PNG) of one frame"
@@ -20,19 +21,7 @@ ORDER = 21
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DIR", help="WareSynth dataset folder (holds manifest.json)")
-    p.add_argument("--sequence", metavar="NAME", help="sequence to preview (default: the first one)")
-    p.add_argument("--frame", metavar="I", type=int, default=0, help="frame index within the sequence")
-    p.add_argument("--out", metavar="PNG", default="sheet.png", help="where to write the preview sheet")
-    p.add_argument(
-        "--max-frames",
-        metavar="N",
-        type=int,
-        default=200,
-        help="measure pixel fractions on at most N frames spread evenly over the dataset",
-    )
-    p.add_argument("--no-sheet", action="store_true", help="print the summary only")
-    add_quiet_option(p, "no progress bar")
+    add_options(p, InspectSettings)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,18 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import (
-    add_device_option,
-    add_json_out_option,
-    add_overwrite_option,
-    add_quiet_option,
-    add_spawn_option,
-    add_threads_option,
-)
 from mvracklay.settings import RunConfig, add_options
+from mvracklay.use_settings import MapSettings
 
 NAME = "map"
 HELP = "map a whole building from many passes: building.glb / .rrd / .json and the inventory per location"
@@ -37,58 +29,7 @@ INTERRUPTED = "the passes mapped so far are kept in MAP/passes; run it again to 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("dataset", metavar="DATASET", help="a building dataset folder (route.json inside) or a route file")
-    p.add_argument("--out", type=Path, required=True, metavar="MAP", help="output folder of the building map")
-    add_overwrite_option(p, "the building map's files and MAP/passes", "map")
-    p.add_argument(
-        "--layouts",
-        choices=("net", "gt"),
-        default="net",
-        help="net: predict every pass's layouts with the network (as `run`); gt: a generated building's "
-        "ground-truth layouts",
-    )
-    p.add_argument(
-        "--pose-noise",
-        metavar="M,DEG",
-        help="move every pass's route start M metres in a random direction and turn it DEG degrees (seeded by "
-        "--seed) before placing it: how the map holds up against poor odometry",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of --pose-noise")
-    p.add_argument(
-        "--code",
-        metavar="FORMAT",
-        help="location code format, fields {aisle} {side} {bay} {level} {position}; default: the building's, "
-        "else {aisle:02d}-{side}-{bay:02d}-{level:02d}",
-    )
-    p.add_argument("--positions", type=int, metavar="N", help="positions per level (default: the building's, else 1)")
-    p.add_argument(
-        "--locations",
-        metavar="FILE",
-        help="the WMS's location list (CSV: code,aisle,side,bay,level,start_m,end_m[,position]) or an earlier map "
-        "(its folder or building.json): codes and spans from it, a row for every listed location, boxes outside "
-        "them reported apart",
-    )
-    p.add_argument("--workers", type=int, default=1, metavar="W", help="passes mapped at once (local processes)")
-    p.add_argument("--ray", metavar="ADDRESS", help=_ray_help())
-    p.add_argument("--no-rrd", action="store_true", help="do not write building.rrd")
-    p.add_argument(
-        "--evaluate",
-        action="store_true",
-        help="a generated building: score the map against its ground_truth/ (locations with the right code and "
-        "box count, box recall and precision at 3D IoU 0.5; docs/buildings.md) and add the figures to --json-out",
-    )
-    add_options(p, RunConfig, only=("checkpoint", "distance", "camera_height"))
-    add_device_option(p)
-    add_threads_option(p)
-    add_spawn_option(p, "MAP/building.rrd")
-    add_json_out_option(p, "write the summary and the inventory's counts as JSON to FILE")
-    add_quiet_option(p)
-
-
-def _ray_help() -> str:
-    from mvracklay.parallel import RAY_HELP
-
-    return RAY_HELP
+    add_options(p, MapSettings)
 
 
 def run(args: argparse.Namespace) -> int:

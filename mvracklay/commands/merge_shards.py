@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from mvracklay.options import add_quiet_option
+from mvracklay.command_settings import MergeShardsSettings
+from mvracklay.settings import add_options
 
 NAME = "merge-shards"
 GROUP = "data"
@@ -22,14 +22,7 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("out", metavar="OUT", type=Path, help="merged dataset folder (new or empty)")
-    p.add_argument("shards", metavar="SHARD_DIR", type=Path, nargs="+", help="shard folders, all N of them")
-    p.add_argument(
-        "--link",
-        action="store_true",
-        help="hard-link the files instead of moving the folders (the shards stay usable; copies across filesystems)",
-    )
-    add_quiet_option(p, "hide the progress bar")
+    add_options(p, MergeShardsSettings)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,8 +7,9 @@ import sys
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import add_overwrite_option, add_quiet_option, add_spawn_option
 from mvracklay.reconstruction import open_sequence, reconstruct_folder, resolve_layouts, stitch_settings
+from mvracklay.settings import add_options
+from mvracklay.use_settings import ReconstructSettings
 
 NAME = "reconstruct"
 HELP = "stitch per-frame layouts of a sequence into a 3D map: warehouse.json, .glb and .rrd"
@@ -28,33 +29,7 @@ MAP_OUTPUTS = ("warehouse.json", "warehouse.glb", "warehouse.rrd")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("seq_dir", metavar="SEQ_DIR", help="WareSynth sequence folder or a layout folder")
-    p.add_argument(
-        "--layouts",
-        default="gt",
-        help="'gt' for SEQ_DIR/layouts (or SEQ_DIR itself when it is a layout folder), or a layout folder",
-    )
-    p.add_argument("--out", required=True, help="output folder")
-    add_overwrite_option(p, "the map files", "run")
-    p.add_argument(
-        "--board-thickness", type=float, default=0.06, help="metres between a clear height and the next board top"
-    )
-    p.add_argument(
-        "--noisy",
-        action="store_true",
-        help="clean-up for network output (StitchConfig.noisy: box-mask openings, small boxes and rarely seen boxes dropped)",
-    )
-    p.add_argument("--no-rrd", action="store_true", help="do not write warehouse.rrd")
-    add_spawn_option(p)
-    p.add_argument("--no-rgb", action="store_true", help="do not log RGB frames to Rerun")
-    p.add_argument("--map-every", type=int, default=1, help="log the growing map to Rerun every N frames")
-    p.add_argument(
-        "--keep-steps",
-        type=int,
-        default=0,
-        help="keep the per-frame camera steps of only the last N frames in the map (0 = all); bounds memory on endless streams",
-    )
-    add_quiet_option(p, "no progress bar")
+    add_options(p, ReconstructSettings)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,22 +3,22 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.options import (
-    add_device_option,
-    add_help_all_option,
-    add_overwrite_option,
-    add_precision_option,
-    add_quiet_option,
-    add_spawn_option,
-    add_threads_option,
-    read_config,
+from mvracklay.options import add_help_all_option, read_config
+from mvracklay.presets import preset_defaults
+from mvracklay.settings import (
+    SERVE_PORT,
+    ComputeSettings,
+    InferenceSettings,
+    LiveSettings,
+    OutputSettings,
+    RunConfig,
+    add_options,
+    from_args,
 )
-from mvracklay.presets import PRESETS
-from mvracklay.settings import SERVE_PORT, InferenceSettings, LiveSettings, RunConfig, add_options, from_args
 from mvracklay.threads import resolve_threads
+from mvracklay.use_settings import RunCommandSettings
 
 NAME = "run"
 HELP = "the main job: video / image folder / sequence / camera or stream -> 3D map (.glb, .json, .rrd) + free space"
@@ -47,39 +47,20 @@ INTERRUPTED = "OUT left as it was; run it again to start over"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "input",
-        metavar="INPUT",
-        help="sequence folder, image folder, video file, or live: a camera (/dev/video0 or 0) or a stream URL",
-    )
-    p.add_argument("--out", type=Path, help="output folder (required)")
-    add_overwrite_option(p, "run's outputs", "run")
+    add_options(p, RunCommandSettings, only=("input", "out", "overwrite"))
     add_options(p, RunConfig, only=("checkpoint", "camera", "distance", "camera_height"))  # mvracklay.settings
-    p.add_argument(
-        "--quality",
-        choices=tuple(PRESETS),
-        help="preset: default (online, as the network streams), offline (every frame's depths, test-time flip "
-        "and fused neighbours: best layouts, about half the speed), fast (the decoder's own depths, a lighter "
-        "recording); default: default",
-    )
-    p.add_argument(
-        "--config",
-        type=Path,
-        metavar="FILE",
-        help='JSON or TOML file of options by their long names, e.g. {"rack-depth": 1.1, "quality": "offline"}; '
-        "options given here win over the file's, the file's over the --quality preset's",
-    )
-    add_device_option(p)
-    add_threads_option(p)
-    add_spawn_option(p, live=True)
+    add_options(p, RunCommandSettings, only=("quality", "config"))
+    add_options(p, ComputeSettings, only=("device",))
+    add_options(p, ComputeSettings, only=("threads",))
+    add_options(p, RunCommandSettings, only=("spawn",))
     add_options(p, LiveSettings, only=("idle_timeout", "serve"))
-    add_quiet_option(p)
+    add_options(p, OutputSettings, only=("quiet",))
     add_help_all_option(p)
     # the rest: config-file keys, still parseable (--help-all shows them)
     add_options(p, RunConfig, hidden=True, only=("mode", "max_frames", "every", "distance_reader"))
     add_options(p, InferenceSettings, hidden=True)
     add_options(p, RunConfig, hidden=True, only=("layout_size",))
-    add_precision_option(p, hidden=True)
+    add_options(p, ComputeSettings, hidden=True, only=("precision",))
     add_options(p, RunConfig, hidden=True, only=("rrd", "rgb", "map_every", "opening", "board_thickness"))
     add_options(p, LiveSettings, hidden=True, only=("retries", "live_buffer"))
     hidden = [a.option_strings[0][2:] for a in p._actions if a.help == argparse.SUPPRESS and hasattr(a, "full_help")]
@@ -95,7 +76,7 @@ def config_defaults(args: argparse.Namespace, parser: argparse.ArgumentParser) -
     from_file = read_config(args.config, parser, settings=classes) if args.config else {}
     quality = args.quality or from_file.pop("quality", None) or "default"
     from_file.pop("quality", None)
-    return {**PRESETS[quality], **from_file, "quality": quality}
+    return {**preset_defaults(quality), **from_file, "quality": quality}
 
 
 def run(args: argparse.Namespace) -> int:

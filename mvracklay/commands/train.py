@@ -8,6 +8,7 @@ This module stays light (no torch at import): the training options and the work 
 from __future__ import annotations
 
 import argparse
+from dataclasses import fields
 from pathlib import Path
 
 from layouts.errors import InputError
@@ -36,29 +37,15 @@ RECIPE_OPTIONS = ("recipe", "set", "dry_run", "out", "quiet")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from mvracklay.command_settings import RecipeSettings
     from mvracklay.settings import add_options
     from mvracklay.training.train_network import TrainSettings
 
-    add_options(p, TrainSettings)
-    out = next(a for a in p._actions if "--out" in a.option_strings)
-    out.required = False  # a recipe's run folder defaults to the user's cache folder (checked in `run` otherwise)
-    out.help = f"{out.help}; with --recipe by default $XDG_CACHE_HOME/mvracklay/train/RECIPE (~/.cache/...)"
-    g = p.add_argument_group("recipe")
-    g.add_argument(
-        "--recipe",
-        metavar="NAME|FILE",
-        help="run a training recipe into --out (the run folder): a shipped one (smoke, default-128, budget-256, "
-        "default-256) or a TOML file; the training options above then come from the recipe",
-    )
-    g.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="PATH=VALUE",
-        help="with --recipe: change one value, e.g. vars.head_sequences=4, data.train.sequences=12, "
-        "stage.stage2.minutes=0.3, stage.stage2.lr=1e-3, budget.total=100, precision=fp32 (repeatable)",
-    )
-    g.add_argument("--dry-run", action="store_true", help="with --recipe: print the stages and their arguments only")
+    out = next(f for f in fields(TrainSettings) if f.name == "out").metadata["help"]
+    # a recipe's run folder defaults to the user's cache folder (checked in `run` otherwise)
+    more = "; with --recipe by default $XDG_CACHE_HOME/mvracklay/train/RECIPE (~/.cache/...)"
+    add_options(p, TrainSettings, helps={"out": out + more}, out={"required": False})
+    add_options(p, RecipeSettings)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,10 +9,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from layouts.errors import InputError
-from mvracklay.settings import setting
+from mvracklay.settings import ComputeSettings, same_as, setting
+from mvracklay.threads import resolve_threads
 from network.device import DistEnv, device_for
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
-from network.precision import PRECISIONS, cpu_has_native_bf16
+from network.precision import cpu_has_native_bf16
 from network.training.distributed import DEFAULT_TIMEOUT_MIN, init_process_group, shutdown
 from network.training.train_config import TrainConfig, default_model_config
 from network.training.train_data import open_data
@@ -132,23 +133,25 @@ class TrainSettings:
         "--jpeg-quality", "the JPEG quality range of --jpeg, 1 (worst) to 95 (default %(default)s)",
         list(_T.jpeg_quality), type=int, nargs=2, metavar=("LOW", "HIGH"),
     )  # fmt: skip
-    precision: str = _opt(
-        "--precision",
+    precision: str = same_as(
+        ComputeSettings,
+        "precision",
         "bf16 runs the training forward passes under bf16 autocast (weights, optimiser, validation and "
         "the saved checkpoints stay fp32): ~1.6x the steps per minute on CPUs with native bf16 (AVX512-BF16, "
         "AMX) and on recent GPUs; elsewhere it is emulated, 18-24x slower (a warning says so) (default %(default)s)",
-        _T.precision, choices=list(PRECISIONS),
+        default=_T.precision, group="optimisation",
     )  # fmt: skip
     seed: int = _opt("--seed", "seed of the weights, the data order and augmentation", _T.seed, type=int)
-    threads: int = _opt("--threads", "torch CPU threads", _T.threads, type=int)
+    threads: int | str = same_as(ComputeSettings, "threads", "torch CPU threads: a count, or auto: the cores free of "
+                                 "other work when training starts", default=_T.threads, group="optimisation")  # fmt: skip
     workers: int = _opt("--workers", "data-loader worker processes", _T.workers, type=int)
     checkpoint_every: int = _opt(
         "--checkpoint-every",
         "also write last.pt every STEPS optimiser steps (0 = at epoch ends only); bounds the work a crash loses",
         _T.checkpoint_every, type=int, metavar="STEPS",
     )  # fmt: skip
-    device: str = _opt(
-        "--device", "auto = cuda:LOCAL_RANK when CUDA is present, else CPU", "auto", choices=["auto", "cpu", "cuda"]
+    device: str = same_as(
+        ComputeSettings, "device", "auto = cuda:LOCAL_RANK when CUDA is present, else CPU", group="optimisation"
     )
     dist_timeout: float = _opt(
         "--dist-timeout", "under torchrun: minutes a rank may wait for the others (rank 0 validates while they wait)",
@@ -304,7 +307,7 @@ def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
         jpeg_quality=tuple(args.jpeg_quality),
         precision=args.precision,
         seed=args.seed,
-        threads=args.threads,
+        threads=resolve_threads(args.threads),
         workers=args.workers,
         val_frames=args.val_frames,
         val_sequences=args.val_sequences,

@@ -62,8 +62,13 @@ class DiffConfig:
         """The tolerances for these maps: wider where either was made from the network's layouts, whose boxes
         move by a few centimetres and change size by up to ten between two scans of the same stack."""
         if "net" in (old.meta.get("layouts"), new.meta.get("layouts")):
-            return cls(same=0.15, size_tol=0.15, move_tol=0.05, min_shift=0.15)
+            return cls.network_made()
         return cls()
+
+    @classmethod
+    def network_made(cls) -> DiffConfig:
+        """The tolerances between maps made from the network's layouts (`for_maps`)."""
+        return cls(same=0.15, size_tol=0.15, move_tol=0.05, min_shift=0.15)
 
 
 @dataclass
