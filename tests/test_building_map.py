@@ -342,7 +342,7 @@ def test_one_call_places_registers_and_fuses(building, mapped):
     alone = build_map(route, maps, BuildingConfig(place=PlaceConfig(min_matches=10**6)), **how)
     assert all(e["with"] not in maps for p in alone.passes for e in p.edges)
     assert any(e["with"] in maps for p in saved.passes for e in p.edges)
-    doubled = build_map(route, maps, BuildingConfig(fuse=FuseConfig(same_box=2.0)), **how)
+    doubled = build_map(route, maps, BuildingConfig(fuse=FuseConfig(same_box=2.0, ghost=2.0)), **how)
     assert doubled.box_count() > saved.box_count()
 
 
@@ -360,3 +360,20 @@ def test_building_settings_are_checked(building, mapped):
         MapSettings(layouts="truth")
     with pytest.raises(InputError, match=r"^--workers must be >= 1, got 0"):
         MapJob(workers=0)
+
+
+def test_a_box_reaching_into_a_better_seen_one_is_dropped(building, mapped):
+    """Boxes stand side by side on a level: a pass's box placed 40 % of its width into a box another pass saw
+    better (a copy placed off) is none; with the rule off (``ghost`` above any overlap) it is counted."""
+
+    def fused(ghost: bool, cfg: FuseConfig | None = None) -> int:
+        route, placed = _placed(building, mapped)
+        if ghost:
+            r = next(r for p in placed for r in p.racks if r.boxes)
+            b = max(r.boxes, key=lambda b: b.size[0])
+            r.boxes.append(replace(b, x=b.x + 0.4 * b.size[0], observations=1, confidence=0.5))
+        return _fuse(route, placed, cfg=cfg).box_count()
+
+    base = fused(False)
+    assert fused(True) == base
+    assert fused(True, FuseConfig(ghost=2.0)) == base + 1

@@ -42,6 +42,9 @@ class FuseConfig:
 
     same_rack: float = 0.5  #: overlap / shorter length above which two passes' racks are one bay
     same_box: float = 0.5  #: X overlap / narrower width above which two passes' boxes are one
+    #: X overlap / narrower width above which a box reaching into a better seen one is dropped (boxes stand side by
+    #: side on a level, never into each other: such a box is a copy placed off, or a piece of its neighbour)
+    ghost: float = 0.3
     long_bay: float = 1.8  #: a bay this many times the face's typical length is bays run together
     split_margin: float = 0.4  #: metres a gap must lie inside another pass's rack to cut it there
     default_clear: float = 0.8  #: clear height (m) of a level nobody saw and the plan does not give

@@ -193,11 +193,12 @@ def _fuse_boxes(candidates: list[tuple[PlacedPass, PlacedBox]], cfg: FuseConfig)
     for p, b in order:
         x = b.x + p.offset
         for k, (kb, kx, names, kp) in enumerate(kept):
-            if kp is p:
-                continue
             overlap = min(x + b.size[0] / 2, kx + kb.size[0] / 2) - max(x - b.size[0] / 2, kx - kb.size[0] / 2)
-            if overlap >= cfg.same_box * min(b.size[0], kb.size[0]):
+            narrower = min(b.size[0], kb.size[0])
+            if kp is not p and overlap >= cfg.same_box * narrower:
                 kept[k] = (kb, kx, names + [p.pose.sequence], kp)
+                break
+            if overlap >= cfg.ghost * narrower:  # boxes stand side by side: one this far into a better seen is none
                 break
         else:
             kept.append((b, x, [p.pose.sequence], p))
