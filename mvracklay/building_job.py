@@ -259,7 +259,8 @@ def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: dict[str,
     tasks, folders = [], {}
     for k, pose in enumerate(route.passes):
         src = str((base / pose.sequence).resolve())
-        key = hashlib.sha256(json.dumps([src, layouts, run], sort_keys=True, default=str).encode()).hexdigest()[:16]
+        decides = {k: v for k, v in run.items() if k != "threads"}  # threads change the speed, not the row map
+        key = hashlib.sha256(json.dumps([src, layouts, decides], sort_keys=True, default=str).encode()).hexdigest()[:16]
         name = pass_folder(k, pose.sequence)
         if folders.setdefault(name, pose.sequence) != pose.sequence:  # two passes' names alike once made plain
             name = f"pass_{k:03d}-{name}"

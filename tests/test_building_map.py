@@ -377,3 +377,17 @@ def test_a_box_reaching_into_a_better_seen_one_is_dropped(building, mapped):
     base = fused(False)
     assert fused(True) == base
     assert fused(True, FuseConfig(ghost=2.0)) == base + 1
+
+
+def test_a_pass_is_mapped_again_only_when_what_decides_its_row_map_changed(building, tmp_path):
+    """The thread count (``--threads auto`` follows the machine's load) never makes a stored pass stale; the model
+    does."""
+    from mvracklay.building_job import pass_tasks
+
+    route = load_route(building / "route.json")
+
+    def keys(**run) -> list[str]:
+        return [t.key for t in pass_tasks(route, building, tmp_path, "net", run)]
+
+    assert keys(checkpoint="a.pt", threads=1) == keys(checkpoint="a.pt", threads=2)
+    assert keys(checkpoint="a.pt", threads=1) != keys(checkpoint="b.pt", threads=1)
