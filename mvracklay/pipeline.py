@@ -4,8 +4,9 @@
 >>> result = run_pipeline(open_source("my_frames/"), "out/mine")   # doctest: +SKIP
 >>> print(format_table(result.free_space))                          # doctest: +SKIP
 
-Frames stream through: each is decoded, predicted (one encoder pass, ConvLSTM state carried),
-written to ``OUT/layouts/``, stitched into the growing map and logged to Rerun, then dropped.
+Frames stream through (`mvracklay.inference.FrameStream`): each is decoded, predicted (one encoder pass, ConvLSTM
+state carried) and handed, with the distance and the camera angles it was levelled by, to the sinks in turn
+(`RunSinks`): written to ``OUT/layouts/``, stitched into the growing map, logged to Rerun, then dropped.
 Everything is written into a staging folder on OUT's filesystem and moved into OUT only when the run
 succeeds (`layouts.publish.staged`: OUT held by one command at a time), so a failed run leaves OUT as it was.
 """
@@ -16,14 +17,14 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
 
-from layouts import Intrinsics, LayoutSpec
+from layouts import Intrinsics
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.publish import staged
@@ -33,7 +34,7 @@ from mvracklay.camera import run_camera
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.every import every_nth
 from mvracklay.frames import FrameSource
-from mvracklay.inference import PredictedFrame, make_predictor, predict_frames
+from mvracklay.inference import FrameStream, PredictedFrame
 from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
@@ -41,7 +42,6 @@ from mvracklay.settings import RunConfig
 from network.heads.uprights import FRONT_THRESHOLD
 from network.inference.distance import DistanceReading
 from network.inference.loading import load_for_inference
-from network.inference.predictor import Predictor
 from network.inference.roll import angle_warnings
 from network.model.frozen import trunk_precision
 from stitching.box_colours import BoxColours
@@ -52,7 +52,6 @@ from stitching.pipeline import Stitcher
 from stitching.warehouse_map import WarehouseMap, camera_in_map
 
 if TYPE_CHECKING:
-    from layouts.lens import Lens
     from network.model.net import MVRackLay
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
@@ -115,14 +114,14 @@ def run_pipeline(
 ) -> RunResult:
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
 
-    Four stages: the model, camera and distances are set up; the frames stream through the predictor into the
-    layout folder and the stitcher (`_stream_into_map`); the map is finished and exported (`_export`) into a
-    staging folder; that folder is published as OUT. A live run (`mvracklay.live`) passes the model it loaded
-    before opening its stream (``loaded``), follows each frame into the map (``on_frame``) and streams the
-    recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file) and bounds what it keeps per frame
-    (``bounded``: the newest `LIVE_COLOUR_SAMPLES` box-colour samples per place, the last `LIVE_KEEP_STEPS` camera
-    steps in warehouse.json, a thinned camera path in the recording and its .rrd without Rerun's footer), so its memory is bounded by the map, not by
-    the stream's length.
+    Four stages: the model and the frame stream (camera, distances, predictor: `open_stream`) are set up; the
+    predicted frames flow into the sinks (`RunSinks`: the layout folder, the row map, the recording, ``on_frame``);
+    the map is finished and exported into a staging folder; that folder is published as OUT. A live run
+    (`mvracklay.live`) passes the model it loaded before opening its stream (``loaded``), follows each frame into
+    the map (``on_frame``) and streams the recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file)
+    and bounds what it keeps per frame (``bounded``: the newest `LIVE_COLOUR_SAMPLES` box-colour samples per place,
+    the last `LIVE_KEEP_STEPS` camera steps in warehouse.json, a thinned camera path in the recording and its .rrd
+    without Rerun's footer), so its memory is bounded by the map, not by the stream's length.
     """
     cfg = cfg or RunConfig()
     cfg.validate()
@@ -130,56 +129,40 @@ def run_pipeline(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    seconds: dict[str, float] = {}
     warnings: list[str] = []
     t0 = time.perf_counter()
     ckpt, model, record = loaded or load_model(cfg)
-    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
-    spec = _layout_spec(model, cfg)
-    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
+    stream, intr_source = open_stream(source, cfg, model, record, str(ckpt), warnings)
     origin, cam_y, cam_z = _map_origin(source)
-    seconds["load"] = time.perf_counter() - t0
+    seconds = {"load": time.perf_counter() - t0}
 
-    recording = None
     with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
+        recording = None
+        if cfg.rrd:
+            recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", stream.spec.num_slots,
+                                     (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks, bounded=bounded)  # fmt: skip
+        run = RunSinks.open(stage, stream, cfg, bounded, recording, on_frame)
         try:
-            folder = LayoutFolder.create(stage / "layouts", spec)
-            keep_steps = LIVE_KEEP_STEPS if bounded else 0
-            stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
-            if cfg.rrd:
-                save = stage / "warehouse.rrd"
-                recording = RunRecording(f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb,
-                                         cfg.map_every, sinks, bounded=bounded)  # fmt: skip
-            # a generated sequence's camera rotation is recorded; footage's is read from the frames
-            pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
-            # each box's colour from the frames' pixels
-            colours = BoxColours(pred.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
-            n, depth, timings = _stream_into_map(
-                source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
-            )
-            seconds.update(timings)
-
+            n, depth = run.take(stream, cfg)
+            seconds.update(run.seconds)
             t1 = time.perf_counter()
-            lev = pred.leveller
-            read = lev.read_angles() if lev is not None else {}
-            meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
+            meta = _map_meta(stream, cfg, n, ckpt, model, depth)
             # the camera used: where its intrinsics came from and the lens the frames were undistorted through
-            meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
-            wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
-            colours.paint(wmap)
-            _export(wmap, stage, recording, n, cfg.progress)
-            recording = None
+            meta.update(intrinsics_source=intr_source, lens=stream.lens.to_dict() if stream.lens is not None else None)
+            reading = stream.distances.reading
+            wmap = run.finish(origin, {**meta, **(reading.to_record() if reading else {})}, n, cfg.progress)
         except BaseException:
-            if recording is not None:
-                recording.abort()
+            run.abort()
             raise
     seconds["export"] = time.perf_counter() - t1
-    warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
+    warnings.extend(source.warnings + stream.distances.warnings)  # the source's, the distance's (printed as they came)
+    read = stream.read_angles()
     path_said = registration_warning(wmap.meta.get("registration"), n)
-    for said in [*angle_warnings(read, width=intr.width), *([path_said] if path_said else [])]:
+    for said in [*angle_warnings(read, width=stream.intr.width), *([path_said] if path_said else [])]:
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
-    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read, dists.reading)
+    return RunResult(out, n, wmap, free_space(wmap), stream.intr, intr_source, warnings, seconds, read,
+                     stream.distances.reading)  # fmt: skip
 
 
 def load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
@@ -189,90 +172,125 @@ def load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
     return ckpt, model, record
 
 
-def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
-    """The written layouts' spec: the model's, at ``--layout-size`` when given (a known rack depth checked
-    against it)."""
+def open_stream(
+    source: FrameSource, cfg: RunConfig, model: MVRackLay, record: dict[str, Any], ckpt: str, warnings: list[str]
+) -> tuple[FrameStream, str]:
+    """``run``'s frame stream and where its intrinsics came from: the camera of the frames (`run_camera`: a
+    camera unlike the model's is warned about, into ``warnings``), the layouts' spec (``--layout-size``, a known
+    rack depth checked against it), the distances and the predictor ``cfg.inference`` sets up."""
+    intr, intr_source, lens = run_camera(source, cfg.camera, record, ckpt, warnings)
     spec = model.cfg.spec
     if cfg.layout_size and cfg.layout_size != spec.size:
-        from dataclasses import replace
-
         spec = replace(spec, size=cfg.layout_size)
     if cfg.inference.rack_depth is not None:
         check_rack_depth(cfg.inference.rack_depth, spec)
-    return spec
+    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
+    # a generated sequence's camera rotation is recorded; footage's is read from the frames
+    return FrameStream.open(source, model, cfg.inference, (intr, lens, dists), spec), intr_source
 
 
-def _stream_into_map(
-    source: FrameSource,
-    cfg: RunConfig,
-    pred: Predictor,
-    spec: LayoutSpec,
-    intr: Intrinsics,
-    lens: Lens | None,
-    dists: FrameDistances,
-    folder: LayoutFolder,
-    stitcher: Stitcher,
-    recording: RunRecording | None,
-    colours: BoxColours,
-    on_frame: OnFrame | None = None,
-) -> tuple[int, float, dict[str, float]]:
-    """Stream the frames through ``pred`` (`mvracklay.inference.predict_frames`, as ``predict`` does): each frame's
-    layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept), logged to the
-    ``recording`` and given to ``on_frame``. Returns the frame count, the last rack depth read and the seconds
-    spent predicting, stitching and logging."""
-    bar = tqdm(
-        total=source.frame_count(cfg.max_frames or None),
-        desc=f"predict+stitch ({cfg.mode})",
-        unit="frame",
-        disable=not cfg.progress,
-        file=sys.stderr,
-    )
-    whole = cfg.inference.whole_sequence
+@dataclass
+class RunSinks:
+    """Where each predicted frame goes, in order: the layout folder, the row map (``stitcher``, each box's
+    colour sampled from the frames' pixels by ``colours``), the ``recording`` and ``on_frame``; `take` streams
+    the frames into them and `finish` makes the map and writes it out."""
 
-    def read(rgb: np.ndarray) -> None:
-        if recording is not None:
-            recording.keep(rgb)
-        colours.keep(rgb)
-        if whole:  # the frames are all read before the first layouts: count reads
-            bar.update(1)
+    folder: LayoutFolder
+    stitcher: Stitcher
+    colours: BoxColours
+    intr: Intrinsics
+    recording: RunRecording | None = None
+    on_frame: OnFrame | None = None
+    seconds: dict[str, float] = field(default_factory=dict)  #: predicting, stitching and logging
 
-    frames = predict_frames(pred, source, spec, intr, lens, dists, cfg.mode, cfg.max_frames or None, on_read=read)
-    seconds = {"predict": 0.0, "stitch": 0.0, "rerun": 0.0}
-    n, depth = 0, float("nan")
-    ta = time.perf_counter()
-    for frame in frames:
-        folder.write(frame.index, frame.layouts)
-        tb = time.perf_counter()
-        frame_rec, offset = _stitch(frame, stitcher, colours, pred, intr)
-        tc = time.perf_counter()
-        if recording is not None:
-            recording.log(frame, frame_rec, offset, stitcher)
-        td = time.perf_counter()
-        if on_frame is not None:
-            on_frame(frame, stitcher)
-        seconds["predict"] += tb - ta
-        seconds["stitch"] += tc - tb
-        seconds["rerun"] += td - tc
-        n, depth = frame.index + 1, frame.prediction.rack_depth
-        if not whole:
-            bar.update(1)
+    @classmethod
+    def open(
+        cls,
+        stage: Path,
+        stream: FrameStream,
+        cfg: RunConfig,
+        bounded: bool,
+        recording: RunRecording | None = None,
+        on_frame: OnFrame | None = None,
+    ) -> RunSinks:
+        """The sinks of a run staged in ``stage`` (a live run's ``bounded``)."""
+        folder = LayoutFolder.create(stage / "layouts", stream.spec)
+        keep_steps = LIVE_KEEP_STEPS if bounded else 0
+        stitcher = Stitcher(stream.spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
+        colours = BoxColours(stream.predictor.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
+        return cls(folder, stitcher, colours, stream.intr, recording, on_frame)
+
+    def read(self, rgb: np.ndarray) -> None:
+        """A frame as it is read: its pixels kept until its layouts come (the recording's, the colours')."""
+        if self.recording is not None:
+            self.recording.keep(rgb)
+        self.colours.keep(rgb)
+
+    def take(self, stream: FrameStream, cfg: RunConfig) -> tuple[int, float]:
+        """Stream ``stream``'s frames into the sinks; returns the frame count and the last rack depth read."""
+        source = stream.source
+        bar = tqdm(total=source.frame_count(cfg.max_frames or None), desc=f"predict+stitch ({cfg.mode})",
+                   unit="frame", disable=not cfg.progress, file=sys.stderr)  # fmt: skip
+        whole = cfg.inference.whole_sequence  # the frames are all read before the first layouts: count reads
+
+        def read(rgb: np.ndarray) -> None:
+            self.read(rgb)
+            if whole:
+                bar.update(1)
+
+        self.seconds = {"predict": 0.0, "stitch": 0.0, "rerun": 0.0}
+        n, depth = 0, float("nan")
         ta = time.perf_counter()
-    bar.close()
-    if n == 0:
-        raise InputError(f"{source.path}: no frames to process")
-    if recording is None:
-        del seconds["rerun"]
-    return n, depth, seconds
+        for frame in stream.frames(cfg.mode, cfg.max_frames or None, on_read=read):
+            self.add(frame, ta)
+            n, depth = frame.index + 1, frame.prediction.rack_depth
+            if not whole:
+                bar.update(1)
+            ta = time.perf_counter()
+        bar.close()
+        if n == 0:
+            raise InputError(f"{source.path}: no frames to process")
+        if self.recording is None:
+            del self.seconds["rerun"]
+        return n, depth
 
+    def add(self, frame: PredictedFrame, since: float) -> None:
+        """One predicted frame into each sink (``since``: when it was asked for, for the timings)."""
+        self.folder.write(frame.index, frame.layouts)
+        tb = time.perf_counter()
+        frame_rec, offset = _stitch(frame, self.stitcher, self.colours, self.intr)
+        tc = time.perf_counter()
+        if self.recording is not None:
+            self.recording.log(frame, frame_rec, offset, self.stitcher)
+        td = time.perf_counter()
+        if self.on_frame is not None:
+            self.on_frame(frame, self.stitcher)
+        self.seconds["predict"] += tb - since
+        self.seconds["stitch"] += tc - tb
+        self.seconds["rerun"] += td - tc
 
-def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, pred: Predictor, intr: Intrinsics):
-    """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
-    reconstruction and the camera's offset along the row."""
-    ups = upright_columns(frame.prediction.maps.get("uprights"), stitcher.spec.size)
-    frame_rec, step = stitcher.push(frame.layouts, frame.index, uprights=ups)
-    anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
-    colours.add(frame_rec, step.offset, anchors, intr, frame.distance, _frame_angles(pred, frame.index))
-    return frame_rec, step.offset
+    def finish(self, origin: Any, meta: dict[str, Any], frames: int, progress: bool) -> WarehouseMap:
+        """The finished map (``meta`` kept in it, its boxes painted), written into the staging folder:
+        warehouse.json, .glb and, with a recording, .rrd."""
+        wmap = self.stitcher.map(origin, meta)
+        self.colours.paint(wmap)
+        stage = self.folder.root.parent
+        steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if self.recording is not None else [])
+        with tqdm(total=len(steps), desc="export", unit="file", disable=not progress, file=sys.stderr) as bar:
+            wmap.save(stage / "warehouse.json")
+            bar.update(1)
+            export_glb(wmap, stage / "warehouse.glb")
+            bar.update(1)
+            if self.recording is not None:
+                self.recording.close(wmap, frames)
+                self.recording = None
+                bar.update(1)
+        return wmap
+
+    def abort(self) -> None:
+        """A failed run: the recording stopped without finishing."""
+        if self.recording is not None:
+            self.recording.abort()
 
 
 def upright_columns(logits: Any, size: int) -> np.ndarray | None:
@@ -293,32 +311,22 @@ def upright_columns(logits: Any, size: int) -> np.ndarray | None:
     return cols
 
 
-def _export(wmap: WarehouseMap, stage: Path, recording: RunRecording | None, frames: int, progress: bool) -> None:
-    """The finished map written into ``stage``: warehouse.json, .glb and, with a ``recording``, .rrd."""
-    steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if recording is not None else [])
-    with tqdm(total=len(steps), desc="export", unit="file", disable=not progress, file=sys.stderr) as bar:
-        wmap.save(stage / "warehouse.json")
-        bar.update(1)
-        export_glb(wmap, stage / "warehouse.glb")
-        bar.update(1)
-        if recording is not None:
-            recording.close(wmap, frames)
-            bar.update(1)
+def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, intr: Intrinsics) -> tuple[Any, float]:
+    """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
+    reconstruction and the camera's offset along the row."""
+    ups = upright_columns(frame.prediction.maps.get("uprights"), stitcher.spec.size)
+    frame_rec, step = stitcher.push(frame.layouts, frame.index, uprights=ups)
+    anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
+    colours.add(frame_rec, step.offset, anchors, intr, frame.distance, frame.angles)
+    return frame_rec, step.offset
 
 
 def _map_meta(
-    source: FrameSource,
-    cfg: RunConfig,
-    n: int,
-    ckpt: Path,
-    model: MVRackLay,
-    pred: Predictor,
-    depth: float,
-    intr: Intrinsics,
-    spec: LayoutSpec,
+    stream: FrameStream, cfg: RunConfig, n: int, ckpt: Path, model: MVRackLay, depth: float
 ) -> dict[str, Any]:
     """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
-    lev = pred.leveller
+    source, pred, asked = stream.source, stream.predictor, cfg.inference
+    roll, pitch, yaw = stream.median_angles()
     return {
         "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
         "input_kind": source.kind,
@@ -326,42 +334,25 @@ def _map_meta(
         **({"every": cfg.every} if cfg.every != 1 else {}),  # every N-th input frame processed (live: or "auto")
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
-        "flip_average": cfg.inference.flip,
+        "flip_average": asked.flip,
         "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
-        "depths_from": "the whole sequence" if cfg.inference.whole_sequence else "the frames so far",
-        "fuse_frames": cfg.inference.fuse_tau,
+        "depths_from": "the whole sequence" if asked.whole_sequence else "the frames so far",
+        "fuse_frames": asked.fuse_tau,
         # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
-        "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-        "camera_roll_source": _angle_source(pred.roll, cfg.inference.roll),
-        "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
-        "camera_pitch_source": _angle_source(pred.pitch, cfg.inference.pitch),
-        "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
-        "camera_yaw_source": _angle_source(pred.yaw, cfg.inference.yaw),
+        "camera_roll_deg": roll,
+        "camera_roll_source": _angle_source(pred.roll, asked.roll),
+        "camera_pitch_deg": pitch,
+        "camera_pitch_source": _angle_source(pred.pitch, asked.pitch),
+        "camera_yaw_deg": yaw,
+        "camera_yaw_source": _angle_source(pred.yaw, asked.yaw),
         # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
         "rack_depth": depth if np.isfinite(depth) else None,
-        "rack_depth_source": "given"
-        if cfg.inference.rack_depth is not None
-        else "read"
-        if pred.reads_depth
-        else "decoder",
+        "rack_depth_source": "given" if asked.rack_depth is not None else "read" if pred.reads_depth else "decoder",
         # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
         "box_depth_source": "read" if pred.reads_box_depth else "decoder",
-        "intrinsics": intr.to_dict(),
-        "spec": spec.to_dict(),
+        "intrinsics": stream.intr.to_dict(),
+        "spec": stream.spec.to_dict(),
     }
-
-
-def _frame_angles(pred: Predictor, i: int) -> tuple[float, float, float]:
-    """Frame ``i``'s (roll, pitch, yaw) as levelled (degrees; 0 for a level camera)."""
-    lev = pred.leveller
-    if lev is None or i >= len(lev.rolls):
-        return 0.0, 0.0, 0.0
-    return lev.rolls[i], lev.pitches[i], lev.yaws[i]
-
-
-def _median(angles: list[float]) -> float:
-    """The median angle over the frames (degrees; 0 when none was levelled)."""
-    return float(np.median(angles)) if angles else 0.0
 
 
 def _angle_source(used: float | str | None, asked: object) -> str:

@@ -185,5 +185,5 @@ def test_network_uprights_reach_the_row_map(monkeypatch):
     logits[0, 3] = 2.0
     frame = types.SimpleNamespace(layouts=None, index=0, prediction=types.SimpleNamespace(maps={"uprights": logits}))
     with pytest.raises(StopIteration):
-        pipeline._stitch(frame, Stub(), None, None, None)
+        pipeline._stitch(frame, Stub(), None, None)
     assert np.flatnonzero(seen["uprights"]).tolist() == [3]
