@@ -153,8 +153,7 @@ def predict_folder(
     from layouts.rackdepth import check_rack_depth
     from mvracklay.camera import camera_warning, frames_camera
     from mvracklay.distance import FrameDistances, default_distance
-    from mvracklay.every import every_nth
-    from mvracklay.frames import open_source
+    from mvracklay.frames import every_nth, open_source
 
     seq_dir, out, layout_size, progress = settings.seq_dir, settings.out, settings.layout_size, not settings.quiet
     intrinsics = str(settings.camera) if settings.camera is not None else None

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from layouts import Intrinsics
+from layouts import Intrinsics, LayoutSpec
 from layouts.codecs import LayoutFolder
 from layouts.errors import InputError
 from layouts.publish import staged
@@ -32,8 +32,7 @@ from layouts.rackdepth import check_rack_depth
 from mvracklay import models
 from mvracklay.camera import run_camera
 from mvracklay.distance import FrameDistances, default_distance
-from mvracklay.every import every_nth
-from mvracklay.frames import FrameSource
+from mvracklay.frames import FrameSource, every_nth
 from mvracklay.inference import FrameStream, PredictedFrame
 from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
@@ -53,6 +52,7 @@ from stitching.warehouse_map import WarehouseMap, camera_in_map
 
 if TYPE_CHECKING:
     from network.model.net import MVRackLay
+    from stitching.lift import FrameReconstruction
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
 
@@ -114,14 +114,15 @@ def run_pipeline(
 ) -> RunResult:
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
 
-    Four stages: the model and the frame stream (camera, distances, predictor: `open_stream`) are set up; the
-    predicted frames flow into the sinks (`RunSinks`: the layout folder, the row map, the recording, ``on_frame``);
-    the map is finished and exported into a staging folder; that folder is published as OUT. A live run
-    (`mvracklay.live`) passes the model it loaded before opening its stream (``loaded``), follows each frame into
-    the map (``on_frame``) and streams the recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file)
-    and bounds what it keeps per frame (``bounded``: the newest `LIVE_COLOUR_SAMPLES` box-colour samples per place,
-    the last `LIVE_KEEP_STEPS` camera steps in warehouse.json, a thinned camera path in the recording and its .rrd
-    without Rerun's footer), so its memory is bounded by the map, not by the stream's length.
+    Four stages: the model, the camera, the distances and the frame stream (`mvracklay.inference.FrameStream`)
+    are set up; the predicted frames flow into the run's sinks (`RunSinks`: the layout folder, the row map, the
+    recording, ``on_frame``); the map is finished and exported into a staging folder; that folder is published as
+    OUT. A live run (`mvracklay.live`) passes the model it loaded before opening its stream (``loaded``), follows
+    each frame into the map (``on_frame``) and streams the recording to a viewer too (``sinks``, Rerun sinks
+    beside the .rrd file) and bounds what it keeps per frame (``bounded``: the newest `LIVE_COLOUR_SAMPLES`
+    box-colour samples per place, the last `LIVE_KEEP_STEPS` camera steps in warehouse.json, a thinned camera
+    path in the recording and its .rrd without Rerun's footer), so its memory is bounded by the map, not by the
+    stream's length.
     """
     cfg = cfg or RunConfig()
     cfg.validate()
@@ -132,37 +133,39 @@ def run_pipeline(
     warnings: list[str] = []
     t0 = time.perf_counter()
     ckpt, model, record = loaded or load_model(cfg)
-    stream, intr_source = open_stream(source, cfg, model, record, str(ckpt), warnings)
+    spec = _layout_spec(model, cfg)
+    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
+    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
+    # a generated sequence's camera rotation is recorded; footage's is read from the frames
+    stream = FrameStream.open(source, model, cfg.inference, (intr, lens, dists), spec)
     origin, cam_y, cam_z = _map_origin(source)
     seconds = {"load": time.perf_counter() - t0}
 
     with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
         recording = None
         if cfg.rrd:
-            recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", stream.spec.num_slots,
+            recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", spec.num_slots,
                                      (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks, bounded=bounded)  # fmt: skip
-        run = RunSinks.open(stage, stream, cfg, bounded, recording, on_frame)
+        run = RunSinks.open(stage, model, spec, intr, cfg, bounded)
+        run.follow(recording, on_frame)
         try:
             n, depth = run.take(stream, cfg)
-            seconds.update(run.seconds)
             t1 = time.perf_counter()
-            meta = _map_meta(stream, cfg, n, ckpt, model, depth)
+            meta = _map_meta(stream, cfg, n, (ckpt, model), depth)
             # the camera used: where its intrinsics came from and the lens the frames were undistorted through
-            meta.update(intrinsics_source=intr_source, lens=stream.lens.to_dict() if stream.lens is not None else None)
-            reading = stream.distances.reading
-            wmap = run.finish(origin, {**meta, **(reading.to_record() if reading else {})}, n, cfg.progress)
+            meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
+            wmap = run.finish(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})}, n, cfg.progress)
         except BaseException:
             run.abort()
             raise
-    seconds["export"] = time.perf_counter() - t1
-    warnings.extend(source.warnings + stream.distances.warnings)  # the source's, the distance's (printed as they came)
+    seconds.update(run.seconds, export=time.perf_counter() - t1)
+    warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
     read = stream.read_angles()
     path_said = registration_warning(wmap.meta.get("registration"), n)
-    for said in [*angle_warnings(read, width=stream.intr.width), *([path_said] if path_said else [])]:
+    for said in [*angle_warnings(read, width=intr.width), *([path_said] if path_said else [])]:
         warnings.append(said)
         print(f"mvracklay run: warning: {said}", file=sys.stderr)
-    return RunResult(out, n, wmap, free_space(wmap), stream.intr, intr_source, warnings, seconds, read,
-                     stream.distances.reading)  # fmt: skip
+    return RunResult(out, n, wmap, free_space(wmap), intr, intr_source, warnings, seconds, read, dists.reading)
 
 
 def load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
@@ -172,53 +175,61 @@ def load_model(cfg: RunConfig) -> tuple[Path, MVRackLay, dict[str, Any]]:
     return ckpt, model, record
 
 
-def open_stream(
-    source: FrameSource, cfg: RunConfig, model: MVRackLay, record: dict[str, Any], ckpt: str, warnings: list[str]
-) -> tuple[FrameStream, str]:
-    """``run``'s frame stream and where its intrinsics came from: the camera of the frames (`run_camera`: a
-    camera unlike the model's is warned about, into ``warnings``), the layouts' spec (``--layout-size``, a known
-    rack depth checked against it), the distances and the predictor ``cfg.inference`` sets up."""
-    intr, intr_source, lens = run_camera(source, cfg.camera, record, ckpt, warnings)
+def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
+    """The written layouts' spec: the model's, at ``--layout-size`` when given (a known rack depth checked
+    against it)."""
     spec = model.cfg.spec
     if cfg.layout_size and cfg.layout_size != spec.size:
         spec = replace(spec, size=cfg.layout_size)
     if cfg.inference.rack_depth is not None:
         check_rack_depth(cfg.inference.rack_depth, spec)
-    dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
-    # a generated sequence's camera rotation is recorded; footage's is read from the frames
-    return FrameStream.open(source, model, cfg.inference, (intr, lens, dists), spec), intr_source
+    return spec
+
+
+@dataclass(frozen=True)
+class MappedFrame:
+    """A predicted frame once it is in the row map: its reconstruction, the camera's offset along the row and
+    the map so far (the ``stitcher``), for the sinks that follow the map."""
+
+    frame: PredictedFrame
+    reconstruction: FrameReconstruction
+    offset: float
+    stitcher: Stitcher
 
 
 @dataclass
 class RunSinks:
-    """Where each predicted frame goes, in order: the layout folder, the row map (``stitcher``, each box's
-    colour sampled from the frames' pixels by ``colours``), the ``recording`` and ``on_frame``; `take` streams
-    the frames into them and `finish` makes the map and writes it out."""
+    """The run's stages, each frame taken by each in turn: the layout folder, the row map (``stitcher``, each
+    box's colour sampled from the frames' pixels by ``colours``, through the camera ``intr``), then the sinks
+    that follow the map (`follow`: the recording, a live run's ``on_frame``). `take` streams the frames in,
+    `finish` makes the map and writes it out beside the layouts."""
 
     folder: LayoutFolder
     stitcher: Stitcher
     colours: BoxColours
     intr: Intrinsics
     recording: RunRecording | None = None
-    on_frame: OnFrame | None = None
+    followers: list[Callable[[MappedFrame], None]] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)  #: predicting, stitching and logging
 
     @classmethod
     def open(
-        cls,
-        stage: Path,
-        stream: FrameStream,
-        cfg: RunConfig,
-        bounded: bool,
-        recording: RunRecording | None = None,
-        on_frame: OnFrame | None = None,
+        cls, stage: Path, model: MVRackLay, spec: LayoutSpec, intr: Intrinsics, cfg: RunConfig, bounded: bool
     ) -> RunSinks:
-        """The sinks of a run staged in ``stage`` (a live run's ``bounded``)."""
-        folder = LayoutFolder.create(stage / "layouts", stream.spec)
+        """The stages of a run staged in ``stage``: layouts at ``spec``, colours read through ``model``'s view and
+        the camera ``intr`` (a live run's ``bounded``)."""
         keep_steps = LIVE_KEEP_STEPS if bounded else 0
-        stitcher = Stitcher(stream.spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
-        colours = BoxColours(stream.predictor.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
-        return cls(folder, stitcher, colours, stream.intr, recording, on_frame)
+        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
+        colours = BoxColours(model.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
+        return cls(LayoutFolder.create(stage / "layouts", spec), stitcher, colours, intr)
+
+    def follow(self, recording: RunRecording | None, on_frame: OnFrame | None) -> None:
+        """The sinks after the map: the ``recording`` (kept to be closed with the map) and ``on_frame``."""
+        self.recording = recording
+        if recording is not None:
+            self.followers.append(lambda m: recording.log(m.frame, m.reconstruction, m.offset, m.stitcher))
+        if on_frame is not None:
+            self.followers.append(lambda m: on_frame(m.frame, m.stitcher))
 
     def read(self, rgb: np.ndarray) -> None:
         """A frame as it is read: its pixels kept until its layouts come (the recording's, the colours')."""
@@ -227,7 +238,7 @@ class RunSinks:
         self.colours.keep(rgb)
 
     def take(self, stream: FrameStream, cfg: RunConfig) -> tuple[int, float]:
-        """Stream ``stream``'s frames into the sinks; returns the frame count and the last rack depth read."""
+        """``stream``'s frames into the stages; returns the frame count and the last rack depth read."""
         source = stream.source
         bar = tqdm(total=source.frame_count(cfg.max_frames or None), desc=f"predict+stitch ({cfg.mode})",
                    unit="frame", disable=not cfg.progress, file=sys.stderr)  # fmt: skip
@@ -242,7 +253,15 @@ class RunSinks:
         n, depth = 0, float("nan")
         ta = time.perf_counter()
         for frame in stream.frames(cfg.mode, cfg.max_frames or None, on_read=read):
-            self.add(frame, ta)
+            self.folder.write(frame.index, frame.layouts)
+            tb = time.perf_counter()
+            mapped = self.map(frame)
+            tc = time.perf_counter()
+            for follow in self.followers:
+                follow(mapped)
+            self.seconds["predict"] += tb - ta
+            self.seconds["stitch"] += tc - tb
+            self.seconds["rerun"] += time.perf_counter() - tc
             n, depth = frame.index + 1, frame.prediction.rack_depth
             if not whole:
                 bar.update(1)
@@ -254,24 +273,18 @@ class RunSinks:
             del self.seconds["rerun"]
         return n, depth
 
-    def add(self, frame: PredictedFrame, since: float) -> None:
-        """One predicted frame into each sink (``since``: when it was asked for, for the timings)."""
-        self.folder.write(frame.index, frame.layouts)
-        tb = time.perf_counter()
-        frame_rec, offset = _stitch(frame, self.stitcher, self.colours, self.intr)
-        tc = time.perf_counter()
-        if self.recording is not None:
-            self.recording.log(frame, frame_rec, offset, self.stitcher)
-        td = time.perf_counter()
-        if self.on_frame is not None:
-            self.on_frame(frame, self.stitcher)
-        self.seconds["predict"] += tb - since
-        self.seconds["stitch"] += tc - tb
-        self.seconds["rerun"] += td - tc
+    def map(self, frame: PredictedFrame) -> MappedFrame:
+        """One frame's layouts pushed into the stitcher (with its front uprights) and its boxes' pixels to the
+        colours."""
+        ups = upright_columns(frame.prediction.maps.get("uprights"), self.stitcher.spec.size)
+        rec, step = self.stitcher.push(frame.layouts, frame.index, uprights=ups)
+        anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
+        self.colours.add(rec, step.offset, anchors, self.intr, frame.distance, frame.angles)
+        return MappedFrame(frame, rec, step.offset, self.stitcher)
 
     def finish(self, origin: Any, meta: dict[str, Any], frames: int, progress: bool) -> WarehouseMap:
-        """The finished map (``meta`` kept in it, its boxes painted), written into the staging folder:
-        warehouse.json, .glb and, with a recording, .rrd."""
+        """The finished map (``meta`` kept in it, its boxes painted) written beside the layouts: warehouse.json,
+        .glb and, with a recording, .rrd."""
         wmap = self.stitcher.map(origin, meta)
         self.colours.paint(wmap)
         stage = self.folder.root.parent
@@ -311,21 +324,12 @@ def upright_columns(logits: Any, size: int) -> np.ndarray | None:
     return cols
 
 
-def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, intr: Intrinsics) -> tuple[Any, float]:
-    """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
-    reconstruction and the camera's offset along the row."""
-    ups = upright_columns(frame.prediction.maps.get("uprights"), stitcher.spec.size)
-    frame_rec, step = stitcher.push(frame.layouts, frame.index, uprights=ups)
-    anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
-    colours.add(frame_rec, step.offset, anchors, intr, frame.distance, frame.angles)
-    return frame_rec, step.offset
-
-
 def _map_meta(
-    stream: FrameStream, cfg: RunConfig, n: int, ckpt: Path, model: MVRackLay, depth: float
+    stream: FrameStream, cfg: RunConfig, n: int, loaded: tuple[Path, MVRackLay], depth: float
 ) -> dict[str, Any]:
-    """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
-    source, pred, asked = stream.source, stream.predictor, cfg.inference
+    """The run's record kept in warehouse.json: input, model (``(checkpoint, model)``), settings and what was read
+    from the frames."""
+    (ckpt, model), source, pred, asked = loaded, stream.source, stream.predictor, cfg.inference
     roll, pitch, yaw = stream.median_angles()
     return {
         "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
