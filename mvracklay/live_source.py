@@ -104,6 +104,8 @@ def _open_container(url: str, open_timeout: float, read_timeout: float) -> Any:
     options = {**_OPTIONS, **(_RTSP if url.lower().startswith("rtsp") else {})}
     try:
         container = av.open(target, format=fmt, options=options, timeout=(open_timeout, read_timeout))
+    except av.ExitError:  # FFmpeg's "Immediate exit requested": the open timeout passed with nothing received
+        raise InputError(f"{shown(url)}: no frame within {open_timeout:g} s") from None
     except (av.FFmpegError, OSError, ValueError) as e:
         said = str(e).split(":")[0] if str(e) else type(e).__name__
         raise InputError(f"{shown(url)}: cannot open the live source ({type(e).__name__}: {said})") from None
@@ -406,6 +408,9 @@ def open_live(
     container = _open_container(url, open_timeout, idle_timeout)
     try:
         first = next(container.decode(container.streams.video[0]), None)
+    except av.ExitError:  # the read timeout passed before the first frame
+        _close_quietly(container)
+        raise InputError(f"{shown(url)}: no frame within {idle_timeout:g} s of opening") from None
     except av.FFmpegError as e:
         _close_quietly(container)
         raise InputError(f"{shown(url)}: no frame decoded ({type(e).__name__})") from None

@@ -266,6 +266,16 @@ def test_a_url_that_cannot_be_opened_is_one_line_and_status_2(tiny_checkpoint, t
     assert not (tmp_path / "o").exists()
 
 
+def test_a_udp_source_that_never_sends_is_one_line_naming_the_wait():
+    """A UDP port nobody sends to: one line, the source shown without its secret, the seconds waited."""
+    from mvracklay.live_source import open_live
+
+    port = _free_udp_port()
+    with pytest.raises(InputError) as e:
+        open_live(f"udp://127.0.0.1:{port}?token=abc", open_timeout=1.0, idle_timeout=1.0)
+    assert str(e.value) == f"udp://127.0.0.1:{port}?token=***: no frame within 1 s"
+
+
 def test_file_runs_refuse_the_live_options(seq20, tmp_path):
     base = ["run", str(seq20), "--out", str(tmp_path / "o"), "--quiet"]
     assert main([*base, "--serve"]) == 2
