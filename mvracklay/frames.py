@@ -197,6 +197,11 @@ class FrameSource:
         said = f"decoded {n} of {m} frames announced by {self.path}" if m else f"decoded {n} frames of {self.path}"
         self.warn(said + ": the file looks cut" + (f" (decoding stopped: {failed})" if failed else ""))
 
+    def frame_numbers(self) -> list[int] | None:
+        """The input's frame numbers of the frames given out where frames were left out as they came (a live
+        stream's); None when they are the input's in order (``every_nth`` says its own step)."""
+        return None
+
     def frame_count(self, max_frames: int | None = None) -> int | None:
         """Frames that `frames` will yield (None when unknown before decoding)."""
         if self.num_frames is None:

@@ -34,6 +34,7 @@ from mvracklay.camera import run_camera
 from mvracklay.distance import FrameDistances, default_distance
 from mvracklay.frames import FrameSource, every_nth
 from mvracklay.inference import FrameStream, PredictedFrame
+from mvracklay.live_source import LIVE_KEEP_STEPS
 from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
@@ -92,9 +93,9 @@ def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None,
         return None, None, None
 
 
-#: a live run's bounds (`run_pipeline`'s ``bounded``): box-colour samples kept per place, camera steps kept
+#: a live run's bound (`run_pipeline`'s ``bounded``): box-colour samples kept per place (and the camera steps kept:
+#: `mvracklay.live_source.LIVE_KEEP_STEPS`)
 LIVE_COLOUR_SAMPLES = 64
-LIVE_KEEP_STEPS = 1000
 
 #: called with each frame once it is in the map (its layouts written, stitched, logged) and the stitcher
 OnFrame = Callable[[PredictedFrame, Stitcher], None]
@@ -331,11 +332,14 @@ def _map_meta(
     from the frames."""
     (ckpt, model), source, pred, asked = loaded, stream.source, stream.predictor, cfg.inference
     roll, pitch, yaw = stream.median_angles()
+    numbers = source.frame_numbers()
     return {
         "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
         "input_kind": source.kind,
         "frames": n,
         **({"every": cfg.every} if cfg.every != 1 else {}),  # every N-th input frame processed (live: or "auto")
+        # a live stream's numbers of the frames mapped (of the steps kept): the others skipped or dropped
+        **({"input_frames": numbers} if numbers is not None else {}),
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
         "flip_average": asked.flip,

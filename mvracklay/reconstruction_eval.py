@@ -55,7 +55,7 @@ def evaluate_sequence(
 
     folder = folder or seq.layout_folder
     deg = deg or Degrade()
-    indices = [i for i in folder.indices() if i != deg.drop_frame]
+    indices = [i for i in folder.indices() if i != deg.drop_frame] if wmap is None else mapped_frames(wmap, seq)
     if not indices:
         raise InputError(f"{folder.root}: no frames to reconstruct")
     if indices[-1] >= seq.num_frames:
@@ -76,10 +76,28 @@ def evaluate_sequence(
     records = [seq.frame(i) for i in indices]
     if wmap is None:
         wmap = stitcher.map(origin_from_record(records[0]))
-    elif len(wmap.steps) != len(indices):
-        raise InputError(f"--map holds {len(wmap.steps)} frames but the sequence has {len(indices)}")
     result = evaluate_map(wmap, seq.scene(), records, covered_range(records, vis_x), iou)
     return result, wmap
+
+
+def mapped_frames(wmap: WarehouseMap, seq) -> list[int]:
+    """The frames of ``seq`` a given map's camera steps stand for: a live run's stream numbers (``input_frames`` in
+    its meta: the frames it mapped, the others skipped or dropped), every N-th of a run with ``every`` N, else each
+    frame; one line when they do not fit the sequence."""
+    meta, n = wmap.meta, seq.num_frames
+    numbers = meta.get("input_frames")
+    every = meta.get("every", 1)
+    if numbers is not None:
+        ok = isinstance(numbers, list) and all(isinstance(i, int) and 0 <= i < n for i in numbers)
+        if not ok or len(numbers) != len(wmap.steps):
+            raise InputError(f"--map: its input_frames are not {len(wmap.steps)} frame numbers of a {n}-frame sequence")
+        return numbers
+    step = every if isinstance(every, int) and every >= 1 else 1
+    indices = list(range(0, n, step))
+    if len(wmap.steps) != len(indices):
+        said = f"every {step}th frame: {len(indices)}" if step > 1 else f"{len(indices)}"
+        raise InputError(f"--map holds {len(wmap.steps)} frames but the sequence has {said}")
+    return indices
 
 
 def scale_factor(seq, wmap: WarehouseMap, source: str) -> float:
