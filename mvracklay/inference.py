@@ -26,7 +26,7 @@ from mvracklay.settings import InferenceSettings
 if TYPE_CHECKING:
     from layouts import Intrinsics, LayoutSpec
     from layouts.lens import Lens
-    from mvracklay.distance import FrameDistances
+    from mvracklay.camera import FrameDistances
     from mvracklay.frames import FrameSource
     from mvracklay.use_settings import PredictSettings
     from network.inference.predictor import Predictor
@@ -143,7 +143,7 @@ def predict_folder(
     ``seq_dir`` is any input of `mvracklay.frames.open_source` (a sequence, an image folder, an image, a
     video); ``every``: every N-th frame. The canonical warp and the visible columns use ``camera`` (``--camera``)
     / ``distance`` when given, else the sequence's intrinsics and per-frame distance from ``meta.json``, else
-    the checkpoint ``record``'s camera and the distance read from the first frames (`mvracklay.distance`).
+    the checkpoint ``record``'s camera and the distance read from the first frames (`mvracklay.camera.FrameDistances`).
     ``inference``: what the prediction does (`InferenceSettings`: flip, rack depth, depth reading, whole
     sequence, fusion, the camera's angles); ``mode``, ``layout_size``, ``quiet``: as `PredictSettings` says.
     """
@@ -151,8 +151,7 @@ def predict_folder(
 
     from layouts.publish import output_folder
     from layouts.rackdepth import check_rack_depth
-    from mvracklay.camera import camera_warning, frames_camera
-    from mvracklay.distance import FrameDistances, default_distance
+    from mvracklay.camera import FrameDistances, camera_warning, default_distance, frames_camera
     from mvracklay.frames import every_nth, open_source
 
     seq_dir, out, layout_size, progress = settings.seq_dir, settings.out, settings.layout_size, not settings.quiet

@@ -30,8 +30,7 @@ from layouts.errors import InputError
 from layouts.publish import staged
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
-from mvracklay.camera import run_camera
-from mvracklay.distance import FrameDistances, default_distance
+from mvracklay.camera import FrameDistances, default_distance, run_camera
 from mvracklay.frames import FrameSource, every_nth
 from mvracklay.inference import FrameStream, PredictedFrame
 from mvracklay.live_source import LIVE_KEEP_STEPS

@@ -346,7 +346,7 @@ class RunConfig:
     layout_size: int = _run(
         "--layout-size", "resolution D of the written layouts (0 = the model's)", default=0, type=int
     )
-    #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
+    #: camera to rack front, metres; None = recorded, or read (`mvracklay.camera.FrameDistances`)
     distance: float | None = _run("--distance", DISTANCE_HELP, type=float, metavar="M")
     #: the camera's height above the floor, metres: the distance from the floor line
     camera_height: float | None = _run("--camera-height", CAMERA_HEIGHT_HELP, type=float, metavar="M")
