@@ -79,6 +79,9 @@ class FrameStream:
     intr: Intrinsics
     lens: Lens | None
     distances: FrameDistances
+    #: where a generated sequence's first camera stood: the map's world origin and the camera's height and distance
+    #: in the map frame (`stitching.warehouse_map.camera_in_map`); Nones for footage
+    placement: tuple = (None, None, None)
 
     @classmethod
     def open(
@@ -86,9 +89,15 @@ class FrameStream:
     ) -> FrameStream:
         """The stream of ``source`` through ``model`` as ``settings`` say; ``camera``: ``(intrinsics, lens,
         distances)`` of the frames (`make_predictor`)."""
+        from stitching.warehouse_map import camera_in_map
+
         intr, lens, distances = camera
         pred = make_predictor(model, settings, intr, distances, source.camera_angles)
-        return cls(source, pred, spec, intr, lens, distances)
+        try:  # a generated sequence's first camera, as the map places it
+            placement = camera_in_map(source.records[0]) if source.records else (None, None, None)
+        except InputError:
+            placement = (None, None, None)
+        return cls(source, pred, spec, intr, lens, distances, placement)
 
     def frames(
         self,

@@ -48,7 +48,7 @@ from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.path_record import registration_warning
 from stitching.pipeline import Stitcher
-from stitching.warehouse_map import WarehouseMap, camera_in_map
+from stitching.warehouse_map import WarehouseMap
 
 if TYPE_CHECKING:
     from network.model.net import MVRackLay
@@ -81,15 +81,6 @@ def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
     """The checkpoint to run: ``path`` (or a shipped model's name), else the shipped default model
     (one-line error when there is none)."""
     return models.resolve_checkpoint(path, default=DEFAULT_CHECKPOINT)
-
-
-def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None, float | None, float | None]:
-    """World origin of the map and camera height/distance in the map frame, from a sequence's first record
-    (`stitching.warehouse_map.camera_in_map`; Nones for footage)."""
-    try:
-        return camera_in_map(source.records[0]) if source.records else (None, None, None)
-    except InputError:
-        return None, None, None
 
 
 #: a live run's bound (`run_pipeline`'s ``bounded``): box-colour samples kept per place (and the camera steps kept:
@@ -138,7 +129,7 @@ def run_pipeline(
     dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
     # a generated sequence's camera rotation is recorded; footage's is read from the frames
     stream = FrameStream.open(source, model, cfg.inference, (intr, lens, dists), spec)
-    origin, cam_y, cam_z = _map_origin(source)
+    origin, cam_y, cam_z = stream.placement
     seconds = {"load": time.perf_counter() - t0}
 
     with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
