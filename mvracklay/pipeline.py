@@ -133,13 +133,13 @@ def run_pipeline(
     seconds = {"load": time.perf_counter() - t0}
 
     with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
-        recording = None
-        if cfg.rrd:
-            recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", spec.num_slots,
-                                     (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks, bounded=bounded)  # fmt: skip
         run = RunSinks.open(stage, model, spec, intr, cfg, bounded)
-        run.follow(recording, on_frame)
         try:
+            recording = None
+            if cfg.rrd:
+                recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", spec.num_slots,
+                                         (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks, bounded=bounded)  # fmt: skip
+            run.follow(recording, on_frame)
             n, depth = run.take(stream, cfg)
             t1 = time.perf_counter()
             meta = _map_meta(stream, cfg, n, (ckpt, model), depth)
