@@ -3,7 +3,8 @@ turned upright by its EXIF orientation), one image, or a video (its decoded fram
 frames it announces: a cut file is warned about).
 
 Every source is validated when opened (one-line `InputError` naming the file and the problem) and
-streams its frames as uint8 RGB arrays ``(H, W, 3)``: nothing holds a whole video in memory.
+streams its frames as uint8 RGB arrays ``(H, W, 3)``: nothing holds a whole video in memory; `every_nth`
+keeps every N-th.
 Camera intrinsics come from the sequence's meta.json, a ``--camera`` JSON file, or the default
 camera (the generator's: 60 degree horizontal field of view, square pixels, principal point at the
 image centre) scaled to the frame size. Where those intrinsics also give a lens's distortion
@@ -12,12 +13,13 @@ image centre) scaled to the frame size. Where those intrinsics also give a lens'
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
 import sys
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -195,6 +197,11 @@ class FrameSource:
         said = f"decoded {n} of {m} frames announced by {self.path}" if m else f"decoded {n} frames of {self.path}"
         self.warn(said + ": the file looks cut" + (f" (decoding stopped: {failed})" if failed else ""))
 
+    def frame_numbers(self) -> list[int] | None:
+        """The input's frame numbers of the frames given out where frames were left out as they came (a live
+        stream's); None when they are the input's in order (``every_nth`` says its own step)."""
+        return None
+
     def frame_count(self, max_frames: int | None = None) -> int | None:
         """Frames that `frames` will yield (None when unknown before decoding)."""
         if self.num_frames is None:
@@ -366,3 +373,42 @@ def array_source(
 def _chain(first: np.ndarray, rest: Iterator[Any]) -> Iterator[Any]:
     yield first
     yield from rest
+
+
+@dataclass
+class _EveryNthVideo(FrameSource):
+    """A video source yielding frames 0, N, 2N, ... (decoded all, kept every N-th)."""
+
+    every: int = 1
+
+    def _raw_frames(self, max_frames: int | None) -> Iterator[np.ndarray]:
+        limit = (max_frames - 1) * self.every + 1 if max_frames else None
+        yield from itertools.islice(super()._raw_frames(limit), 0, None, self.every)
+
+    def frame_count(self, max_frames: int | None = None) -> int | None:
+        if self.num_frames is None:
+            return None
+        n = -(-self.num_frames // self.every)
+        return min(n, max_frames) if max_frames else n
+
+
+def every_nth(source: FrameSource, every: int | str, option: str = "--every") -> FrameSource:
+    """``source`` keeping frames 0, N, 2N, ... (``--every N``: video at 30 fps moves a few cm a frame, so a run may
+    skip frames), numbered 0, 1, 2, ... (their layouts, stitching steps and map); ``source`` itself when ``every``
+    is 1; one-line error unless N >= 1.
+    A live source (`mvracklay.live_source`) thins itself as frames arrive (N, or ``auto``): it is returned as it is."""
+    if source.kind == "live":
+        return source
+    if every == "auto":
+        raise InputError(
+            f"{option} auto keeps a live stream's frames a few cm apart; for a file give N (--every 3 on a 30 fps walk)"
+        )
+    if not isinstance(every, int) or isinstance(every, bool) or every < 1:
+        raise InputError(f"{option} must be an integer >= 1, got {every!r}")
+    if every == 1:
+        return source
+    if source.kind == "video":
+        return _EveryNthVideo(**{f.name: getattr(source, f.name) for f in fields(source)}, every=every)
+    paths = source.image_paths[::every]
+    records = source.records[::every] if source.records is not None else None
+    return replace(source, image_paths=paths, num_frames=len(paths), records=records)

@@ -104,6 +104,8 @@ def _open_container(url: str, open_timeout: float, read_timeout: float) -> Any:
     options = {**_OPTIONS, **(_RTSP if url.lower().startswith("rtsp") else {})}
     try:
         container = av.open(target, format=fmt, options=options, timeout=(open_timeout, read_timeout))
+    except av.ExitError:  # FFmpeg's "Immediate exit requested": the open timeout passed with nothing received
+        raise InputError(f"{shown(url)}: no frame within {open_timeout:g} s") from None
     except (av.FFmpegError, OSError, ValueError) as e:
         said = str(e).split(":")[0] if str(e) else type(e).__name__
         raise InputError(f"{shown(url)}: cannot open the live source ({type(e).__name__}: {said})") from None
@@ -113,14 +115,19 @@ def _open_container(url: str, open_timeout: float, read_timeout: float) -> Any:
     return container
 
 
+#: a live map's bound: the camera steps its warehouse.json keeps (the last ones), and their input frame numbers
+LIVE_KEEP_STEPS = 1000
+
+
 @dataclass
 class Arrival:
-    """A frame as it came: its pixels, when it was received (``time.monotonic``) and its stream time (seconds;
-    None when the stream gives none)."""
+    """A frame as it came: its pixels, when it was received (``time.monotonic``), its stream time (seconds; None
+    when the stream gives none) and its number in the stream (0 for the first decoded, before any was skipped)."""
 
     rgb: np.ndarray
     received: float
     stream_time: float | None
+    number: int = 0
 
 
 class LatestFrames:
@@ -213,6 +220,8 @@ class LiveSource(FrameSource):
     #: frame index given out -> (when received, stream time) until the frame is mapped (`arrival`)
     arrivals: dict[int, tuple[float, float | None]] = field(default_factory=dict, repr=False)
     given: int = 0  #: frames given out
+    #: the stream numbers of the last `LIVE_KEEP_STEPS` frames given out (`frame_numbers`)
+    numbers: deque[int] = field(default_factory=lambda: deque(maxlen=LIVE_KEEP_STEPS), repr=False)
     ended: str = ""  #: why the stream ended ("" while it runs)
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     #: set while the reader reopens a lost connection (the idle timeout waits for it: the retries decide)
@@ -263,6 +272,7 @@ class LiveSource(FrameSource):
             if self.spacing is not None and not self.spacing.keep(t):
                 continue
             self.arrivals[self.given] = (item.received, item.stream_time)
+            self.numbers.append(item.number)
             self.given += 1
             n += 1
             yield item.rgb
@@ -276,6 +286,11 @@ class LiveSource(FrameSource):
         alive = self._thread is not None and self._thread.is_alive()
         return self.reader_times_out and alive and not waited and not self.buffer.closed and not self._stop.is_set()
 
+    def frame_numbers(self) -> list[int]:
+        """The stream numbers of the frames given out (the last `LIVE_KEEP_STEPS`): which frames of the stream the
+        map holds, the others skipped (``every``) or dropped (the network behind)."""
+        return list(self.numbers)
+
     def arrival(self, index: int) -> tuple[float, float | None]:
         """When the frame given out as ``index`` was received and its stream time (forgotten once asked)."""
         return self.arrivals.pop(index)
@@ -288,7 +303,7 @@ class LiveSource(FrameSource):
     def _arrival(self, frame: Any) -> Arrival:
         rgb = frame.to_ndarray(format="rgb24")
         t = float(frame.time) if frame.time is not None else None
-        return Arrival(rgb, time.monotonic(), t)
+        return Arrival(rgb, time.monotonic(), t, self._decoded - 1)
 
     def _read(self) -> None:
         """The reader thread: decode into the buffer, reconnecting a lost connection ``retries`` times."""
@@ -406,6 +421,9 @@ def open_live(
     container = _open_container(url, open_timeout, idle_timeout)
     try:
         first = next(container.decode(container.streams.video[0]), None)
+    except av.ExitError:  # the read timeout passed before the first frame
+        _close_quietly(container)
+        raise InputError(f"{shown(url)}: no frame within {idle_timeout:g} s of opening") from None
     except av.FFmpegError as e:
         _close_quietly(container)
         raise InputError(f"{shown(url)}: no frame decoded ({type(e).__name__})") from None
@@ -447,7 +465,7 @@ class _IteratorLive(LiveSource):
                 except InputError as e:
                     self.stop(str(e))
                     break
-                self.buffer.put(Arrival(rgb, time.monotonic(), None))
+                self.buffer.put(Arrival(rgb, time.monotonic(), None, self._decoded - 1))
             else:
                 self.ended = self.ended or "stream ended"
         finally:

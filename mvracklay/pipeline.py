@@ -4,8 +4,9 @@
 >>> result = run_pipeline(open_source("my_frames/"), "out/mine")   # doctest: +SKIP
 >>> print(format_table(result.free_space))                          # doctest: +SKIP
 
-Frames stream through: each is decoded, predicted (one encoder pass, ConvLSTM state carried),
-written to ``OUT/layouts/``, stitched into the growing map and logged to Rerun, then dropped.
+Frames stream through (`mvracklay.inference.FrameStream`): each is decoded, predicted (one encoder pass, ConvLSTM
+state carried) and handed, with the distance and the camera angles it was levelled by, to the sinks in turn
+(`RunSinks`): written to ``OUT/layouts/``, stitched into the growing map, logged to Rerun, then dropped.
 Everything is written into a staging folder on OUT's filesystem and moved into OUT only when the run
 succeeds (`layouts.publish.staged`: OUT held by one command at a time), so a failed run leaves OUT as it was.
 """
@@ -16,7 +17,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,11 +30,10 @@ from layouts.errors import InputError
 from layouts.publish import staged
 from layouts.rackdepth import check_rack_depth
 from mvracklay import models
-from mvracklay.camera import run_camera
-from mvracklay.distance import FrameDistances, default_distance
-from mvracklay.every import every_nth
-from mvracklay.frames import FrameSource
-from mvracklay.inference import PredictedFrame, make_predictor, predict_frames
+from mvracklay.camera import FrameDistances, default_distance, run_camera
+from mvracklay.frames import FrameSource, every_nth
+from mvracklay.inference import FrameStream, PredictedFrame
+from mvracklay.live_source import LIVE_KEEP_STEPS
 from mvracklay.outputs import OUTPUTS
 from mvracklay.reconstruction import stitch_settings
 from mvracklay.recording import RunRecording
@@ -41,7 +41,6 @@ from mvracklay.settings import RunConfig
 from network.heads.uprights import FRONT_THRESHOLD
 from network.inference.distance import DistanceReading
 from network.inference.loading import load_for_inference
-from network.inference.predictor import Predictor
 from network.inference.roll import angle_warnings
 from network.model.frozen import trunk_precision
 from stitching.box_colours import BoxColours
@@ -49,11 +48,11 @@ from stitching.export_gltf import export_glb
 from stitching.free_space import ShelfFreeSpace, free_space
 from stitching.path_record import registration_warning
 from stitching.pipeline import Stitcher
-from stitching.warehouse_map import WarehouseMap, camera_in_map
+from stitching.warehouse_map import WarehouseMap
 
 if TYPE_CHECKING:
-    from layouts.lens import Lens
     from network.model.net import MVRackLay
+    from stitching.lift import FrameReconstruction
 
 DEFAULT_CHECKPOINT = models.default_checkpoint()  #: the shipped default model (`mvracklay.models`)
 
@@ -84,18 +83,9 @@ def resolve_checkpoint(path: str | os.PathLike | None) -> Path:
     return models.resolve_checkpoint(path, default=DEFAULT_CHECKPOINT)
 
 
-def _map_origin(source: FrameSource) -> tuple[tuple[float, float, float] | None, float | None, float | None]:
-    """World origin of the map and camera height/distance in the map frame, from a sequence's first record
-    (`stitching.warehouse_map.camera_in_map`; Nones for footage)."""
-    try:
-        return camera_in_map(source.records[0]) if source.records else (None, None, None)
-    except InputError:
-        return None, None, None
-
-
-#: a live run's bounds (`run_pipeline`'s ``bounded``): box-colour samples kept per place, camera steps kept
+#: a live run's bound (`run_pipeline`'s ``bounded``): box-colour samples kept per place (and the camera steps kept:
+#: `mvracklay.live_source.LIVE_KEEP_STEPS`)
 LIVE_COLOUR_SAMPLES = 64
-LIVE_KEEP_STEPS = 1000
 
 #: called with each frame once it is in the map (its layouts written, stitched, logged) and the stitcher
 OnFrame = Callable[[PredictedFrame, Stitcher], None]
@@ -115,14 +105,15 @@ def run_pipeline(
 ) -> RunResult:
     """Run the whole job on ``source`` and write OUT/layouts, warehouse.{json,glb,rrd}.
 
-    Four stages: the model, camera and distances are set up; the frames stream through the predictor into the
-    layout folder and the stitcher (`_stream_into_map`); the map is finished and exported (`_export`) into a
-    staging folder; that folder is published as OUT. A live run (`mvracklay.live`) passes the model it loaded
-    before opening its stream (``loaded``), follows each frame into the map (``on_frame``) and streams the
-    recording to a viewer too (``sinks``, Rerun sinks beside the .rrd file) and bounds what it keeps per frame
-    (``bounded``: the newest `LIVE_COLOUR_SAMPLES` box-colour samples per place, the last `LIVE_KEEP_STEPS` camera
-    steps in warehouse.json, a thinned camera path in the recording and its .rrd without Rerun's footer), so its memory is bounded by the map, not by
-    the stream's length.
+    Four stages: the model, the camera, the distances and the frame stream (`mvracklay.inference.FrameStream`)
+    are set up; the predicted frames flow into the run's sinks (`RunSinks`: the layout folder, the row map, the
+    recording, ``on_frame``); the map is finished and exported into a staging folder; that folder is published as
+    OUT. A live run (`mvracklay.live`) passes the model it loaded before opening its stream (``loaded``), follows
+    each frame into the map (``on_frame``) and streams the recording to a viewer too (``sinks``, Rerun sinks
+    beside the .rrd file) and bounds what it keeps per frame (``bounded``: the newest `LIVE_COLOUR_SAMPLES`
+    box-colour samples per place, the last `LIVE_KEEP_STEPS` camera steps in warehouse.json, a thinned camera
+    path in the recording and its .rrd without Rerun's footer), so its memory is bounded by the map, not by the
+    stream's length.
     """
     cfg = cfg or RunConfig()
     cfg.validate()
@@ -130,51 +121,37 @@ def run_pipeline(
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder")
-    seconds: dict[str, float] = {}
     warnings: list[str] = []
     t0 = time.perf_counter()
     ckpt, model, record = loaded or load_model(cfg)
-    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
     spec = _layout_spec(model, cfg)
+    intr, intr_source, lens = run_camera(source, cfg.camera, record, str(ckpt), warnings)
     dists = FrameDistances(source, intr, cfg.distance, cfg.camera_height, default_distance(record), cfg.distance_reader)
-    origin, cam_y, cam_z = _map_origin(source)
-    seconds["load"] = time.perf_counter() - t0
+    # a generated sequence's camera rotation is recorded; footage's is read from the frames
+    stream = FrameStream.open(source, model, cfg.inference, (intr, lens, dists), spec)
+    origin, cam_y, cam_z = stream.placement
+    seconds = {"load": time.perf_counter() - t0}
 
-    recording = None
     with staged(out, OUTPUTS) as stage:  # OUT held, the outputs staged and swapped in whole (`layouts.publish`)
+        run = RunSinks.open(stage, model, spec, intr, cfg, bounded)
         try:
-            folder = LayoutFolder.create(stage / "layouts", spec)
-            keep_steps = LIVE_KEEP_STEPS if bounded else 0
-            stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
+            recording = None
             if cfg.rrd:
-                save = stage / "warehouse.rrd"
-                recording = RunRecording(f"mvracklay-run-{out.name}", save, spec.num_slots, (cam_y, cam_z), cfg.rgb,
-                                         cfg.map_every, sinks, bounded=bounded)  # fmt: skip
-            # a generated sequence's camera rotation is recorded; footage's is read from the frames
-            pred = make_predictor(model, cfg.inference, intr, dists, source.camera_angles)
-            # each box's colour from the frames' pixels
-            colours = BoxColours(pred.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
-            n, depth, timings = _stream_into_map(
-                source, cfg, pred, spec, intr, lens, dists, folder, stitcher, recording, colours, on_frame
-            )
-            seconds.update(timings)
-
+                recording = RunRecording(f"mvracklay-run-{out.name}", stage / "warehouse.rrd", spec.num_slots,
+                                         (cam_y, cam_z), cfg.rgb, cfg.map_every, sinks, bounded=bounded)  # fmt: skip
+            run.follow(recording, on_frame)
+            n, depth = run.take(stream, cfg)
             t1 = time.perf_counter()
-            lev = pred.leveller
-            read = lev.read_angles() if lev is not None else {}
-            meta = _map_meta(source, cfg, n, ckpt, model, pred, depth, intr, spec)
+            meta = _map_meta(stream, cfg, n, (ckpt, model), depth)
             # the camera used: where its intrinsics came from and the lens the frames were undistorted through
             meta.update(intrinsics_source=intr_source, lens=lens.to_dict() if lens is not None else None)
-            wmap = stitcher.map(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})})
-            colours.paint(wmap)
-            _export(wmap, stage, recording, n, cfg.progress)
-            recording = None
+            wmap = run.finish(origin, {**meta, **(dists.reading.to_record() if dists.reading else {})}, n, cfg.progress)
         except BaseException:
-            if recording is not None:
-                recording.abort()
+            run.abort()
             raise
-    seconds["export"] = time.perf_counter() - t1
+    seconds.update(run.seconds, export=time.perf_counter() - t1)
     warnings.extend(source.warnings + dists.warnings)  # the frame source's and the distance's (printed as they came)
+    read = stream.read_angles()
     path_said = registration_warning(wmap.meta.get("registration"), n)
     for said in [*angle_warnings(read, width=intr.width), *([path_said] if path_said else [])]:
         warnings.append(said)
@@ -194,85 +171,130 @@ def _layout_spec(model: MVRackLay, cfg: RunConfig) -> LayoutSpec:
     against it)."""
     spec = model.cfg.spec
     if cfg.layout_size and cfg.layout_size != spec.size:
-        from dataclasses import replace
-
         spec = replace(spec, size=cfg.layout_size)
     if cfg.inference.rack_depth is not None:
         check_rack_depth(cfg.inference.rack_depth, spec)
     return spec
 
 
-def _stream_into_map(
-    source: FrameSource,
-    cfg: RunConfig,
-    pred: Predictor,
-    spec: LayoutSpec,
-    intr: Intrinsics,
-    lens: Lens | None,
-    dists: FrameDistances,
-    folder: LayoutFolder,
-    stitcher: Stitcher,
-    recording: RunRecording | None,
-    colours: BoxColours,
-    on_frame: OnFrame | None = None,
-) -> tuple[int, float, dict[str, float]]:
-    """Stream the frames through ``pred`` (`mvracklay.inference.predict_frames`, as ``predict`` does): each frame's
-    layouts written to ``folder``, pushed into ``stitcher`` (its boxes' colours kept), logged to the
-    ``recording`` and given to ``on_frame``. Returns the frame count, the last rack depth read and the seconds
-    spent predicting, stitching and logging."""
-    bar = tqdm(
-        total=source.frame_count(cfg.max_frames or None),
-        desc=f"predict+stitch ({cfg.mode})",
-        unit="frame",
-        disable=not cfg.progress,
-        file=sys.stderr,
-    )
-    whole = cfg.inference.whole_sequence
+@dataclass(frozen=True)
+class MappedFrame:
+    """A predicted frame once it is in the row map: its reconstruction, the camera's offset along the row and
+    the map so far (the ``stitcher``), for the sinks that follow the map."""
 
-    def read(rgb: np.ndarray) -> None:
-        if recording is not None:
-            recording.keep(rgb)
-        colours.keep(rgb)
-        if whole:  # the frames are all read before the first layouts: count reads
-            bar.update(1)
+    frame: PredictedFrame
+    reconstruction: FrameReconstruction
+    offset: float
+    stitcher: Stitcher
 
-    frames = predict_frames(pred, source, spec, intr, lens, dists, cfg.mode, cfg.max_frames or None, on_read=read)
-    seconds = {"predict": 0.0, "stitch": 0.0, "rerun": 0.0}
-    n, depth = 0, float("nan")
-    ta = time.perf_counter()
-    for frame in frames:
-        folder.write(frame.index, frame.layouts)
-        tb = time.perf_counter()
-        frame_rec, offset = _stitch(frame, stitcher, colours, pred, intr)
-        tc = time.perf_counter()
+
+@dataclass
+class RunSinks:
+    """The run's stages, each frame taken by each in turn: the layout folder, the row map (``stitcher``, each
+    box's colour sampled from the frames' pixels by ``colours``, through the camera ``intr``), then the sinks
+    that follow the map (`follow`: the recording, a live run's ``on_frame``). `take` streams the frames in,
+    `finish` makes the map and writes it out beside the layouts."""
+
+    folder: LayoutFolder
+    stitcher: Stitcher
+    colours: BoxColours
+    intr: Intrinsics
+    recording: RunRecording | None = None
+    followers: list[Callable[[MappedFrame], None]] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)  #: predicting, stitching and logging
+
+    @classmethod
+    def open(
+        cls, stage: Path, model: MVRackLay, spec: LayoutSpec, intr: Intrinsics, cfg: RunConfig, bounded: bool
+    ) -> RunSinks:
+        """The stages of a run staged in ``stage``: layouts at ``spec``, colours read through ``model``'s view and
+        the camera ``intr`` (a live run's ``bounded``)."""
+        keep_steps = LIVE_KEEP_STEPS if bounded else 0
+        stitcher = Stitcher(spec, stitch_settings(cfg.board_thickness, noisy=cfg.opening, keep_steps=keep_steps))
+        colours = BoxColours(model.cfg.view, LIVE_COLOUR_SAMPLES if bounded else None)
+        return cls(LayoutFolder.create(stage / "layouts", spec), stitcher, colours, intr)
+
+    def follow(self, recording: RunRecording | None, on_frame: OnFrame | None) -> None:
+        """The sinks after the map: the ``recording`` (kept to be closed with the map) and ``on_frame``."""
+        self.recording = recording
         if recording is not None:
-            recording.log(frame, frame_rec, offset, stitcher)
-        td = time.perf_counter()
+            self.followers.append(lambda m: recording.log(m.frame, m.reconstruction, m.offset, m.stitcher))
         if on_frame is not None:
-            on_frame(frame, stitcher)
-        seconds["predict"] += tb - ta
-        seconds["stitch"] += tc - tb
-        seconds["rerun"] += td - tc
-        n, depth = frame.index + 1, frame.prediction.rack_depth
-        if not whole:
-            bar.update(1)
+            self.followers.append(lambda m: on_frame(m.frame, m.stitcher))
+
+    def read(self, rgb: np.ndarray) -> None:
+        """A frame as it is read: its pixels kept until its layouts come (the recording's, the colours')."""
+        if self.recording is not None:
+            self.recording.keep(rgb)
+        self.colours.keep(rgb)
+
+    def take(self, stream: FrameStream, cfg: RunConfig) -> tuple[int, float]:
+        """``stream``'s frames into the stages; returns the frame count and the last rack depth read."""
+        source = stream.source
+        bar = tqdm(total=source.frame_count(cfg.max_frames or None), desc=f"predict+stitch ({cfg.mode})",
+                   unit="frame", disable=not cfg.progress, file=sys.stderr)  # fmt: skip
+        whole = cfg.inference.whole_sequence  # the frames are all read before the first layouts: count reads
+
+        def read(rgb: np.ndarray) -> None:
+            self.read(rgb)
+            if whole:
+                bar.update(1)
+
+        self.seconds = {"predict": 0.0, "stitch": 0.0, "rerun": 0.0}
+        n, depth = 0, float("nan")
         ta = time.perf_counter()
-    bar.close()
-    if n == 0:
-        raise InputError(f"{source.path}: no frames to process")
-    if recording is None:
-        del seconds["rerun"]
-    return n, depth, seconds
+        for frame in stream.frames(cfg.mode, cfg.max_frames or None, on_read=read):
+            self.folder.write(frame.index, frame.layouts)
+            tb = time.perf_counter()
+            mapped = self.map(frame)
+            tc = time.perf_counter()
+            for follow in self.followers:
+                follow(mapped)
+            self.seconds["predict"] += tb - ta
+            self.seconds["stitch"] += tc - tb
+            self.seconds["rerun"] += time.perf_counter() - tc
+            n, depth = frame.index + 1, frame.prediction.rack_depth
+            if not whole:
+                bar.update(1)
+            ta = time.perf_counter()
+        bar.close()
+        if n == 0:
+            raise InputError(f"{source.path}: no frames to process")
+        if self.recording is None:
+            del self.seconds["rerun"]
+        return n, depth
 
+    def map(self, frame: PredictedFrame) -> MappedFrame:
+        """One frame's layouts pushed into the stitcher (with its front uprights) and its boxes' pixels to the
+        colours."""
+        ups = upright_columns(frame.prediction.maps.get("uprights"), self.stitcher.spec.size)
+        rec, step = self.stitcher.push(frame.layouts, frame.index, uprights=ups)
+        anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
+        self.colours.add(rec, step.offset, anchors, self.intr, frame.distance, frame.angles)
+        return MappedFrame(frame, rec, step.offset, self.stitcher)
 
-def _stitch(frame: PredictedFrame, stitcher: Stitcher, colours: BoxColours, pred: Predictor, intr: Intrinsics):
-    """One frame's layouts pushed into ``stitcher`` and its boxes' pixels to ``colours``; returns its
-    reconstruction and the camera's offset along the row."""
-    ups = upright_columns(frame.prediction.maps.get("uprights"), stitcher.spec.size)
-    frame_rec, step = stitcher.push(frame.layouts, frame.index, uprights=ups)
-    anchors = frame.prediction.anchors.float().cpu().numpy().reshape(-1)
-    colours.add(frame_rec, step.offset, anchors, intr, frame.distance, _frame_angles(pred, frame.index))
-    return frame_rec, step.offset
+    def finish(self, origin: Any, meta: dict[str, Any], frames: int, progress: bool) -> WarehouseMap:
+        """The finished map (``meta`` kept in it, its boxes painted) written beside the layouts: warehouse.json,
+        .glb and, with a recording, .rrd."""
+        wmap = self.stitcher.map(origin, meta)
+        self.colours.paint(wmap)
+        stage = self.folder.root.parent
+        steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if self.recording is not None else [])
+        with tqdm(total=len(steps), desc="export", unit="file", disable=not progress, file=sys.stderr) as bar:
+            wmap.save(stage / "warehouse.json")
+            bar.update(1)
+            export_glb(wmap, stage / "warehouse.glb")
+            bar.update(1)
+            if self.recording is not None:
+                self.recording.close(wmap, frames)
+                self.recording = None
+                bar.update(1)
+        return wmap
+
+    def abort(self) -> None:
+        """A failed run: the recording stopped without finishing."""
+        if self.recording is not None:
+            self.recording.abort()
 
 
 def upright_columns(logits: Any, size: int) -> np.ndarray | None:
@@ -293,75 +315,42 @@ def upright_columns(logits: Any, size: int) -> np.ndarray | None:
     return cols
 
 
-def _export(wmap: WarehouseMap, stage: Path, recording: RunRecording | None, frames: int, progress: bool) -> None:
-    """The finished map written into ``stage``: warehouse.json, .glb and, with a ``recording``, .rrd."""
-    steps = ["warehouse.json", "warehouse.glb"] + (["warehouse.rrd"] if recording is not None else [])
-    with tqdm(total=len(steps), desc="export", unit="file", disable=not progress, file=sys.stderr) as bar:
-        wmap.save(stage / "warehouse.json")
-        bar.update(1)
-        export_glb(wmap, stage / "warehouse.glb")
-        bar.update(1)
-        if recording is not None:
-            recording.close(wmap, frames)
-            bar.update(1)
-
-
 def _map_meta(
-    source: FrameSource,
-    cfg: RunConfig,
-    n: int,
-    ckpt: Path,
-    model: MVRackLay,
-    pred: Predictor,
-    depth: float,
-    intr: Intrinsics,
-    spec: LayoutSpec,
+    stream: FrameStream, cfg: RunConfig, n: int, loaded: tuple[Path, MVRackLay], depth: float
 ) -> dict[str, Any]:
-    """The run's record kept in warehouse.json: input, model, settings and what was read from the frames."""
-    lev = pred.leveller
+    """The run's record kept in warehouse.json: input, model (``(checkpoint, model)``), settings and what was read
+    from the frames."""
+    (ckpt, model), source, pred, asked = loaded, stream.source, stream.predictor, cfg.inference
+    roll, pitch, yaw = stream.median_angles()
+    numbers = source.frame_numbers()
     return {
         "input": getattr(source, "url", None) or str(source.path),  # a live source's URL (without a password)
         "input_kind": source.kind,
         "frames": n,
         **({"every": cfg.every} if cfg.every != 1 else {}),  # every N-th input frame processed (live: or "auto")
+        # a live stream's numbers of the frames mapped (of the steps kept): the others skipped or dropped
+        **({"input_frames": numbers} if numbers is not None else {}),
         "checkpoint": str(ckpt),
         "mode": cfg.mode,
-        "flip_average": cfg.inference.flip,
+        "flip_average": asked.flip,
         "precision": trunk_precision(model),  # what ran: bf16 applies to the CPU's graphs only
-        "depths_from": "the whole sequence" if cfg.inference.whole_sequence else "the frames so far",
-        "fuse_frames": cfg.inference.fuse_tau,
+        "depths_from": "the whole sequence" if asked.whole_sequence else "the frames so far",
+        "fuse_frames": asked.fuse_tau,
         # the camera's rotation levelled before the network (`network.inference.roll`): the median over the frames
-        "camera_roll_deg": _median(lev.rolls if lev is not None else []),
-        "camera_roll_source": _angle_source(pred.roll, cfg.inference.roll),
-        "camera_pitch_deg": _median(lev.pitches if lev is not None else []),
-        "camera_pitch_source": _angle_source(pred.pitch, cfg.inference.pitch),
-        "camera_yaw_deg": _median(lev.yaws if lev is not None else []),
-        "camera_yaw_source": _angle_source(pred.yaw, cfg.inference.yaw),
+        "camera_roll_deg": roll,
+        "camera_roll_source": _angle_source(pred.roll, asked.roll),
+        "camera_pitch_deg": pitch,
+        "camera_pitch_source": _angle_source(pred.pitch, asked.pitch),
+        "camera_yaw_deg": yaw,
+        "camera_yaw_source": _angle_source(pred.yaw, asked.yaw),
         # metres imposed on the top views (`layouts.rackdepth`; read: the last frame's reading), None = as decoded
         "rack_depth": depth if np.isfinite(depth) else None,
-        "rack_depth_source": "given"
-        if cfg.inference.rack_depth is not None
-        else "read"
-        if pred.reads_depth
-        else "decoder",
+        "rack_depth_source": "given" if asked.rack_depth is not None else "read" if pred.reads_depth else "decoder",
         # each box's back: carried from the box-depth head's readings (`network.heads.boxdepth`) or as decoded
         "box_depth_source": "read" if pred.reads_box_depth else "decoder",
-        "intrinsics": intr.to_dict(),
-        "spec": spec.to_dict(),
+        "intrinsics": stream.intr.to_dict(),
+        "spec": stream.spec.to_dict(),
     }
-
-
-def _frame_angles(pred: Predictor, i: int) -> tuple[float, float, float]:
-    """Frame ``i``'s (roll, pitch, yaw) as levelled (degrees; 0 for a level camera)."""
-    lev = pred.leveller
-    if lev is None or i >= len(lev.rolls):
-        return 0.0, 0.0, 0.0
-    return lev.rolls[i], lev.pitches[i], lev.yaws[i]
-
-
-def _median(angles: list[float]) -> float:
-    """The median angle over the frames (degrees; 0 when none was levelled)."""
-    return float(np.median(angles)) if angles else 0.0
 
 
 def _angle_source(used: float | str | None, asked: object) -> str:

@@ -1,10 +1,14 @@
 """How well a map is reconstructed, as `mvracklay eval-reconstruction` scores it: a sequence's layouts (ground truth,
 degraded like network output, or predicted) stitched and its map held against the generator's cuboids
-(`evaluate_sequence`, `stitching.map_eval`), pooled over sequences (`summarise`) and tabled (`format_results`).
+(`evaluate_sequence`, `stitching.map_eval`), pooled over sequences (`summarise`) and tabled (`format_results`);
+`eval_reconstruction` is the whole job, for the command and a recipe's stage.
 """
 
 from __future__ import annotations
 
+import json
+import sys
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -16,6 +20,7 @@ from layouts.errors import InputError
 from mvracklay.settings import InferenceSettings
 
 if TYPE_CHECKING:
+    from mvracklay.command_settings import EvalReconstructionSettings
     from network.model.net import MVRackLay
     from stitching.map_eval import EvalResult
     from stitching.pipeline import StitchConfig
@@ -55,7 +60,7 @@ def evaluate_sequence(
 
     folder = folder or seq.layout_folder
     deg = deg or Degrade()
-    indices = [i for i in folder.indices() if i != deg.drop_frame]
+    indices = [i for i in folder.indices() if i != deg.drop_frame] if wmap is None else mapped_frames(wmap, seq)
     if not indices:
         raise InputError(f"{folder.root}: no frames to reconstruct")
     if indices[-1] >= seq.num_frames:
@@ -76,10 +81,28 @@ def evaluate_sequence(
     records = [seq.frame(i) for i in indices]
     if wmap is None:
         wmap = stitcher.map(origin_from_record(records[0]))
-    elif len(wmap.steps) != len(indices):
-        raise InputError(f"--map holds {len(wmap.steps)} frames but the sequence has {len(indices)}")
     result = evaluate_map(wmap, seq.scene(), records, covered_range(records, vis_x), iou)
     return result, wmap
+
+
+def mapped_frames(wmap: WarehouseMap, seq) -> list[int]:
+    """The frames of ``seq`` a given map's camera steps stand for: a live run's stream numbers (``input_frames`` in
+    its meta: the frames it mapped, the others skipped or dropped), every N-th of a run with ``every`` N, else each
+    frame; one line when they do not fit the sequence."""
+    meta, n = wmap.meta, seq.num_frames
+    numbers = meta.get("input_frames")
+    every = meta.get("every", 1)
+    if numbers is not None:
+        ok = isinstance(numbers, list) and all(isinstance(i, int) and 0 <= i < n for i in numbers)
+        if not ok or len(numbers) != len(wmap.steps):
+            raise InputError(f"--map: its input_frames are not {len(wmap.steps)} frame numbers of a {n}-frame sequence")
+        return numbers
+    step = every if isinstance(every, int) and every >= 1 else 1
+    indices = list(range(0, n, step))
+    if len(wmap.steps) != len(indices):
+        said = f"every {step}th frame: {len(indices)}" if step > 1 else f"{len(indices)}"
+        raise InputError(f"--map holds {len(wmap.steps)} frames but the sequence has {said}")
+    return indices
 
 
 def scale_factor(seq, wmap: WarehouseMap, source: str) -> float:
@@ -198,3 +221,78 @@ def rack_depth_option(text: str | None) -> float | str | None:
     except ValueError:
         raise InputError(f"--rack-depth must be metres or 'scene', got {text!r}") from None
     return check_rack_depth(value)
+
+
+def eval_reconstruction(args: EvalReconstructionSettings) -> int:
+    """Stitch and score the sequences ``args`` names (``mvracklay eval-reconstruction``), printing the table
+    (or, ``--json``, the figures)."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from mvracklay.reconstruction import resolve_layouts, stitch_settings
+    from mvracklay.threads import resolve_threads
+    from network.inference.loading import load_for_inference
+    from stitching.warehouse_map import WarehouseMap
+
+    path = Path(args.path)
+    if not path.is_dir():
+        raise InputError(f"{path}: folder not found")
+    if not 0 < args.iou <= 1:
+        raise InputError(f"--iou must be in (0, 1], got {args.iou}")
+    if not 0 <= args.flip <= 1:
+        raise InputError(f"--flip must be in [0, 1], got {args.flip}")
+    seqs = open_sequences(path, args.split, args.limit)
+    if (args.layouts != "gt" or args.map) and len(seqs) != 1:
+        raise InputError("--layouts DIR and --map need a single sequence folder as PATH")
+    if args.checkpoint and (args.layouts != "gt" or args.map):
+        raise InputError("--checkpoint predicts the layouts itself: drop --layouts / --map")
+    if args.scale_corrected and not args.map:
+        raise InputError("--scale-corrected rescales a given map: it needs --map")
+    if args.handheld and (args.layouts != "gt" or args.map):
+        raise InputError("--handheld walks the sequence's own frames: drop --layouts / --map")
+    if args.rack_depth is not None and not args.checkpoint:
+        raise InputError("--rack-depth changes predicted layouts: it needs --checkpoint")
+    rack_depth = rack_depth_option(args.rack_depth)
+    config = stitch_settings(args.board_thickness, args.noisy)
+    deg = Degrade(args.morph, args.flip, args.drop_frame, args.seed)
+    settings = replace(args.inference, rack_depth=None)
+    settings.validate()  # checked before anything runs
+    model, record = None, None
+    if args.checkpoint:
+        model, record = load_for_inference(
+            args.checkpoint, "eval-reconstruction", args.device, threads=resolve_threads(args.threads)
+        )
+    results, corrected = [], []
+    with tempfile.TemporaryDirectory(prefix="mvracklay-eval-") as tmp:
+        for k, seq in enumerate(
+            tqdm(seqs, desc="eval-reconstruction", unit="seq", disable=args.quiet, file=sys.stderr)
+        ):
+            if args.handheld:
+                seq = handheld_sequence(seq, Path(tmp) / "handheld" / seq.name, args.seed + k)
+            if model is not None:
+                depth = float(seq.scene()["row"]["depth"]) if rack_depth == "scene" else rack_depth
+                seq_settings = replace(settings, rack_depth=depth)
+                folder = predicted_layouts(
+                    model, record, seq, Path(tmp) / seq.name, seq_settings, args.mode, str(args.checkpoint)
+                )
+            elif args.layouts == "gt":
+                folder = seq.layout_folder
+            else:
+                folder = resolve_layouts(seq.root, args.layouts)
+            wmap = WarehouseMap.load(args.map) if args.map else None
+            res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap)
+            results.append((seq.name, res))
+            if args.scale_corrected:
+                factor = scale_factor(seq, wmap, args.map)
+                res, _ = evaluate_sequence(seq, folder, config, deg, args.iou, wmap.scaled(factor))
+                corrected.append((f"{seq.name} x{factor:.3f}", res))
+    summary = summarise(results)
+    if args.json:
+        out = {"summary": summary, "sequences": {n: r.to_dict() for n, r in results}}
+        if corrected:
+            out["scale_corrected"] = {n: r.to_dict() for n, r in corrected}
+        print(json.dumps(out, indent=2, sort_keys=True))
+        return 0
+    print(format_results(results + corrected, summary, deg))
+    return 0

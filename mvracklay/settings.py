@@ -336,7 +336,7 @@ class RunConfig:
     camera: Path | None = _run("--camera", CAMERA_JSON_HELP, type=Path)
     mode: str = _run("--mode", "network inference mode", default="stream", choices=["stream", "window"])
     max_frames: int = _run("--max-frames", "process at most N frames (0 = all)", default=0, type=int, range=(0, None))
-    #: process every N-th frame of the input (`mvracklay.every`)
+    #: process every N-th frame of the input (`mvracklay.frames.every_nth`)
     every: int | str = _run(
         "--every",
         "process every N-th input frame (video at 30 fps moves a few cm a frame); --max-frames counts the frames "
@@ -346,7 +346,7 @@ class RunConfig:
     layout_size: int = _run(
         "--layout-size", "resolution D of the written layouts (0 = the model's)", default=0, type=int
     )
-    #: camera to rack front, metres; None = recorded, or read (`mvracklay.distance`)
+    #: camera to rack front, metres; None = recorded, or read (`mvracklay.camera.FrameDistances`)
     distance: float | None = _run("--distance", DISTANCE_HELP, type=float, metavar="M")
     #: the camera's height above the floor, metres: the distance from the floor line
     camera_height: float | None = _run("--camera-height", CAMERA_HEIGHT_HELP, type=float, metavar="M")

@@ -165,7 +165,7 @@ def test_network_upright_columns_threshold_and_resample():
 
 
 def test_network_uprights_reach_the_row_map(monkeypatch):
-    """`mvracklay.pipeline._stitch` pushes the frame's upright columns to the stitcher."""
+    """The run's row map (`mvracklay.pipeline.RunSinks.map`) pushes the frame's upright columns to the stitcher."""
     import types
 
     import torch
@@ -185,5 +185,5 @@ def test_network_uprights_reach_the_row_map(monkeypatch):
     logits[0, 3] = 2.0
     frame = types.SimpleNamespace(layouts=None, index=0, prediction=types.SimpleNamespace(maps={"uprights": logits}))
     with pytest.raises(StopIteration):
-        pipeline._stitch(frame, Stub(), None, None, None)
+        pipeline.RunSinks(None, Stub(), None, None).map(frame)
     assert np.flatnonzero(seen["uprights"]).tolist() == [3]

@@ -266,6 +266,16 @@ def test_a_url_that_cannot_be_opened_is_one_line_and_status_2(tiny_checkpoint, t
     assert not (tmp_path / "o").exists()
 
 
+def test_a_udp_source_that_never_sends_is_one_line_naming_the_wait():
+    """A UDP port nobody sends to: one line, the source shown without its secret, the seconds waited."""
+    from mvracklay.live_source import open_live
+
+    port = _free_udp_port()
+    with pytest.raises(InputError) as e:
+        open_live(f"udp://127.0.0.1:{port}?token=abc", open_timeout=1.0, idle_timeout=1.0)
+    assert str(e.value) == f"udp://127.0.0.1:{port}?token=***: no frame within 1 s"
+
+
 def test_file_runs_refuse_the_live_options(seq20, tmp_path):
     base = ["run", str(seq20), "--out", str(tmp_path / "o"), "--quiet"]
     assert main([*base, "--serve"]) == 2
@@ -309,6 +319,32 @@ def test_sigterm_and_a_quiet_stream_save_the_map(seq20, tiny_checkpoint, tmp_pat
         assert WarehouseMap.load(tmp_path / "quiet" / "warehouse.json").meta["frames"] == len(seen)
     finally:
         stop.set()
+
+
+def test_eval_reconstruction_scores_a_live_map_by_the_frames_it_mapped(seq20, tiny_checkpoint, tmp_path, capsys):
+    """A live run's warehouse.json says which frames of the stream it mapped (every 2nd here, the buffer holding the
+    whole stream: none dropped), and ``eval-reconstruction --map`` scores it against those frames' records."""
+    import json
+
+    import mvracklay
+    from mvracklay.reconstruction_eval import open_sequences
+
+    kw = dict(checkpoint=tiny_checkpoint, distance=2.6, roll=0.0, pitch=0.0, yaw=0.0, threads=1)
+    res = mvracklay.reconstruct_live(iter(_frames(seq20)), out=tmp_path / "live", every=2, buffer=20, **kw)
+    wmap = WarehouseMap.load(tmp_path / "live" / "warehouse.json")
+    assert res.run.frames == 10 and wmap.meta["input_frames"] == list(range(0, 20, 2))
+    capsys.readouterr()
+    args = ["eval-reconstruction", str(seq20), "--map", str(tmp_path / "live" / "warehouse.json"), "--json", "--quiet"]
+    assert main(args) == 0
+    scored = json.loads(capsys.readouterr().out)["sequences"][seq20.name]
+    seq = open_sequences(seq20)[0]
+    walked = seq.frame(18)["camera_position"][0] - seq.frame(0)["camera_position"][0]
+    assert scored["drift_end"] == pytest.approx(abs(wmap.steps[-1].offset - walked))  # its last frame: the 19th
+
+    wmap.meta["input_frames"] = [25] * 10  # numbers the sequence does not have: one line
+    wmap.save(tmp_path / "bad.json")
+    assert main(["eval-reconstruction", str(seq20), "--map", str(tmp_path / "bad.json"), "--quiet"]) == 2
+    assert "--map: its input_frames are not 10 frame numbers of a 20-frame sequence" in capsys.readouterr().err
 
 
 def test_viewer_sinks_serve_and_spawn_without_a_gui(monkeypatch):

@@ -243,3 +243,27 @@ def test_predict_without_a_checkpoint_runs_the_shipped_default(seq_dir: Path, tm
     for i in a.indices():  # the very layouts of the default model named
         x, y = a.read(i), b.read(i)
         assert np.array_equal(x.top, y.top) and np.array_equal(x.front, y.front)
+
+
+def test_each_frame_carries_the_angles_it_was_levelled_by_into_the_sinks(seq_dir: Path, checkpoint: Path, tmp_path):
+    """The frames the run's sinks take carry the camera angles they were levelled by (here given: the same for each),
+    the recording and ``on_frame`` follow the row map in order, and the map's meta keeps their median."""
+    from mvracklay.frames import open_source
+    from mvracklay.pipeline import RunConfig, run_pipeline
+    from mvracklay.settings import InferenceSettings
+
+    seen: list[tuple[int, tuple[float, float, float], int]] = []
+    cfg = RunConfig(checkpoint=checkpoint, inference=InferenceSettings(roll=2.0, pitch=1.0, yaw=0.0), threads=1,
+                    progress=False, rrd=False)  # fmt: skip
+    res = run_pipeline(
+        open_source(seq_dir),
+        tmp_path / "out",
+        cfg,
+        on_frame=lambda f, st: seen.append((f.index, f.angles, len(st.map().steps))),
+    )
+    assert [i for i, _, _ in seen] == list(range(res.frames))
+    assert all(angles == (2.0, 1.0, 0.0) for _, angles, _ in seen)
+    assert [steps for _, _, steps in seen] == [i + 1 for i in range(res.frames)]  # each in the map before on_frame
+    meta = res.map.meta
+    assert (meta["camera_roll_deg"], meta["camera_pitch_deg"], meta["camera_yaw_deg"]) == (2.0, 1.0, 0.0)
+    assert meta["camera_roll_source"] == "given" and meta["camera_yaw_source"] == "level"

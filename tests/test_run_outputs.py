@@ -181,8 +181,7 @@ def test_every_nth_of_a_video_keeps_frames_0_n_2n(tmp_path):
     import av
     import numpy as np
 
-    from mvracklay.every import every_nth
-    from mvracklay.frames import open_source
+    from mvracklay.frames import every_nth, open_source
 
     video = tmp_path / "v.mp4"
     with av.open(str(video), "w") as container:

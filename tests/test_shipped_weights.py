@@ -49,14 +49,12 @@ def test_a_checkpoint_is_named_by_a_shipped_models_name_or_a_path(tmp_path: Path
         models.shipped_path("x")
 
 
-@pytest.mark.parametrize("command", ["run", "predict", "evaluate", "eval_reconstruction"])
+@pytest.mark.parametrize("command", ["run", "predict", "evaluate", "eval-reconstruction"])
 def test_commands_take_a_shipped_models_name(command: str):
-    import argparse
-    import importlib
+    from mvracklay.cli import build_parser
 
-    parser = argparse.ArgumentParser()
-    importlib.import_module(f"mvracklay.commands.{command}").add_arguments(parser)
-    known, _ = parser.parse_known_args(["in", "--out", "o", "--data", "d", "--checkpoint", "mvracklay-disc-4-256"])
+    argv = [command, "in", "--out", "o", "--data", "d", "--checkpoint", "mvracklay-disc-4-256"]
+    known, _ = build_parser().parse_known_args(argv)
     assert known.checkpoint == SHIPPED[1]
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from layouts.errors import InputError
 from mvracklay.command_settings import EvaluateBaselineSettings
 from mvracklay.settings import add_options
 
@@ -27,27 +26,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: EvaluateBaselineSettings) -> int:
-    from layouts.fileio import atomic_write_json, nan_to_null
-    from layouts.metrics import format_table
-    from layouts.publish import refuse_overlap
-    from mvracklay.baselines.depth_projection import evaluate_depth_projection
-    from waresynth.dataset import open_dataset
+    from mvracklay.evaluate_job import evaluate_baseline
 
-    refuse_overlap([args.json_out] if args.json_out else [], {"--data": args.data}, "--json-out")
-    if args.max_frames < 0:
-        raise InputError(f"--max-frames must be >= 0, got {args.max_frames}")
-    ds = open_dataset(args.data)
-    seqs = ds.sequences(None if args.split == "all" else args.split)
-    if not seqs:
-        raise InputError(f"{args.data}: has no '{args.split}' sequences")
-    res = evaluate_depth_projection(seqs, args.max_frames or None, progress=not args.quiet)
-    title = f"depth-projection baseline on {args.data} [{args.split}], {res['frames']} frames of {len(seqs)} sequences"
-    print(format_table(res["visible"], title + " -- columns in view"))
-    print()
-    print(format_table(res["all"], title + " -- all cells"))
-    if args.json_out:
-        atomic_write_json(
-            args.json_out, nan_to_null({"data": str(args.data), "split": args.split, "sequences": len(seqs), **res})
-        )
-        print(f"wrote {args.json_out}")
-    return 0
+    return evaluate_baseline(args)

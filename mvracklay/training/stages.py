@@ -1,8 +1,9 @@
 """The stages a recipe of ``mvracklay train`` names, each with its own option parser.
 
-Every stage is a module with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(settings)``, as a
-command of the CLI has; the fitting and calibration stages were commands of their own once, and take
-the same options. A stage with ``SETTINGS`` (a settings dataclass in the style of `mvracklay.settings`: each
+Every stage is a module (or object) with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(settings)``, as
+a command of the CLI has; the fitting and calibration stages were commands of their own once, and take the same
+options; the stages named as commands run the library's jobs the commands run (`mvracklay.training.job_stages`),
+never a command module (only the CLI imports those). A stage with ``SETTINGS`` (a settings dataclass in the style of `mvracklay.settings`: each
 field's option name, default, range and help in its metadata) makes its options from it and runs on an
 instance of it. `run_stage` runs one stage from an argument list as the CLI ran it (one line and
 status 2 on bad input): the tests drive the stages through it, and
@@ -38,10 +39,10 @@ STAGE_MODULES: dict[str, str] = {
     "curves": "mvracklay.training.small_stages:curves",
     "python": "mvracklay.training.small_stages:python",
     "budget": "mvracklay.training.budget",
-    "generate": "mvracklay.commands.generate",
-    "evaluate": "mvracklay.commands.evaluate",
-    "evaluate-baseline": "mvracklay.commands.evaluate_baseline",
-    "eval-reconstruction": "mvracklay.commands.eval_reconstruction",
+    "generate": "mvracklay.training.job_stages:GENERATE",
+    "evaluate": "mvracklay.training.job_stages:EVALUATE",
+    "evaluate-baseline": "mvracklay.training.job_stages:EVALUATE_BASELINE",
+    "eval-reconstruction": "mvracklay.training.job_stages:EVAL_RECONSTRUCTION",
 }
 #: stages the runner itself carries out (they read the run's state, not options alone)
 RUNNER_STAGES = ("budget",)
