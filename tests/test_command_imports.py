@@ -34,7 +34,7 @@ def command_strings(source: str, name: str = "<source>") -> list[int]:
 
 
 @pytest.mark.parametrize("folder", ["mvracklay", "layouts", "waresynth", "network", "stitching", "demos", "tests",
-                                    "benchmarks", "scripts", "research"])  # fmt: skip
+                                    "benchmarks", "scripts"])  # fmt: skip
 def test_no_module_names_a_command_module_in_a_string(folder):
     bad = []
     for path in sorted((ROOT / folder).rglob("*.py")):
