@@ -7,7 +7,8 @@ layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/FO
 path out of MAP), a task per pass on the local machine's processes or on a Ray cluster (`mvracklay.parallel`); a
 pass whose row map is there from an earlier run with the same settings is not mapped again. Then the passes are
 placed by the route, registered where they overlap and fused, and ``MAP/building.json``, ``building.glb``,
-``building.rrd``, ``inventory.csv`` and ``inventory.json`` are staged and swapped in whole (`layouts.publish`).
+``building.rrd``, ``inventory.csv`` and ``inventory.json`` are staged and swapped in whole
+(`layouts.publish.output_folder`).
 MAP follows `mvracklay run`'s rules: never an input, inside one or holding one; missing, empty or an earlier
 map's folder unless ``overwrite``; one command at a time (`layouts.publish.lock`).
 
