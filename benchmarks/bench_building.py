@@ -27,7 +27,8 @@ if str(_ROOT) not in sys.path:
     sys.path.insert(0, str(_ROOT))
 
 from layouts.spec import LayoutSpec  # noqa: E402
-from mvracklay.building_job import MapJob, MapSettings, map_building  # noqa: E402
+from mvracklay.building_job import MapSettings, map_building  # noqa: E402
+from mvracklay.settings import ComputeSettings, OutputSettings  # noqa: E402
 from waresynth.building.generate import generate_building  # noqa: E402
 
 FACE = {"bays": [19, 19], "bay_width": [2.3, 2.7], "bay_gap": [0.1, 0.2], "pass_length": 12.0}
@@ -50,7 +51,11 @@ def time_map(root: Path, out: Path, workers: int, ray: str | None = None) -> dic
     shutil.rmtree(out, ignore_errors=True)
     t0 = time.perf_counter()
     res = map_building(
-        root, out, MapSettings(layouts="gt"), MapJob(workers=workers, ray=ray, rrd=False, progress=False)
+        root,
+        out,
+        MapSettings(layouts="gt"),
+        ComputeSettings(workers=workers, ray=ray),
+        OutputSettings(rrd=False, quiet=True),
     )
     total = time.perf_counter() - t0
     passes = len(res.map.passes)

@@ -22,7 +22,8 @@ the last one wins); `staged` is the whole path in one block: stage, write, publi
 discard and say it in one line. `output_folder` is the one way a command writes its output folder: the rules on
 OUT (`refuse_overlap`, `check_out`: missing, empty or an earlier output of the same command unless
 ``overwrite``), then `staged`. A command that resumes into OUT (`generate`, `merge-shards`) writes in place
-under `lock` after the same checks.
+under `lock` after the same checks; `map` writes its passes into OUT in place while its stage fills
+(``make``).
 """
 
 from __future__ import annotations
@@ -305,14 +306,18 @@ def lock(out: str | os.PathLike, what: str = "--out", make: bool = False) -> Ite
 
 @contextmanager
 def staged(
-    out: str | os.PathLike, managed: Iterable[str] | None = None, what: str = "--out", locked: bool = True
+    out: str | os.PathLike,
+    managed: Iterable[str] | None = None,
+    what: str = "--out",
+    locked: bool = True,
+    make: bool = False,
 ) -> Iterator[Path]:
-    """The one way an output folder is written: OUT held (`lock`, unless the caller holds it: ``locked`` False), a
-    stage made (`stage`) and yielded to be filled, then published (`publish`, ``managed`` as there). When the
-    block fails, the stage is removed and OUT is as it was; a failed write into the stage (a full disk) is one line
-    (`write_failed`)."""
+    """The one way an output folder is written: OUT held (`lock`, unless the caller holds it: ``locked`` False;
+    ``make``: OUT made first, as `lock` does), a stage made (`stage`) and yielded to be filled, then published
+    (`publish`, ``managed`` as there). When the block fails, the stage is removed and OUT is as it was; a failed
+    write into the stage (a full disk) is one line (`write_failed`)."""
     out = Path(out)
-    with lock(out, what) if locked else nullcontext():
+    with lock(out, what, make) if locked else nullcontext():
         st = stage(out, what)
         try:
             yield st
@@ -402,6 +407,7 @@ def output_folder(
     untouched: Iterable[str] = (),
     may_hold_inputs: bool = False,
     what: str = "--out",
+    make: bool = False,
 ) -> Iterator[Path]:
     """The one way a command writes its output folder OUT: refused in one line when an output would be, lie
     inside or hold one of ``inputs`` (`refuse_overlap`; those not on disk skipped) or when OUT is not missing,
@@ -410,11 +416,13 @@ def output_folder(
 
     ``outputs``: the names the command writes in OUT (None: all of OUT is the command's, an export);
     ``earlier(OUT)``: whether a folder holding only those is the command's own earlier output; ``may_hold_inputs``:
-    OUT may hold an input the command leaves alone (reconstruct's OUT/layouts), only the outputs are checked."""
+    OUT may hold an input the command leaves alone (reconstruct's OUT/layouts), only the outputs are checked;
+    ``make``: OUT is made and held before the block, for a command that also writes into OUT in place while the stage
+    fills (`map`'s passes, one of its ``untouched``: kept by the publishing)."""
     out = Path(out)
     given = {k: v for k, v in (inputs or {}).items() if v is not None and Path(v).exists()}
     refuse_overlap([out / n for n in outputs] if may_hold_inputs and outputs else [out], given, what)
     outputs = None if outputs is None else tuple(outputs)
     check_out(out, overwrite, outputs, earlier, command, untouched, what)
-    with staged(out, outputs, what) as st:
+    with staged(out, outputs, what, make=make) as st:
         yield st

@@ -7,7 +7,8 @@ layouts; else the network, as `mvracklay run` maps footage) into ``MAP/passes/FO
 path out of MAP), a task per pass on the local machine's processes or on a Ray cluster (`mvracklay.parallel`); a
 pass whose row map is there from an earlier run with the same settings is not mapped again. Then the passes are
 placed by the route, registered where they overlap and fused, and ``MAP/building.json``, ``building.glb``,
-``building.rrd``, ``inventory.csv`` and ``inventory.json`` are staged and swapped in whole (`layouts.publish`).
+``building.rrd``, ``inventory.csv`` and ``inventory.json`` are staged and swapped in whole
+(`layouts.publish.output_folder`).
 MAP follows `mvracklay run`'s rules: never an input, inside one or holding one; missing, empty or an earlier
 map's folder unless ``overwrite``; one command at a time (`layouts.publish.lock`).
 
@@ -26,10 +27,9 @@ import os
 import re
 import sys
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
@@ -37,11 +37,14 @@ from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, load_json
 from layouts.location_list import ListedLocation, read_location_list
 from layouts.locations import DEFAULT_CODE, check_code_format
-from layouts.publish import check_out, lock, refuse_overlap, staged
+from layouts.publish import output_folder, staged
 from stitching.building.config import BuildingConfig
 from stitching.building.map import BuildingMap, write_inventory
 from stitching.building.route import Route, load_route, perturb
 from stitching.warehouse_map import WarehouseMap
+
+if TYPE_CHECKING:
+    from mvracklay.settings import ComputeSettings, OutputSettings, RunConfig
 
 ROUTE = "route.json"
 PASSES = "passes"
@@ -59,7 +62,7 @@ class PassTask:
     source: str
     out: str
     layouts: str  #: "gt" or "net"
-    run: dict[str, Any] = field(default_factory=dict)  #: RunConfig fields for "net"
+    run: RunConfig | None = None  #: how "net" maps the pass (`pass_run`)
     key: str = ""  #: digest of what decides the row map (a stored one with another key is mapped again)
 
 
@@ -80,15 +83,17 @@ class BuildingResult:
 class MapSettings:
     """What a building map is made from (`map_building`).
 
-    ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network; ``run``:
-    `mvracklay.settings.RunConfig` fields, e.g. ``checkpoint``); ``pose_noise``: (metres, degrees) added to the
-    route's poses, seeded by ``seed``; ``code`` / ``positions``: the location code format and positions per
-    level (default: the building config's, else `layouts.locations.DEFAULT_CODE` and 1); ``locations``: a
-    location list or an earlier map whose codes the map takes (`load_locations`); ``building``: how passes are
-    placed, registered and fused (`stitching.building.config.BuildingConfig`)."""
+    ``layouts``: ``"gt"`` (a generated building's ground-truth layouts) or ``"net"`` (the network); ``run``: how
+    the network maps a pass (`mvracklay.settings.RunConfig`: ``checkpoint``, ``distance``, ``camera_height``, the
+    inference; None: its defaults), the map's `ComputeSettings` giving its threads, device and precision;
+    ``pose_noise``: (metres, degrees) added to the route's poses, seeded by ``seed``; ``code`` / ``positions``: the
+    location code format and positions per level (default: the building config's, else
+    `layouts.locations.DEFAULT_CODE` and 1); ``locations``: a location list or an earlier map whose codes the map
+    takes (`load_locations`); ``building``: how passes are placed, registered and fused
+    (`stitching.building.config.BuildingConfig`)."""
 
     layouts: str = "net"
-    run: Mapping[str, Any] = field(default_factory=dict)
+    run: RunConfig | None = None
     pose_noise: tuple[float, float] | None = None
     seed: int = 0
     code: str | None = None
@@ -97,27 +102,61 @@ class MapSettings:
     building: BuildingConfig = field(default_factory=BuildingConfig)
 
     def __post_init__(self) -> None:
+        from mvracklay.settings import RunConfig
+
         if self.layouts not in ("gt", "net"):
             raise InputError(f"--layouts must be 'gt' or 'net', got {self.layouts!r}")
         if not isinstance(self.building, BuildingConfig):
             raise InputError(f"MapSettings.building must be a BuildingConfig, got {type(self.building).__name__}")
+        if self.run is not None and not isinstance(self.run, RunConfig):
+            raise InputError(f"MapSettings.run must be a RunConfig, got {type(self.run).__name__}")
+        base = RunConfig()
+        mine = [n for n in COMPUTE_FIELDS if self.run is not None and getattr(self.run, n) != getattr(base, n)]
+        if mine:
+            raise InputError(f"MapSettings.run: {', '.join(mine)} are the map's (ComputeSettings), not the run's")
 
 
-@dataclass(frozen=True)
-class MapJob:
-    """How `map_building` runs and what it writes: ``workers`` local processes or a Ray cluster at ``ray`` map
-    the passes; ``rrd``: write building.rrd; ``progress``: bars and the closing line on stderr; ``overwrite``:
-    write into an ``out`` holding other files (only the map's outputs there are replaced)."""
+#: the `RunConfig` fields a pass takes from the map's `ComputeSettings`
+COMPUTE_FIELDS = ("threads", "device", "precision")
+#: the `RunConfig` fields a network pass's key always names (the others only where they are not the default)
+KEY_FIELDS = ("checkpoint", "distance", "camera_height", "device", "rrd", "progress")
 
-    workers: int = 1
-    ray: str | None = None
-    rrd: bool = True
-    progress: bool = True
-    overwrite: bool = False
 
-    def __post_init__(self) -> None:
-        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
-            raise InputError(f"--workers must be >= 1, got {self.workers}")
+def pass_threads(compute: ComputeSettings) -> int:
+    """The threads of one pass: ``--threads`` as given, or ``auto`` shared out (a task per CPU: one each on a Ray
+    cluster, the machine's free cores split among the local ``workers``)."""
+    from mvracklay.threads import resolve_threads
+
+    threads = resolve_threads(compute.threads)
+    if compute.threads == "auto" and (compute.ray is not None or compute.workers > 1):
+        threads = 1 if compute.ray is not None else max(1, threads // compute.workers)
+    return threads
+
+
+def pass_run(settings: MapSettings, compute: ComputeSettings) -> RunConfig:
+    """How the network maps each pass: ``settings.run`` on the map's compute settings, without a recording or
+    progress bar of its own (the building has them)."""
+    from mvracklay.settings import RunConfig
+
+    run = settings.run or RunConfig()
+    return replace(run, threads=pass_threads(compute), device=compute.device, precision=compute.precision,
+                   rrd=False, progress=False)  # fmt: skip
+
+
+def pass_key(source: str, layouts: str, run: RunConfig | None) -> str:
+    """The digest of what decides a pass's row map: its frames, the layouts and the run settings (`KEY_FIELDS`, and
+    the others set away from their default), never the thread count (it changes the speed, not the row map)."""
+    from mvracklay.settings import RunConfig
+
+    decides: dict[str, Any] = {}
+    if run is not None:
+        base = RunConfig()
+        for f in fields(run):
+            value = getattr(run, f.name)
+            if f.name != "threads" and (f.name in KEY_FIELDS or value != getattr(base, f.name)):
+                decides[f.name] = asdict(value) if is_dataclass(value) else value
+    text = json.dumps([source, layouts, decides], sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def resolve_route(path: str | os.PathLike) -> tuple[Route, Path]:
@@ -225,10 +264,8 @@ def _map_pass(task: PassTask) -> None:
     else:
         from mvracklay.frames import open_source
         from mvracklay.pipeline import run_pipeline
-        from mvracklay.settings import RunConfig
 
-        cfg = RunConfig(**task.run)
-        run_pipeline(open_source(task.source, prog="mvracklay map"), out, cfg)
+        run_pipeline(open_source(task.source, prog="mvracklay map"), out, task.run)
         _record(task, out)
 
 
@@ -255,16 +292,16 @@ def pass_folder(index: int, sequence: str) -> str:
     return f"pass_{index:03d}-{tail}"
 
 
-def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: dict[str, Any]) -> list[PassTask]:
+def pass_tasks(route: Route, base: Path, out: Path, layouts: str, run: RunConfig | None) -> list[PassTask]:
+    """A task per pass of ``route``: its frames, its folder under ``out``/passes (`pass_folder`) and its key."""
     tasks, folders = [], {}
+    run = run if layouts == "net" else None
     for k, pose in enumerate(route.passes):
         src = str((base / pose.sequence).resolve())
-        decides = {k: v for k, v in run.items() if k != "threads"}  # threads change the speed, not the row map
-        key = hashlib.sha256(json.dumps([src, layouts, decides], sort_keys=True, default=str).encode()).hexdigest()[:16]
         name = pass_folder(k, pose.sequence)
         if folders.setdefault(name, pose.sequence) != pose.sequence:  # two passes' names alike once made plain
             name = f"pass_{k:03d}-{name}"
-        tasks.append(PassTask(pose.sequence, src, str(out / PASSES / name), layouts, run, key))
+        tasks.append(PassTask(pose.sequence, src, str(out / PASSES / name), layouts, run, pass_key(src, layouts, run)))
     return tasks
 
 
@@ -283,34 +320,43 @@ def _is_map_folder(folder: Path) -> bool:
     return isinstance(doc, dict) and doc.get("format") == BUILDING_FORMAT
 
 
-def check_map_out(out: Path, source: str | os.PathLike, tasks: list[PassTask], run: dict[str, Any],
-                  overwrite: bool) -> None:  # fmt: skip
-    """Refuse a MAP that is, lies inside or holds an input (DATASET, a pass's footage, the checkpoint), or that
-    holds other files than an earlier map's unless ``overwrite`` (`layouts.publish.check_out`)."""
-    inputs: dict[str, str | os.PathLike | None] = {"DATASET": source}
+def map_inputs(source: str | os.PathLike, tasks: list[PassTask], run: RunConfig | None) -> dict[str, Any]:
+    """What MAP must never be, lie inside or hold: DATASET, each pass's footage and the checkpoint."""
+    inputs: dict[str, Any] = {"DATASET": source}
     inputs.update({f"pass {t.name!r}": t.source for t in tasks})
-    ckpt = run.get("checkpoint")
-    inputs["--checkpoint"] = str(ckpt) if ckpt and Path(str(ckpt)).exists() else None
-    refuse_overlap([out], inputs)
-    check_out(out, overwrite, (*OUTPUTS, PASSES), _is_map_folder, "map")
+    inputs["--checkpoint"] = run.checkpoint if run is not None else None
+    return inputs
 
 
 def map_building(
     source: str | os.PathLike,
     out: str | os.PathLike,
     settings: MapSettings | None = None,
-    job: MapJob | None = None,
+    compute: ComputeSettings | None = None,
+    outputs: OutputSettings | None = None,
 ) -> BuildingResult:
     """Map every pass of the route at ``source`` into ``out`` and fuse them (see the module docstring): what the
-    map is made from by ``settings``, how it runs and what it writes by ``job``."""
+    map is made from by ``settings``; ``compute``: the processes (``workers``, or a Ray cluster at ``ray``) and each
+    pass's ``threads``, ``device`` and ``precision``; ``outputs``: ``overwrite``, ``rrd`` (building.rrd) and
+    ``quiet`` (no bars nor closing line on stderr) of `mvracklay.settings.OutputSettings` (its ``out``, when
+    given, is ``out``)."""
     from mvracklay.parallel import run_tasks
+    from mvracklay.settings import ComputeSettings, OutputSettings, check_range
     from stitching.building.export import export_building_glb, write_building_rrd
     from stitching.building.fuse_passes import check_listed
     from stitching.building.pipeline import build_map
 
     start = time.perf_counter()
-    settings, job = settings or MapSettings(), job or MapJob()
+    settings, compute, outputs = settings or MapSettings(), compute or ComputeSettings(), outputs or OutputSettings()
+    if isinstance(compute.workers, bool) or not isinstance(compute.workers, int) or compute.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {compute.workers}")
+    check_range(ComputeSettings, compute)
+    if outputs.out is not None and Path(outputs.out) != Path(out):
+        raise InputError(f"map_building: outputs.out {outputs.out} is not out {out}")
     layouts, pose_noise = settings.layouts, settings.pose_noise
+    run = pass_run(settings, compute) if layouts == "net" else None
+    if run is not None:
+        run.validate()
     route, base = resolve_route(source)
     bcfg = building_config(base)
     code = settings.code or bcfg.get("code") or DEFAULT_CODE
@@ -321,27 +367,25 @@ def map_building(
     if listed is not None:
         check_listed(listed, route, listed_source)
     out = Path(out)
-    run = dict(settings.run)
     model = None
-    if layouts == "net":
-        run.setdefault("rrd", False)
-        run.setdefault("progress", False)
-        if run.get("checkpoint") is None:
+    if run is not None:
+        if run.checkpoint is None:
             from mvracklay.models import shipped_path
 
             px = frame_size(route, base)
             model = f"{choose_model(px)} (the shipped model for {px} px frames)"
-            run["checkpoint"] = str(shipped_path(model.split()[0]))
+            run = replace(run, checkpoint=str(shipped_path(model.split()[0])))
         else:
-            model = str(run["checkpoint"])
+            model = str(run.checkpoint)
     tasks = pass_tasks(route, base, out, layouts, run)
-    check_map_out(out, source, tasks, run, job.overwrite)
-    progress, rrd = job.progress, job.rrd
-    with lock(out, make=True):  # the passes are written into MAP/passes before the building is published
+    progress, rrd = not outputs.quiet, outputs.rrd
+    # the passes are written into MAP/passes, then the building's files are staged and swapped in whole
+    with output_folder(out, OUTPUTS, command="map", earlier=_is_map_folder, inputs=map_inputs(source, tasks, run),
+                       overwrite=outputs.overwrite, untouched=(PASSES,), make=True) as st:  # fmt: skip
         todo = [t for t in tasks if not _done(t)]
         peak, folder, t0 = 0.0, {t.name: Path(t.out).name for t in todo}, time.perf_counter()
-        for name, (mb, said) in run_tasks(map_pass, [(t.name, t) for t in todo], workers=job.workers, ray=job.ray,
-                                          progress="map passes" if progress else None):  # fmt: skip
+        for name, (mb, said) in run_tasks(map_pass, [(t.name, t) for t in todo], workers=compute.workers,
+                                          ray=compute.ray, progress="map passes" if progress else None):  # fmt: skip
             peak = max(peak, mb)
             for line in said:  # on its own line, above the progress bar
                 tqdm.write(f"mvracklay map: {folder[name]}: {line}", file=sys.stderr)
@@ -355,12 +399,11 @@ def map_building(
         } | ({"model": model} if model else {})  # fmt: skip
         bmap = build_map(route, maps, settings.building, code=code, positions=positions, meta=meta, listed=listed,
                          listed_source=listed_source)  # fmt: skip
-        with staged(out, OUTPUTS, locked=False) as st:  # the building's files swapped in whole
-            bmap.save(st / "building.json")
-            export_building_glb(bmap, st / "building.glb")
-            if rrd:
-                write_building_rrd(bmap, maps, st / "building.rrd")
-            rows = write_inventory(bmap, st)
+        bmap.save(st / "building.json")
+        export_building_glb(bmap, st / "building.glb")
+        if rrd:
+            write_building_rrd(bmap, maps, st / "building.rrd")
+        rows = write_inventory(bmap, st)
     if progress:
         print(f"mvracklay map: {mapped_line(len(todo), len(tasks), out / PASSES)}", file=sys.stderr)
     written = [n for n in OUTPUTS if (out / n).is_file() and (rrd or n != "building.rrd")]

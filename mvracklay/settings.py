@@ -274,12 +274,15 @@ def add_options(
             where.add_argument(alias, dest=dest(f), default=argparse.SUPPRESS, help=argparse.SUPPRESS, **meta)
 
 
-def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
-    """The settings dataclass ``cls`` from parsed options (`add_options`); ``given``: fields set otherwise."""
+def from_args(cls: type, args: argparse.Namespace, only: tuple[str, ...] = (), **given: Any) -> Any:
+    """The settings dataclass ``cls`` from parsed options (`add_options`; ``only``: these fields, the others left at
+    their defaults, as `nested` lists them); ``given``: fields set otherwise."""
     values = {}
     for f in fields(cls):
+        if only and f.name not in only:
+            continue
         if f.name not in given and "settings" in f.metadata:
-            values[f.name] = from_args(f.metadata["settings"], args)
+            values[f.name] = from_args(f.metadata["settings"], args, f.metadata["only"])
             continue
         if f.name in given or dest(f) is None or not hasattr(args, dest(f)):
             continue

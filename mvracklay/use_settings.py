@@ -183,9 +183,8 @@ class MapSettings:
         "box count, box recall and precision at 3D IoU 0.5; docs/buildings.md) and add the figures to --json-out",
         False, action="store_true",
     )  # fmt: skip
-    checkpoint: Path | None = same_as(RunConfig, "checkpoint")
-    distance: float | None = same_as(RunConfig, "distance")
-    camera_height: float | None = same_as(RunConfig, "camera_height")
+    #: --checkpoint, --distance, --camera-height: how the network maps a pass (`mvracklay.building_job.MapSettings`)
+    run: RunConfig = nested(RunConfig, only=("checkpoint", "distance", "camera_height"))
     device: str = same_as(ComputeSettings, "device")
     threads: int | str = same_as(ComputeSettings, "threads")
     spawn: bool = same_as(OutputSettings, "spawn", spawn_help("MAP/building.rrd"))

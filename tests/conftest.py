@@ -143,9 +143,10 @@ def tiny_building(tmp_path_factory) -> Path:
 def tiny_building_map(tiny_building, tmp_path_factory) -> Path:
     """`tiny_building` mapped from its ground-truth layouts (`mvracklay map --layouts gt`): the MAP folder (once per
     run, shared, read only)."""
-    from mvracklay.building_job import MapJob, MapSettings, map_building
+    from mvracklay.building_job import MapSettings, map_building
+    from mvracklay.settings import OutputSettings
 
     with _shared(tmp_path_factory, "tiny_building_map") as (root, made):
         if not made:
-            map_building(tiny_building, root / "m", MapSettings(layouts="gt"), MapJob(progress=False))
+            map_building(tiny_building, root / "m", MapSettings(layouts="gt"), outputs=OutputSettings(quiet=True))
     return root / "m"

@@ -16,8 +16,9 @@ from conftest import TINY_BUILDING
 
 from layouts.location_changes import LOCATION_CHANGES, count_change
 from layouts.locations import NOT_SCANNED, read_rows
-from mvracklay.building_job import MapJob, MapSettings, map_building
+from mvracklay.building_job import MapSettings, map_building
 from mvracklay.cli import main
+from mvracklay.settings import OutputSettings
 from stitching.building.diff import CHANGES, LOCATION_COLUMNS, diff_buildings, format_diff
 from stitching.building.eval import evaluate_changes
 from stitching.building.location_counts import EXCEPTION_COLUMNS, evaluate_location_changes, read_location_truth
@@ -38,7 +39,9 @@ def _rescan(old: Path, out: Path, seed: int, rates: dict) -> Path:
 def scans(tiny_building, tiny_building_map, tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("scans")
     changed = _rescan(tiny_building, root / "changed", 11, RATES)
-    map_building(changed, root / "changed_map", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False))
+    map_building(
+        changed, root / "changed_map", MapSettings(layouts="gt"), outputs=OutputSettings(rrd=False, quiet=True)
+    )
     return {"old": tiny_building_map, "new": root / "changed_map", "truth": changed / "ground_truth/changes.csv",
             "root": root, "old_data": tiny_building, "new_data": changed}  # fmt: skip
 
@@ -67,7 +70,7 @@ def test_every_category_found(scans):
 def test_pose_noise_on_both_scans(scans, tmp_path):
     old, new = (
         map_building(scans[data], tmp_path / out, MapSettings("gt", pose_noise=(0.3, 3.0), seed=seed),
-                     MapJob(rrd=False, progress=False)).map
+                     outputs=OutputSettings(rrd=False, quiet=True)).map
         for data, out, seed in (("old_data", "o", 5), ("new_data", "n", 6))
     )  # fmt: skip
     scores = evaluate_changes(diff_buildings(old, new).rows(), _truth(scans["truth"]))
@@ -78,7 +81,7 @@ def test_a_rescan_without_changes_keeps_the_codes_and_reports_nothing(scans):
     quiet = _rescan(scans["old_data"], scans["root"] / "same", 12, {k: 0.0 for k in RATES})
     assert len(_truth(quiet / "ground_truth/changes.csv")) == 0
     new = map_building(
-        quiet, scans["root"] / "same_map", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False)
+        quiet, scans["root"] / "same_map", MapSettings(layouts="gt"), outputs=OutputSettings(rrd=False, quiet=True)
     ).map
     old = _load(scans["old"])
     # another scan (new passes, cameras, distances): the same codes for the same racks

@@ -26,8 +26,9 @@ from test_faults import one_line, snapshot
 
 from layouts.errors import ContractError, InputError
 from layouts.spec import LayoutSpec
-from mvracklay.building_job import MapJob, MapSettings, map_building
+from mvracklay.building_job import MapSettings, map_building
 from mvracklay.cli import main
+from mvracklay.settings import OutputSettings
 from stitching.building.diff import BuildingDiff, Change, diff_buildings
 from stitching.building.diff_export import write_changes
 from stitching.building.eval import evaluate_building, evaluate_changes
@@ -113,7 +114,7 @@ def one_aisle(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("one_aisle")
     generate_building(root / "b", building={**TINY_BUILDING, "aisles": 1}, config=TINY_CONFIG, image_size=(32, 24),
                       spec=LayoutSpec(size=128), seed=3, progress=False)  # fmt: skip
-    map_building(root / "b", root / "m", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False))
+    map_building(root / "b", root / "m", MapSettings(layouts="gt"), outputs=OutputSettings(rrd=False, quiet=True))
     return root / "m"
 
 

@@ -12,8 +12,9 @@ import pytest
 
 from layouts.errors import InputError
 from layouts.locations import NOT_SCANNED, read_inventory
-from mvracklay.building_job import MapJob, MapSettings, map_building
+from mvracklay.building_job import MapSettings, map_building
 from mvracklay.cli import main
+from mvracklay.settings import ComputeSettings, OutputSettings, RunConfig
 from stitching.building.config import BuildingConfig, FuseConfig, PlaceConfig
 from stitching.building.eval import evaluate_building
 from stitching.building.fuse_passes import fuse_building
@@ -138,7 +139,7 @@ def test_outputs_and_resume(building, mapped):
     entities = read_entities(mapped / "building.rrd")
     assert {"/building/boxes", "/building/shelves"} <= entities
     assert {f"/passes/{p.name}/camera" for p in bmap.passes} <= entities
-    again = map_building(building, mapped, MapSettings(layouts="gt"), MapJob(progress=False))
+    again = map_building(building, mapped, MapSettings(layouts="gt"), outputs=OutputSettings(quiet=True))
     assert again.mapped == 0 and again.map.to_dict() == bmap.to_dict()
 
 
@@ -186,7 +187,10 @@ def test_a_route_file_of_ones_own(building, tmp_path):
     }  # fmt: skip
     (tmp_path / "route.json").write_text(json.dumps(route))
     res = map_building(
-        tmp_path / "route.json", tmp_path / "m", MapSettings(layouts="gt"), MapJob(rrd=False, progress=False)
+        tmp_path / "route.json",
+        tmp_path / "m",
+        MapSettings(layouts="gt"),
+        outputs=OutputSettings(rrd=False, quiet=True),
     )
     assert len(res.map.faces) == 1 and res.map.box_count() > 0
     rows = {r["location"]: r for r in res.inventory}
@@ -359,7 +363,7 @@ def test_building_settings_are_checked(building, mapped):
     with pytest.raises(InputError, match=r"^--layouts must be 'gt' or 'net', got 'truth'"):
         MapSettings(layouts="truth")
     with pytest.raises(InputError, match=r"^--workers must be >= 1, got 0"):
-        MapJob(workers=0)
+        map_building(building, mapped, compute=ComputeSettings(workers=0))
 
 
 def test_a_box_reaching_into_a_better_seen_one_is_dropped(building, mapped):
@@ -387,7 +391,45 @@ def test_a_pass_is_mapped_again_only_when_what_decides_its_row_map_changed(build
     route = load_route(building / "route.json")
 
     def keys(**run) -> list[str]:
-        return [t.key for t in pass_tasks(route, building, tmp_path, "net", run)]
+        return [t.key for t in pass_tasks(route, building, tmp_path, "net", RunConfig(**run))]
 
     assert keys(checkpoint="a.pt", threads=1) == keys(checkpoint="a.pt", threads=2)
     assert keys(checkpoint="a.pt", threads=1) != keys(checkpoint="b.pt", threads=1)
+
+
+def test_a_pass_key_is_the_one_earlier_maps_stored(building, tmp_path):
+    """A map's stored passes stay reused: a network pass's key digests the same words as the maps made before the
+    run settings were typed (the frames, the layouts, the settings the command names, never the threads), and a
+    setting the command does not name enters it once it leaves its default."""
+    import hashlib
+
+    from mvracklay.building_job import pass_run, pass_tasks
+
+    route = load_route(building / "route.json")
+    settings = MapSettings(layouts="net", run=RunConfig(checkpoint=Path("a.pt"), distance=2.5))
+    run = pass_run(settings, ComputeSettings(threads=3, device="cpu"))
+    task = pass_tasks(route, building, tmp_path, "net", run)[0]
+    said = {"checkpoint": "a.pt", "distance": 2.5, "camera_height": None, "device": "cpu", "rrd": False,
+            "progress": False}  # fmt: skip
+    assert task.key == hashlib.sha256(json.dumps([task.source, "net", said], sort_keys=True).encode()).hexdigest()[:16]
+    gt = pass_tasks(route, building, tmp_path, "gt", None)[0]
+    assert gt.key == hashlib.sha256(json.dumps([gt.source, "gt", {}]).encode()).hexdigest()[:16]
+    flipped = replace(run, inference=replace(run.inference, flip=True))
+    assert pass_tasks(route, building, tmp_path, "net", flipped)[0].key != task.key
+
+
+def test_a_map_takes_typed_run_settings_and_its_own_compute(building, tmp_path):
+    """``MapSettings.run`` is a `RunConfig`; the threads, device and precision of a pass are the map's
+    `ComputeSettings` (said in one line when set on the run instead)."""
+    from mvracklay.building_job import pass_run
+
+    with pytest.raises(InputError, match=r"^MapSettings.run must be a RunConfig, got dict$"):
+        MapSettings(run={"checkpoint": "a.pt"})
+    with pytest.raises(InputError, match=r"^MapSettings.run: threads, device are the map's \(ComputeSettings\)"):
+        MapSettings(run=RunConfig(threads=1, device="cpu"))
+    run = pass_run(MapSettings(run=RunConfig(distance=3.0)), ComputeSettings(threads="auto", workers=2, device="cpu"))
+    assert (run.distance, run.device, run.rrd, run.progress) == (3.0, "cpu", False, False)
+    assert run.threads >= 1
+    assert pass_run(MapSettings(), ComputeSettings(threads="auto", ray="127.0.0.1:1")).threads == 1
+    with pytest.raises(InputError, match=r"^--workers must be in \[1, 256\], got 300"):
+        map_building(building, tmp_path / "m", compute=ComputeSettings(workers=300))

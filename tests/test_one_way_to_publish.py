@@ -156,3 +156,23 @@ def test_output_folder_may_hold_an_input_only_when_told(tmp_path):
                        may_hold_inputs=True) as st:  # fmt: skip
         (st / "w.json").write_text("{}")
     assert sorted(p.name for p in out.iterdir()) == ["layouts", "w.json"]
+
+
+def test_output_folder_made_first_keeps_what_was_written_in_place(tmp_path):
+    """``make``: OUT is there (and held) while the stage fills, so a command writes part of its work into OUT in place
+    (`map`'s passes); a later failure publishes nothing and keeps that part, an empty OUT is removed again."""
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        with output_folder(out, ("b.json",), command="c", earlier=_never, untouched=("part",), make=True):
+            raise RuntimeError("before anything was written")
+    assert not out.exists()
+    with pytest.raises(RuntimeError):
+        with output_folder(out, ("b.json",), command="c", earlier=_never, untouched=("part",), make=True) as st:
+            assert out.is_dir() and st.parent == out
+            (out / "part").mkdir()
+            (st / "b.json").write_text("{}")
+            raise RuntimeError("after the part")
+    assert sorted(p.name for p in out.iterdir()) == ["part"]  # alone in OUT: counts as empty
+    with output_folder(out, ("b.json",), command="c", earlier=_never, untouched=("part",), make=True) as st:
+        (st / "b.json").write_text("{}")
+    assert sorted(p.name for p in out.iterdir()) == ["b.json", "part"]

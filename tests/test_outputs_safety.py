@@ -18,8 +18,9 @@ from test_faults import one_line, snapshot
 
 from layouts.errors import InputError
 from layouts.publish import lock, write_failed
-from mvracklay.building_job import MapJob, MapSettings, map_building, pass_folder
+from mvracklay.building_job import MapSettings, map_building, pass_folder
 from mvracklay.cli import main
+from mvracklay.settings import ComputeSettings, OutputSettings, RunConfig
 from stitching import rerun_log
 
 QUIET = ["--quiet"]
@@ -76,14 +77,16 @@ def test_a_pass_given_by_an_absolute_or_climbing_path_writes_only_into_map(how, 
         assert json.loads(route.read_text())["passes"][0]["sequence"].startswith("../../")
     before = snapshot(building)
     out = tmp_path / "m"
-    res = map_building(route, out, MapSettings(layouts="gt"), MapJob(rrd=False, progress=False))
+    res = map_building(route, out, MapSettings(layouts="gt"), outputs=OutputSettings(rrd=False, quiet=True))
     assert res.map.box_count() > 0
     assert snapshot(building) == before  # nothing written into the passes' folders
     passes = sorted(p.name for p in (out / "passes").iterdir())
     assert passes and all(p.startswith("pass_") for p in passes)
     assert all((out / "passes" / p / "warehouse.json").is_file() for p in passes)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["building", "deep", "m"]  # nothing beside MAP
-    again = map_building(route, out, MapSettings(layouts="gt"), MapJob(rrd=False, progress=False))  # the passes reused
+    again = map_building(
+        route, out, MapSettings(layouts="gt"), outputs=OutputSettings(rrd=False, quiet=True)
+    )  # the passes reused
     assert again.mapped == 0 and again.map.to_dict() == res.map.to_dict()
 
 
@@ -95,8 +98,9 @@ def test_a_pass_mapped_by_the_network_keeps_its_ground_truth_layouts(building, t
     seq = Path(first[0]["sequence"])
     assert (seq / "layouts").is_dir()
     before = snapshot(building)
-    run = {"checkpoint": str(tiny_checkpoint), "threads": 1}
-    map_building(route, tmp_path / "m", MapSettings(layouts="net", run=run), MapJob(rrd=False, progress=False))
+    run = RunConfig(checkpoint=tiny_checkpoint)
+    settings = MapSettings(layouts="net", run=run)
+    map_building(route, tmp_path / "m", settings, ComputeSettings(threads=1), OutputSettings(rrd=False, quiet=True))
     assert snapshot(building) == before
     (mapped,) = (tmp_path / "m" / "passes").iterdir()
     assert (mapped / "layouts").is_dir() and (mapped / "warehouse.json").is_file()

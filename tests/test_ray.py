@@ -61,10 +61,13 @@ def test_a_building_through_ray_is_byte_identical(ray_local, tmp_path):
     passes = sorted(p.parent.name for p in ray.glob("*/meta.json"))
     assert len(passes) >= 3 and sorted(s["name"] for s in stats) == passes
     # its passes mapped as Ray tasks: the building map local processes give
-    from mvracklay.building_job import MapJob, MapSettings, map_building
+    from mvracklay.building_job import MapSettings, map_building
+    from mvracklay.settings import ComputeSettings, OutputSettings
 
-    here = map_building(local, tmp_path / "map_here", MapSettings(layouts="gt"), MapJob(progress=False))
-    there = map_building(ray, tmp_path / "map_ray", MapSettings(layouts="gt"), MapJob(ray=ray_local, progress=False))
+    here = map_building(local, tmp_path / "map_here", MapSettings(layouts="gt"), outputs=OutputSettings(quiet=True))
+    there = map_building(
+        ray, tmp_path / "map_ray", MapSettings(layouts="gt"), ComputeSettings(ray=ray_local), OutputSettings(quiet=True)
+    )
     assert there.mapped == len(passes) and there.map.box_count() > 0
     assert (tmp_path / "map_ray/inventory.csv").read_bytes() == (tmp_path / "map_here/inventory.csv").read_bytes()
     assert [f.map.to_dict() for f in there.map.faces] == [f.map.to_dict() for f in here.map.faces]

@@ -249,3 +249,41 @@ def test_commands_refuse_a_bad_record_in_one_line_and_take_a_good_one(tiny_check
     assert not (tmp_path / "lay").exists()
     good = _with_record(tiny_checkpoint, tmp_path / "good.pt", ("step",), 7)
     assert load_checkpoint(good)[1]["step"] == 7
+
+
+# --- a route's faces (stitching.building.route): validated as the FacePlan dataclass itself ------------------------
+
+FACE = {"aisle": 1, "side": "L", "front_z": 0.0, "x_min": 0.0, "x_max": 10.0, "levels_m": [0.1, 1.0]}
+FACE_FAULTS = {
+    "ends": ({**FACE, "x_min": 5.0, "x_max": 1.0}, "faces[0]: x_min 5.0 must lie below x_max 1.0"),
+    "boards down": ({**FACE, "levels_m": [1.0, 0.5]}, "faces[0].levels_m: must rise from the lowest up"),
+    "boards text": ({**FACE, "levels_m": "x"}, "faces[0].levels_m: Input should be a valid list (got 'x')"),
+    "board below": ({**FACE, "levels_m": [-1.0]}, "faces[0].levels_m[0]: Input should be greater than or equal to 0"),
+    "aisle text": ({**FACE, "aisle": "1"}, "faces[0].aisle: Input should be a valid integer (got '1')"),
+    "side": ({**FACE, "side": "X"}, "faces[0].side: String should match pattern"),
+    "no front": ({k: v for k, v in FACE.items() if k != "front_z"}, "faces[0].front_z: Field required"),
+    "not a record": ([1], "faces[0]: Input should be a valid dictionary or instance of PlanFace"),
+}
+
+
+@pytest.mark.parametrize("fault", list(FACE_FAULTS))
+def test_a_route_face_breaking_its_schema_is_one_line(fault):
+    from stitching.building.route import parse_route
+
+    face, needle = FACE_FAULTS[fault]
+    doc = {"faces": [face], "passes": [{"sequence": "s", "aisle": 1, "side": "L",
+                                        "start": {"x": 0, "z": 1, "heading_deg": 90}}]}  # fmt: skip
+    with pytest.raises(InputError) as e:
+        parse_route(doc, "route.json")
+    assert str(e.value).startswith(f"route.json: {needle}") and "\n" not in str(e.value)
+
+
+def test_a_route_face_is_read_into_its_dataclass_unknown_keys_ignored():
+    from stitching.building.route import FacePlan, parse_route, plan_dict, plan_face
+
+    doc = {"faces": [{**FACE, "note": "x"}, {**FACE, "side": "R", "levels_m": None}],
+           "passes": [{"sequence": "s", "aisle": 1, "side": "L", "start": {"x": 0, "z": 1, "heading_deg": 90}}]}  # fmt: skip
+    faces = parse_route(doc, "route.json").faces
+    assert faces[1, "L"] == FacePlan(1, "L", 0.0, 0.0, 10.0, (0.1, 1.0))
+    assert faces[1, "R"].levels_m == ()
+    assert plan_face(plan_dict(faces[1, "L"])) == faces[1, "L"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from layouts.errors import InputError
-from mvracklay.settings import RunConfig, add_options
+from mvracklay.settings import ComputeSettings, OutputSettings, add_options, from_args
 from mvracklay.use_settings import MapSettings
 
 NAME = "map"
@@ -33,14 +33,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvracklay.building_job import MapJob, MapSettings, map_building, speed_line, summary
+    from mvracklay import building_job
+    from mvracklay.building_job import map_building, speed_line, summary
     from mvracklay.outputs import spawn_viewer
     from mvracklay.parallel import check_ray_address
-    from mvracklay.threads import resolve_threads
     from stitching.building.route import parse_pose_noise
 
-    if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.positions is not None and not 1 <= args.positions <= 99:
         raise InputError(f"--positions must be in [1, 99], got {args.positions}")
     if args.spawn and args.no_rrd:
@@ -48,19 +46,11 @@ def run(args: argparse.Namespace) -> int:
     if args.ray is not None:
         check_ray_address(args.ray)
     noise = parse_pose_noise(args.pose_noise) if args.pose_noise else None
-    run_cfg = {}
-    if args.layouts == "net":
-        threads = resolve_threads(args.threads)
-        if args.threads == "auto" and (args.ray is not None or args.workers > 1):
-            threads = 1 if args.ray is not None else max(1, threads // args.workers)  # a task per CPU
-        run_cfg = {"checkpoint": args.checkpoint, "distance": args.distance, "camera_height": args.camera_height,
-                   "device": args.device, "threads": threads}  # fmt: skip
-        RunConfig(**run_cfg).validate()
-    settings = MapSettings(layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed, code=args.code,
-                           positions=args.positions, locations=args.locations)  # fmt: skip
-    job = MapJob(workers=args.workers, ray=args.ray, rrd=not args.no_rrd, progress=not args.quiet,
-                 overwrite=args.overwrite)  # fmt: skip
-    res = map_building(args.dataset, args.out, settings, job)
+    run_cfg = from_args(MapSettings, args).run if args.layouts == "net" else None
+    settings = building_job.MapSettings(layouts=args.layouts, run=run_cfg, pose_noise=noise, seed=args.seed,
+                                        code=args.code, positions=args.positions, locations=args.locations)  # fmt: skip
+    compute, outputs = from_args(ComputeSettings, args), from_args(OutputSettings, args)
+    res = map_building(args.dataset, args.out, settings, compute, outputs)
     print(summary(res))
     print(speed_line(res))
     print("wrote " + ", ".join(str(args.out / n) for n in res.written))

@@ -17,7 +17,18 @@ from dataclasses import dataclass, field, replace
 from typing import Annotated, Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictInt,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+)
+from pydantic_core import PydanticCustomError
 
 from layouts.errors import InputError, first_problem
 from layouts.fileio import load_json
@@ -28,7 +39,7 @@ Side = Annotated[str, Field(pattern="^[LR]$")]
 Level = Annotated[StrictInt, Field(ge=1, le=99)]
 
 
-def _rising(values: list[Any] | None) -> list[Any] | None:
+def _rising(values: Any) -> Any:
     """Levels or boards' heights: from the lowest up, each once (a repeated or turned-round list puts boxes on
     the wrong level)."""
     for a, b in zip(values or [], (values or [])[1:]):
@@ -57,32 +68,6 @@ class _Pass(BaseModel):
     _levels = field_validator("levels")(_rising)
 
 
-class PlanFace(BaseModel):
-    """A face of the floor plan (the route's ``faces``; a building map keeps them as its ``plan``)."""
-
-    model_config = ConfigDict(extra="ignore")
-    aisle: Aisle
-    side: Side
-    front_z: Finite
-    x_min: Finite | None = None
-    x_max: Finite | None = None
-    levels_m: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=100)]] | None = None
-
-    _levels = field_validator("levels_m")(_rising)
-
-    @model_validator(mode="after")
-    def _ends(self) -> PlanFace:
-        if self.x_min is not None and self.x_max is not None and self.x_min >= self.x_max:
-            raise ValueError(f"x_min {self.x_min} must lie below x_max {self.x_max}")
-        return self
-
-
-class _Route(BaseModel):
-    model_config = ConfigDict(extra="ignore")
-    faces: list[PlanFace] = Field(min_length=1)
-    passes: list[_Pass] = Field(min_length=1)
-
-
 class OnFace:
     """What the ``aisle`` and ``side`` of a face, or of a thing on one, give: its face's key and the sign of its
     face frame in the building."""
@@ -100,16 +85,55 @@ class OnFace:
         return 1.0 if self.side == "R" else -1.0
 
 
+def _boards(v: Any) -> Any:
+    """A face record's ``levels_m``: a list (null: unknown, none)."""
+    if v is None:
+        return ()
+    if not isinstance(v, (list, tuple)):
+        raise PydanticCustomError("list_type", "Input should be a valid list")
+    return v
+
+
+def _record(v: Any) -> Any:
+    """A face record: a JSON object (or a `FacePlan` already made)."""
+    if not isinstance(v, (dict, FacePlan)):
+        raise PydanticCustomError("model_type", "Input should be a valid dictionary or instance of PlanFace")
+    return v
+
+
+Board = Annotated[float, Field(allow_inf_nan=False, ge=0, le=100)]
+
+
 @dataclass(frozen=True)
 class FacePlan(OnFace):
-    """A face as the floor plan gives it: front line, extent along building X (None: unknown), board heights."""
+    """A face as the floor plan gives it: front line, extent along building X (None: unknown), board heights. Its
+    record (a route's ``faces`` entry, a building map's ``plan`` entry) is validated as this dataclass itself
+    (`PlanFace`, `plan_face`: unknown keys ignored)."""
 
-    aisle: int
-    side: str
-    front_z: float
-    x_min: float | None = None
-    x_max: float | None = None
-    levels_m: tuple[float, ...] = ()  #: boards' top heights above the floor, lowest first; () unknown
+    __pydantic_config__ = ConfigDict(extra="ignore")
+
+    aisle: Aisle
+    side: Side
+    front_z: Finite
+    x_min: Finite | None = None
+    x_max: Finite | None = None
+    #: boards' top heights above the floor, lowest first; () unknown
+    levels_m: Annotated[tuple[Board, ...], BeforeValidator(_boards), AfterValidator(_rising)] = ()
+
+    def __post_init__(self) -> None:
+        if self.x_min is not None and self.x_max is not None and self.x_min >= self.x_max:
+            raise ValueError(f"x_min {self.x_min} must lie below x_max {self.x_max}")
+
+
+#: a face record of the floor plan, validated as a `FacePlan`
+PlanFace = Annotated[FacePlan, BeforeValidator(_record)]
+_PLAN_FACE: TypeAdapter[FacePlan] = TypeAdapter(FacePlan)
+
+
+class _Route(BaseModel):
+    model_config = ConfigDict(extra="ignore")
+    faces: list[PlanFace] = Field(min_length=1)
+    passes: list[_Pass] = Field(min_length=1)
 
 
 @dataclass(frozen=True)
@@ -152,7 +176,7 @@ def parse_route(doc: Any, source: str = "route") -> Route:
     for f in r.faces:
         if (f.aisle, f.side) in faces:
             raise InputError(f"{source}: face {f.aisle:02d}-{f.side} is listed twice")
-        faces[(f.aisle, f.side)] = plan_face(f)
+        faces[(f.aisle, f.side)] = f
     passes, names = [], set()
     for k, p in enumerate(r.passes):
         face = faces.get((p.aisle, p.side))
@@ -177,10 +201,9 @@ def parse_route(doc: Any, source: str = "route") -> Route:
     return Route(faces, passes, source)
 
 
-def plan_face(f: PlanFace | dict[str, Any]) -> FacePlan:
+def plan_face(f: FacePlan | dict[str, Any]) -> FacePlan:
     """A face of the floor plan from its record (a route's ``faces`` entry, a building map's ``plan`` entry)."""
-    f = f if isinstance(f, PlanFace) else PlanFace.model_validate(f)
-    return FacePlan(f.aisle, f.side, f.front_z, f.x_min, f.x_max, tuple(f.levels_m or ()))
+    return f if isinstance(f, FacePlan) else _PLAN_FACE.validate_python(f)
 
 
 def plan_dict(f: FacePlan) -> dict[str, Any]:

@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, Validat
 from layouts.errors import ContractError, InputError, first_problem
 from layouts.location_changes import count_change
 from layouts.locations import NOT_SCANNED, check_code_format, location_code
-from stitching.building.route import Aisle, Level, PlanFace, Side
+from stitching.building.route import Aisle, FacePlan, Level, PlanFace, Side
 from stitching.map_schema import Coord, Count, MapDoc, Size, Unit, Yaw
 
 #: metres a mapped face's front line may differ from its floor plan's (rounding in the file)
@@ -141,7 +141,7 @@ class BuildingDoc(_Doc):
                 if unknown:
                     raise ValueError(f"{where}.passes: pass {unknown[0]!r} is not among the map's passes")
         if self.plan is not None:
-            planned: dict[tuple[int, str], PlanFace] = {}
+            planned: dict[tuple[int, str], FacePlan] = {}
             for i, pf in enumerate(self.plan):
                 if (pf.aisle, pf.side) in planned:
                     raise ValueError(f"plan[{i}]: face {_face(pf)} is listed twice")
