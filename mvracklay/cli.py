@@ -136,7 +136,12 @@ def _build(only: str | None) -> tuple[argparse.ArgumentParser, dict[str, argpars
             continue
         mod = importlib.import_module(info.module)
         p = sub.add_parser(info.name, description=getattr(mod, "DESCRIPTION", mod.HELP), formatter_class=HelpFormatter)
-        mod.add_arguments(p)
+        if hasattr(mod, "add_arguments"):
+            mod.add_arguments(p)
+        else:  # a command whose options its settings dataclass makes
+            from mvracklay.settings import add_options
+
+            add_options(p, mod.SETTINGS)
         p.set_defaults(_module=info.module, _run=mod.run)
         subparsers[info.name] = p
     return parser, subparsers

@@ -1,2 +1,3 @@
-"""CLI sub-commands. Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and
-``run(args) -> int``; `mvracklay.cli` discovers them, so adding a command touches one file."""
+"""CLI sub-commands. Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` (or ``SETTINGS``, the
+settings dataclass its options are made from) and ``run(args) -> int``; `mvracklay.cli` discovers them, so adding
+a command touches one file."""

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
 from mvracklay.command_settings import EvalReconstructionSettings
-from mvracklay.settings import add_options
 
 NAME = "eval-reconstruction"
 HELP = "reconstruct sequences and score them against the generator's ground-truth cuboids"
@@ -20,13 +17,7 @@ DESCRIPTION = (
 )
 GROUP = "models"
 ORDER = 33
-
-
 SETTINGS = EvalReconstructionSettings
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_options(p, EvalReconstructionSettings)
 
 
 def run(args: EvalReconstructionSettings) -> int:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
 from mvracklay.command_settings import EvaluateSettings
-from mvracklay.settings import add_options
 
 NAME = "evaluate"
 HELP = "Table I metrics (top/front x rack/box, mIoU/mAP, averaged and pooled) of a checkpoint"
@@ -18,13 +15,7 @@ DESCRIPTION = (
 )
 GROUP = "models"
 ORDER = 31
-
-
 SETTINGS = EvaluateSettings
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_options(p, EvaluateSettings)
 
 
 def run(args: EvaluateSettings) -> int:

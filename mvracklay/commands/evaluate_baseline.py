@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
 from mvracklay.command_settings import EvaluateBaselineSettings
-from mvracklay.settings import add_options
 
 NAME = "evaluate-baseline"
 HELP = "Table I of the depth-projection baseline (ground-truth depth + masks, visible surfaces only)"
@@ -16,13 +13,7 @@ DESCRIPTION = (
 )
 GROUP = "models"
 ORDER = 32
-
-
 SETTINGS = EvaluateBaselineSettings
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_options(p, EvaluateBaselineSettings)
 
 
 def run(args: EvaluateBaselineSettings) -> int:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
 from mvracklay.command_settings import GenerateSettings
-from mvracklay.settings import add_options
 
 NAME = "generate"
 GROUP = "data"
@@ -22,10 +19,6 @@ DESCRIPTION = (
 
 
 SETTINGS = GenerateSettings
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_options(p, GenerateSettings)
 
 
 def run(args: GenerateSettings) -> int:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
 from mvracklay.models import DEFAULT_MODEL
-from mvracklay.settings import add_options
 from mvracklay.use_settings import PredictSettings
 
 NAME = "predict"
@@ -25,10 +22,6 @@ DESCRIPTION = (
 GROUP = "use"
 ORDER = 13
 SETTINGS = PredictSettings
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_options(p, PredictSettings)
 
 
 def run(args: PredictSettings) -> int:

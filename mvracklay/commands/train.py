@@ -12,19 +12,13 @@ from dataclasses import fields
 from pathlib import Path
 
 from layouts.errors import InputError
+from mvracklay.training import TRAIN_DESCRIPTION
 
 NAME = "train"
 GROUP = "models"
 HELP = "train the layout network, or run a training recipe of stages (--recipe smoke|default-128|budget-256|FILE)"
-DESCRIPTION = (
-    "Train a variant on the 'train' split of DATA, validating with the Table I metrics on the 'val' split "
-    "after every epoch. RUN receives last.pt / best.pt (+ .json records) and metrics.jsonl; --resume "
-    "continues an interrupted run (also after kill -9: --checkpoint-every N bounds the lost steps). "
-    "Under torchrun (torchrun --nproc_per_node=N -m mvracklay train ...) it trains with "
-    "DistributedDataParallel: gloo on CPU, NCCL on GPUs, each rank on its own share of the windows, "
-    "rank 0 writing checkpoints and metrics; see docs/distributed.md. "
-    "--export CKPT writes a fp16 weights-only copy of a checkpoint to --out. "
-    "--recipe NAME|FILE runs a recipe instead: the data it generates and its stages in order (training, "
+DESCRIPTION = TRAIN_DESCRIPTION + (
+    " --recipe NAME|FILE runs a recipe instead: the data it generates and its stages in order (training, "
     "calibrate, fit-back-edges, fit-uprights, fit-box-depth, graft, evaluate, ...) into --out; the same "
     "command again goes on at the stage it reached; --dry-run prints the stages and their arguments; "
     "see docs/training.md."

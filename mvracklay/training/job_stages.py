@@ -4,10 +4,6 @@ and ``eval-reconstruction`` call the library's jobs (`mvracklay.generate_job`, `
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
-
 from mvracklay.command_settings import (
     EvalReconstructionSettings,
     EvaluateBaselineSettings,
@@ -17,27 +13,17 @@ from mvracklay.command_settings import (
 from mvracklay.evaluate_job import evaluate, evaluate_baseline
 from mvracklay.generate_job import generate
 from mvracklay.reconstruction_eval import eval_reconstruction
+from mvracklay.training.stages import Stage
 
-
-@dataclass(frozen=True)
-class JobStage:
-    """A stage as a command module has it: ``NAME``, ``HELP``, ``SETTINGS`` (its options) and `run`."""
-
-    NAME: str
-    HELP: str
-    SETTINGS: type
-    run: Callable[[Any], int]
-
-
-GENERATE = JobStage("generate", "generate a WareSynth dataset (as mvracklay generate)", GenerateSettings, generate)
-EVALUATE = JobStage("evaluate", "Table I of a checkpoint (as mvracklay evaluate)", EvaluateSettings, evaluate)
-EVALUATE_BASELINE = JobStage(
+GENERATE = Stage("generate", "generate a WareSynth dataset (as mvracklay generate)", GenerateSettings, generate)
+EVALUATE = Stage("evaluate", "Table I of a checkpoint (as mvracklay evaluate)", EvaluateSettings, evaluate)
+EVALUATE_BASELINE = Stage(
     "evaluate-baseline",
     "Table I of the depth-projection baseline (as mvracklay evaluate-baseline)",
     EvaluateBaselineSettings,
     evaluate_baseline,
 )
-EVAL_RECONSTRUCTION = JobStage(
+EVAL_RECONSTRUCTION = Stage(
     "eval-reconstruction",
     "stitch sequences and score the maps against ground truth (as mvracklay eval-reconstruction)",
     EvalReconstructionSettings,

@@ -1,6 +1,6 @@
 """The small stages of a recipe: copy a checkpoint, export fp16 weights, check the held-out seeds, draw learning
-curves, run a Python module or script (benchmarks, tables). Each stage's options come from its settings
-dataclass (``SETTINGS``, `mvracklay.settings.add_options`)."""
+curves, run a Python module or script (benchmarks, tables). Each stage is a `mvracklay.training.stages.Stage`
+whose options come from its settings dataclass (``SETTINGS``, `mvracklay.settings.add_options`)."""
 
 from __future__ import annotations
 
@@ -9,24 +9,12 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from mvracklay.settings import setting
+from mvracklay.training.stages import Stage
 from network.training.curves import X_AXES
-
-
-class _Stage:
-    """A stage as a command module has it: ``NAME``, ``HELP``, ``SETTINGS`` (its options), ``run``."""
-
-    NAME = ""
-    HELP = ""
-    SETTINGS: type = object
-
-    @staticmethod
-    def run(args: Any) -> int:  # pragma: no cover - overridden
-        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -72,95 +60,100 @@ class PythonSettings:
     args: list[str] | None = setting("args", "its arguments (the recipe's args = [...])", nargs="*")
 
 
-class copy(_Stage):  # noqa: N801 - named as the stage
-    NAME = "copy"
-    HELP = "copy a checkpoint and its .json record (e.g. a run paused at a stage, before it goes on)"
-    SETTINGS = CopySettings
-
-    @staticmethod
-    def run(args: CopySettings) -> int:
-        if not args.src.is_file():
-            raise InputError(f"--from {args.src}: no such file")
-        args.dst.parent.mkdir(parents=True, exist_ok=True)
-        for src, dst in ((args.src.with_suffix(".json"), args.dst.with_suffix(".json")), (args.src, args.dst)):
-            if src.is_file():
-                atomic_write_bytes(dst, src.read_bytes())
-        print(f"wrote {args.dst}")
-        return 0
+def _copy(args: CopySettings) -> int:
+    if not args.src.is_file():
+        raise InputError(f"--from {args.src}: no such file")
+    args.dst.parent.mkdir(parents=True, exist_ok=True)
+    for src, dst in ((args.src.with_suffix(".json"), args.dst.with_suffix(".json")), (args.src, args.dst)):
+        if src.is_file():
+            atomic_write_bytes(dst, src.read_bytes())
+    print(f"wrote {args.dst}")
+    return 0
 
 
-class export(_Stage):  # noqa: N801
-    NAME = "export"
-    HELP = "write a checkpoint's model weights as fp16 (as train --export does)"
-    SETTINGS = ExportSettings
-
-    @staticmethod
-    def run(args: ExportSettings) -> int:
-        from network.checkpoint import export_weights
-
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        export_weights(args.checkpoint, args.out, note=args.note, discriminators=args.with_discriminators)
-        print(f"wrote {args.out} ({args.out.stat().st_size / 2**20:.1f} MiB, fp16)")
-        return 0
+COPY = Stage(
+    "copy",
+    "copy a checkpoint and its .json record (e.g. a run paused at a stage, before it goes on)",
+    CopySettings,
+    _copy,
+)
 
 
-class check_seeds(_Stage):  # noqa: N801
-    NAME = "check-seeds"
-    HELP = "refuse held-out sequence seeds that a training or the tuning set uses"
-    SETTINGS = CheckSeedsSettings
+def _export(args: ExportSettings) -> int:
+    from network.checkpoint import export_weights
 
-    @staticmethod
-    def run(args: CheckSeedsSettings) -> int:
-        def seeds(folder: Path) -> set[int]:
-            path = folder / "manifest.json"
-            if not path.is_file():
-                raise InputError(f"{folder}: no manifest.json (not a generated dataset)")
-            return {e["seed"] for e in json.loads(path.read_text())["sequences"]}
-
-        held, tune = seeds(args.heldout), seeds(args.tune)
-        used = set().union(*(seeds(f) for f in args.train))
-        if held & (used | tune):
-            raise InputError(f"{args.heldout}: held-out sequence seeds overlap a training or the tuning set")
-        print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)}) or tuning ({len(tune)})")
-        return 0
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    export_weights(args.checkpoint, args.out, note=args.note, discriminators=args.with_discriminators)
+    print(f"wrote {args.out} ({args.out.stat().st_size / 2**20:.1f} MiB, fp16)")
+    return 0
 
 
-class curves(_Stage):  # noqa: N801
-    NAME = "curves"
-    HELP = "draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG"
-    SETTINGS = CurvesSettings
-
-    @staticmethod
-    def run(args: CurvesSettings) -> int:
-        from network.training.curves import plot_curves
-
-        bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
-        if bad:
-            raise InputError(f"not LABEL=RUN_DIR: {bad[0]!r}")
-        plot_curves(dict(a.split("=", 1) for a in args.runs), args.out, x_key=X_AXES[args.x], x_from=args.x_from)
-        print(f"wrote {args.out}")
-        return 0
+EXPORT = Stage("export", "write a checkpoint's model weights as fp16 (as train --export does)", ExportSettings, _export)
 
 
-class python(_Stage):  # noqa: N801
-    NAME = "python"
-    HELP = "run a Python module (-m) or script with arguments; its output goes to the stage's log"
-    SETTINGS = PythonSettings
+def _check_seeds(args: CheckSeedsSettings) -> int:
+    def seeds(folder: Path) -> set[int]:
+        path = folder / "manifest.json"
+        if not path.is_file():
+            raise InputError(f"{folder}: no manifest.json (not a generated dataset)")
+        return {e["seed"] for e in json.loads(path.read_text())["sequences"]}
 
-    @staticmethod
-    def run(args: PythonSettings) -> int:
-        if (args.module is None) == (args.script is None):
-            raise InputError("give one of --module and --script")
-        if args.script is not None and not args.script.is_file():
-            raise InputError(f"--script {args.script}: no such file")
-        given = list(args.args or [])
-        rest = given[1:] if given[:1] == ["--"] else given
-        cmd = [sys.executable, *(["-m", args.module] if args.module else [str(args.script)]), *rest]
-        sys.stdout.flush()
-        done = subprocess.run(cmd, capture_output=True, text=True)
-        sys.stdout.write(done.stdout)
-        sys.stderr.write(done.stderr)
-        if done.returncode:
-            last = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
-            raise InputError(f"{' '.join(cmd[1:3])} exited with status {done.returncode}: {last}")
-        return 0
+    held, tune = seeds(args.heldout), seeds(args.tune)
+    used = set().union(*(seeds(f) for f in args.train))
+    if held & (used | tune):
+        raise InputError(f"{args.heldout}: held-out sequence seeds overlap a training or the tuning set")
+    print(f"held-out: {len(held)} sequence seeds, none used in training ({len(used)}) or tuning ({len(tune)})")
+    return 0
+
+
+CHECK_SEEDS = Stage(
+    "check-seeds",
+    "refuse held-out sequence seeds that a training or the tuning set uses",
+    CheckSeedsSettings,
+    _check_seeds,
+)
+
+
+def _curves(args: CurvesSettings) -> int:
+    from network.training.curves import plot_curves
+
+    bad = [a for a in args.runs if "=" not in a or not a.split("=", 1)[0]]
+    if bad:
+        raise InputError(f"not LABEL=RUN_DIR: {bad[0]!r}")
+    plot_curves(dict(a.split("=", 1) for a in args.runs), args.out, x_key=X_AXES[args.x], x_from=args.x_from)
+    print(f"wrote {args.out}")
+    return 0
+
+
+CURVES = Stage(
+    "curves",
+    "draw runs' validation mIoU (top/front x rack/box) against training time or steps as a PNG",
+    CurvesSettings,
+    _curves,
+)
+
+
+def _python(args: PythonSettings) -> int:
+    if (args.module is None) == (args.script is None):
+        raise InputError("give one of --module and --script")
+    if args.script is not None and not args.script.is_file():
+        raise InputError(f"--script {args.script}: no such file")
+    given = list(args.args or [])
+    rest = given[1:] if given[:1] == ["--"] else given
+    cmd = [sys.executable, *(["-m", args.module] if args.module else [str(args.script)]), *rest]
+    sys.stdout.flush()
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    sys.stdout.write(done.stdout)
+    sys.stderr.write(done.stderr)
+    if done.returncode:
+        last = (done.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise InputError(f"{' '.join(cmd[1:3])} exited with status {done.returncode}: {last}")
+    return 0
+
+
+PYTHON = Stage(
+    "python",
+    "run a Python module (-m) or script with arguments; its output goes to the stage's log",
+    PythonSettings,
+    _python,
+)

@@ -1,6 +1,6 @@
 """The stages a recipe of ``mvracklay train`` names, each with its own option parser.
 
-Every stage is a module (or object) with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(settings)``, as
+Every stage is a module (or a `Stage` object) with ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(settings)``, as
 a command of the CLI has; the fitting and calibration stages were commands of their own once, and take the same
 options; the stages named as commands run the library's jobs the commands run (`mvracklay.training.job_stages`),
 never a command module (only the CLI imports those). A stage with ``SETTINGS`` (a settings dataclass in the style of `mvracklay.settings`: each
@@ -17,7 +17,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
 
@@ -33,11 +34,11 @@ STAGE_MODULES: dict[str, str] = {
     "fit-distance": "mvracklay.training.fit_distance",
     "fit-look": "mvracklay.training.fit_look",
     "graft": "mvracklay.training.graft",
-    "copy": "mvracklay.training.small_stages:copy",
-    "export": "mvracklay.training.small_stages:export",
-    "check-seeds": "mvracklay.training.small_stages:check_seeds",
-    "curves": "mvracklay.training.small_stages:curves",
-    "python": "mvracklay.training.small_stages:python",
+    "copy": "mvracklay.training.small_stages:COPY",
+    "export": "mvracklay.training.small_stages:EXPORT",
+    "check-seeds": "mvracklay.training.small_stages:CHECK_SEEDS",
+    "curves": "mvracklay.training.small_stages:CURVES",
+    "python": "mvracklay.training.small_stages:PYTHON",
     "budget": "mvracklay.training.budget",
     "generate": "mvracklay.training.job_stages:GENERATE",
     "evaluate": "mvracklay.training.job_stages:EVALUATE",
@@ -46,6 +47,17 @@ STAGE_MODULES: dict[str, str] = {
 }
 #: stages the runner itself carries out (they read the run's state, not options alone)
 RUNNER_STAGES = ("budget",)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A stage held as an object rather than a module, as a command module has it: ``NAME``, ``HELP``,
+    ``SETTINGS`` (its options) and `run` (on an instance of ``SETTINGS``)."""
+
+    NAME: str
+    HELP: str
+    SETTINGS: type
+    run: Callable[[Any], int]
 
 
 class StageParser(argparse.ArgumentParser):

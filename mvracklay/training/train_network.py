@@ -11,6 +11,7 @@ from pathlib import Path
 from layouts.errors import InputError
 from mvracklay.settings import ComputeSettings, same_as, setting
 from mvracklay.threads import resolve_threads
+from mvracklay.training import TRAIN_DESCRIPTION
 from network.device import DistEnv, device_for
 from network.model.config import DEFAULT_VARIANT, VARIANTS, ModelConfig
 from network.precision import cpu_has_native_bf16
@@ -21,15 +22,7 @@ from network.training.trainer import Trainer
 
 NAME = "train"
 HELP = "train the layout network on a WareSynth dataset (checkpoints, metrics, resume)"
-DESCRIPTION = (
-    "Train a variant on the 'train' split of DATA, validating with the Table I metrics on the 'val' split "
-    "after every epoch. RUN receives last.pt / best.pt (+ .json records) and metrics.jsonl; --resume "
-    "continues an interrupted run (also after kill -9: --checkpoint-every N bounds the lost steps). "
-    "Under torchrun (torchrun --nproc_per_node=N -m mvracklay train ...) it trains with "
-    "DistributedDataParallel: gloo on CPU, NCCL on GPUs, each rank on its own share of the windows, "
-    "rank 0 writing checkpoints and metrics; see docs/distributed.md. "
-    "--export CKPT writes a fp16 weights-only copy of a checkpoint to --out."
-)
+DESCRIPTION = TRAIN_DESCRIPTION
 
 
 _M, _T = ModelConfig(), TrainConfig()  # the defaults the options show
