@@ -11,17 +11,8 @@ from typing import Any
 import numpy as np
 
 from layouts.fileio import atomic_write_json, atomic_write_text
-from waresynth.exporters.common import (
-    EXPORT_VERSION,
-    check_split_name,
-    copy_file,
-    frame_stem,
-    progress_bar,
-    run_staged,
-    source_record,
-    split_names,
-)
-from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table
+from waresynth.exporters.common import EXPORT_VERSION, run_staged, source_record, split_frames, split_names
+from waresynth.exporters.objects import CATEGORIES
 
 
 def rle_counts(mask: np.ndarray) -> list[int]:
@@ -69,24 +60,16 @@ def _export_coco(dataset: Any, tmp: Path, progress: bool) -> dict:
     counts: dict[str, dict[str, int]] = {}
     image_id = ann_id = 0
     for split in split_names(dataset):
-        check_split_name(split, dataset.root)
-        seqs = dataset.sequences(split)
         images: list[dict[str, Any]] = []
         anns: list[dict[str, Any]] = []
         per_cat = dict.fromkeys(CATEGORIES, 0)
-        total = sum(s.num_frames for s in seqs)
-        frames = ((seq, i) for seq in seqs for i in range(seq.num_frames))
-        tables: dict[str, dict[int, InstanceInfo]] = {}
-        for seq, i in progress_bar(frames, total, f"export coco {split}", progress):
-            if seq.name not in tables:
-                tables[seq.name] = instance_table(seq)
+        for seq, i, stem, objects in split_frames(dataset, split, "coco", tmp, progress):
             image_id += 1
-            name = f"{frame_stem(seq.name, i)}.png"
-            copy_file(seq.rgb_path(i), tmp / "images" / split / name)
+            name = f"{stem}.png"
             images.append(
                 {"id": image_id, "file_name": name, "width": int(w), "height": int(h), "sequence": seq.name, "frame": i}
             )
-            for obj in frame_objects(seq, i, tables[seq.name]):
+            for obj in objects:
                 ann_id += 1
                 x0, y0, x1, y1 = obj.bbox
                 ann: dict[str, Any] = {

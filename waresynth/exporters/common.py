@@ -13,6 +13,7 @@ from tqdm import tqdm
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_bytes
 from layouts.publish import output_folder
+from waresynth.exporters.objects import FrameObject, InstanceInfo, frame_objects, instance_table
 
 #: version of the COCO and YOLO exports (`export.json`)
 EXPORT_VERSION = 1
@@ -37,6 +38,25 @@ def check_split_name(split: str, root: Path) -> str:
     if not split or not all(c.isalnum() or c in "_-" for c in split):
         raise InputError(f"{root}: split name {split!r} is not usable in file names")
     return split
+
+
+def split_frames(
+    dataset: Any, split: str, fmt: str, tmp: Path, progress: bool
+) -> Iterator[tuple[Any, int, str, list[FrameObject]]]:
+    """Every frame of ``split`` (its name checked, `check_split_name`) in order, behind the progress bar
+    ``export FMT SPLIT``: its image copied to ``tmp/images/SPLIT/STEM.png``, then ``(seq, index, STEM, its
+    annotated objects)`` (`frame_stem`, `waresynth.exporters.objects.frame_objects`)."""
+    check_split_name(split, dataset.root)
+    seqs = dataset.sequences(split)
+    total = sum(s.num_frames for s in seqs)
+    frames = ((seq, i) for seq in seqs for i in range(seq.num_frames))
+    tables: dict[str, dict[int, InstanceInfo]] = {}
+    for seq, i in progress_bar(frames, total, f"export {fmt} {split}", progress):
+        if seq.name not in tables:
+            tables[seq.name] = instance_table(seq)
+        stem = frame_stem(seq.name, i)
+        copy_file(seq.rgb_path(i), tmp / "images" / split / f"{stem}.png")
+        yield seq, i, stem, frame_objects(seq, i, tables[seq.name])
 
 
 def frame_stem(seq_name: str, index: int) -> str:

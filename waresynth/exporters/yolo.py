@@ -11,17 +11,8 @@ import numpy as np
 from scipy import ndimage
 
 from layouts.fileio import atomic_write_json, atomic_write_text
-from waresynth.exporters.common import (
-    EXPORT_VERSION,
-    check_split_name,
-    copy_file,
-    frame_stem,
-    progress_bar,
-    run_staged,
-    source_record,
-    split_names,
-)
-from waresynth.exporters.objects import CATEGORIES, InstanceInfo, frame_objects, instance_table, mask_bbox
+from waresynth.exporters.common import EXPORT_VERSION, run_staged, source_record, split_frames, split_names
+from waresynth.exporters.objects import CATEGORIES, mask_bbox
 
 
 def yolo_box(bbox: tuple[int, int, int, int], width: int, height: int) -> tuple[float, float, float, float]:
@@ -70,20 +61,11 @@ def _export_yolo(dataset: Any, tmp: Path, progress: bool, segments: bool = False
     splits = split_names(dataset)
     counts: dict[str, dict[str, int]] = {}
     for split in splits:
-        check_split_name(split, dataset.root)
-        seqs = dataset.sequences(split)
-        total = sum(s.num_frames for s in seqs)
-        frames = ((seq, i) for seq in seqs for i in range(seq.num_frames))
         listing: list[str] = []
         per_cat = dict.fromkeys(CATEGORIES, 0)
-        tables: dict[str, dict[int, InstanceInfo]] = {}
-        for seq, i in progress_bar(frames, total, f"export yolo {split}", progress):
-            if seq.name not in tables:
-                tables[seq.name] = instance_table(seq)
-            stem = frame_stem(seq.name, i)
-            copy_file(seq.rgb_path(i), tmp / "images" / split / f"{stem}.png")
+        for _, _, stem, objects in split_frames(dataset, split, "yolo", tmp, progress):
             lines = []
-            for obj in frame_objects(seq, i, tables[seq.name]):
+            for obj in objects:
                 if segments:
                     xy = np.clip(mask_polygon(obj.mask) / (w, h), 0.0, 1.0)
                     coords = " ".join(f"{v:.6f}" for v in xy.ravel())
