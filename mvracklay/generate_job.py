@@ -62,12 +62,8 @@ def generate(args: GenerateSettings) -> int:
             frames=args.frames,
             image_size=(size, size),
             spec=spec,
-            seed=args.seed,
-            config=config,
-            workers=args.workers,
-            overwrite=args.overwrite,
-            progress=not args.quiet,
             shard=shard,
+            **_written(args, config),
         ),
         tasks=tasks,
     )
@@ -92,6 +88,12 @@ def generate(args: GenerateSettings) -> int:
     return 0
 
 
+def _written(args: GenerateSettings, config: object) -> dict[str, object]:
+    """What a dataset and a building's passes are both generated with: seed, generator config, worker
+    processes, overwrite and progress."""
+    return dict(seed=args.seed, config=config, workers=args.workers, overwrite=args.overwrite, progress=not args.quiet)
+
+
 def _building(
     args: GenerateSettings, spec: LayoutSpec, given: dict[str, int], config: object, tasks: TaskMap | None
 ) -> int:
@@ -110,12 +112,8 @@ def _building(
         image_size=None if args.size is None else (args.size, args.size),
         spec=spec if args.rescan is None else given,
         rescan=args.rescan,
-        seed=args.seed,
-        config=config,
-        workers=args.workers,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
         tasks=tasks,
+        **_written(args, config),
     )
     from waresynth.dataset import open_dataset
 

@@ -53,6 +53,27 @@ class Cuboid:
         return np.vstack([top, bot])
 
 
+def stacks_of(shelf: dict) -> list[Cuboid]:
+    """A ``scene.json`` shelf's box stacks as world cuboids (the union of the boxes sharing ``stack_id``, a box
+    without one a stack of its own), in ``stack_id`` order: the ground truth the maps are scored on."""
+    groups: dict[str, list[dict]] = {}
+    for b in shelf.get("boxes", []):
+        groups.setdefault(str(b.get("stack_id", b.get("id"))), []).append(b)
+    out = []
+    for _, bs in sorted(groups.items()):
+        y0 = min(b["center"][1] - b["size"][1] / 2 for b in bs)
+        y1 = max(b["center"][1] + b["size"][1] / 2 for b in bs)
+        b0 = bs[0]
+        out.append(
+            Cuboid(
+                (float(b0["center"][0]), (y0 + y1) / 2, float(b0["center"][2])),
+                (float(b0["size"][0]), y1 - y0, float(b0["size"][2])),
+                float(b0.get("yaw", 0.0)),
+            )
+        )
+    return out
+
+
 def footprint_corners(cx: float, cz: float, w: float, d: float, yaw: float) -> np.ndarray:
     """Corners ``(4, 2)`` of a ``w x d`` rectangle at ``(cx, cz)`` whose width axis is ``(cos, sin) yaw``."""
     c, s = math.cos(yaw), math.sin(yaw)

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from layouts.errors import InputError
-from stitching.geometry import Cuboid, footprint_intersection, iou_matrix
+from stitching.geometry import Cuboid, footprint_intersection, iou_matrix, stacks_of
 from stitching.warehouse_map import WarehouseMap, origin_from_record
 
 
@@ -58,26 +58,6 @@ class EvalResult:
         d["count_accuracy"] = self.count_accuracy
         d["per_shelf"] = self.per_shelf
         return d
-
-
-def stacks_of(shelf: dict) -> list[Cuboid]:
-    """The shelf's stacks (union of boxes sharing ``stack_id``) as world cuboids."""
-    groups: dict[str, list[dict]] = {}
-    for b in shelf.get("boxes", []):
-        groups.setdefault(str(b.get("stack_id", b.get("id"))), []).append(b)
-    out = []
-    for _, bs in sorted(groups.items()):
-        y0 = min(b["center"][1] - b["size"][1] / 2 for b in bs)
-        y1 = max(b["center"][1] + b["size"][1] / 2 for b in bs)
-        b0 = bs[0]
-        out.append(
-            Cuboid(
-                (float(b0["center"][0]), (y0 + y1) / 2, float(b0["center"][2])),
-                (float(b0["size"][0]), y1 - y0, float(b0["size"][2])),
-                float(b0.get("yaw", 0.0)),
-            )
-        )
-    return out
 
 
 def _shift(c: Cuboid, o: tuple[float, float, float]) -> Cuboid:

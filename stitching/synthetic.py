@@ -21,6 +21,7 @@ from layouts.classes import BOX, SHELF
 from layouts.codecs import FrameLayouts
 from layouts.raster import fill_rect
 from layouts.spec import LayoutSpec
+from stitching.geometry import stacks_of
 
 
 @dataclass
@@ -104,37 +105,14 @@ def render_frame(scene: dict, spec: LayoutSpec, cam_x: float, levels: list[int])
             clear = min(shelf["clear_height"], spec.h_extent)
             fill_rect(top[r], spec, "top", (cx, rack["z_front"] + rack["depth"] / 2 - mid_z), (w, rack["depth"]), SHELF)
             fill_rect(front[r], spec, "front", (cx, clear / 2), (w, clear), SHELF)
-            for st in stacks(shelf):
-                c, s = math.cos(st["yaw"]), math.sin(st["yaw"])
-                bw, bh, bd = st["size"]
-                fill_rect(
-                    top[r], spec, "top", (st["center"][0] - cam_x, st["center"][2] - mid_z), (bw, bd), BOX, st["yaw"]
-                )
+            for st in stacks_of(shelf):
+                c, s = math.cos(st.yaw), math.sin(st.yaw)
+                bw, bh, bd = st.size
+                fill_rect(top[r], spec, "top", (st.center[0] - cam_x, st.center[2] - mid_z), (bw, bd), BOX, st.yaw)
                 ext = abs(c) * bw + abs(s) * bd
                 hh = min(bh, clear)
-                fill_rect(front[r], spec, "front", (st["center"][0] - cam_x, hh / 2), (ext, hh), BOX)
+                fill_rect(front[r], spec, "front", (st.center[0] - cam_x, hh / 2), (ext, hh), BOX)
     return FrameLayouts(top, front)
-
-
-def stacks(shelf: dict) -> list[dict]:
-    """A shelf's box stacks as cuboids (the union of boxes sharing ``stack_id``), world frame."""
-    groups: dict[str, list[dict]] = {}
-    for b in shelf["boxes"]:
-        groups.setdefault(b["stack_id"], []).append(b)
-    out = []
-    for sid, bs in sorted(groups.items()):
-        y0 = min(b["center"][1] - b["size"][1] / 2 for b in bs)
-        y1 = max(b["center"][1] + b["size"][1] / 2 for b in bs)
-        b0 = bs[0]
-        out.append(
-            {
-                "id": sid,
-                "center": [b0["center"][0], (y0 + y1) / 2, b0["center"][2]],
-                "size": [b0["size"][0], y1 - y0, b0["size"][2]],
-                "yaw": b0["yaw"],
-            }
-        )
-    return out
 
 
 def make_sequence(
