@@ -125,6 +125,15 @@ def threads_value(text: str) -> int | str:
         raise argparse.ArgumentTypeError(str(e).removeprefix("--threads ")) from None
 
 
+def check_counts(settings: object, *names: str) -> None:
+    """Refuse, in one line naming the option, the first of the fields ``names`` of ``settings`` (a command's or
+    stage's parsed options: thread counts, sequence counts, every N-th frame) that is below 1."""
+    for name in names:
+        value = getattr(settings, name)
+        if value < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+
+
 class DeprecatedAlias(argparse.Action):
     """An old option name still taken (out of ``--help``), with one line on stderr naming the one to use."""
 

@@ -11,7 +11,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
-from mvracklay.options import FLIP_HELP
+from mvracklay.options import FLIP_HELP, check_counts
 from mvracklay.settings import json_out_setting, quiet_setting, setting
 from network.checkpoint import load_checkpoint, model_from, save_checkpoint
 from network.training.calibrate import GRID, fit_box_offsets, fit_rack_depth_offset
@@ -65,10 +65,7 @@ SETTINGS = CalibrateSettings
 def run(args: CalibrateSettings) -> int:
     from network.training.train_data import open_data
 
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
-    if args.every < 1:
-        raise InputError(f"--every must be >= 1, got {args.every}")
+    check_counts(args, "threads", "every")
     torch.set_num_threads(args.threads)
     payload, record = load_checkpoint(args.checkpoint)
     model = model_from(payload, record, args.checkpoint)

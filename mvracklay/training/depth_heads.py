@@ -11,6 +11,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from mvracklay.options import check_counts
 from mvracklay.settings import json_out_setting, precision_setting, quiet_setting, setting
 from network.model.frozen import trunk_precision, use_precision
 
@@ -92,10 +93,7 @@ def run_fit(args: Any, cfg: Any, fit: Callable[..., Any], source: str, flag: str
     from network.checkpoint import load_checkpoint, model_from, save_with_head
     from network.training.train_data import open_data
 
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
-    if args.sequences < 1:
-        raise InputError(f"--sequences must be >= 1, got {args.sequences}")
+    check_counts(args, "threads", "sequences")
     cfg = replace(cfg, epochs=args.epochs, every=args.every, seed=args.seed)
     cfg.validate()
     torch.set_num_threads(args.threads)

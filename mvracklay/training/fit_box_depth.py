@@ -9,6 +9,7 @@ import torch
 
 from layouts.errors import InputError
 from layouts.fileio import atomic_write_json, nan_to_null
+from mvracklay.options import check_counts
 from mvracklay.settings import json_out_setting, precision_setting, quiet_setting, setting
 from mvracklay.training.depth_heads import jpeg_quality_setting, jpeg_record, jpeg_share_setting, training_sequences
 from network.heads.boxdepth import BOX_WIDTH
@@ -137,10 +138,7 @@ def run(args: FitBoxDepthSettings) -> int:
     from network.training.fit_box_depth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
-    if args.threads < 1:
-        raise InputError(f"--threads must be >= 1, got {args.threads}")
-    if args.sequences < 1:
-        raise InputError(f"--sequences must be >= 1, got {args.sequences}")
+    check_counts(args, "threads", "sequences")
     if args.cache_dir is not None and not args.cache_dir.is_dir():
         raise InputError(f"--cache-dir {args.cache_dir}: not a folder")
     if args.keep_cache is not None and args.keep_cache.exists() and not args.keep_cache.is_dir():
