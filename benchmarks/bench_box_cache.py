@@ -34,7 +34,7 @@ from mvracklay.models import checkpoint_arg  # noqa: E402
 from mvracklay.settings import ComputeSettings, add_options  # noqa: E402
 from network.checkpoint import load_checkpoint, model_from  # noqa: E402
 from network.model.frozen import trunk_precision, use_precision  # noqa: E402
-from network.training.box_cache import FrameChoice, cache_part  # noqa: E402
+from network.training.box_cache import FrameChoice, StreamedPass, cache_part  # noqa: E402
 from network.training.fit_box_depth import with_box_head  # noqa: E402
 from network.training.train_data import open_data  # noqa: E402
 from waresynth.visibility import SeenTracker  # noqa: E402
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(args.repeats):
             with tempfile.TemporaryDirectory(prefix="bench-box-cache-") as tmp:
                 t = time.perf_counter()
-                caches = cache_part(model, seqs, SeenTracker, Path(tmp), False, choice, args.workers)[0]
+                caches = cache_part(StreamedPass(model, SeenTracker, choice, False, args.workers), seqs, Path(tmp))[0]
                 dt = time.perf_counter() - t
                 slots = sum(len(c) for c in caches)
                 del caches  # the memory maps closed before the folder goes

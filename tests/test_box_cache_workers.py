@@ -10,6 +10,7 @@ import runpy
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -20,7 +21,15 @@ import torch
 from layouts.errors import InputError
 from mvracklay.training.stages import run_stage
 from network.checkpoint import load_checkpoint, load_model
-from network.training.box_cache import CACHE_FIELDS, FrameChoice, cache_inputs, cache_part, shard_name, split_contiguous
+from network.training.box_cache import (
+    CACHE_FIELDS,
+    FrameChoice,
+    StreamedPass,
+    cache_inputs,
+    cache_part,
+    shard_name,
+    split_contiguous,
+)
 from network.training.fit_box_depth import with_box_head
 from network.training.kept_box_cache import part_name
 from waresynth.dataset import open_dataset
@@ -49,14 +58,13 @@ def test_a_pass_split_over_processes_gives_the_inputs_of_one_pass(tiny_checkpoin
     (tmp_path / "one").mkdir()
     one = cache_inputs(model, seqs, SeenTracker, tmp_path / "one", progress=False, choice=choice)
     for workers in (2, 3):
-        caches, counts, streamed = cache_part(
-            model, seqs, SeenTracker, tmp_path / f"w{workers}", False, choice, workers
-        )
+        job = StreamedPass(model, SeenTracker, choice, progress=False, workers=workers)
+        caches, counts, streamed = cache_part(job, seqs, tmp_path / f"w{workers}")
         assert counts is not None and len(counts) == workers and sum(counts) == len(one) and streamed == len(seqs)
         assert sorted(p.name for p in (tmp_path / f"w{workers}").iterdir()) == [shard_name(k) for k in range(workers)]
         for k in CACHE_FIELDS:
             np.testing.assert_array_equal(np.concatenate([np.asarray(getattr(c, k)) for c in caches]), getattr(one, k))
-    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "w1", False, choice, 1)
+    caches, counts, streamed = cache_part(StreamedPass(model, SeenTracker, choice, False), seqs, tmp_path / "w1")
     assert counts is None and len(caches) == 1 and len(caches[0]) == len(one) and streamed == len(seqs)
 
 
@@ -68,15 +76,16 @@ def test_a_pass_past_its_deadline_streams_each_process_s_first_sequence_only(tin
     (tmp_path / "first").mkdir()
     first = cache_inputs(model, seqs[:1], SeenTracker, tmp_path / "first", progress=False, choice=choice)
     past = time.monotonic()
-    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "one", False, choice, 1, past)
+    job = StreamedPass(model, SeenTracker, choice, progress=False, deadline=past)
+    caches, counts, streamed = cache_part(job, seqs, tmp_path / "one")
     assert (counts, streamed) == (None, 1)
     for k in CACHE_FIELDS:  # the first sequence's inputs, nothing after it
         np.testing.assert_array_equal(np.asarray(getattr(caches[0], k)), getattr(first, k))
-    caches, counts, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "two", False, choice, 2, past)
+    caches, counts, streamed = cache_part(replace(job, workers=2), seqs, tmp_path / "two")
     runs = split_contiguous(seqs, 2, choice)
     assert streamed == 2 and len(runs) == 2 and max(map(len, runs)) > 1  # a shard of two stopped after its first
     assert counts is not None and counts[0] == len(first)
-    _, _, streamed = cache_part(model, seqs, SeenTracker, tmp_path / "late", False, choice, 2, past + 3600)
+    _, _, streamed = cache_part(replace(job, workers=2, deadline=past + 3600), seqs, tmp_path / "late")
     assert streamed == len(seqs)  # a deadline not reached stops nothing
 
 
@@ -105,7 +114,7 @@ def test_a_failing_process_stops_the_pass_with_one_line(tiny_checkpoint, tiny_da
         return SeenTracker(seq)
 
     with pytest.raises(InputError) as err:
-        cache_part(model, seqs, labels, tmp_path, False, FrameChoice(), 2)
+        cache_part(StreamedPass(model, labels, progress=False, workers=2), seqs, tmp_path)
     msg = str(err.value)
     assert "\n" not in msg and shard_name(1) in msg and "no instance file for this one" in msg
 

@@ -134,7 +134,7 @@ SETTINGS = FitBoxDepthSettings
 
 def run(args: FitBoxDepthSettings) -> int:
     from network.checkpoint import load_checkpoint, model_from, save_with_head
-    from network.training.box_cache import FrameChoice
+    from network.training.box_cache import FrameChoice, StreamedPass
     from network.training.fit_box_depth import box_head_config, check_pass_minutes, fit_box_depth, keep_box_inputs
     from waresynth.visibility import SeenTracker
 
@@ -160,11 +160,9 @@ def run(args: FitBoxDepthSettings) -> int:
     use_precision(model, args.precision)  # the streamed pass's trunk (a kept cache records it)
     train = training_sequences(args)
     SeenTracker(train[0])  # fails at once, not after an hour, when the data lack depth, instance or scene files
+    job = StreamedPass(model, SeenTracker, choice, progress=not args.quiet, workers=args.cache_workers)
     if args.cache_only:
-        summary = keep_box_inputs(
-            model, train, SeenTracker, args.keep_cache, progress=not args.quiet, parallax=args.parallax,
-            choice=choice, workers=args.cache_workers,
-        )  # fmt: skip
+        summary = keep_box_inputs(job, train, args.keep_cache, parallax=args.parallax)
         state = "found" if summary["cache_reused"] == summary["cache_parts"] else "made"
         print(
             f"{state} the inputs of {summary['train_slots']} shelf slots of {summary['train_sequences']} sequences "
@@ -174,8 +172,7 @@ def run(args: FitBoxDepthSettings) -> int:
             atomic_write_json(args.json_out, nan_to_null(summary))
         return 0
     head, summary = fit_box_depth(
-        model, train, SeenTracker, cfg, args.cache_dir, progress=not args.quiet, parallax=args.parallax,
-        keep_cache=args.keep_cache, choice=choice, workers=args.cache_workers,
+        job, train, cfg, args.cache_dir, parallax=args.parallax, keep_cache=args.keep_cache,
         pass_minutes=args.pass_minutes, width=args.head_width, front=args.front,
     )  # fmt: skip
     print(

@@ -4,8 +4,8 @@ One streamed pass of the frozen model over the training sequences (`HeadInputPre
 gives each frame's head inputs per valid slot; they are cached on disk (memory-mapped: a thousand scenes
 are ~4 GB of fp16 windows) with the targets from the generator's ground truth (`column_targets`): per
 model column the truth's box back and front behind the rack front and whether the frame shows that
-stack's depth. `FrameChoice` names which frames of each sequence are streamed and kept. `cache_part`
-splits a pass over processes of one thread each (``workers``): the pass is one frame after another, so
+stack's depth. `FrameChoice` names which frames of each sequence are streamed and kept, `StreamedPass` how
+they are streamed. `cache_part` splits a pass over processes of one thread each (``workers``): the pass is one frame after another, so
 two single-thread processes stream nearly twice the frames of one process on two threads. A pass can
 also stop at a ``deadline``: inside a training budget the head then takes as many scenes as the machine
 streams in the minutes left. Caches kept between fits: `network.training.kept_box_cache`.
@@ -161,6 +161,22 @@ class FrameChoice:
 ALL_FRAMES = FrameChoice()
 
 
+@dataclass(frozen=True)
+class StreamedPass:
+    """How the head's inputs are streamed: through ``model`` (frozen, with the head), ``labels(seq)`` saying
+    what each frame shows (an object with ``add(i)`` and ``labels(i)``, frames in order, e.g.
+    `waresynth.visibility.SeenTracker`), the frames ``choice`` names, with a progress bar or not, over
+    ``workers`` processes of one torch thread each (`cache_part`), no sequence but each process's first
+    started after ``deadline`` (a `time.monotonic` time; None: no limit)."""
+
+    model: MVRackLay
+    labels: Callable[[Any], Any]
+    choice: FrameChoice = ALL_FRAMES
+    progress: bool = True
+    workers: int = 1
+    deadline: float | None = None
+
+
 def cache_inputs(
     model: MVRackLay,
     seqs: list[Any],
@@ -170,42 +186,16 @@ def cache_inputs(
     choice: FrameChoice = ALL_FRAMES,
 ) -> Cache:
     """Streams the frames of ``seqs`` ``choice`` names (all by default) through ``model`` (it has the head) and
-    memory-maps the head's inputs and targets in ``folder``. ``labels(seq)``: an object with ``add(i)`` and
-    ``labels(i)`` (frames in order)."""
-    return timed_inputs(model, seqs, labels, folder, progress, choice)[0]
-
-
-def timed_inputs(
-    model: MVRackLay,
-    seqs: list[Any],
-    labels: Callable[[Any], Any],
-    folder: Path,
-    progress: bool = True,
-    choice: FrameChoice = ALL_FRAMES,
-    deadline: float | None = None,
-) -> tuple[Cache, int]:
-    """`cache_inputs`, no sequence started after ``deadline`` (a `time.monotonic` time; the first is always
-    streamed), and how many sequences were streamed."""
-    bar = tqdm(total=sum(choice.streamed(s) for s in seqs), desc="box depth: cache", unit="frame", disable=not progress)
-    data, streamed = stream_slots(model, seqs, labels, folder, choice, lambda: bar.update(1), deadline)
-    bar.close()
-    if data is None:
-        raise InputError(NO_SLOTS)
-    return data, streamed
+    memory-maps the head's inputs and targets in ``folder`` (one pass, `StreamedPass`, `cache_part`)."""
+    return cache_part(StreamedPass(model, labels, choice, progress), seqs, folder)[0][0]
 
 
 def stream_slots(
-    model: MVRackLay,
-    seqs: list[Any],
-    labels: Callable[[Any], Any],
-    folder: Path,
-    choice: FrameChoice,
-    tick: Callable[[], None],
-    deadline: float | None = None,
+    job: StreamedPass, seqs: list[Any], folder: Path, tick: Callable[[], None]
 ) -> tuple[Cache | None, int]:
-    """`cache_inputs`' pass (``tick()`` after each frame; no sequence but the first started after
-    ``deadline``, a `time.monotonic` time): the cache (None when no kept frame has a valid slot) and how many
-    sequences it streamed."""
+    """One process's pass over ``seqs`` into ``folder`` (``tick()`` after each frame; ``job.workers`` not read):
+    the cache (None when no kept frame has a valid slot) and how many sequences it streamed."""
+    model, choice, deadline = job.model, job.choice, job.deadline
     r, d = model.cfg.spec.num_slots, model.cfg.spec.size
     cap = sum(choice.streamed(s) for s in seqs) * r  # an upper bound on the valid slots
     arrays: dict[str, np.ndarray] = {}
@@ -215,7 +205,7 @@ def stream_slots(
             break
         streamed += 1
         camera = sequence_camera(seq)
-        seen = labels(seq)
+        seen = job.labels(seq)
         depth = float(seq.scene()["row"]["depth"])
         pred = HeadInputPredictor(  # each frame's own layouts; no plane sweeps for the frames whose slots are not kept
             model, camera, read_depth=False, box_inputs_from=choice.from_frame, fuse_tau=0,
@@ -263,15 +253,7 @@ def split_contiguous(seqs: list[Any], count: int, choice: FrameChoice) -> list[l
     return [seqs[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
 
 
-def _shard_worker(
-    model: MVRackLay,
-    seqs: list[Any],
-    labels: Callable[[Any], Any],
-    folder: Path,
-    choice: FrameChoice,
-    counter: Any,
-    deadline: float | None,
-) -> None:
+def _shard_worker(job: StreamedPass, seqs: list[Any], folder: Path, counter: Any) -> None:
     """One process of `cache_part`: one torch thread, its shard's slots, then its record."""
     torch.set_num_threads(1)
 
@@ -280,7 +262,7 @@ def _shard_worker(
             counter.value += 1
 
     try:
-        data, streamed = stream_slots(model, seqs, labels, folder, choice, tick, deadline)
+        data, streamed = stream_slots(job, seqs, folder, tick)
         rec: dict[str, Any] = {"slots": 0 if data is None else len(data), "sequences": streamed}
     except Exception as e:  # noqa: BLE001 - reported by the parent as one line
         rec = {"error": f"{type(e).__name__}: {e}"}
@@ -301,26 +283,24 @@ def open_shard(folder: Path, n: int) -> Cache | None:
     return Cache(*arrays)
 
 
-def cache_part(
-    model: MVRackLay,
-    seqs: list[Any],
-    labels: Callable[[Any], Any],
-    folder: Path,
-    progress: bool = True,
-    choice: FrameChoice = ALL_FRAMES,
-    workers: int = 1,
-    deadline: float | None = None,
-) -> tuple[list[Cache], list[int] | None, int]:
-    """``(caches, shard_slots, streamed)``: `cache_inputs` over ``seqs`` into ``folder``, or, with ``workers``
-    > 1, split into that many contiguous shards streamed by forked processes of one torch thread each
-    (``folder/shard-K``; their slots in the order of ``seqs``, as one pass would give them; one pass where the
-    platform cannot fork or there is one sequence). ``shard_slots``: each shard's slot count (None for one
-    pass). ``deadline`` (a `time.monotonic` time): no process starts a sequence after it but its first, so each
-    shard holds a leading run of its sequences; ``streamed`` counts the sequences streamed in all."""
+def cache_part(job: StreamedPass, seqs: list[Any], folder: Path) -> tuple[list[Cache], list[int] | None, int]:
+    """``(caches, shard_slots, streamed)``: the head's inputs of ``seqs`` streamed as ``job`` says into
+    ``folder``, in one pass, or, with ``job.workers`` > 1, split into that many contiguous shards streamed by
+    forked processes of one torch thread each (``folder/shard-K``; their slots in the order of ``seqs``, as one
+    pass would give them; one pass where the platform cannot fork or there is one sequence). ``shard_slots``:
+    each shard's slot count (None for one pass). With ``job.deadline`` no process starts a sequence after it
+    but its first, so each shard holds a leading run of its sequences; ``streamed`` counts the sequences
+    streamed in all."""
+    choice, progress = job.choice, job.progress
     folder.mkdir(parents=True, exist_ok=True)
-    runs = split_contiguous(seqs, workers, choice) if workers > 1 else [seqs]
+    runs = split_contiguous(seqs, job.workers, choice) if job.workers > 1 else [seqs]
     if len(runs) < 2 or "fork" not in mp.get_all_start_methods():
-        data, streamed = timed_inputs(model, seqs, labels, folder, progress, choice, deadline)
+        total = sum(choice.streamed(s) for s in seqs)
+        bar = tqdm(total=total, desc="box depth: cache", unit="frame", disable=not progress)
+        data, streamed = stream_slots(job, seqs, folder, lambda: bar.update(1))
+        bar.close()
+        if data is None:
+            raise InputError(NO_SLOTS)
         return [data], None, streamed
     ctx = mp.get_context("fork")  # the model and the label factory are inherited, nothing is pickled
     counter = ctx.Value("q", 0)
@@ -329,8 +309,7 @@ def cache_part(
         sub.mkdir(parents=True, exist_ok=True)
         (sub / SHARD_RECORD).unlink(missing_ok=True)
     procs = [
-        ctx.Process(target=_shard_worker, args=(model, run, labels, sub, choice, counter, deadline), daemon=True)
-        for run, sub in zip(runs, dirs)
+        ctx.Process(target=_shard_worker, args=(job, run, sub, counter), daemon=True) for run, sub in zip(runs, dirs)
     ]
     total = sum(choice.streamed(s) for s in seqs)
     bar = tqdm(total=total, desc=f"box depth: cache ({len(procs)} processes)", unit="frame", disable=not progress)

@@ -14,7 +14,6 @@ import contextlib
 import math
 import tempfile
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -29,7 +28,7 @@ from network.heads.boxdepth import BIN_STEP, BINS, BOX_WIDTH, FRONT_BINS, FRONT_
 from network.model.config import ModelConfig
 from network.model.net import MVRackLay
 from network.precision import check_precision, forward_autocast
-from network.training.box_cache import ALL_FRAMES, Cache, Chain, FrameChoice, cache_part
+from network.training.box_cache import Cache, Chain, StreamedPass, cache_part
 from network.training.kept_box_cache import by_folder, kept_cache
 
 
@@ -141,27 +140,23 @@ def two_hot_ce(logits: torch.Tensor, target: torch.Tensor, bins: torch.Tensor, s
 
 
 def fit_box_depth(
-    model: MVRackLay,
+    job: StreamedPass,
     train: list[Any],
-    labels: Callable[[Any], Any],
     cfg: FitConfig,
     cache_dir: Path | None = None,
-    progress: bool = True,
     parallax: bool = False,
     keep_cache: Path | None = None,
-    choice: FrameChoice = ALL_FRAMES,
-    workers: int = 1,
     pass_minutes: float | None = None,
     width: int = BOX_WIDTH,
     front: bool = False,
 ) -> tuple[BoxDepthHead, dict[str, Any]]:
-    """A fitted head for ``model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
+    """A fitted head for ``job.model`` (its trunk unchanged; ``parallax``: the head also reads plane-sweep maps,
     `network.heads.boxdepth.ParallaxHistory`; ``width``, ``front``: `BoxDepthHead`'s) and a summary for the
-    checkpoint's record. The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the
-    end, or in ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk
-    (`kept_cache`): heads of other seeds, epochs or designs, or on more data, skip the passes already made.
-    ``choice``: which frames of each sequence are streamed and kept (`FrameChoice`; all by default);
-    ``workers``: processes of one thread each that share the streamed pass (`cache_part`); ``pass_minutes``:
+    checkpoint's record, its inputs streamed as ``job`` says (`StreamedPass`: which frames of each sequence,
+    how many processes of one thread each share the pass; its ``deadline`` is set here from ``pass_minutes``).
+    The cache lives in a temporary folder (under ``cache_dir`` if given) removed at the end, or in
+    ``keep_cache``, kept one part per dataset folder and reused by a later fit of the same trunk (`kept_cache`):
+    heads of other seeds, epochs or designs, or on more data, skip the passes already made. ``pass_minutes``:
     no sequence is started that many minutes after the pass began (each process streams at least one), and
     the head is fitted on those streamed by then (not with ``keep_cache``: what such a pass holds depends on the
     machine, and a kept cache is keyed on its sequences)."""
@@ -169,22 +164,22 @@ def fit_box_depth(
     check_pass_minutes(pass_minutes, keep_cache)
     t0 = time.perf_counter()
     check_width(width)
-    model = _ready(model, train, choice, workers, parallax, width, front)
+    job = _ready(job, train, parallax, width, front)
     streamed = len(train)
     with contextlib.ExitStack() as stack:
         if keep_cache is None:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="box-depth-", dir=cache_dir))
             deadline = None if pass_minutes is None else time.monotonic() + 60 * pass_minutes
-            caches, _, streamed = cache_part(model, train, labels, Path(tmp), progress, choice, workers, deadline)
+            caches, _, streamed = cache_part(replace(job, deadline=deadline), train, Path(tmp))
             data, reused = Chain(caches), 0
         else:
-            data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
+            data, reused = kept_cache(job, train, Path(keep_cache))
         t1 = time.perf_counter()
         torch.manual_seed(cfg.seed)
         first = data.parts[0]
         head = BoxDepthHead(first.win.shape[1], first.extra.shape[1], width=width, front=front)
-        losses = train_head(head, data, cfg, progress)
-        summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
+        losses = train_head(head, data, cfg, job.progress)
+        summary = _summary(data, train, job, parallax, reused)
         del data, first  # the memory maps closed before the temporary folder goes
     if pass_minutes is not None:
         summary.update(train_sequences=streamed, sequences_given=len(train), pass_minutes=pass_minutes)
@@ -196,23 +191,14 @@ def fit_box_depth(
     return head, summary
 
 
-def keep_box_inputs(
-    model: MVRackLay,
-    train: list[Any],
-    labels: Callable[[Any], Any],
-    keep_cache: Path,
-    progress: bool = True,
-    parallax: bool = False,
-    choice: FrameChoice = ALL_FRAMES,
-    workers: int = 1,
-) -> dict[str, Any]:
+def keep_box_inputs(job: StreamedPass, train: list[Any], keep_cache: Path, parallax: bool = False) -> dict[str, Any]:
     """Only the streamed pass of `fit_box_depth`, kept in ``keep_cache`` (`kept_cache`) for later fits of the
     same checkpoint: the pass can then take every core and the fit one thread beside other work. Returns the
     summary of the cache (slots, shown fraction, minutes)."""
     t0 = time.perf_counter()
-    model = _ready(model, train, choice, workers, parallax)
-    data, reused = kept_cache(model, train, labels, Path(keep_cache), progress, choice, workers)
-    summary = _summary(data, train, choice, parallax, reused, workers, model.graph_precision)
+    job = _ready(job, train, parallax)
+    data, reused = kept_cache(job, train, Path(keep_cache))
+    summary = _summary(data, train, job, parallax, reused)
     del data
     return {**summary, "cache_minutes": (time.perf_counter() - t0) / 60}
 
@@ -238,15 +224,11 @@ def check_pass_minutes(pass_minutes: float | None, keep_cache: Path | None) -> N
 
 
 def _ready(
-    model: MVRackLay,
-    train: list[Any],
-    choice: FrameChoice,
-    workers: int,
-    parallax: bool,
-    width: int = BOX_WIDTH,
-    front: bool = False,
-) -> MVRackLay:
-    """The checks shared by `fit_box_depth` and `keep_box_inputs`; ``model`` given a fresh head to read with."""
+    job: StreamedPass, train: list[Any], parallax: bool, width: int = BOX_WIDTH, front: bool = False
+) -> StreamedPass:
+    """The checks shared by `fit_box_depth` and `keep_box_inputs`; ``job`` with its model given a fresh head
+    to read with."""
+    choice, workers = job.choice, job.workers
     choice.validate()
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InputError(f"--cache-workers must be a positive integer, got {workers!r}")
@@ -255,13 +237,12 @@ def _ready(
     longest = max(choice.streamed(s) for s in train)
     if choice.from_frame >= longest:
         raise InputError(f"--from-frame {choice.from_frame}: the training sequences stream at most {longest} frames")
-    return with_box_head(model, parallax, width, front)
+    return replace(job, model=with_box_head(job.model, parallax, width, front))
 
 
-def _summary(
-    data: Chain, train: list[Any], choice: FrameChoice, parallax: bool, reused: int, workers: int, precision: str
-) -> dict[str, Any]:
+def _summary(data: Chain, train: list[Any], job: StreamedPass, parallax: bool, reused: int) -> dict[str, Any]:
     """What a fit's or a cache's record says of its inputs (``precision``: the streamed pass's trunk graph's)."""
+    choice = job.choice
     back = data.field("back")
     return {
         "train_sequences": len(train),
@@ -269,8 +250,8 @@ def _summary(
         "parallax": parallax,
         "cache_parts": len(by_folder(train)),
         "cache_reused": reused,
-        "cache_workers": workers,
-        "precision": precision,
+        "cache_workers": job.workers,
+        "precision": job.model.graph_precision,
         "train_slots": len(data),
         "shown_fraction": float(np.mean(data.field("shown")[np.isfinite(back)])),
     }

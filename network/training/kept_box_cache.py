@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +27,7 @@ from network.training.box_cache import (
     Cache,
     Chain,
     FrameChoice,
+    StreamedPass,
     cache_part,
     open_shard,
     shard_name,
@@ -131,32 +132,25 @@ def move_single_part(folder: Path) -> None:
     record.rename(sub / CACHE_RECORD)  # last: the part counts as finished only with all its files
 
 
-def kept_cache(
-    model: MVRackLay,
-    seqs: list[Any],
-    labels: Callable[[Any], Any],
-    folder: Path,
-    progress: bool = True,
-    choice: FrameChoice = ALL_FRAMES,
-    workers: int = 1,
-) -> tuple[Chain, int]:
-    """``(chain, reused)``: the inputs of ``seqs`` kept in ``folder``, one part (`part_name`) per folder the
-    sequences sit in, so a fit on more data reuses the parts already made. A part with a finished cache for
-    this model and its sequences is reused (``reused`` counts them), an absent or unfinished one is made
-    (`cache_part` with ``workers``, its record written last: an interrupted pass is redone, never used)."""
+def kept_cache(job: StreamedPass, seqs: list[Any], folder: Path) -> tuple[Chain, int]:
+    """``(chain, reused)``: the inputs of ``seqs`` streamed as ``job`` says (but to the end: no ``deadline``), kept in
+    ``folder``, one part (`part_name`) per folder the sequences sit in, so a fit on more data reuses the parts
+    already made. A part with a finished cache for this model and its sequences is reused (``reused`` counts
+    them), an absent or unfinished one is made (`cache_part`, its record written last: an interrupted pass is
+    redone, never used)."""
     move_single_part(folder)
     parts, reused = [], 0
-    base = model_key(model)  # the trunk's digest once, not per part
+    base = model_key(job.model)  # the trunk's digest once, not per part
     for parent, group in by_folder(seqs):
         sub = folder / part_name(parent)
-        key = cache_key(base, group, choice)
+        key = cache_key(base, group, job.choice)
         kept = open_kept_cache(sub, key)
         if kept is not None:
             parts.extend(kept)
             reused += 1
             continue
         sub.mkdir(parents=True, exist_ok=True)
-        made, shards, _ = cache_part(model, group, labels, sub, progress, choice, workers)
+        made, shards, _ = cache_part(replace(job, deadline=None), group, sub)
         rec: dict[str, Any] = {"key": key, "slots": sum(len(c) for c in made)}
         atomic_write_json(sub / CACHE_RECORD, rec if shards is None else {**rec, "shards": shards})
         parts.extend(made)
