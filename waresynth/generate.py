@@ -444,7 +444,8 @@ def write_dataset(
     with lock(root, "output folder"):  # one writer at a time
         into = _prepare_root(root, manifest, overwrite)
         try:
-            _fill(into, manifest, spec, cfg, image_size, workers, progress, stats, plans, beside, tasks)
+            how = _Writing(spec, cfg, image_size, workers, progress, stats, plans or {}, tasks)
+            _fill(into, manifest, how, beside)
         except BaseException as e:
             if into != root:
                 discard(into)  # a foreign folder replaced only once the new dataset is whole
@@ -456,19 +457,21 @@ def write_dataset(
     return root
 
 
-def _fill(
-    root: Path,
-    manifest: dict[str, Any],
-    spec: LayoutSpec,
-    cfg: dict[str, Any],
-    image_size: tuple[int, int],
-    workers: int,
-    progress: bool,
-    stats: list[dict[str, Any]] | None,
-    plans: dict[str, tuple[RowPlan, CameraPlan]] | None,
-    beside: Callable[[Path], None] | None,
-    tasks: TaskMap | None,
-) -> None:
+@dataclass(frozen=True)
+class _Writing:
+    """How `write_dataset` writes the sequences: its arguments of that name, passed on together."""
+
+    spec: LayoutSpec
+    cfg: dict[str, Any]
+    image_size: tuple[int, int]
+    workers: int
+    progress: bool
+    stats: list[dict[str, Any]] | None
+    plans: dict[str, tuple[RowPlan, CameraPlan]]  #: the planned row and camera of sequences by name
+    tasks: TaskMap | None
+
+
+def _fill(root: Path, manifest: dict[str, Any], how: _Writing, beside: Callable[[Path], None] | None) -> None:
     """`write_dataset`'s writing into ``root`` (the dataset's folder, or the stage that replaces it)."""
     atomic_write_json(root / MANIFEST, manifest)
     if beside is not None:
@@ -478,40 +481,29 @@ def _fill(
         shutil.rmtree(root / f".{e['name']}.tmp", ignore_errors=True)
     todo = [e for e in entries if not (root / e["name"] / "meta.json").is_file()]
     if todo:
-        _write_sequences(root, todo, spec, cfg, image_size, workers, progress, stats, plans, tasks)
+        _write_sequences(root, todo, how)
 
 
 #: what is kept when writing the sequences fails (`write_failed`)
 RESUMABLE = "; the sequences finished so far are kept: run the same command again to resume"
 
 
-def _write_sequences(
-    root: Path,
-    todo: list[dict[str, Any]],
-    spec: LayoutSpec,
-    cfg: dict[str, Any],
-    image_size: tuple[int, int],
-    workers: int,
-    progress: bool,
-    stats: list[dict[str, Any]] | None,
-    plans: dict[str, tuple[RowPlan, CameraPlan]] | None = None,
-    tasks: TaskMap | None = None,
-) -> None:
-    """Write the sequences ``todo`` in this process (all cores to the renderer), in a pool of ``workers`` or
-    through ``tasks`` (`write_dataset`); ``plans``: the planned row and camera of sequences by name."""
-    plans = plans or {}
+def _write_sequences(root: Path, todo: list[dict[str, Any]], how: _Writing) -> None:
+    """Write the sequences ``todo`` in this process (all cores to the renderer), in a pool of ``how.workers`` or
+    through ``how.tasks`` (`write_dataset`)."""
+    spec, cfg, image_size, plans, tasks = how.spec, how.cfg, how.image_size, how.plans, how.tasks
     cores = os.cpu_count() or 1
-    workers = min(workers, len(todo))
+    workers = min(how.workers, len(todo))
     frames = sum(int(e["frames"]) for e in todo)
-    bar = tqdm(total=frames, unit="frame", desc="generate", disable=not progress, dynamic_ncols=True)
+    bar = tqdm(total=frames, unit="frame", desc="generate", disable=not how.progress, dynamic_ncols=True)
     try:
         if tasks is None and workers == 1:
             for e in todo:
                 st = write_sequence(
                     root, e, spec, cfg, image_size, cores, lambda: bar.update(1), planned=plans.get(e["name"])
                 )
-                if stats is not None:
-                    stats.append(st)
+                if how.stats is not None:
+                    how.stats.append(st)
             return
         if tasks is None:
             nthreads = max(1, cores // workers)
@@ -529,8 +521,8 @@ def _write_sequences(
                         "the output folder must be one every worker sees at the same path (a shared filesystem)"
                     )
                 bar.update(int(st["frames"]))
-                if stats is not None:
-                    stats.append(st)
+                if how.stats is not None:
+                    how.stats.append(st)
         finally:  # stopped early: the tasks not started are cancelled, the running ones waited for
             getattr(results, "close", lambda: None)()
     finally:
