@@ -52,6 +52,19 @@ def test_bad_values_are_refused_in_one_line(name, options, args, says):
     assert len(str(e.value).splitlines()) == 1
 
 
+@pytest.mark.parametrize(
+    "name, option",
+    [("calibrate", "threads"), ("calibrate", "every"), ("fit-back-edges", "sequences"), ("fit-uprights", "threads"),
+     ("fit-box-depth", "threads"), ("fit-box-depth", "sequences")],
+)  # fmt: skip
+def test_a_count_below_one_is_refused_naming_its_option_before_any_work(name, option):
+    from mvracklay.training.stages import run_settings
+
+    settings = stage_settings(name, {**_required(name), option: 0}, _positional(name))
+    with pytest.raises(InputError, match=f"^--{option} must be >= 1, got 0$"):
+        run_settings(name, settings)  # the checkpoint "a" is never opened
+
+
 def test_every_stage_runs_on_a_settings_dataclass_its_options_come_from():
     import dataclasses
 
