@@ -108,6 +108,13 @@ class TrainSettings:
     short_weight: float = _opt("--short-weight", "consistency j vs j+1", _T.short_weight, type=float)
     long_weight: float = _opt("--long-weight", "consistency j vs k >= j+2", _T.long_weight, type=float)
     augment: bool = _opt("--no-augment", "no colour jitter or horizontal flips", True, invert=True)
+    frozen_bn: bool = _opt(
+        "--frozen-bn",
+        "batch-norm layers keep their running statistics (eval mode) while training: for fine-tuning on other "
+        "looks with --init-from",
+        _T.frozen_bn,
+        action="store_true",
+    )  # fmt: skip
     max_stride: int = _opt(
         "--max-stride",
         "training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
@@ -295,6 +302,7 @@ def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
         short_weight=args.short_weight,
         long_weight=args.long_weight,
         augment=args.augment,
+        frozen_bn=args.frozen_bn,
         max_stride=args.max_stride,
         jpeg=args.jpeg,
         jpeg_quality=tuple(args.jpeg_quality),

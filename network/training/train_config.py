@@ -53,6 +53,9 @@ class TrainConfig:
     val_mode: str = "window"
     imagenet_weights: str | None = None
     init_from: str | None = None  #: warm start: a checkpoint whose weights seed the model (see init_weights_from)
+    #: batch-norm layers keep their running statistics while training (fine-tuning on other looks without
+    #: renormalising the looks the weights know: the statistics move far faster than the weights)
+    frozen_bn: bool = False
     checkpoint_every: int = 0  #: also write last.pt every this many steps (0 = at epoch ends only)
     device: str = "cpu"  #: cpu, cuda or auto (cuda:LOCAL_RANK when CUDA is present)
     extra: dict[str, Any] = field(default_factory=dict)

@@ -58,6 +58,14 @@ from network.training.train_config import TrainConfig, retired_options_off
 from network.training.train_data import data_record
 
 
+def keep_batch_norm_statistics(module: nn.Module) -> None:
+    """Put ``module``'s batch-norm layers in eval mode (the rest stays as it is): a training step normalises with,
+    and leaves, their running statistics; their affine weights still learn."""
+    for m in module.modules():
+        if isinstance(m, nn.modules.batchnorm._BatchNorm):
+            m.eval()
+
+
 class _DiscriminatorLoss(nn.Module):
     """Both views' LSGAN discriminator loss in one forward, so one DDP wrapper covers a whole update."""
 
@@ -278,6 +286,8 @@ class Trainer:
         t = self.tcfg
         batch = {k: (v.to(self.device, non_blocking=True) if torch.is_tensor(v) else v) for k, v in batch.items()}
         self.net.train()
+        if t.frozen_bn:
+            keep_batch_norm_statistics(self.net)
         with self._autocast():
             out = self.net(batch["images"], batch["anchors"])
         out = {k: v.float() for k, v in out.items()}  # losses in fp32 whatever the forward ran in
