@@ -118,7 +118,7 @@ def _building(path: Path, args: argparse.Namespace) -> int:
     found = None
     if args.box:
         w, d, h = parse_box(args.box)
-        found = building_fits(bmap, w, d, h, args.margin, near, with_recount=args.with_recount)
+        found = building_fits(bmap, w, d, h, args.margin, near, with_recount=args.with_recount, inventory=rows)
     if args.json:
         out: dict = {"map": str(path), "locations": rows}
         if found is not None:

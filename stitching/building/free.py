@@ -67,10 +67,12 @@ def building_fits(
     margin: float = 0.0,
     near: str | None = None,
     with_recount: bool = False,
+    inventory: list[dict] | None = None,
 ) -> list[LocationFit]:
     """Scanned locations where the box fits, nearest to ``near`` first, those flagged ``recount`` left out or, with
     ``with_recount``, listed after the others (see the module docstring)."""
-    flagged = {r["location"] for r in bmap.inventory() if r.get("recount") == "true"}
+    rows = bmap.inventory() if inventory is None else inventory  # the caller's rows, when it made them already
+    flagged = {r["location"] for r in rows if r.get("recount") == "true"}
     origin = _centre(bmap, near) if near is not None else None
     slack = edge_slack(bmap.meta)
     ends = _ends(bmap)
