@@ -14,6 +14,8 @@ from mvracklay.training import budget
 from mvracklay.training.recipe import load_recipe, parse_value, shipped_recipes
 from mvracklay.training.stages import STAGE_MODULES, option_actions
 
+REPO = Path(__file__).resolve().parents[1]
+
 GOOD = """
 description = "two stages"
 precision = "fp32"
@@ -86,7 +88,7 @@ def test_the_shipped_recipes_train_in_steps_and_in_bf16_where_native(tmp_path, c
         if any(ln.startswith("train --data") for ln in lines) and name != "smoke":
             assert load_recipe(name).precision == "auto", name
             assert all(" --precision " in ln for ln in trains), name
-    rc, out, _ = dry_run("mixed-128", tmp_path / "m", capsys, "--set", "precision=fp32")
+    rc, out, _ = dry_run("default-128", tmp_path / "m", capsys, "--set", "precision=fp32")
     stage1 = next(ln for ln in out.splitlines() if "--variant racklay" in ln)
     assert "--epochs 31" in stage1 and "--stop-at 5170" in stage1 and "--precision fp32" in stage1
 
@@ -242,3 +244,40 @@ def test_every_stage_has_a_parser_whose_options_have_help() -> None:
         option_actions("nope")
     recipe = load_recipe("smoke")
     assert [s.id for s in recipe.stages][:3] == ["train", "calibrate", "back-edges"]
+
+
+def test_the_mixed_recipes_blend_the_fine_tuned_network_into_the_weights_it_started_from(tmp_path, capsys) -> None:
+    """mixed-128 / mixed-256: stage 2 starts from the shipped file, `blend` mixes its best step back into that
+    file (whose depth heads stay), and the offsets, tables and export read the blend."""
+    for name, shipped in (("mixed-128", "mvracklay-disc-4.pt"), ("mixed-256", "mvracklay-disc-4-256.pt")):
+        rc, out, err = dry_run(name, tmp_path / name, capsys)
+        assert rc == 0, err
+        lines = [ln.strip() for ln in out.splitlines()]
+        train = next(ln for ln in lines if ln.startswith("train --data"))
+        blend = next(ln for ln in lines if ln.startswith("blend "))
+        assert f"--init-from {REPO / 'mvracklay' / 'models' / shipped}" in train
+        assert f"--base {REPO / 'mvracklay' / 'models' / shipped}" in blend and "/best.pt --alpha 0.3" in blend
+        calibrate = next(ln for ln in lines if ln.startswith("calibrate "))
+        assert "/blended.pt" in calibrate and lines.index(calibrate) > lines.index(blend)
+
+
+def test_a_stage_finished_with_other_options_is_kept_and_said_so(tmp_path, capsys) -> None:
+    """A re-run whose stage now has other options keeps what the first run made (a moved machine must not
+    redo a training) and names the option that differs and how to run the stage again."""
+    recipe = tmp_path / "one.toml"
+    recipe.write_text(
+        '[vars]\nsrc = "{recipe_dir}/w.pt"\n'
+        '[[stages]]\nstage = "copy"\nid = "first"\n[stages.options]\nfrom = "{src}"\nto = "{out}/a.pt"\n'
+    )
+    (tmp_path / "w.pt").write_bytes(b"weights")
+    (tmp_path / "v.pt").write_bytes(b"other")
+    run = tmp_path / "run"
+    assert main(["train", "--recipe", str(recipe), "--out", str(run), "--quiet"]) == 0
+    capsys.readouterr()
+    other = ["--set", f"vars.src={tmp_path / 'v.pt'}"]
+    assert main(["train", "--recipe", str(recipe), "--out", str(run), "--quiet", *other]) == 0
+    out = capsys.readouterr().out
+    assert f"--from {tmp_path / 'w.pt'} -> {tmp_path / 'v.pt'}" in out and "remove 'first'" in out
+    assert (run / "a.pt").read_bytes() == b"weights"
+    assert main(["train", "--recipe", str(recipe), "--out", str(run), "--quiet"]) == 0
+    assert "differ now" not in capsys.readouterr().out  # the same options: no word of it

@@ -151,11 +151,18 @@ class Runner:
                 self.run_group(unit)
         self.summary((time.monotonic() - t0) / 60)
 
-    def _finished_before(self, n: int, name: str, key: str) -> bool:
+    def _finished_before(self, n: int, name: str, key: str, argv: list[str] | None = None) -> bool:
+        """Whether stage ``key`` finished in an earlier run (it is then skipped). One that finished with other
+        options than ``argv`` is kept too (a machine without bf16 must not redo a bf16 training), and said so."""
         done = self.state.finished(key)
         if done is None:
             return False
-        self.say(f"[{n}/{self.count}] {name} ({key}): finished before, skipped")
+        changed = changed_option(done.get("argv"), argv)
+        self.say(
+            f"[{n}/{self.count}] {name} ({key}): finished before, skipped"
+            + (f"; its options differ now ({changed}): remove '{key}' from {self.state.path} to run it again"
+               if changed else "")
+        )  # fmt: skip
         self.rows.append(Row(n, name, key, "finished before", done.get("minutes"), done.get("outputs", [])))
         return True
 
@@ -225,7 +232,7 @@ class Runner:
 
     def run_step(self, n: int, step: Step) -> None:
         s = step.stage
-        if self._finished_before(n, s.name, s.id):
+        if self._finished_before(n, s.name, s.id, step.argv):
             return
         if step.skip_reason:
             self.say(f"[{n}/{self.count}] {s.name} ({s.id}): skipped ({step.skip_reason})")
@@ -256,7 +263,7 @@ class Runner:
     def run_group(self, unit: list[tuple[int, Step]]) -> None:
         """Stages side by side: each lane (a stage, or the stages sharing a ``lane``) in a process of its own."""
         group = unit[0][1].stage.group or ""
-        todo = [(n, st) for n, st in unit if not self._finished_before(n, st.stage.name, st.stage.id)]
+        todo = [(n, st) for n, st in unit if not self._finished_before(n, st.stage.name, st.stage.id, st.argv)]
         lanes: dict[Any, list[tuple[int, Step]]] = {}
         for n, st in todo:
             if st.skip_reason:
@@ -339,3 +346,16 @@ def last_line(path: Path) -> str:
         return ""
     line = lines[-1] if lines else ""
     return line if len(line) <= 160 else line[:157] + "..."
+
+
+def changed_option(before: list[str] | None, now: list[str] | None) -> str:
+    """The first option whose value differs between two argument lists, as ``--opt OLD -> NEW`` ('' when they
+    are the same or either is unknown)."""
+    if before is None or now is None or before == now:
+        return ""
+    for i, (a, b) in enumerate(zip(before, now)):
+        if a != b:
+            opt = "" if b.startswith("--") else next((t for t in reversed(now[:i]) if t.startswith("--")), "")
+            return f"{opt + ' ' if opt else ''}{a} -> {b}"
+    longer = before if len(before) > len(now) else now
+    return f"{' '.join(longer[min(len(before), len(now)) :])} {'dropped' if longer is before else 'added'}"

@@ -34,6 +34,7 @@ STAGE_MODULES: dict[str, str] = {
     "fit-distance": "mvracklay.training.fit_distance",
     "fit-look": "mvracklay.training.fit_look",
     "graft": "mvracklay.training.graft",
+    "blend": "mvracklay.training.blend",
     "copy": "mvracklay.training.small_stages:COPY",
     "export": "mvracklay.training.small_stages:EXPORT",
     "check-seeds": "mvracklay.training.small_stages:CHECK_SEEDS",
