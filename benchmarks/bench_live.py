@@ -9,6 +9,12 @@ level mount are given, so no frames are read ahead (`--read-angles` reads the an
 
     .venv/bin/python benchmarks/bench_live.py                       # 128 and 256, 10 s each; memory over 0.5 min
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --fps 30 --seconds 20 --minutes 10
+    .venv/bin/python benchmarks/bench_live.py --sizes 128 --codec h264 --mbps 2 --compare --minutes 0
+
+--compare streams a sequence once (its frames in order, not played back and forth) and maps the same frames
+from memory with the same settings: the boxes of the live map against those of the frames as filmed, what the
+stream's compression and the dropped frames cost. --codec h264 / h265 streams as a phone or a robot does
+(`waresynth.stream_codec`: low latency, --mbps for a 1080p stream spent at the same bits per pixel).
 """
 
 from __future__ import annotations
@@ -57,19 +63,37 @@ def frames_of(size: int, count: int, seed: int, tmp: Path) -> list[np.ndarray]:
     return fwd + fwd[::-1]
 
 
-def send(frames: list[np.ndarray], url: str, fps: float, seconds: float, go: threading.Event) -> None:
-    """Stream ``frames`` in a loop as MPEG-TS over UDP in real time for ``seconds``, once ``go`` is set."""
+def send(
+    frames: list[np.ndarray],
+    url: str,
+    fps: float,
+    seconds: float,
+    go: threading.Event,
+    codec: str = "mpeg2",
+    mbps: float = 4.0,
+    once: bool = False,
+) -> None:
+    """Stream ``frames`` in a loop (``once``: each once) as MPEG-TS over UDP in real time for ``seconds``, once ``go`` is set: MPEG-2 at
+    8 Mbit/s (near lossless at these sizes) or H.264 / H.265 at a phone's ``mbps`` (`waresynth.stream_codec`)."""
     import av
+
+    from waresynth.stream_codec import CODECS, KEY_INTERVAL, encoder_options, stream_bit_rate
 
     go.wait(60)
     time.sleep(0.3)
     out = av.open(url + "?pkt_size=1316", "w", format="mpegts")
-    stream = out.add_stream("mpeg2video", rate=int(round(fps)))
-    stream.width, stream.height, stream.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
-    stream.bit_rate, stream.gop_size = 8_000_000, 12
+    height, width = frames[0].shape[:2]
+    if codec == "mpeg2":
+        stream = out.add_stream("mpeg2video", rate=int(round(fps)))
+        stream.bit_rate, stream.gop_size = 8_000_000, 12
+    else:
+        encoder = CODECS[f"{codec}_stream"][0]
+        stream = out.add_stream(encoder, rate=int(round(fps)), options=encoder_options(encoder))
+        stream.bit_rate, stream.gop_size = stream_bit_rate(mbps, width, height), KEY_INTERVAL
+    stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
     stream.codec_context.max_b_frames = 0
     t0, i = time.monotonic(), 0
-    while time.monotonic() - t0 < seconds:
+    while (i < len(frames)) if once else (time.monotonic() - t0 < seconds):
         frame = av.VideoFrame.from_ndarray(frames[i % len(frames)], format="rgb24")
         frame.pts = i
         for packet in stream.encode(frame):
@@ -81,7 +105,9 @@ def send(frames: list[np.ndarray], url: str, fps: float, seconds: float, go: thr
     out.close()
 
 
-def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seconds: float, tmp: Path) -> dict:
+def run_case(
+    size: int, frames: list[np.ndarray], args: argparse.Namespace, seconds: float, tmp: Path, once: bool = False
+) -> dict:
     """One live run on a UDP stream of ``frames`` for ``seconds``; its report and RSS samples."""
     import mvracklay.live_source as live_source
     from mvracklay.api import reconstruct_live
@@ -95,7 +121,9 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
         return opener(*a)
 
     live_source._open_container = opened
-    sender = threading.Thread(target=send, args=(frames, url, args.fps, seconds, go), daemon=True)
+    sender = threading.Thread(
+        target=send, args=(frames, url, args.fps, seconds, go, args.codec, args.mbps, once), daemon=True
+    )
     sender.start()
     samples: list[tuple[float, float]] = []
     done = threading.Event()
@@ -109,7 +137,7 @@ def run_case(size: int, frames: list[np.ndarray], args: argparse.Namespace, seco
     sampler.start()
     t0 = time.monotonic()
     try:
-        res = reconstruct_live(url, out=tmp / f"out{size}_{int(seconds)}", checkpoint=MODELS[size],
+        res = reconstruct_live(url, out=tmp / f"out{size}_{int(seconds)}", checkpoint=args.checkpoint or MODELS[size],
                                distance=2.6, threads=args.threads, idle_timeout=2.0, buffer=args.buffer,
                                every=args.every, rrd=not args.no_rrd, **angles)  # fmt: skip
     finally:
@@ -134,7 +162,14 @@ def main() -> None:
     p.add_argument("--no-rrd", action="store_true", help="no recording (what memory the .rrd's logging takes)")
     p.add_argument("--read-angles", action="store_true", help="read roll / pitch / yaw (default: a level mount given)")
     p.add_argument("--frames", type=int, default=40, help="frames of the generated sequence (played back and forth)")
+    p.add_argument("--codec", choices=["mpeg2", "h264", "h265"], default="mpeg2", help="the stream's codec")
+    p.add_argument("--mbps", type=float, default=4.0, help="h264 / h265: a 1080p stream's Mbit/s (phones 2-8)")
+    p.add_argument("--compare", action="store_true", help="the live map's boxes against the same frames' from memory")
+    p.add_argument("--seeds", type=int, nargs="+", default=[202], help="--compare: the sequences (generated seeds)")
+    p.add_argument("--checkpoint", default=None, help="the model (default: the shipped one of each size)")
     args = p.parse_args()
+    if args.compare:
+        return compare(args)
     with tempfile.TemporaryDirectory(prefix="bench-live-") as t:
         tmp = Path(t)
         print(
@@ -160,6 +195,32 @@ def main() -> None:
                 q = len(rss) // 4
                 first, last = np.median([m for _, m in rss[q : 2 * q]]), np.median([m for _, m in rss[-q:]])
                 print(f"RSS second quarter {first:.0f} MB -> last quarter {last:.0f} MB ({last - first:+.0f} MB)")
+
+
+def compare(args: argparse.Namespace) -> None:
+    """Per size and sequence: the boxes of the live map of the stream against those of the same frames mapped
+    from memory (the frames as filmed, every one), and the frames the live run mapped."""
+    from mvracklay.api import reconstruct
+
+    print(f"stream: UDP MPEG-TS {args.codec}" + (f" at {args.mbps:g} Mbit/s (1080p)" if args.codec != "mpeg2" else "")
+          + f", {args.fps:g} fps, played once; {args.threads} threads; buffer {args.buffer}")  # fmt: skip
+    print("size  seed  frames  mapped  boxes live  boxes from memory  live / memory")
+    with tempfile.TemporaryDirectory(prefix="bench-live-") as t:
+        tmp = Path(t)
+        for size in args.sizes:
+            live_sum = mem_sum = 0
+            for seed in args.seeds:
+                frames = frames_of(size, args.frames, seed, tmp / str(seed))[: args.frames]
+                r = run_case(size, frames, args, len(frames) / args.fps, tmp, once=True)
+                angles = {} if args.read_angles else {"roll": 0.0, "pitch": 0.0, "yaw": 0.0}
+                mem = len(reconstruct(frames, distance=2.6, checkpoint=args.checkpoint or MODELS[size],
+                                      threads=args.threads, **angles).boxes())  # fmt: skip
+                live_sum, mem_sum = live_sum + r["boxes"], mem_sum + mem
+                print(f"{size:4d}  {seed:4d}  {len(frames):6d}  {r['report'].mapped:6d}  {r['boxes']:10d}  "
+                      f"{mem:17d}  {r['boxes'] / max(mem, 1):13.2f}")  # fmt: skip
+            print(
+                f"{size:4d}   all  {'':6s}  {'':6s}  {live_sum:10d}  {mem_sum:17d}  {live_sum / max(mem_sum, 1):13.2f}"
+            )
 
 
 if __name__ == "__main__":

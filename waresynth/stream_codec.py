@@ -31,6 +31,16 @@ def stream_bit_rate(mbps: float, width: int, height: int) -> int:
     return max(1000, int(round(mbps * 1e6 * width * height / REFERENCE_PIXELS)))
 
 
+def encoder_options(encoder: str) -> dict[str, str]:
+    """A phone's or a robot's low-latency settings of ``encoder`` (libx264 / libx265): no B-frames, no look-ahead,
+    a key frame every `KEY_INTERVAL` frames, one thread."""
+    gop = f"keyint={KEY_INTERVAL}:min-keyint={KEY_INTERVAL}:scenecut=0"
+    if encoder == "libx264":
+        return {"preset": "veryfast", "tune": "zerolatency", "x264-params": f"threads=1:{gop}"}
+    params = f"log-level=none:pools=none:frame-threads=1:lookahead-threads=0:{gop}"
+    return {"preset": "veryfast", "tune": "zerolatency", "x265-params": params}
+
+
 class VideoStream:
     """One sequence's encoder and decoder; `send` passes a frame through both."""
 
@@ -46,12 +56,7 @@ class VideoStream:
         self.enc.bit_rate = stream_bit_rate(mbps, width, height)
         self.enc.gop_size = KEY_INTERVAL
         self.enc.thread_count = 1
-        gop = f"keyint={KEY_INTERVAL}:min-keyint={KEY_INTERVAL}:scenecut=0"
-        if encoder == "libx264":
-            self.enc.options = {"preset": "veryfast", "tune": "zerolatency", "x264-params": f"threads=1:{gop}"}
-        else:
-            params = f"log-level=none:pools=none:frame-threads=1:lookahead-threads=0:{gop}"
-            self.enc.options = {"preset": "veryfast", "tune": "zerolatency", "x265-params": params}
+        self.enc.options = encoder_options(encoder)
         self.dec = av.CodecContext.create(decoder, "r")
         self.dec.thread_count = 1
         self.n = 0
