@@ -11,9 +11,9 @@ level mount are given, so no frames are read ahead (`--read-angles` reads the an
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --fps 30 --seconds 20 --minutes 10
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --codec h264 --mbps 2 --compare --minutes 0
 
---compare streams a sequence once (its frames in order, not played back and forth) and maps the same frames
-from memory with the same settings: the boxes of the live map against those of the frames as filmed, what the
-stream's compression and the dropped frames cost. --codec h264 / h265 streams as a phone or a robot does
+--compare streams each sequence once (its frames in order, not played back and forth) and maps the same frames
+from memory with the same settings, as filmed and through the stream's codec: what the compression costs, and
+what the live run's lost frames cost on top. --codec h264 / h265 streams as a phone or a robot does
 (`waresynth.stream_codec`: low latency, --mbps for a 1080p stream spent at the same bits per pixel).
 """
 
@@ -198,29 +198,39 @@ def main() -> None:
 
 
 def compare(args: argparse.Namespace) -> None:
-    """Per size and sequence: the boxes of the live map of the stream against those of the same frames mapped
-    from memory (the frames as filmed, every one), and the frames the live run mapped."""
+    """Per size and sequence, the boxes of three maps of the same frames: from memory as filmed, from memory
+    through the stream's codec (each frame encoded and decoded in order, `waresynth.stream_codec`: the codec's cost
+    alone) and live from the UDP stream (the codec's cost and the frames lost: a stream joined between key frames
+    decodes nothing until the next one)."""
     from mvracklay.api import reconstruct
+    from waresynth.stream_codec import VideoStream
 
     print(f"stream: UDP MPEG-TS {args.codec}" + (f" at {args.mbps:g} Mbit/s (1080p)" if args.codec != "mpeg2" else "")
           + f", {args.fps:g} fps, played once; {args.threads} threads; buffer {args.buffer}")  # fmt: skip
-    print("size  seed  frames  mapped  boxes live  boxes from memory  live / memory")
+    print("size  seed  frames  live mapped  boxes: filmed  through the codec  live   codec / filmed  live / filmed")
+    angles = {} if args.read_angles else {"roll": 0.0, "pitch": 0.0, "yaw": 0.0}
     with tempfile.TemporaryDirectory(prefix="bench-live-") as t:
         tmp = Path(t)
         for size in args.sizes:
-            live_sum = mem_sum = 0
+            ckpt = args.checkpoint or MODELS[size]
+            sums = np.zeros(3, int)
             for seed in args.seeds:
                 frames = frames_of(size, args.frames, seed, tmp / str(seed))[: args.frames]
                 r = run_case(size, frames, args, len(frames) / args.fps, tmp, once=True)
-                angles = {} if args.read_angles else {"roll": 0.0, "pitch": 0.0, "yaw": 0.0}
-                mem = len(reconstruct(frames, distance=2.6, checkpoint=args.checkpoint or MODELS[size],
-                                      threads=args.threads, **angles).boxes())  # fmt: skip
-                live_sum, mem_sum = live_sum + r["boxes"], mem_sum + mem
-                print(f"{size:4d}  {seed:4d}  {len(frames):6d}  {r['report'].mapped:6d}  {r['boxes']:10d}  "
-                      f"{mem:17d}  {r['boxes'] / max(mem, 1):13.2f}")  # fmt: skip
-            print(
-                f"{size:4d}   all  {'':6s}  {'':6s}  {live_sum:10d}  {mem_sum:17d}  {live_sum / max(mem_sum, 1):13.2f}"
-            )
+                filmed = len(reconstruct(frames, distance=2.6, checkpoint=ckpt, threads=args.threads, **angles).boxes())
+                codec = filmed
+                if args.codec != "mpeg2":
+                    stream = VideoStream(f"{args.codec}_stream", size, size, args.mbps)
+                    sent = [stream.send(f) for f in frames]
+                    codec = len(
+                        reconstruct(sent, distance=2.6, checkpoint=ckpt, threads=args.threads, **angles).boxes()
+                    )
+                n = np.array([filmed, codec, r["boxes"]])
+                sums += n
+                print(f"{size:4d}  {seed:4d}  {len(frames):6d}  {r['report'].mapped:11d}  {n[0]:13d}  {n[1]:17d}  "
+                      f"{n[2]:4d}  {n[1] / max(n[0], 1):14.2f}  {n[2] / max(n[0], 1):13.2f}")  # fmt: skip
+            print(f"{size:4d}   all  {'':6s}  {'':11s}  {sums[0]:13d}  {sums[1]:17d}  {sums[2]:4d}  "
+                  f"{sums[1] / max(sums[0], 1):14.2f}  {sums[2] / max(sums[0], 1):13.2f}")  # fmt: skip
 
 
 if __name__ == "__main__":
