@@ -115,6 +115,12 @@ class TrainSettings:
         _T.frozen_bn,
         action="store_true",
     )  # fmt: skip
+    keep_features: float = _opt(
+        "--keep-features",
+        "weight of a term keeping the --init-from network's pyramid maps (what its depth heads read) on the same "
+        "frames, so its fitted heads still read the fine-tuned network; with --frozen-bn (0 = off)",
+        _T.keep_features, type=float, metavar="W",
+    )  # fmt: skip
     max_stride: int = _opt(
         "--max-stride",
         "training windows take every s-th frame, s drawn from 1..N per window, so the slot memory "
@@ -303,6 +309,7 @@ def _train_config(args: TrainSettings, adv: float) -> TrainConfig:
         long_weight=args.long_weight,
         augment=args.augment,
         frozen_bn=args.frozen_bn,
+        keep_features=args.keep_features,
         max_stride=args.max_stride,
         jpeg=args.jpeg,
         jpeg_quality=tuple(args.jpeg_quality),

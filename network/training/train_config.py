@@ -56,6 +56,10 @@ class TrainConfig:
     #: batch-norm layers keep their running statistics while training (fine-tuning on other looks without
     #: renormalising the looks the weights know: the statistics move far faster than the weights)
     frozen_bn: bool = False
+    #: weight of the feature-keeping term: the pyramid maps (what the depth heads read) of ``init_from``'s network,
+    #: frozen, are the targets of the trained network's on the same frames, so heads fitted on the first still
+    #: read the second (0 = off)
+    keep_features: float = 0.0
     checkpoint_every: int = 0  #: also write last.pt every this many steps (0 = at epoch ends only)
     device: str = "cpu"  #: cpu, cuda or auto (cuda:LOCAL_RANK when CUDA is present)
     extra: dict[str, Any] = field(default_factory=dict)
@@ -78,6 +82,7 @@ class TrainConfig:
             "adv_weight",
             "short_weight",
             "long_weight",
+            "keep_features",
             "workers",
         ):
             v = getattr(self, name)
@@ -87,6 +92,8 @@ class TrainConfig:
         if len(self.class_weights) != NUM_CLASSES or min(self.class_weights) <= 0:
             raise InputError(f"--class-weights needs {NUM_CLASSES} positive numbers, got {self.class_weights}")
         check_precision(self.precision)
+        if self.keep_features > 0 and not self.init_from:
+            raise InputError("--keep-features needs --init-from: the network whose features are kept")
         if self.val_mode not in ("window", "stream"):
             raise InputError(f"--val-mode must be window or stream, got {self.val_mode!r}")
 

@@ -45,6 +45,7 @@ from network.model.net import MVRackLay
 from network.model.resnet import load_imagenet_weights
 from network.precision import forward_autocast
 from network.training.distributed import ListSampler, all_reduce, gather_fingerprints, rank_indices
+from network.training.feature_keeper import FeatureKeeper
 from network.training.losses import (
     consistency_loss,
     lsgan_discriminator_loss,
@@ -121,6 +122,11 @@ class Trainer:
         self.model.to(self.device)
         if self.discs is not None:
             self.discs.to(self.device)
+        self.keeper = (
+            FeatureKeeper(self.model, train_cfg.init_from, self.device, not train_cfg.frozen_bn)
+            if train_cfg.keep_features > 0
+            else None
+        )
         self.opt = torch.optim.Adam(self.model.parameters(), lr=train_cfg.lr, weight_decay=train_cfg.weight_decay)
         self.opt_d = (
             torch.optim.Adam(self.discs.parameters(), lr=train_cfg.disc_lr, betas=(0.5, 0.999)) if self.discs else None
@@ -311,6 +317,9 @@ class Trainer:
         total = losses["sup"] + t.row_weight * losses["rows"]
         total = total + t.short_weight * losses.get("short", 0) + t.long_weight * losses.get("long", 0)
         total = total + t.adv_weight * losses.get("adv", 0)
+        if self.keeper is not None:
+            losses["keep"] = self.keeper.loss(batch["images"])
+            total = total + t.keep_features * losses["keep"]
         self.opt.zero_grad(set_to_none=True)
         total.backward()
         self.opt.step()
