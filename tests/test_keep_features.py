@@ -49,6 +49,21 @@ def test_the_kept_maps_stay_nearer_the_start_networks(tmp_path):
     assert kept < 0.5 * free, (kept, free)
 
 
+def test_the_term_starts_at_zero_and_compares_each_frame_with_itself(tmp_path):
+    """Before any step the trained network is the start network: the term is zero on a window of different
+    frames (frame order as the model's forward pass takes them)."""
+    cfg, start = _start(tmp_path)
+    data = [ToySequence(SPEC, num_frames=6, step_cols=2, seed=s, name=f"toy{s}") for s in range(2)]
+    tcfg = TrainConfig(frames_per_step=8, steps_per_epoch=1, epochs=1, adv_weight=0.0, augment=False, threads=1,
+                       init_from=str(start), keep_features=1.0, frozen_bn=True)  # fmt: skip
+    trainer = Trainer(cfg, tcfg, data, data, tmp_path / "run", progress=False)
+    windows = torch.stack([torch.as_tensor(d.rgb(i)) for d in data for i in range(4)]).permute(0, 3, 1, 2)
+    windows = windows.float().div(255).reshape(2, 4, 3, *windows.shape[-2:])
+    trainer.model.eval()  # batch norm as --frozen-bn runs it; gradients on, as in training (the eager path)
+    trainer.model(windows)
+    assert float(trainer.keeper.loss(windows).detach()) < 1e-8
+
+
 def test_keeping_features_needs_the_network_to_keep():
     with pytest.raises(InputError, match="--keep-features needs --init-from"):
         TrainConfig(keep_features=1.0).validate()

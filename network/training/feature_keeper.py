@@ -45,7 +45,7 @@ class FeatureKeeper:
         if self.caught is None:
             raise RuntimeError("the feature-keeping term: no pyramid maps were caught in the forward pass")
         with torch.no_grad():
-            targets = self.teacher.maps(images.flatten(0, 1))
+            targets = self.teacher.maps(images.transpose(0, 1).flatten(0, 1))  # time-major, as MVRackLay.forward
         maps, self.caught = self.caught, None
         total = images.new_zeros(())
         for got, want in zip(maps, targets):
