@@ -72,7 +72,7 @@ def blend(base_path: Path, tuned_path: Path, alpha: float, out: Path) -> int:
     for key in ("step", "data", "train_config", "best_score"):
         if t_record.get(key) is not None:
             note[f"tuned_{key}"] = t_record[key]
-    write_with_heads(out, {"model": state}, state, dict(b_record), b_cfg, blended=note)
+    write_with_heads(out, {}, state, dict(b_record), b_cfg, blended=note)
     return count
 
 
