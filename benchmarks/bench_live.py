@@ -53,12 +53,14 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def frames_of(size: int, count: int, seed: int, tmp: Path) -> list[np.ndarray]:
-    """A generated sequence's frames, then the same reversed (a walk along the row and back)."""
+def frames_of(size: int, count: int, seed: int, tmp: Path, step: tuple[float, float] | None = None) -> list[np.ndarray]:
+    """A generated sequence's frames, then the same reversed (a walk along the row and back); ``step``: the camera's
+    step between frames (metres, drawn per sequence; default the config's)."""
     from waresynth.generate import DatasetSettings, generate_dataset
     from waresynth.imageio import read_png
 
-    generate_dataset(tmp / f"s{size}", DatasetSettings(num_sequences=1, frames=count, image_size=(size, size), seed=seed, progress=False))  # fmt: skip
+    config = {"camera": {"step": list(step)}} if step else None
+    generate_dataset(tmp / f"s{size}", DatasetSettings(num_sequences=1, frames=count, image_size=(size, size), seed=seed, config=config, progress=False))  # fmt: skip
     fwd = [read_png(p, np.uint8, 3) for p in sorted((tmp / f"s{size}" / "seq_00000" / "rgb").glob("*.png"))]
     return fwd + fwd[::-1]
 
@@ -166,6 +168,15 @@ def main() -> None:
     p.add_argument("--mbps", type=float, default=4.0, help="h264 / h265: a 1080p stream's Mbit/s (phones 2-8)")
     p.add_argument("--compare", action="store_true", help="the live map's boxes against the same frames' from memory")
     p.add_argument("--seeds", type=int, nargs="+", default=[202], help="--compare: the sequences (generated seeds)")
+    p.add_argument(
+        "--step",
+        type=float,
+        nargs=2,
+        default=None,
+        metavar=("LO", "HI"),
+        help="the camera's step between frames in metres (default the config's 0.06-0.16, a 10 fps walk; "
+        "a 25 fps stream of the same walk: 0.024 0.064)",
+    )
     p.add_argument("--checkpoint", default=None, help="the model (default: the shipped one of each size)")
     args = p.parse_args()
     if args.compare:
@@ -177,7 +188,7 @@ def main() -> None:
         )
         print("size  seconds  received  mapped  dropped  skipped  mapped/s  latency p50   p95 ms  boxes")
         for size in args.sizes:
-            frames = frames_of(size, args.frames, 202, tmp)
+            frames = frames_of(size, args.frames, 202, tmp, args.step)
             r = run_case(size, frames, args, args.seconds, tmp)
             rep = r["report"]
             print(
@@ -186,7 +197,7 @@ def main() -> None:
                 f"{1000 * rep.latency_p95:7.0f}  {r['boxes']:5d}"
             )  # fmt: skip
         if args.minutes > 0:
-            frames = frames_of(128, args.frames, 202, tmp)
+            frames = frames_of(128, args.frames, 202, tmp, args.step)
             r = run_case(128, frames, args, 60 * args.minutes, tmp)
             rss = r["rss"]
             print(f"memory over {args.minutes:g} min (128, {r['report'].mapped} frames mapped): RSS MB at "
@@ -215,7 +226,7 @@ def compare(args: argparse.Namespace) -> None:
             ckpt = args.checkpoint or MODELS[size]
             sums = np.zeros(3, int)
             for seed in args.seeds:
-                frames = frames_of(size, args.frames, seed, tmp / str(seed))[: args.frames]
+                frames = frames_of(size, args.frames, seed, tmp / str(seed), args.step)[: args.frames]
                 r = run_case(size, frames, args, len(frames) / args.fps, tmp, once=True)
                 filmed = len(reconstruct(frames, distance=2.6, checkpoint=ckpt, threads=args.threads, **angles).boxes())
                 codec = filmed
