@@ -213,6 +213,7 @@ def map_live_source(url: str, out: Path, cfg: RunConfig, settings: LiveSettings,
     """`mvracklay run` on a live source: the model loaded, the stream opened, the viewer's sinks made (their
     lines printed), mapped until it ends. Returns the `LiveResult` and the source."""
     from mvracklay.pipeline import load_model
+    from network.inference.predictor import warm_up
 
     settings.validate()
     if cfg.inference.whole_sequence:
@@ -220,6 +221,7 @@ def map_live_source(url: str, out: Path, cfg: RunConfig, settings: LiveSettings,
             "--whole-sequence (--quality offline) reads every frame before the first map: not for a live source"
         )
     loaded = load_model(cfg)  # before the stream opens: its frames do not wait on the model
+    warm_up(loaded[1])  # nor on the graphs its first frames would build
     source = open_live(url, idle_timeout=settings.idle_timeout, retries=settings.retries,
                        buffer=settings.live_buffer, every=cfg.every, prog="mvracklay run")  # fmt: skip
     try:
@@ -251,12 +253,14 @@ def reconstruct_live(
 
     from mvracklay.live_source import iter_live
     from mvracklay.pipeline import load_model
+    from network.inference.predictor import warm_up
 
     settings = settings or LiveSettings()
     settings.validate()
     cfg = RunConfig.build(**{"progress": False, **options, "every": every})
     cfg.validate()
     loaded = load_model(cfg)
+    warm_up(loaded[1])
     kw = {"idle_timeout": settings.idle_timeout, "buffer": settings.live_buffer, "every": every}
     if isinstance(frames, str):
         source = open_live(frames, retries=settings.retries, prog="mvracklay.reconstruct_live", **kw)
