@@ -10,6 +10,8 @@ level mount are given, so no frames are read ahead (`--read-angles` reads the an
     .venv/bin/python benchmarks/bench_live.py                       # 128 and 256, 10 s each; memory over 0.5 min
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --fps 30 --seconds 20 --minutes 10
     .venv/bin/python benchmarks/bench_live.py --sizes 128 --codec h264 --mbps 2 --compare --minutes 0
+    .venv/bin/python benchmarks/bench_live.py --sizes 256 --fps 25 --step 0.024 0.064 --frames 150 \
+        --codec h264 --mbps 4 --compare --minutes 0           # 25 fps: a walk's frames closer together
 
 --compare streams each sequence once (its frames in order, not played back and forth) and maps the same frames
 from memory with the same settings, as filmed and through the stream's codec: what the compression costs, and
