@@ -259,6 +259,10 @@ def test_the_mixed_recipes_blend_the_fine_tuned_network_into_the_weights_it_star
         assert f"--base {REPO / 'mvracklay' / 'models' / shipped}" in blend and "/best.pt --alpha 0.3" in blend
         calibrate = next(ln for ln in lines if ln.startswith("calibrate "))
         assert "/blended.pt" in calibrate and lines.index(calibrate) > lines.index(blend)
+        # the box-depth head fitted again on the calibrated blend with the default look's two sets, into model.pt
+        box = next(ln for ln in lines if ln.startswith("fit-box-depth "))
+        assert "/calibrated.pt" in box and "def --sequences 4320" in box and f"--out {tmp_path / name}/model.pt" in box
+        assert lines.index(box) > lines.index(calibrate)
 
 
 def test_a_stage_finished_with_other_options_is_kept_and_said_so(tmp_path, capsys) -> None:
